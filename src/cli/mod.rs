@@ -1,0 +1,27 @@
+//! The command line: argument parsing (clap) and one module per subcommand.
+
+use clap::{Parser, Subcommand};
+
+/// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
+#[derive(Debug, Parser)]
+#[command(name = "rigscript", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {}
+
+/// Runs the command line and returns the process exit status.
+pub fn main() -> i32 {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() { 2 } else { 0 };
+        }
+    };
+    match cli.command {}
+}

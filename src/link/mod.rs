@@ -1,0 +1,55 @@
+//! Links move bytes or packets with timeouts; they know nothing of the protocols.
+//!
+//! A `ByteLink` carries a byte stream (a serial port, a TCP socket to a serial device server, or
+//! memory to a simulator); a `PacketLink` carries the TRC1000's fixed 8-byte interrupt packets.
+
+use std::time::Duration;
+
+/// Why a link failed, with what to try next in the message.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    /// The port, host or USB device does not exist.
+    #[error("{what} not found: {hint}")]
+    NotFound { what: String, hint: String },
+    /// The operating system refused access.
+    #[error("permission denied opening {what}: {hint}")]
+    PermissionDenied { what: String, hint: String },
+    /// The device went away while in use (cable unplugged, server closed the connection).
+    #[error("{what} disconnected: {detail}")]
+    Disconnected { what: String, detail: String },
+    /// Any other I/O failure on the link.
+    #[error("{what}: {source}")]
+    Io {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A libusb failure other than the ones above.
+    #[error("{what}: USB error: {detail}")]
+    Usb { what: String, detail: String },
+}
+
+/// A byte stream to one device (or one bus of devices) with per-call timeouts.
+pub trait ByteLink: Send {
+    /// Writes all of `bytes`.
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError>;
+    /// Reads what is available into `buf`, waiting up to `timeout` for the first byte;
+    /// returns 0 when nothing arrived in time.
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError>;
+    /// Throws away input that arrived before the next request (stale or late answers).
+    fn discard_input(&mut self) -> Result<(), LinkError>;
+    /// Changes the line speed (a no-op where the link has none, such as TCP or memory).
+    fn set_baud(&mut self, baud: u32) -> Result<(), LinkError>;
+    /// The link in words for messages, such as `serial /dev/ttyUSB0 at 9600 baud`.
+    fn describe(&self) -> String;
+}
+
+/// A link that carries fixed 8-byte packets (the TRC1000's interrupt endpoints).
+pub trait PacketLink: Send {
+    /// Sends one packet, failing if it cannot be sent within `timeout`.
+    fn send(&mut self, packet: &[u8; 8], timeout: Duration) -> Result<(), LinkError>;
+    /// Receives one packet; `Ok(None)` when none arrived within `timeout`.
+    fn receive(&mut self, timeout: Duration) -> Result<Option<[u8; 8]>, LinkError>;
+    /// The link in words for messages, such as `TRC1000 unit 0 (bus 1 address 4)`.
+    fn describe(&self) -> String;
+}

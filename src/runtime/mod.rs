@@ -1,0 +1,3 @@
+//! Time and supervision for everything that runs: clocks now; the scan loop with the script runtime.
+
+pub mod clock;
