@@ -53,3 +53,8 @@ pub trait PacketLink: Send {
     /// The link in words for messages, such as `TRC1000 unit 0 (bus 1 address 4)`.
     fn describe(&self) -> String;
 }
+
+pub mod memory;
+pub mod serial;
+pub mod tcp;
+pub mod usb;

@@ -1,6 +1,8 @@
 //! Device models that answer at the far end of a link: in memory, or on a pseudo-terminal.
 
 pub mod c29u;
+pub mod c29u_ascii;
+pub mod c29u_modbus;
 pub mod trc1000;
 
 use std::sync::{Arc, Mutex};
