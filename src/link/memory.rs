@@ -136,7 +136,8 @@ mod tests {
         let mut link = MemoryPacketLink::new(Echo, "echo");
         link.send(&[0; 8], Duration::ZERO).unwrap();
         assert_eq!(link.receive(Duration::ZERO).unwrap(), None);
-        link.send(&[0x41, 0, 0, 0, 0, 0, 0, 1], Duration::ZERO).unwrap();
+        link.send(&[0x41, 0, 0, 0, 0, 0, 0, 1], Duration::ZERO)
+            .unwrap();
         assert_eq!(
             link.receive(Duration::ZERO).unwrap(),
             Some([0x41, 0, 0, 0, 0, 0, 0, 1])

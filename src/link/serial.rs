@@ -1,1 +1,180 @@
-//! Placeholder: filled in by its issue.
+//! A serial port link (8N1, no flow control) on `serialport`: USB-serial adapters and ptys.
+
+use super::{ByteLink, LinkError};
+use serialport::{ClearBuffer, DataBits, FlowControl, Parity, SerialPort, StopBits, TTYPort};
+use std::io::{self, Read, Write};
+use std::time::Duration;
+
+/// An open serial port.
+pub struct SerialLink {
+    port: TTYPort,
+    path: String,
+    baud: u32,
+}
+
+impl SerialLink {
+    /// Opens `path` at `baud`, 8 data bits, no parity, 1 stop bit, no flow control.
+    pub fn open(path: &str, baud: u32) -> Result<Self, LinkError> {
+        let port = serialport::new(path, baud)
+            .data_bits(DataBits::Eight)
+            .parity(Parity::None)
+            .stop_bits(StopBits::One)
+            .flow_control(FlowControl::None)
+            .timeout(Duration::from_millis(100))
+            .open_native()
+            .map_err(|e| open_error(path, e))?;
+        Ok(Self {
+            port,
+            path: path.to_string(),
+            baud,
+        })
+    }
+
+    fn io_error(&self, e: io::Error) -> LinkError {
+        if is_disconnect(&e) {
+            LinkError::Disconnected {
+                what: format!("serial port {}", self.path),
+                detail: format!("{e}; check the cable and that the adapter is still plugged in"),
+            }
+        } else {
+            LinkError::Io {
+                what: format!("serial port {}", self.path),
+                source: e,
+            }
+        }
+    }
+}
+
+/// True for the errors a tty gives once its device (or a pty's other end) has gone away.
+fn is_disconnect(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::BrokenPipe | io::ErrorKind::NotConnected | io::ErrorKind::UnexpectedEof
+    ) || matches!(
+        e.raw_os_error(),
+        Some(5 /* EIO */ | 6 /* ENXIO */ | 19 /* ENODEV */)
+    )
+}
+
+fn open_error(path: &str, e: serialport::Error) -> LinkError {
+    let what = format!("serial port {path}");
+    match e.kind() {
+        serialport::ErrorKind::NoDevice => LinkError::NotFound {
+            what,
+            hint:
+                "check the path (`rigscript scan` lists ports) and that no other program holds it"
+                    .into(),
+        },
+        serialport::ErrorKind::Io(io::ErrorKind::NotFound) => LinkError::NotFound {
+            what,
+            hint: "check the path and that the module is plugged in (`rigscript scan` lists ports)"
+                .into(),
+        },
+        serialport::ErrorKind::Io(io::ErrorKind::PermissionDenied) => LinkError::PermissionDenied {
+            what,
+            hint: "add your user to the `dialout` group (see README) and log in again".into(),
+        },
+        _ => LinkError::Io {
+            what,
+            source: io::Error::other(e.description),
+        },
+    }
+}
+
+impl ByteLink for SerialLink {
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+        self.port
+            .write_all(bytes)
+            .and_then(|()| self.port.flush())
+            .map_err(|e| self.io_error(e))
+    }
+
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+        if let Err(e) = self.port.set_timeout(timeout) {
+            return Err(self.io_error(io::Error::other(e.description)));
+        }
+        match self.port.read(buf) {
+            // A tty that polls readable and then reads nothing has hung up.
+            Ok(0) if !buf.is_empty() => {
+                Err(self.io_error(io::Error::from(io::ErrorKind::UnexpectedEof)))
+            }
+            Ok(n) => Ok(n),
+            Err(e)
+                if e.kind() == io::ErrorKind::TimedOut || e.kind() == io::ErrorKind::WouldBlock =>
+            {
+                Ok(0)
+            }
+            Err(e) => Err(self.io_error(e)),
+        }
+    }
+
+    fn discard_input(&mut self) -> Result<(), LinkError> {
+        self.port
+            .clear(ClearBuffer::Input)
+            .map_err(|e| self.io_error(io::Error::other(e.description)))
+    }
+
+    fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
+        self.port
+            .set_baud_rate(baud)
+            .map_err(|e| self.io_error(io::Error::other(e.description)))?;
+        self.baud = baud;
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        format!("serial port {} at {} baud", self.path, self.baud)
+    }
+}
+
+impl Drop for SerialLink {
+    fn drop(&mut self) {
+        // TIOCEXCL outlives our descriptor while another process (a simulator) keeps the tty
+        // open, which would lock out the next non-root opener; release it explicitly.
+        let _ = self.port.set_exclusive(false);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missing_port_is_not_found_with_a_hint() {
+        match SerialLink::open("/dev/does-not-exist-rigscript", 9600) {
+            Err(LinkError::NotFound { what, hint }) => {
+                assert!(what.contains("/dev/does-not-exist-rigscript"));
+                assert!(hint.contains("scan"));
+            }
+            Err(other) => panic!("expected NotFound, got {other}"),
+            Ok(_) => panic!("opened a port that does not exist"),
+        }
+    }
+
+    #[test]
+    fn pty_round_trip_timeout_and_hangup() {
+        let (mut master, slave) = TTYPort::pair().unwrap();
+        let path = slave.name().unwrap();
+        let mut link = SerialLink::open(&path, 9600).unwrap();
+        link.write_all(b"ping").unwrap();
+        let mut buf = [0u8; 8];
+        master.set_timeout(Duration::from_secs(2)).unwrap();
+        let n = master.read(&mut buf).unwrap();
+        assert_eq!(&buf[..n], b"ping");
+        assert_eq!(
+            link.read(&mut buf, Duration::from_millis(20)).unwrap(),
+            0,
+            "timeout reads nothing"
+        );
+        master.write_all(b"pong").unwrap();
+        let n = link.read(&mut buf, Duration::from_secs(2)).unwrap();
+        assert_eq!(&buf[..n], b"pong");
+        assert!(link.describe().contains(&path));
+        drop(master);
+        drop(slave);
+        match link.read(&mut buf, Duration::from_millis(200)) {
+            Err(LinkError::Disconnected { .. }) => {}
+            other => panic!("expected Disconnected after the far end closed, got {other:?}"),
+        }
+    }
+}

@@ -23,7 +23,9 @@ pub trait PacketDevice: Send {
 
 impl<T: ByteDevice> ByteDevice for Arc<Mutex<T>> {
     fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
-        self.lock().unwrap_or_else(|e| e.into_inner()).receive(bytes)
+        self.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .receive(bytes)
     }
 
     fn line_idle(&mut self) {
@@ -33,6 +35,8 @@ impl<T: ByteDevice> ByteDevice for Arc<Mutex<T>> {
 
 impl<T: PacketDevice> PacketDevice for Arc<Mutex<T>> {
     fn receive(&mut self, packet: &[u8; 8]) -> Option<[u8; 8]> {
-        self.lock().unwrap_or_else(|e| e.into_inner()).receive(packet)
+        self.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .receive(packet)
     }
 }
