@@ -3,6 +3,7 @@
 pub mod c29u;
 pub mod c29u_ascii;
 pub mod c29u_modbus;
+pub mod pty;
 pub mod trc1000;
 
 use std::sync::{Arc, Mutex};

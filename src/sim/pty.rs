@@ -1,0 +1,297 @@
+//! Serves a simulated byte device on a pseudo-terminal, so any serial program can talk to it,
+//! with optional fault injection (dropped, corrupted or delayed answers).
+
+use super::ByteDevice;
+use serialport::{SerialPort, TTYPort};
+use std::io::{self, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+/// Why the pty server failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PtyError {
+    /// No pseudo-terminal could be created.
+    #[error("cannot create a pseudo-terminal: {0}")]
+    Open(String),
+    /// The requested symlink could not be made.
+    #[error("cannot create the link {path}: {source}; pick another path or remove the file there")]
+    Link {
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    /// Reading or writing the pty failed.
+    #[error("pseudo-terminal I/O failed: {0}")]
+    Io(#[from] io::Error),
+}
+
+/// Faults to inject into answers, each drawn independently per answer.
+#[derive(Debug, Clone, Default)]
+pub struct Faults {
+    /// Probability (0..=1) that an answer is not sent at all.
+    pub drop: f64,
+    /// Probability (0..=1) that one byte of an answer is flipped.
+    pub corrupt: f64,
+    /// Time to wait before sending each answer.
+    pub delay: Duration,
+    /// Seed for the random draws, for repeatable runs.
+    pub seed: Option<u64>,
+}
+
+/// A pseudo-terminal whose far end is a simulated device.
+pub struct PtyServer {
+    master: TTYPort,
+    // Held open so the pty never hangs up between the clients that come and go.
+    _slave: TTYPort,
+    path: String,
+    link: Option<PathBuf>,
+}
+
+impl PtyServer {
+    /// Creates the pty and, when `link` is given, a symlink to it (removed on drop).
+    pub fn open(link: Option<&Path>) -> Result<Self, PtyError> {
+        let (master, slave) = TTYPort::pair().map_err(|e| PtyError::Open(e.description))?;
+        let path = slave
+            .name()
+            .ok_or_else(|| PtyError::Open("the pty has no name".into()))?;
+        let link = match link {
+            Some(at) => {
+                if at.is_symlink() {
+                    // A leftover from a killed run: ours to replace, unlike a real file.
+                    let _ = std::fs::remove_file(at);
+                }
+                std::os::unix::fs::symlink(&path, at).map_err(|source| PtyError::Link {
+                    path: at.to_path_buf(),
+                    source,
+                })?;
+                Some(at.to_path_buf())
+            }
+            None => None,
+        };
+        Ok(Self {
+            master,
+            _slave: slave,
+            path,
+            link,
+        })
+    }
+
+    /// The path clients open, such as `/dev/pts/7`.
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// Serves `device` until `stop` is set. `gap` is the silence after which the line counts
+    /// as idle (the Modbus frame gap).
+    pub fn serve(
+        &mut self,
+        device: &mut dyn ByteDevice,
+        faults: &Faults,
+        gap: Duration,
+        stop: &AtomicBool,
+    ) -> Result<(), PtyError> {
+        let mut rng = match faults.seed {
+            Some(seed) => fastrand::Rng::with_seed(seed),
+            None => fastrand::Rng::new(),
+        };
+        let poll = Duration::from_millis(50);
+        let mut buf = [0u8; 1024];
+        let mut heard_since_idle = false;
+        while !stop.load(Ordering::Relaxed) {
+            let wait = if heard_since_idle { gap } else { poll };
+            self.master
+                .set_timeout(wait)
+                .map_err(|e| io::Error::other(e.description))?;
+            match self.master.read(&mut buf) {
+                Ok(n) => {
+                    let received = buf.get(..n).unwrap_or_default();
+                    heard_since_idle = true;
+                    let answer = device.receive(received);
+                    if !answer.is_empty() {
+                        self.send(answer, faults, &mut rng)?;
+                    }
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
+                    ) =>
+                {
+                    if heard_since_idle {
+                        device.line_idle();
+                        heard_since_idle = false;
+                    }
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(())
+    }
+
+    fn send(
+        &mut self,
+        mut answer: Vec<u8>,
+        faults: &Faults,
+        rng: &mut fastrand::Rng,
+    ) -> Result<(), PtyError> {
+        if !faults.delay.is_zero() {
+            std::thread::sleep(faults.delay);
+        }
+        if faults.drop > 0.0 && rng.f64() < faults.drop {
+            return Ok(());
+        }
+        if faults.corrupt > 0.0 && rng.f64() < faults.corrupt {
+            let at = rng.usize(..answer.len());
+            if let Some(byte) = answer.get_mut(at) {
+                *byte ^= 1 << rng.u8(..8);
+            }
+        }
+        self.master.write_all(&answer)?;
+        self.master.flush()?;
+        Ok(())
+    }
+}
+
+impl Drop for PtyServer {
+    fn drop(&mut self) {
+        if let Some(link) = &self.link {
+            let _ = std::fs::remove_file(link);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::link::serial::SerialLink;
+    use crate::link::ByteLink;
+    use std::sync::Arc;
+
+    /// Answers each line with the line reversed; counts idle notices.
+    struct Reverser {
+        line: Vec<u8>,
+        idles: Arc<std::sync::atomic::AtomicUsize>,
+    }
+
+    impl ByteDevice for Reverser {
+        fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+            let mut out = Vec::new();
+            for &b in bytes {
+                if b == b'\r' {
+                    out.extend(self.line.drain(..).rev());
+                    out.push(b'\r');
+                } else {
+                    self.line.push(b);
+                }
+            }
+            out
+        }
+
+        fn line_idle(&mut self) {
+            self.idles.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    fn run_server(
+        faults: Faults,
+        link: Option<PathBuf>,
+    ) -> (
+        String,
+        Arc<AtomicBool>,
+        Arc<std::sync::atomic::AtomicUsize>,
+        std::thread::JoinHandle<()>,
+    ) {
+        let mut server = PtyServer::open(link.as_deref()).unwrap();
+        let path = server.path().to_string();
+        let stop = Arc::new(AtomicBool::new(false));
+        let idles = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let (stop2, idles2) = (Arc::clone(&stop), Arc::clone(&idles));
+        let handle = std::thread::spawn(move || {
+            let mut dev = Reverser {
+                line: Vec::new(),
+                idles: idles2,
+            };
+            server
+                .serve(&mut dev, &faults, Duration::from_millis(5), &stop2)
+                .unwrap();
+        });
+        (path, stop, idles, handle)
+    }
+
+    fn ask(link: &mut SerialLink, q: &[u8], want: usize) -> Vec<u8> {
+        link.write_all(q).unwrap();
+        let mut got = Vec::new();
+        let mut buf = [0u8; 64];
+        while got.len() < want {
+            let n = link.read(&mut buf, Duration::from_millis(300)).unwrap();
+            if n == 0 {
+                break;
+            }
+            got.extend_from_slice(&buf[..n]);
+        }
+        got
+    }
+
+    #[test]
+    fn serves_answers_reports_idle_and_removes_its_link() {
+        let link_path =
+            std::env::temp_dir().join(format!("rigscript-pty-test-{}", std::process::id()));
+        let (path, stop, idles, handle) = run_server(Faults::default(), Some(link_path.clone()));
+        assert_eq!(
+            std::fs::read_link(&link_path).unwrap(),
+            PathBuf::from(&path)
+        );
+        let mut link = SerialLink::open(link_path.to_str().unwrap(), 9600).unwrap();
+        assert_eq!(ask(&mut link, b"abc\r", 4), b"cba\r");
+        // A second client after the first closes: the pty stays usable.
+        drop(link);
+        let mut link = SerialLink::open(&path, 9600).unwrap();
+        assert_eq!(ask(&mut link, b"xy\r", 3), b"yx\r");
+        std::thread::sleep(Duration::from_millis(30));
+        assert!(
+            idles.load(Ordering::Relaxed) >= 1,
+            "line_idle after silence"
+        );
+        stop.store(true, Ordering::Relaxed);
+        handle.join().unwrap();
+        assert!(
+            !link_path.exists() && !link_path.is_symlink(),
+            "symlink removed on exit"
+        );
+    }
+
+    #[test]
+    fn drop_and_corrupt_faults_change_answers() {
+        let faults = Faults {
+            drop: 1.0,
+            seed: Some(1),
+            ..Faults::default()
+        };
+        let (path, stop, _, handle) = run_server(faults, None);
+        let mut link = SerialLink::open(&path, 9600).unwrap();
+        assert_eq!(ask(&mut link, b"abc\r", 4), b"", "every answer dropped");
+        stop.store(true, Ordering::Relaxed);
+        handle.join().unwrap();
+
+        let faults = Faults {
+            corrupt: 1.0,
+            seed: Some(2),
+            ..Faults::default()
+        };
+        let (path, stop, _, handle) = run_server(faults, None);
+        let mut link = SerialLink::open(&path, 9600).unwrap();
+        let got = ask(&mut link, b"abc\r", 4);
+        assert_eq!(got.len(), 4);
+        assert_ne!(got, b"cba\r", "one bit flipped");
+        let differing: u32 = got
+            .iter()
+            .zip(b"cba\r")
+            .map(|(a, b)| (a ^ b).count_ones())
+            .sum();
+        assert_eq!(differing, 1);
+        stop.store(true, Ordering::Relaxed);
+        handle.join().unwrap();
+    }
+}
