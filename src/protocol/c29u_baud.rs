@@ -1,0 +1,42 @@
+//! The TRP-C29U's baud rate codes (manual 8-2), shared by its ASCII and Modbus protocols.
+
+/// Every (code, baud rate) pair of the table in 8-2.
+pub const BAUD_CODES: [(u8, u32); 8] = [
+    (0x03, 1200),
+    (0x04, 2400),
+    (0x05, 4800),
+    (0x06, 9600),
+    (0x07, 19200),
+    (0x08, 38400),
+    (0x09, 57600),
+    (0x0A, 115200),
+];
+
+/// The baud rate a code stands for, if it is a valid code.
+pub fn baud_rate(code: u8) -> Option<u32> {
+    BAUD_CODES.iter().find(|(c, _)| *c == code).map(|(_, b)| *b)
+}
+
+/// The code for a baud rate, if the module supports that rate.
+pub fn baud_code(rate: u32) -> Option<u8> {
+    BAUD_CODES.iter().find(|(_, b)| *b == rate).map(|(c, _)| *c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_of_8_2_both_ways() {
+        assert_eq!(baud_rate(0x06), Some(9600));
+        assert_eq!(baud_rate(0x0A), Some(115200));
+        assert_eq!(baud_rate(0x03), Some(1200));
+        assert_eq!(baud_rate(0x02), None);
+        assert_eq!(baud_rate(0x0B), None);
+        assert_eq!(baud_code(4800), Some(0x05));
+        assert_eq!(baud_code(14400), None);
+        for (code, rate) in BAUD_CODES {
+            assert_eq!(baud_code(rate), Some(code));
+        }
+    }
+}
