@@ -1,0 +1,314 @@
+//! `rigscript sim c29u`: serves simulated TRP-C29U modules on a pseudo-terminal, driven by
+//! control lines on standard input.
+
+use crate::runtime::clock::{SharedClock, SystemClock};
+use crate::sim::c29u::{C29u, Eeprom, Protocol};
+use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
+use crate::sim::c29u_modbus::silence_gap;
+use crate::sim::pty::{Faults, PtyServer};
+use clap::{Args, Subcommand, ValueEnum};
+use std::io::{BufRead, Write};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Which simulator to serve.
+#[derive(Debug, Subcommand)]
+pub enum SimCommand {
+    /// Serve simulated TRP-C29U modules on a pseudo-terminal (its path is the first line printed).
+    C29u(C29uSimArgs),
+}
+
+/// The protocol the simulated module's DIP switch selects.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum ProtocolArg {
+    /// Modbus RTU (the factory setting).
+    Modbus,
+    /// Trycom's ASCII commands.
+    Ascii,
+}
+
+/// Options of `rigscript sim c29u`.
+#[derive(Debug, Args)]
+pub struct C29uSimArgs {
+    /// Protocol the module answers.
+    #[arg(long, value_enum, default_value = "modbus")]
+    pub protocol: ProtocolArg,
+    /// Module ID; repeat (or give a list) for several modules on one line.
+    #[arg(long, value_delimiter = ',', value_parser = parse_byte)]
+    pub id: Vec<u8>,
+    /// Require checksums on ASCII commands (and add them to answers).
+    #[arg(long)]
+    pub checksum: bool,
+    /// Also make a symlink to the pty here (removed on exit).
+    #[arg(long)]
+    pub link: Option<PathBuf>,
+    /// Keep the module's EEPROM in this JSON file across runs (FILE.ID with several modules).
+    #[arg(long)]
+    pub state: Option<PathBuf>,
+    /// Energized inputs at start (bit n = DIn), e.g. 0x05.
+    #[arg(long, value_parser = parse_byte, default_value = "0")]
+    pub di: u8,
+    /// Probability (0-1) that an answer is dropped.
+    #[arg(long, default_value = "0", value_parser = parse_probability)]
+    pub drop: f64,
+    /// Probability (0-1) that one bit of an answer is flipped.
+    #[arg(long, default_value = "0", value_parser = parse_probability)]
+    pub corrupt: f64,
+    /// Delay before each answer, in milliseconds.
+    #[arg(long, default_value = "0")]
+    pub delay: u64,
+    /// Seed for fault injection, for repeatable runs.
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+/// Parses a byte written as decimal, `0x..` hex or `0b..` binary.
+pub fn parse_byte(text: &str) -> Result<u8, String> {
+    let t = text.trim();
+    let parsed = if let Some(hex) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        u8::from_str_radix(hex, 16)
+    } else if let Some(bin) = t.strip_prefix("0b").or_else(|| t.strip_prefix("0B")) {
+        u8::from_str_radix(bin, 2)
+    } else {
+        t.parse::<u8>()
+    };
+    parsed.map_err(|_| format!("`{text}` is not a byte: write 0-255, 0x00-0xFF or 0b00000000"))
+}
+
+fn parse_probability(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(p) if (0.0..=1.0).contains(&p) => Ok(p),
+        _ => Err(format!("`{text}` is not a probability between 0 and 1")),
+    }
+}
+
+/// One control line from standard input.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Control {
+    /// Set the energized inputs.
+    Di(u8),
+    /// N full pulses on one input.
+    Pulse { channel: u8, count: u32 },
+    /// Power cycle the module.
+    Reset,
+    /// Print the module's state as one JSON line.
+    State,
+}
+
+/// A control line with the module it is for (`@ID` prefix; the first module when absent).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ControlLine {
+    /// The module ID named by `@ID`, if any.
+    pub target: Option<u8>,
+    /// What to do.
+    pub control: Control,
+}
+
+/// Parses a control line: `[@ID] di BYTE | pulse CH N | reset | state`.
+pub fn parse_control(line: &str) -> Result<ControlLine, String> {
+    let mut words = line.split_whitespace().peekable();
+    let target = match words.peek() {
+        Some(w) if w.starts_with('@') => {
+            let id = parse_byte(w.trim_start_matches('@'))?;
+            words.next();
+            Some(id)
+        }
+        _ => None,
+    };
+    let words: Vec<&str> = words.collect();
+    let control = match words.as_slice() {
+        ["di", byte] => Control::Di(parse_byte(byte)?),
+        ["pulse", ch, n] => {
+            let channel = match ch.parse::<u8>() {
+                Ok(c) if c < 8 => c,
+                _ => return Err(format!("`{ch}` is not an input channel: write 0-7")),
+            };
+            let count = n
+                .parse::<u32>()
+                .map_err(|_| format!("`{n}` is not a pulse count: write a whole number"))?;
+            Control::Pulse { channel, count }
+        }
+        ["reset"] => Control::Reset,
+        ["state"] => Control::State,
+        _ => {
+            return Err(format!(
+                "unknown control line `{}`: use `di BYTE`, `pulse CH N`, `reset` or `state`, optionally after `@ID`",
+                line.trim()
+            ))
+        }
+    };
+    Ok(ControlLine { target, control })
+}
+
+/// Applies one control line to the modules and returns the line to print.
+pub fn apply_control(line: &str, modules: &[(u8, SharedModel)]) -> String {
+    let parsed = match parse_control(line) {
+        Ok(p) => p,
+        Err(e) => return format!("error: {e}"),
+    };
+    let found = match parsed.target {
+        Some(id) => modules.iter().find(|(mid, _)| *mid == id),
+        None => modules.first(),
+    };
+    let Some((_, model)) = found else {
+        return format!("error: no simulated module has ID {}", parsed.target.unwrap_or_default());
+    };
+    let mut model = lock(model);
+    match parsed.control {
+        Control::Di(byte) => {
+            model.set_inputs(byte);
+            "ok".into()
+        }
+        Control::Pulse { channel, count } => match model.pulse(channel, count) {
+            Ok(()) => "ok".into(),
+            Err(e) => format!("error: {e}"),
+        },
+        Control::Reset => {
+            model.power_cycle();
+            "ok".into()
+        }
+        Control::State => match serde_json::to_string(&model.state()) {
+            Ok(json) => json,
+            Err(e) => format!("error: {e}"),
+        },
+    }
+}
+
+/// Runs `rigscript sim ...` and returns the exit status.
+pub fn run(command: SimCommand) -> i32 {
+    match command {
+        SimCommand::C29u(args) => match serve_c29u(args) {
+            Ok(()) => 0,
+            Err(message) => {
+                eprintln!("rigscript sim c29u: {message}");
+                1
+            }
+        },
+    }
+}
+
+fn build_model(args: &C29uSimArgs, id: Option<u8>, clock: &SharedClock, several: bool) -> Result<C29u, String> {
+    let protocol = match args.protocol {
+        ProtocolArg::Modbus => Protocol::Modbus,
+        ProtocolArg::Ascii => Protocol::Ascii,
+    };
+    let mut model = match &args.state {
+        Some(path) => {
+            let path = match (several, id) {
+                (true, Some(id)) => PathBuf::from(format!("{}.{id}", path.display())),
+                _ => path.clone(),
+            };
+            C29u::with_state_file(protocol, Arc::clone(clock), path).map_err(|e| e.to_string())?
+        }
+        None => C29u::new(protocol, Arc::clone(clock), Eeprom::factory()),
+    };
+    let mut config = model.config();
+    if let Some(id) = id {
+        config.id = id;
+    }
+    if args.checksum {
+        config.checksum = true;
+    }
+    model.set_config(config).map_err(|e| e.to_string())?;
+    model.set_inputs(args.di);
+    Ok(model)
+}
+
+fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
+    let clock = SystemClock::shared();
+    let ids: Vec<Option<u8>> = if args.id.is_empty() {
+        vec![None]
+    } else {
+        args.id.iter().copied().map(Some).collect()
+    };
+    let several = ids.len() > 1;
+    let mut line = MultiDrop::new();
+    let mut modules = Vec::new();
+    let mut baud_code = 0x06;
+    for id in ids {
+        let model = build_model(&args, id, &clock, several)?;
+        baud_code = model.config().baud_code;
+        let sim = SimulatedC29u::new(model);
+        let shared = sim.model();
+        let id = lock(&shared).config().id;
+        modules.push((id, shared));
+        line.attach(Box::new(sim));
+    }
+
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop)).map_err(|e| format!("cannot handle signals: {e}"))?;
+    }
+
+    let mut server = PtyServer::open(args.link.as_deref()).map_err(|e| e.to_string())?;
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", server.path()).map_err(|e| e.to_string())?;
+        out.flush().map_err(|e| e.to_string())?;
+    }
+    eprintln!(
+        "simulated TRP-C29U ({:?}, ID {}) on {}; control lines: di BYTE | pulse CH N | reset | state; Ctrl-C to stop",
+        args.protocol,
+        modules.iter().map(|(id, _)| id.to_string()).collect::<Vec<_>>().join(","),
+        server.path()
+    );
+
+    // Standard input may end (a pipe closed, </dev/null) without the simulator ending.
+    let control_modules = modules.clone();
+    std::thread::spawn(move || {
+        let stdin = std::io::stdin();
+        for line in stdin.lock().lines() {
+            let Ok(line) = line else { break };
+            if line.trim().is_empty() {
+                continue;
+            }
+            let reply = apply_control(&line, &control_modules);
+            let mut out = std::io::stdout().lock();
+            let _ = writeln!(out, "{reply}");
+            let _ = out.flush();
+        }
+    });
+
+    let gap = silence_gap(crate::protocol::c29u_baud::baud_rate(baud_code).unwrap_or(9600));
+    let faults = Faults {
+        drop: args.drop,
+        corrupt: args.corrupt,
+        delay: Duration::from_millis(args.delay),
+        seed: args.seed,
+    };
+    server.serve(&mut line, &faults, gap, &stop).map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bytes_parse_in_three_bases_and_reject_nonsense() {
+        assert_eq!(parse_byte("0x0F"), Ok(15));
+        assert_eq!(parse_byte("0b101"), Ok(5));
+        assert_eq!(parse_byte("200"), Ok(200));
+        assert!(parse_byte("256").is_err());
+        assert!(parse_byte("0xZZ").unwrap_err().contains("not a byte"));
+    }
+
+    #[test]
+    fn control_lines_parse_with_and_without_target() {
+        assert_eq!(
+            parse_control("di 0x05"),
+            Ok(ControlLine { target: None, control: Control::Di(5) })
+        );
+        assert_eq!(
+            parse_control("@2 pulse 3 10"),
+            Ok(ControlLine { target: Some(2), control: Control::Pulse { channel: 3, count: 10 } })
+        );
+        assert_eq!(parse_control(" reset ").map(|c| c.control), Ok(Control::Reset));
+        assert_eq!(parse_control("state").map(|c| c.control), Ok(Control::State));
+        assert!(parse_control("pulse 8 1").unwrap_err().contains("0-7"));
+        assert!(parse_control("pulse 1 -3").unwrap_err().contains("pulse count"));
+        assert!(parse_control("explode").unwrap_err().contains("unknown control line"));
+        assert!(parse_control("di").is_err());
+    }
+}
