@@ -1,16 +1,19 @@
 //! In-memory links to simulators, for tests and `--sim` runs: the same driver code, no wire.
 
 use super::{ByteLink, LinkError, PacketLink};
+use crate::runtime::clock::SharedClock;
 use crate::sim::{ByteDevice, PacketDevice};
 use std::collections::VecDeque;
 use std::time::Duration;
 
 /// A byte link whose far end is a simulated device; answers are available as soon as a write
-/// returns, so reads never wait.
+/// returns. A read that finds nothing waits out its timeout on the link's clock, if it has one
+/// (so virtual time moves as it would on a wire), or returns at once.
 pub struct MemoryByteLink<D: ByteDevice> {
     device: D,
     pending: VecDeque<u8>,
     name: String,
+    clock: Option<SharedClock>,
 }
 
 impl<D: ByteDevice> MemoryByteLink<D> {
@@ -20,7 +23,14 @@ impl<D: ByteDevice> MemoryByteLink<D> {
             device,
             pending: VecDeque::new(),
             name: name.into(),
+            clock: None,
         }
+    }
+
+    /// Makes empty reads wait out their timeout on `clock`.
+    pub fn with_clock(mut self, clock: SharedClock) -> Self {
+        self.clock = Some(clock);
+        self
     }
 
     /// The simulated device at the far end.
@@ -38,7 +48,10 @@ impl<D: ByteDevice> ByteLink for MemoryByteLink<D> {
         Ok(())
     }
 
-    fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, LinkError> {
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+        if self.pending.is_empty() {
+            wait_out(self.clock.as_ref(), timeout);
+        }
         let n = buf.len().min(self.pending.len());
         for (slot, byte) in buf.iter_mut().zip(self.pending.drain(..n)) {
             *slot = byte;
@@ -60,11 +73,12 @@ impl<D: ByteDevice> ByteLink for MemoryByteLink<D> {
     }
 }
 
-/// A packet link whose far end is a simulated device.
+/// A packet link whose far end is a simulated device; empty reads behave as on `MemoryByteLink`.
 pub struct MemoryPacketLink<D: PacketDevice> {
     device: D,
     pending: VecDeque<[u8; 8]>,
     name: String,
+    clock: Option<SharedClock>,
 }
 
 impl<D: PacketDevice> MemoryPacketLink<D> {
@@ -74,7 +88,14 @@ impl<D: PacketDevice> MemoryPacketLink<D> {
             device,
             pending: VecDeque::new(),
             name: name.into(),
+            clock: None,
         }
+    }
+
+    /// Makes empty reads wait out their timeout on `clock`.
+    pub fn with_clock(mut self, clock: SharedClock) -> Self {
+        self.clock = Some(clock);
+        self
     }
 
     /// The simulated device at the far end.
@@ -91,7 +112,10 @@ impl<D: PacketDevice> PacketLink for MemoryPacketLink<D> {
         Ok(())
     }
 
-    fn receive(&mut self, _timeout: Duration) -> Result<Option<[u8; 8]>, LinkError> {
+    fn receive(&mut self, timeout: Duration) -> Result<Option<[u8; 8]>, LinkError> {
+        if self.pending.is_empty() {
+            wait_out(self.clock.as_ref(), timeout);
+        }
         Ok(self.pending.pop_front())
     }
 
@@ -100,9 +124,18 @@ impl<D: PacketDevice> PacketLink for MemoryPacketLink<D> {
     }
 }
 
+/// Lets `timeout` pass on `clock`, as a wire with nothing on it would.
+fn wait_out(clock: Option<&SharedClock>, timeout: Duration) {
+    if let Some(clock) = clock {
+        clock.sleep_until(clock.now().saturating_add(timeout));
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::runtime::clock::{Clock, VirtualClock};
+    use std::sync::Arc;
 
     struct Echo;
     impl ByteDevice for Echo {
@@ -129,6 +162,25 @@ mod tests {
         link.write_all(b"xyz").unwrap();
         link.discard_input().unwrap();
         assert_eq!(link.read(&mut buf, Duration::ZERO).unwrap(), 0);
+    }
+
+    #[test]
+    fn empty_reads_wait_out_their_timeout_on_the_clock() {
+        let clock = VirtualClock::at_epoch();
+        let mut link = MemoryByteLink::new(Echo, "echo").with_clock(Arc::new(clock.clone()));
+        let mut buf = [0u8; 4];
+        assert_eq!(link.read(&mut buf, Duration::from_millis(300)).unwrap(), 0);
+        assert_eq!(clock.now(), Duration::from_millis(300));
+        link.write_all(b"ab").unwrap();
+        assert_eq!(link.read(&mut buf, Duration::from_millis(300)).unwrap(), 2);
+        assert_eq!(
+            clock.now(),
+            Duration::from_millis(300),
+            "an answer waiting costs no time"
+        );
+        let mut packets = MemoryPacketLink::new(Echo, "echo").with_clock(Arc::new(clock.clone()));
+        assert_eq!(packets.receive(Duration::from_secs(1)).unwrap(), None);
+        assert_eq!(clock.now(), Duration::from_millis(1300));
     }
 
     #[test]
