@@ -1,0 +1,120 @@
+//! Shared helpers for integration tests: the simulator as a real process on a real pty, and
+//! required system tools.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Output, Stdio};
+use std::time::Duration;
+
+/// Path of the rigscript binary under test.
+pub fn rigscript() -> &'static str {
+    env!("CARGO_BIN_EXE_rigscript")
+}
+
+/// Fails the test (never skips it) when a system tool is missing.
+pub fn require_tool(tool: &str, package: &str) {
+    let found = Command::new("sh")
+        .arg("-c")
+        .arg(format!("command -v {tool}"))
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    assert!(
+        found,
+        "`{tool}` is not installed: this test needs it. Install the Debian package `{package}` \
+         (`.ci/run` does that) and run the tests again."
+    );
+}
+
+/// A running `rigscript sim c29u` process, stopped with SIGTERM when dropped.
+pub struct SimProcess {
+    child: Child,
+    stdin: ChildStdin,
+    stdout: BufReader<ChildStdout>,
+    /// The pty path the simulator printed first.
+    pub path: String,
+}
+
+impl SimProcess {
+    /// Starts `rigscript sim c29u ARGS..` and waits for its pty path.
+    pub fn start(args: &[&str]) -> Self {
+        let mut child = Command::new(rigscript())
+            .args(["sim", "c29u"])
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start rigscript sim c29u");
+        let stdin = child.stdin.take().expect("stdin");
+        let mut stdout = BufReader::new(child.stdout.take().expect("stdout"));
+        let mut path = String::new();
+        stdout.read_line(&mut path).expect("read the pty path");
+        let path = path.trim().to_string();
+        assert!(
+            path.starts_with("/dev/"),
+            "first line should be the pty path, got {path:?}"
+        );
+        Self {
+            child,
+            stdin,
+            stdout,
+            path,
+        }
+    }
+
+    /// Sends one control line and returns the simulator's one-line reply.
+    pub fn control(&mut self, line: &str) -> String {
+        writeln!(self.stdin, "{line}").expect("write control line");
+        self.stdin.flush().expect("flush control line");
+        let mut reply = String::new();
+        self.stdout
+            .read_line(&mut reply)
+            .expect("read control reply");
+        reply.trim().to_string()
+    }
+
+    /// The simulator's state as JSON.
+    pub fn state(&mut self) -> serde_json::Value {
+        let line = self.control("state");
+        serde_json::from_str(&line).unwrap_or_else(|e| panic!("state is not JSON ({e}): {line}"))
+    }
+
+    /// Sends SIGTERM and waits for the process; returns its exit code.
+    pub fn terminate(mut self) -> Option<i32> {
+        self.signal_term();
+        self.child.wait().ok().and_then(|s| s.code())
+    }
+
+    fn signal_term(&mut self) {
+        let _ = Command::new("kill")
+            .arg("-TERM")
+            .arg(self.child.id().to_string())
+            .status();
+    }
+}
+
+impl Drop for SimProcess {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            self.signal_term();
+            for _ in 0..100 {
+                if let Ok(Some(_)) = self.child.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Runs a command and returns its output.
+pub fn run(program: &str, args: &[&str]) -> Output {
+    Command::new(program)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {program}: {e}"))
+}
