@@ -70,8 +70,8 @@ fn mbpoll_reads_and_writes_the_simulated_module() {
     let expected: Vec<(u16, i64)> = vec![
         (0, 0),
         (1, 0),
-        (2, 5),
-        (3, 0),
+        (2, 0),
+        (3, 5),
         (4, 0),
         (5, 0),
         (6, 0),
