@@ -71,7 +71,7 @@ fn channel_bit(ch: u8) -> Result<u8, SimError> {
 }
 
 /// The duration of a watchdog timeout given in 0.1 s units.
-fn tenths(t: u8) -> Duration {
+fn tenths_duration(t: u8) -> Duration {
     Duration::from_millis(u64::from(t) * 100)
 }
 
@@ -335,11 +335,11 @@ impl C29u {
 
     /// Sets the host watchdog timeout in 0.1 s units and starts counting; 0 disables it and
     /// leaves safe mode (DO stays as it is). Stored in EEPROM: reset and power loss keep it.
-    pub fn set_watchdog(&mut self, tenths_: u8) -> Result<(), SimError> {
+    pub fn set_watchdog(&mut self, tenths: u8) -> Result<(), SimError> {
         self.tick();
         let mut next = self.eeprom.clone();
-        next.watchdog_tenths = tenths_;
-        if tenths_ == 0 {
+        next.watchdog_tenths = tenths;
+        if tenths == 0 {
             next.safe_mode = false;
         }
         self.commit(next)?;
@@ -546,7 +546,7 @@ impl C29u {
             Some(
                 self.clock
                     .now()
-                    .saturating_add(tenths(self.eeprom.watchdog_tenths)),
+                    .saturating_add(tenths_duration(self.eeprom.watchdog_tenths)),
             )
         } else {
             None

@@ -971,3 +971,441 @@ fn a_failed_eeprom_write_changes_nothing() {
     assert!(matches!(m.set_watchdog(5), Err(SimError::Io(_))));
     assert!(!m.watchdog().enabled);
 }
+
+// ---- documented boundaries and manual examples ---------------------------------------------
+
+#[test]
+fn the_watchdog_fires_when_a_whole_timeout_has_passed() {
+    // Reading: fires once elapsed >= timeout, so a Host OK exactly at the deadline is too late.
+    let (mut m, clock) = ascii();
+    m.set_watchdog(3).unwrap();
+    clock.advance(ms(299));
+    m.host_ok();
+    assert!(!m.in_safe_mode());
+    clock.advance(ms(300));
+    m.host_ok();
+    assert!(m.in_safe_mode());
+}
+
+#[test]
+fn timeout_0f_is_1_5_s_not_the_1_6_s_of_8_21() {
+    // 8-21 says "0F..1.6 Sec"; NOTES: 0x0F x 0.1 s = 1.5 s.
+    let (mut m, clock) = ascii();
+    m.set_watchdog(0x0F).unwrap();
+    assert_eq!(m.state().watchdog.timeout_ms, 1500);
+    clock.advance(ms(1500));
+    assert!(m.in_safe_mode(), "fired at 1.5 s");
+}
+
+#[test]
+fn safe_mode_status_keeps_the_timeout_like_8_21() {
+    // 8-21 "!01WD0F": D = "disable or safe mode" with timeout 0F. The model reports the
+    // fired watchdog as enabled + expired with its timeout; the front end chooses the letter.
+    let (mut m, clock) = ascii();
+    m.set_watchdog(0x0F).unwrap();
+    clock.advance(ms(2000));
+    assert_eq!(
+        m.watchdog(),
+        WatchdogStatus {
+            enabled: true,
+            timeout_tenths: 0x0F,
+            expired: true
+        }
+    );
+}
+
+#[test]
+fn modbus_10_9_example_watchdog_reads_enabled_0f() {
+    // NOTES 10-9: "01 46 0C 01 0F" = enabled, 1.5 s.
+    let (mut m, _) = module(Protocol::Modbus);
+    m.set_watchdog(0x0F).unwrap();
+    let wd = m.watchdog();
+    assert_eq!((wd.enabled, wd.timeout_tenths), (true, 0x0F));
+}
+
+#[test]
+fn modbus_10_14_safe_value_reads_back() {
+    // 10-13 / 10-14: set safe value 14, read it back.
+    let (mut m, _) = module(Protocol::Modbus);
+    m.set_safe_value(0x14).unwrap();
+    assert_eq!(m.safe_value(), 0x14);
+}
+
+#[test]
+fn modbus_10_19_counter_example_values() {
+    // 10-19: channels 0..3 read 0x28, 0x5A, 0x53, 0x55.
+    let (mut m, _) = module(Protocol::Modbus);
+    for (ch, n) in [(0u8, 0x28u32), (1, 0x5A), (2, 0x53), (3, 0x55)] {
+        m.pulse(ch, n).unwrap();
+    }
+    assert_eq!(m.counters(), [0x28, 0x5A, 0x53, 0x55, 0, 0, 0, 0]);
+}
+
+#[test]
+fn modbus_10_17_do_example_36_is_ch1_2_4_5() {
+    let (mut m, _) = module(Protocol::Modbus);
+    for ch in [1u8, 2, 4, 5] {
+        m.write_output(ch, true).unwrap();
+    }
+    assert_eq!(m.outputs(), 0x36);
+}
+
+#[test]
+fn changing_the_counter_edge_keeps_the_counts() {
+    let (mut m, _) = ascii();
+    m.pulse(0, 10).unwrap();
+    let mut cfg = m.config();
+    cfg.counter_edge = CounterEdge::Falling;
+    m.set_config(cfg).unwrap();
+    assert_eq!(m.counter(0), Ok(10));
+}
+
+#[test]
+fn the_model_can_move_between_threads() {
+    fn is_send<T: Send>() {}
+    is_send::<C29u>();
+}
+
+#[test]
+fn flush_is_a_no_op_without_a_pending_write() {
+    let (mut m, _) = ascii();
+    assert_eq!(m.flush(), Ok(()));
+}
+
+// ---- properties -------------------------------------------------------------------------------
+
+mod props {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn edge() -> impl Strategy<Value = CounterEdge> {
+        prop_oneof![Just(CounterEdge::Rising), Just(CounterEdge::Falling)]
+    }
+
+    fn valid_config() -> impl Strategy<Value = ModuleConfig> {
+        (
+            any::<u8>(),
+            3u8..=0x0A,
+            any::<bool>(),
+            edge(),
+            any::<bool>(),
+        )
+            .prop_map(|(id, baud_code, checksum, counter_edge, hex_counters)| {
+                ModuleConfig {
+                    id,
+                    baud_code,
+                    checksum,
+                    counter_edge,
+                    hex_counters,
+                }
+            })
+    }
+
+    fn valid_eeprom() -> impl Strategy<Value = Eeprom> {
+        (
+            valid_config(),
+            "[ -~]{1,6}",
+            any::<[u16; 8]>(),
+            any::<(u8, u8, u8)>(),
+            0u8..=1,
+            any::<bool>(),
+        )
+            .prop_map(
+                |(config, name, saved_counters, (safe_value, power_on_value, wd), led, sm)| {
+                    Eeprom {
+                        config,
+                        name,
+                        saved_counters,
+                        safe_value,
+                        power_on_value,
+                        watchdog_tenths: wd,
+                        led_mode: led,
+                        safe_mode: sm,
+                    }
+                },
+            )
+    }
+
+    /// Field-side steps, for the counter reference model.
+    #[derive(Debug, Clone)]
+    enum Field {
+        Inputs(u8),
+        Pulse(u8, u32),
+        Edge(CounterEdge),
+    }
+
+    fn field() -> impl Strategy<Value = Field> {
+        prop_oneof![
+            4 => any::<u8>().prop_map(Field::Inputs),
+            2 => (0u8..8, prop_oneof![0u32..5, any::<u32>()]).prop_map(|(c, n)| Field::Pulse(c, n)),
+            1 => edge().prop_map(Field::Edge),
+        ]
+    }
+
+    /// Any step a host or operator can take, channels and values unrestricted.
+    #[derive(Debug, Clone)]
+    enum Op {
+        Inputs(u8),
+        Pulse(u8, u32),
+        Advance(u16),
+        HostOk,
+        Watchdog(u8),
+        Write(u8),
+        WriteBit(u8, bool),
+        Reset,
+        PowerCycle,
+        ClearLatches,
+        ClearCounter(u8),
+        ClearCounters,
+        SaveCounters,
+        Safe(u8),
+        PowerOn(u8),
+        SaveSafe,
+        SaveOn,
+        Snapshot,
+        ReadSnapshot,
+        Name(String),
+        Led(u8),
+        Config(u8, u8, u8),
+        TakeReset,
+    }
+
+    fn op() -> impl Strategy<Value = Op> {
+        prop_oneof![
+            any::<u8>().prop_map(Op::Inputs),
+            (any::<u8>(), any::<u32>()).prop_map(|(c, n)| Op::Pulse(c, n)),
+            any::<u16>().prop_map(Op::Advance),
+            Just(Op::HostOk),
+            prop_oneof![Just(0u8), 1u8..4, any::<u8>()].prop_map(Op::Watchdog),
+            any::<u8>().prop_map(Op::Write),
+            (any::<u8>(), any::<bool>()).prop_map(|(c, b)| Op::WriteBit(c, b)),
+            Just(Op::Reset),
+            Just(Op::PowerCycle),
+            Just(Op::ClearLatches),
+            any::<u8>().prop_map(Op::ClearCounter),
+            Just(Op::ClearCounters),
+            Just(Op::SaveCounters),
+            any::<u8>().prop_map(Op::Safe),
+            any::<u8>().prop_map(Op::PowerOn),
+            Just(Op::SaveSafe),
+            Just(Op::SaveOn),
+            Just(Op::Snapshot),
+            Just(Op::ReadSnapshot),
+            ".{0,8}".prop_map(Op::Name),
+            any::<u8>().prop_map(Op::Led),
+            any::<(u8, u8, u8)>().prop_map(|(a, b, c)| Op::Config(a, b, c)),
+            Just(Op::TakeReset),
+        ]
+    }
+
+    fn apply(m: &mut C29u, clock: &VirtualClock, op: &Op) {
+        match *op {
+            Op::Inputs(v) => m.set_inputs(v),
+            Op::Pulse(c, n) => {
+                let _ = m.pulse(c, n);
+            }
+            Op::Advance(d) => clock.advance(ms(u64::from(d))),
+            Op::HostOk => m.host_ok(),
+            Op::Watchdog(t) => m.set_watchdog(t).unwrap(),
+            Op::Write(v) => {
+                let _ = m.write_outputs(v);
+            }
+            Op::WriteBit(c, b) => {
+                let _ = m.write_output(c, b);
+            }
+            Op::Reset => m.reset(),
+            Op::PowerCycle => m.power_cycle(),
+            Op::ClearLatches => m.clear_latches(),
+            Op::ClearCounter(c) => {
+                let _ = m.clear_counter(c);
+            }
+            Op::ClearCounters => m.clear_counters(),
+            Op::SaveCounters => m.save_counters().unwrap(),
+            Op::Safe(v) => m.set_safe_value(v).unwrap(),
+            Op::PowerOn(v) => m.set_power_on_value(v).unwrap(),
+            Op::SaveSafe => m.save_outputs_as_safe().unwrap(),
+            Op::SaveOn => m.save_outputs_as_power_on().unwrap(),
+            Op::Snapshot => m.take_snapshot(),
+            Op::ReadSnapshot => {
+                let _ = m.read_snapshot();
+            }
+            Op::Name(ref n) => {
+                let _ = m.set_name(n);
+            }
+            Op::Led(v) => {
+                let _ = m.set_led_mode(v);
+            }
+            Op::Config(id, baud, dd) => {
+                if let Ok(cfg) = ModuleConfig::from_parts(id, baud, dd) {
+                    let _ = m.set_config(cfg);
+                }
+            }
+            Op::TakeReset => {
+                let _ = m.take_reset_flag();
+            }
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn data_format_round_trips(cfg in valid_config()) {
+            let back = ModuleConfig::from_parts(cfg.id, cfg.baud_code, cfg.data_format());
+            prop_assert_eq!(back, Ok(cfg));
+            prop_assert_eq!(cfg.reported_format() & 0x07, MODEL_CODE);
+            prop_assert_eq!(cfg.reported_format() & 0xC0, cfg.data_format() & 0xC0);
+        }
+
+        #[test]
+        fn from_parts_never_panics_and_accepts_only_valid(id: u8, baud: u8, dd: u8) {
+            let ok = ModuleConfig::from_parts(id, baud, dd).is_ok();
+            prop_assert_eq!(ok, (3..=0x0A).contains(&baud) && dd & 0x3E == 0);
+        }
+
+        #[test]
+        fn eeprom_json_round_trips_for_any_valid_image(e in valid_eeprom()) {
+            let text = serde_json::to_string(&e).unwrap();
+            prop_assert_eq!(Eeprom::from_json(&text), Ok(e));
+        }
+
+        #[test]
+        fn eeprom_parser_never_panics_on_random_text(text in ".{0,200}") {
+            let _ = Eeprom::from_json(&text);
+        }
+
+        #[test]
+        fn eeprom_parser_never_panics_on_random_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
+            let _ = Eeprom::from_json(&String::from_utf8_lossy(&bytes));
+        }
+
+        #[test]
+        fn state_round_trips_through_json(e in valid_eeprom(), inputs: u8) {
+            let clock = VirtualClock::at_epoch();
+            let mut m = C29u::new(Protocol::Ascii, Arc::new(clock), e);
+            m.set_inputs(inputs);
+            let s = m.state();
+            let back: SimState = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+            prop_assert_eq!(back, s);
+        }
+
+        /// Counters and latches agree with an independent edge count, modulo 2^16.
+        #[test]
+        fn counters_and_latches_match_a_reference(steps in proptest::collection::vec(field(), 0..60)) {
+            let (mut m, _) = ascii();
+            let mut level = 0u8;
+            let mut edge = CounterEdge::Rising;
+            let mut counts = [0u64; 8];
+            let (mut low, mut high) = (0u8, 0u8);
+            for step in &steps {
+                match *step {
+                    Field::Inputs(v) => {
+                        for (ch, count) in counts.iter_mut().enumerate() {
+                            let was = level >> ch & 1 == 1;
+                            let now = v >> ch & 1 == 1;
+                            if !was && now { low |= 1 << ch; }
+                            if was && !now { high |= 1 << ch; }
+                            let counted = match edge {
+                                CounterEdge::Rising => !was && now,
+                                CounterEdge::Falling => was && !now,
+                            };
+                            if counted { *count += 1; }
+                        }
+                        level = v;
+                        m.set_inputs(v);
+                    }
+                    Field::Pulse(ch, n) => {
+                        if n > 0 {
+                            low |= 1 << ch;
+                            high |= 1 << ch;
+                        }
+                        counts[usize::from(ch)] += u64::from(n);
+                        m.pulse(ch, n).unwrap();
+                    }
+                    Field::Edge(e) => {
+                        edge = e;
+                        let mut cfg = m.config();
+                        cfg.counter_edge = e;
+                        m.set_config(cfg).unwrap();
+                    }
+                }
+            }
+            let expected: Vec<u16> = counts.iter().map(|c| (c % 65_536) as u16).collect();
+            prop_assert_eq!(m.counters().to_vec(), expected);
+            prop_assert_eq!(m.latched_low(), low);
+            prop_assert_eq!(m.latched_high(), high);
+            prop_assert_eq!(m.inputs(), level);
+        }
+
+        /// The watchdog fires exactly when some gap between Host OKs reached the timeout.
+        #[test]
+        fn watchdog_matches_a_reference(
+            t in 1u8..=255,
+            steps in proptest::collection::vec(prop_oneof![
+                (0u64..3000).prop_map(Some),
+                Just(None),
+            ], 0..40),
+        ) {
+            let (mut m, clock) = ascii();
+            m.set_safe_value(0xA5).unwrap();
+            m.write_outputs(0x5A).unwrap();
+            m.set_watchdog(t).unwrap();
+            let timeout = u64::from(t) * 100;
+            let (mut now, mut kicked, mut fired) = (0u64, 0u64, false);
+            for step in &steps {
+                match *step {
+                    Some(d) => { now += d; clock.advance(ms(d)); }
+                    None => {
+                        if now - kicked >= timeout { fired = true; } else if !fired { kicked = now; }
+                        m.host_ok();
+                    }
+                }
+            }
+            if now - kicked >= timeout { fired = true; }
+            prop_assert_eq!(m.in_safe_mode(), fired);
+            prop_assert_eq!(m.outputs(), if fired { 0xA5 } else { 0x5A });
+            prop_assert_eq!(m.write_outputs(0).is_err(), fired);
+        }
+
+        /// Whatever is done, nothing panics and the module's invariants hold.
+        #[test]
+        fn any_sequence_keeps_the_invariants(steps in proptest::collection::vec(op(), 0..50)) {
+            let (mut m, clock) = ascii();
+            for step in &steps {
+                apply(&mut m, &clock, step);
+                prop_assert_eq!(m.inputs_wire(), !m.inputs());
+                let wd = m.watchdog();
+                prop_assert!(!wd.expired || wd.enabled, "safe mode only with a watchdog set");
+                prop_assert_eq!(wd.enabled, wd.timeout_tenths != 0);
+                if wd.expired {
+                    let before = m.outputs();
+                    prop_assert_eq!(m.write_outputs(!before), Err(SimError::SafeMode));
+                    prop_assert_eq!(m.outputs(), before);
+                }
+                prop_assert!(m.eeprom().validate().is_ok());
+                prop_assert!(!m.name().is_empty() && m.name().len() <= 6);
+                for ch in 8..=255u8 {
+                    prop_assert_eq!(m.counter(ch), Err(SimError::BadChannel(ch)));
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_failed_write_when_the_watchdog_fires_is_retried_by_flush() {
+    let dir = TempDir::new("flush");
+    let path = dir.file("io.json");
+    let clock = VirtualClock::at_epoch();
+    let mut m =
+        C29u::with_state_file(Protocol::Ascii, Arc::new(clock.clone()), path.clone()).unwrap();
+    m.set_watchdog(1).unwrap();
+    std::fs::remove_dir_all(&dir.0).unwrap();
+    clock.advance(ms(100));
+    assert!(
+        m.in_safe_mode(),
+        "fires even though the file cannot be written"
+    );
+    assert!(matches!(m.flush(), Err(SimError::Io(_))));
+    std::fs::create_dir_all(&dir.0).unwrap();
+    m.flush().unwrap();
+    assert!(Eeprom::load(&path).unwrap().safe_mode);
+}
