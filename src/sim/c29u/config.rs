@@ -131,16 +131,4 @@ impl Default for ModuleConfig {
 }
 
 /// Baud rate for a code of the 8-2 table, `None` outside 03..=0A.
-pub fn baud_rate(code: u8) -> Option<u32> {
-    match code {
-        0x03 => Some(1200),
-        0x04 => Some(2400),
-        0x05 => Some(4800),
-        0x06 => Some(9600),
-        0x07 => Some(19200),
-        0x08 => Some(38400),
-        0x09 => Some(57600),
-        0x0A => Some(115_200),
-        _ => None,
-    }
-}
+pub use crate::protocol::c29u_baud::baud_rate;
