@@ -4,7 +4,7 @@
 use crate::runtime::clock::{SharedClock, SystemClock};
 use crate::sim::c29u::{C29u, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use crate::sim::c29u_modbus::silence_gap;
+use crate::protocol::c29u_modbus::silence_gap;
 use crate::sim::pty::{Faults, PtyServer};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, Write};
@@ -212,7 +212,9 @@ fn build_model(args: &C29uSimArgs, id: Option<u8>, clock: &SharedClock, several:
         config.checksum = true;
     }
     model.set_config(config).map_err(|e| e.to_string())?;
+    // Inputs energized when the power comes on are levels, not edges: nothing counts or latches.
     model.set_inputs(args.di);
+    model.power_cycle();
     Ok(model)
 }
 
