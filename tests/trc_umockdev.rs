@@ -145,6 +145,11 @@ fn run_trc(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str])
             .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()));
     }
     cmd.arg("--").arg(BIN).arg("trc").args(args);
+    output_of(cmd)
+}
+
+/// Runs `cmd` (an `umockdev-run`), failing the test with what to install when it is missing.
+fn output_of(mut cmd: std::process::Command) -> Output {
     match cmd.output() {
         Ok(out) => out,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => panic!(
@@ -316,4 +321,45 @@ fn without_usb_list_is_empty_and_succeeds() {
             .unwrap();
         assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
     }
+}
+
+#[test]
+fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
+    let mut sim = Trc1000Sim::new();
+    sim.turn("S40", 1).unwrap();
+    let mut script = Script::default();
+    let poll = |sim: &mut Trc1000Sim, script: &mut Script| {
+        script
+            .ask(sim, Command::RequestInput)
+            .ask(sim, Command::RequestRotary0)
+            .ask(sim, Command::RequestRotary1);
+    };
+    poll(&mut sim, &mut script); // the starting state: no events for it
+    sim.press("S3").unwrap();
+    sim.turn("S41A", 2).unwrap();
+    sim.turn("S40", -3).unwrap();
+    // Enough unchanged polls (20 ms apart) that the script outlasts the wait for the first event.
+    for _ in 0..500 {
+        poll(&mut sim, &mut script);
+    }
+    let dir = TempDir::new("monitor");
+    let out = dir.0.join("monitor.out");
+    // Inside the emulation: start the monitor, wait for its first event, then Ctrl-C it.
+    let shell = "\"$RIGSCRIPT\" trc monitor > \"$OUT\" & pid=$!; n=0; \
+                 while ! grep -q pressed \"$OUT\" && [ $n -lt 500 ]; do sleep 0.02; n=$((n+1)); done; \
+                 kill -INT $pid; wait $pid";
+    let dev = dir.write("trc.umockdev", &one_board());
+    let ioctl = dir.write("trc.ioctl", &script.0);
+    let mut cmd = std::process::Command::new("umockdev-run");
+    cmd.arg("-d")
+        .arg(&dev)
+        .arg("-i")
+        .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()))
+        .args(["--", "sh", "-c", shell])
+        .env("RIGSCRIPT", BIN)
+        .env("OUT", &out);
+    let o = output_of(cmd);
+    let text = std::fs::read_to_string(&out).unwrap_or_default();
+    assert_eq!(o.status.code(), Some(0), "{}\n{text}", stderr(&o));
+    assert_eq!(text, "S3 pressed\nS41A +2 (now 2)\nS40 -3 (now 254)\n");
 }
