@@ -2,6 +2,8 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod trc;
+
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
 #[derive(Debug, Parser)]
 #[command(name = "rigscript", version, about)]
@@ -12,7 +14,10 @@ pub struct Cli {
 
 /// The subcommands.
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Talk to a TRC1000 panel board: list, relay, inputs, rotaries, monitor
+    Trc(trc::TrcArgs),
+}
 
 /// Runs the command line and returns the process exit status.
 pub fn main() -> i32 {
@@ -23,5 +28,7 @@ pub fn main() -> i32 {
             return if e.use_stderr() { 2 } else { 0 };
         }
     };
-    match cli.command {}
+    match cli.command {
+        Command::Trc(args) => trc::run(args),
+    }
 }
