@@ -58,3 +58,39 @@ pub mod memory;
 pub mod serial;
 pub mod tcp;
 pub mod usb;
+
+impl<T: ByteLink + ?Sized> ByteLink for Box<T> {
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+        (**self).write_all(bytes)
+    }
+
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+        (**self).read(buf, timeout)
+    }
+
+    fn discard_input(&mut self) -> Result<(), LinkError> {
+        (**self).discard_input()
+    }
+
+    fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
+        (**self).set_baud(baud)
+    }
+
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+}
+
+impl<T: PacketLink + ?Sized> PacketLink for Box<T> {
+    fn send(&mut self, packet: &[u8; 8], timeout: Duration) -> Result<(), LinkError> {
+        (**self).send(packet, timeout)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<[u8; 8]>, LinkError> {
+        (**self).receive(timeout)
+    }
+
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+}
