@@ -22,6 +22,33 @@ pub fn baud_code(rate: u32) -> Option<u8> {
     BAUD_CODES.iter().find(|(_, b)| *b == rate).map(|(c, _)| *c)
 }
 
+/// A valid baud rate code of 8-2: 03 = 1200 ... 0A = 115200.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct BaudCode(u8);
+
+impl BaudCode {
+    /// `Some` for codes 03..=0A.
+    pub fn new(code: u8) -> Option<Self> {
+        baud_rate(code).map(|_| Self(code))
+    }
+
+    /// The code for a line speed in the table, such as 9600 -> 06.
+    pub fn from_baud(baud: u32) -> Option<Self> {
+        baud_code(baud).map(Self)
+    }
+
+    /// The code as sent on the wire.
+    pub fn code(self) -> u8 {
+        self.0
+    }
+
+    /// The line speed in baud.
+    pub fn baud(self) -> u32 {
+        // Every BaudCode was checked against the table when it was made.
+        baud_rate(self.0).unwrap_or(9600)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -54,48 +54,7 @@ impl TryFrom<u8> for Channel {
     }
 }
 
-/// A baud rate code of 8-2: 03 = 1200 ... 0A = 115200.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct BaudCode(u8);
-
-impl BaudCode {
-    const TABLE: [(u8, u32); 8] = [
-        (0x03, 1200),
-        (0x04, 2400),
-        (0x05, 4800),
-        (0x06, 9600),
-        (0x07, 19200),
-        (0x08, 38400),
-        (0x09, 57600),
-        (0x0A, 115_200),
-    ];
-
-    /// `Some` for codes 03..=0A.
-    pub fn new(code: u8) -> Option<Self> {
-        (0x03..=0x0A).contains(&code).then_some(Self(code))
-    }
-
-    /// The code for a line speed in the table, such as 9600 -> 06.
-    pub fn from_baud(baud: u32) -> Option<Self> {
-        Self::TABLE
-            .iter()
-            .find(|(_, b)| *b == baud)
-            .map(|(c, _)| Self(*c))
-    }
-
-    /// The code as sent on the wire.
-    pub fn code(self) -> u8 {
-        self.0
-    }
-
-    /// The line speed in baud.
-    pub fn baud(self) -> u32 {
-        Self::TABLE
-            .iter()
-            .find(|(c, _)| *c == self.0)
-            .map_or(9600, |(_, b)| *b)
-    }
-}
+pub use crate::protocol::c29u_baud::BaudCode;
 
 /// The data format byte DD of `%` as 8-3 defines it (bits 5..1 must be 0).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
