@@ -273,7 +273,7 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
         }
     });
 
-    let gap = silence_gap(crate::protocol::c29u_baud::baud_rate(baud_code).unwrap_or(9600));
+    let gap = silence_gap(crate::protocol::c29u::baud_rate(baud_code).unwrap_or(9600));
     let faults = Faults {
         drop: args.drop,
         corrupt: args.corrupt,

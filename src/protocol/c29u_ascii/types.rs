@@ -54,7 +54,7 @@ impl TryFrom<u8> for Channel {
     }
 }
 
-pub use crate::protocol::c29u_baud::BaudCode;
+pub use crate::protocol::c29u::BaudCode;
 
 /// The data format byte DD of `%` as 8-3 defines it (bits 5..1 must be 0).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]

@@ -3,15 +3,7 @@
 use super::SimError;
 use serde::{Deserialize, Serialize};
 
-/// Which protocol the module speaks, as chosen by its DIP switch (section 4).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Protocol {
-    /// TRPCOM ASCII commands (sections 6-8).
-    Ascii,
-    /// Modbus RTU (sections 9-10).
-    Modbus,
-}
+pub use crate::protocol::c29u::Protocol;
 
 /// Which input edge advances a channel's counter (8-3 bit 7).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -131,4 +123,4 @@ impl Default for ModuleConfig {
 }
 
 /// Baud rate for a code of the 8-2 table, `None` outside 03..=0A.
-pub use crate::protocol::c29u_baud::baud_rate;
+pub use crate::protocol::c29u::baud_rate;

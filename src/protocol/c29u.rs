@@ -1,4 +1,25 @@
-//! The TRP-C29U's baud rate codes (manual 8-2), shared by its ASCII and Modbus protocols.
+//! What both TRP-C29U protocols share: the protocol choice itself and the baud rate codes (8-2).
+
+use serde::{Deserialize, Serialize};
+
+/// Which protocol the module speaks, as chosen by its DIP switch (section 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Protocol {
+    /// TRPCOM ASCII commands (sections 6-8).
+    Ascii,
+    /// Modbus RTU (sections 9-10).
+    Modbus,
+}
+
+impl std::fmt::Display for Protocol {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Ascii => "ASCII",
+            Self::Modbus => "Modbus RTU",
+        })
+    }
+}
 
 /// Every (code, baud rate) pair of the table in 8-2.
 pub const BAUD_CODES: [(u8, u32); 8] = [
