@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod sim;
 pub mod trc;
 
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
@@ -17,6 +18,11 @@ pub struct Cli {
 pub enum Command {
     /// Talk to a TRC1000 panel board: list, relay, inputs, rotaries, monitor
     Trc(trc::TrcArgs),
+    /// Serve a simulated device on a pseudo-terminal for any serial program
+    Sim {
+        #[command(subcommand)]
+        device: sim::SimCommand,
+    },
 }
 
 /// Runs the command line and returns the process exit status.
@@ -30,5 +36,6 @@ pub fn main() -> i32 {
     };
     match cli.command {
         Command::Trc(args) => trc::run(args),
+        Command::Sim { device } => sim::run(device),
     }
 }

@@ -1,10 +1,10 @@
 //! `rigscript sim c29u`: serves simulated TRP-C29U modules on a pseudo-terminal, driven by
 //! control lines on standard input.
 
+use crate::protocol::c29u_modbus::silence_gap;
 use crate::runtime::clock::{SharedClock, SystemClock};
 use crate::sim::c29u::{C29u, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use crate::protocol::c29u_modbus::silence_gap;
 use crate::sim::pty::{Faults, PtyServer};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, Write};
@@ -153,7 +153,10 @@ pub fn apply_control(line: &str, modules: &[(u8, SharedModel)]) -> String {
         None => modules.first(),
     };
     let Some((_, model)) = found else {
-        return format!("error: no simulated module has ID {}", parsed.target.unwrap_or_default());
+        return format!(
+            "error: no simulated module has ID {}",
+            parsed.target.unwrap_or_default()
+        );
     };
     let mut model = lock(model);
     match parsed.control {
@@ -189,7 +192,12 @@ pub fn run(command: SimCommand) -> i32 {
     }
 }
 
-fn build_model(args: &C29uSimArgs, id: Option<u8>, clock: &SharedClock, several: bool) -> Result<C29u, String> {
+fn build_model(
+    args: &C29uSimArgs,
+    id: Option<u8>,
+    clock: &SharedClock,
+    several: bool,
+) -> Result<C29u, String> {
     let protocol = match args.protocol {
         ProtocolArg::Modbus => Protocol::Modbus,
         ProtocolArg::Ascii => Protocol::Ascii,
@@ -241,7 +249,8 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
 
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, Arc::clone(&stop)).map_err(|e| format!("cannot handle signals: {e}"))?;
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .map_err(|e| format!("cannot handle signals: {e}"))?;
     }
 
     let mut server = PtyServer::open(args.link.as_deref()).map_err(|e| e.to_string())?;
@@ -280,7 +289,9 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
         delay: Duration::from_millis(args.delay),
         seed: args.seed,
     };
-    server.serve(&mut line, &faults, gap, &stop).map_err(|e| e.to_string())
+    server
+        .serve(&mut line, &faults, gap, &stop)
+        .map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -300,17 +311,36 @@ mod tests {
     fn control_lines_parse_with_and_without_target() {
         assert_eq!(
             parse_control("di 0x05"),
-            Ok(ControlLine { target: None, control: Control::Di(5) })
+            Ok(ControlLine {
+                target: None,
+                control: Control::Di(5)
+            })
         );
         assert_eq!(
             parse_control("@2 pulse 3 10"),
-            Ok(ControlLine { target: Some(2), control: Control::Pulse { channel: 3, count: 10 } })
+            Ok(ControlLine {
+                target: Some(2),
+                control: Control::Pulse {
+                    channel: 3,
+                    count: 10
+                }
+            })
         );
-        assert_eq!(parse_control(" reset ").map(|c| c.control), Ok(Control::Reset));
-        assert_eq!(parse_control("state").map(|c| c.control), Ok(Control::State));
+        assert_eq!(
+            parse_control(" reset ").map(|c| c.control),
+            Ok(Control::Reset)
+        );
+        assert_eq!(
+            parse_control("state").map(|c| c.control),
+            Ok(Control::State)
+        );
         assert!(parse_control("pulse 8 1").unwrap_err().contains("0-7"));
-        assert!(parse_control("pulse 1 -3").unwrap_err().contains("pulse count"));
-        assert!(parse_control("explode").unwrap_err().contains("unknown control line"));
+        assert!(parse_control("pulse 1 -3")
+            .unwrap_err()
+            .contains("pulse count"));
+        assert!(parse_control("explode")
+            .unwrap_err()
+            .contains("unknown control line"));
         assert!(parse_control("di").is_err());
     }
 }

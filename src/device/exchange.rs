@@ -5,15 +5,6 @@ use crate::link::{ByteLink, LinkError};
 use crate::runtime::clock::Clock;
 use std::time::Duration;
 
-/// What the protocol makes of the bytes received so far.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Completion {
-    /// The first `n` bytes are a whole answer.
-    Complete(usize),
-    /// Not yet an answer; keep reading.
-    Incomplete,
-}
-
 /// How an exchange waits.
 #[derive(Debug, Clone, Copy)]
 pub struct Timing {
@@ -50,14 +41,15 @@ pub enum Direction {
 /// Somewhere to report every frame sent and received (`--trace`).
 pub type Tracer = Box<dyn FnMut(Direction, &[u8]) + Send>;
 
-/// Sends `request` and, when `expect_answer`, collects the answer as `complete` frames it.
+/// Sends `request` and, when `expect_answer`, collects the answer: `frame` looks at everything
+/// received so far and returns the answer once it holds a whole one (leading noise cut off).
 pub fn exchange(
     link: &mut dyn ByteLink,
     clock: &dyn Clock,
     request: &[u8],
     expect_answer: bool,
     timing: Timing,
-    mut complete: impl FnMut(&[u8]) -> Completion,
+    mut frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     tracer: &mut Option<Tracer>,
 ) -> Result<Vec<u8>, ExchangeError> {
     // Anything already waiting is a late answer to an earlier request.
@@ -85,12 +77,11 @@ pub fn exchange(
         match chunk.get(..n) {
             Some(bytes) if !bytes.is_empty() => {
                 received.extend_from_slice(bytes);
-                if let Completion::Complete(len) = complete(&received) {
-                    received.truncate(len);
+                if let Some(answer) = frame(&received) {
                     if let Some(trace) = tracer.as_mut() {
-                        trace(Direction::Received, &received);
+                        trace(Direction::Received, &answer);
                     }
-                    return Ok(received);
+                    return Ok(answer);
                 }
             }
             _ => {
@@ -153,11 +144,9 @@ mod tests {
         }
     }
 
-    fn line_end(buf: &[u8]) -> Completion {
-        match buf.iter().position(|&b| b == b'\r') {
-            Some(i) => Completion::Complete(i + 1),
-            None => Completion::Incomplete,
-        }
+    fn line_end(buf: &[u8]) -> Option<Vec<u8>> {
+        let end = buf.iter().position(|&b| b == b'\r')?;
+        Some(buf[..=end].to_vec())
     }
 
     fn timing(gap: Option<u64>) -> Timing {
@@ -232,7 +221,7 @@ mod tests {
             b"x",
             true,
             timing(Some(2)),
-            |_| Completion::Incomplete,
+            |_| None,
             &mut None,
         )
         .unwrap();

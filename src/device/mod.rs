@@ -1,5 +1,4 @@
 //! Device drivers: a protocol codec plus a link, with retries, framing by time and typed errors.
 
-pub mod c29u;
 pub mod exchange;
 pub mod trc1000;

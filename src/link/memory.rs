@@ -43,8 +43,9 @@ impl<D: ByteDevice> ByteLink for MemoryByteLink<D> {
     fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
         // A driver writes whole frames, so the frame ends here: the line then falls silent.
         let answer = self.device.receive(bytes);
-        self.device.line_idle();
         self.pending.extend(answer);
+        let late = self.device.line_idle();
+        self.pending.extend(late);
         Ok(())
     }
 

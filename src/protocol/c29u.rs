@@ -12,6 +12,16 @@ pub enum Protocol {
     Modbus,
 }
 
+/// Which input edge advances a channel's counter (8-3 bit 7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CounterEdge {
+    /// The input becomes energized (the factory default).
+    Rising,
+    /// The input is released.
+    Falling,
+}
+
 impl std::fmt::Display for Protocol {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {

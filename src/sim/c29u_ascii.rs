@@ -14,7 +14,6 @@
 //!   [`AsciiFrontEnd::MAX_FRAME`] is dropped up to the next CR.
 
 use super::c29u::{C29u, ModuleConfig, Protocol, SimError};
-use super::ByteDevice;
 use crate::protocol::c29u_ascii::{
     decode_request, encode_answer, encode_refusal, Address, Answer, ConfigReport, FirmwareDate,
     FirmwareVersion, LatchLevel, ModuleName, Preset, Refusal, Request, CR, MODULE_TYPE,
@@ -210,39 +209,6 @@ impl AsciiFrontEnd {
     /// Bytes of an unfinished frame held so far.
     pub fn pending(&self) -> usize {
         self.frame.len()
-    }
-}
-
-/// A simulated TRP-C29U in ASCII mode on a byte stream: the model plus its front end.
-#[derive(Debug)]
-pub struct AsciiDevice {
-    model: C29u,
-    front: AsciiFrontEnd,
-}
-
-impl AsciiDevice {
-    /// Puts `model` behind an ASCII front end.
-    pub fn new(model: C29u) -> Self {
-        Self {
-            model,
-            front: AsciiFrontEnd::new(),
-        }
-    }
-
-    /// The model, to look at.
-    pub fn model(&self) -> &C29u {
-        &self.model
-    }
-
-    /// The model, to act on its field side (inputs, pulses, power).
-    pub fn model_mut(&mut self) -> &mut C29u {
-        &mut self.model
-    }
-}
-
-impl ByteDevice for AsciiDevice {
-    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
-        self.front.receive(&mut self.model, bytes)
     }
 }
 
@@ -534,16 +500,6 @@ mod tests {
         );
         assert_eq!(b.send("$016"), "!0100FF");
         assert_eq!(b.front.receive(&mut b.model, b"\r\r\n\r"), b"");
-    }
-
-    #[test]
-    fn ascii_device_is_a_byte_device() {
-        let clock = VirtualClock::at_epoch();
-        let model = C29u::new(Protocol::Ascii, Arc::new(clock), Eeprom::factory());
-        let mut dev = AsciiDevice::new(model);
-        dev.model_mut().set_inputs(0x01);
-        assert_eq!(ByteDevice::receive(&mut dev, b"$016\r"), b"!0100FE\r");
-        assert_eq!(dev.model().inputs(), 0x01);
     }
 
     fn request_strategy() -> impl Strategy<Value = Request> {

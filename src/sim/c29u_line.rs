@@ -30,8 +30,8 @@ impl SimulatedC29u {
     /// Puts `model` on a line, speaking the protocol its DIP switch selects.
     pub fn new(model: C29u) -> Self {
         let front = match model.protocol() {
-            Protocol::Ascii => FrontEnd::Ascii(AsciiFrontEnd::default()),
-            Protocol::Modbus => FrontEnd::Modbus(ModbusFrontEnd::default()),
+            Protocol::Ascii => FrontEnd::Ascii(AsciiFrontEnd::new()),
+            Protocol::Modbus => FrontEnd::Modbus(ModbusFrontEnd::new()),
         };
         Self {
             model: Arc::new(Mutex::new(model)),
@@ -54,10 +54,10 @@ impl ByteDevice for SimulatedC29u {
         }
     }
 
-    fn line_idle(&mut self) {
+    fn line_idle(&mut self) -> Vec<u8> {
         match &mut self.front {
-            FrontEnd::Ascii(_) => {}
-            FrontEnd::Modbus(front) => front.line_idle(),
+            FrontEnd::Ascii(_) => Vec::new(),
+            FrontEnd::Modbus(front) => front.end_of_silence(&mut lock(&self.model)),
         }
     }
 }
@@ -89,7 +89,71 @@ impl ByteDevice for MultiDrop {
             .collect()
     }
 
-    fn line_idle(&mut self) {
-        self.devices.iter_mut().for_each(|d| d.line_idle());
+    fn line_idle(&mut self) -> Vec<u8> {
+        self.devices
+            .iter_mut()
+            .flat_map(|d| d.line_idle())
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::c29u_modbus::seal;
+    use crate::runtime::clock::VirtualClock;
+    use crate::sim::c29u::{Eeprom, ModuleConfig};
+
+    fn module(protocol: Protocol, id: u8) -> SimulatedC29u {
+        let eeprom = Eeprom {
+            config: ModuleConfig {
+                id,
+                ..ModuleConfig::factory()
+            },
+            ..Eeprom::factory()
+        };
+        SimulatedC29u::new(C29u::new(
+            protocol,
+            Arc::new(VirtualClock::at_epoch()),
+            eeprom,
+        ))
+    }
+
+    #[test]
+    fn each_protocol_answers_through_its_front_end_and_shares_its_model() {
+        let mut ascii = module(Protocol::Ascii, 1);
+        lock(&ascii.model()).set_inputs(0x01);
+        assert_eq!(ascii.receive(b"$016\r"), b"!0100FE\r");
+        assert!(ascii.line_idle().is_empty());
+
+        let mut modbus = module(Protocol::Modbus, 1);
+        lock(&modbus.model()).set_inputs(0x01);
+        assert_eq!(
+            modbus.receive(&seal(&[1, 1, 0, 0x20, 0, 8])),
+            seal(&[1, 1, 1, 0xFE])
+        );
+        // A vendor request cut short of its reserved byte is answered once the line is silent.
+        assert!(modbus.receive(&seal(&[1, 0x46, 0x28])).is_empty());
+        assert_eq!(modbus.line_idle(), seal(&[1, 0x46, 0x28, 0]));
+    }
+
+    #[test]
+    fn only_the_addressed_module_on_a_shared_line_answers() {
+        let one = module(Protocol::Modbus, 1);
+        let two = module(Protocol::Modbus, 2);
+        let (m1, m2) = (one.model(), two.model());
+        let mut line = MultiDrop::new();
+        line.attach(Box::new(one));
+        line.attach(Box::new(two));
+        assert_eq!(
+            line.receive(&seal(&[2, 0x0F, 0, 0, 0, 8, 1, 0x5A])),
+            seal(&[2, 0x0F, 0, 0, 0, 8])
+        );
+        assert_eq!(lock(&m2).outputs(), 0x5A);
+        assert_eq!(lock(&m1).outputs(), 0x00);
+        assert!(
+            line.receive(&seal(&[3, 1, 0, 0, 0, 8])).is_empty(),
+            "nobody has ID 3"
+        );
     }
 }

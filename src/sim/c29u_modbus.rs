@@ -251,11 +251,7 @@ impl ModbusFrontEnd {
     }
 
     /// The line has been silent for 3.5 characters: an incomplete request is dropped.
-    pub fn line_idle(&mut self) {
-        self.reader.clear();
-    }
-
-    /// Like `line_idle`, for a caller that can still send: a request that only the silence
+    /// The line fell silent: an unfinished request is dropped, and one that only the silence
     /// could end (a vendor request shorter than section 10 writes it) is answered.
     pub fn end_of_silence(&mut self, model: &mut C29u) -> Vec<u8> {
         self.reader
@@ -658,7 +654,7 @@ mod tests {
         let mut r = Rig::new();
         let f = Request::write_outputs(0x0F).encode(1);
         assert!(r.raw(&f[..6]).is_empty());
-        r.front.line_idle();
+        assert!(r.front.end_of_silence(&mut r.model).is_empty());
         assert!(r.raw(&f[6..]).is_empty());
         assert_eq!(r.model.outputs(), 0);
         assert_eq!(r.send("01 01 00 00 00 08"), "01 01 01 00");

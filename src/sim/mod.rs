@@ -2,6 +2,7 @@
 
 pub mod c29u;
 pub mod c29u_ascii;
+pub mod c29u_line;
 pub mod c29u_modbus;
 pub mod pty;
 pub mod trc1000;
@@ -12,8 +13,11 @@ use std::sync::{Arc, Mutex};
 pub trait ByteDevice: Send {
     /// Takes bytes as they arrive on the line and returns whatever the device answers.
     fn receive(&mut self, bytes: &[u8]) -> Vec<u8>;
-    /// Tells the device the line has been silent for longer than a frame gap.
-    fn line_idle(&mut self) {}
+    /// Tells the device the line has been silent for longer than a frame gap; returns what it
+    /// answers to a request that only the silence could end.
+    fn line_idle(&mut self) -> Vec<u8> {
+        Vec::new()
+    }
 }
 
 /// A simulated device that answers fixed 8-byte packets (the TRC1000).
@@ -29,7 +33,7 @@ impl<T: ByteDevice> ByteDevice for Arc<Mutex<T>> {
             .receive(bytes)
     }
 
-    fn line_idle(&mut self) {
+    fn line_idle(&mut self) -> Vec<u8> {
         self.lock().unwrap_or_else(|e| e.into_inner()).line_idle()
     }
 }

@@ -119,8 +119,11 @@ impl PtyServer {
                     ) =>
                 {
                     if heard_since_idle {
-                        device.line_idle();
                         heard_since_idle = false;
+                        let answer = device.line_idle();
+                        if !answer.is_empty() {
+                            self.send(answer, faults, &mut rng)?;
+                        }
                     }
                 }
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
@@ -189,8 +192,9 @@ mod tests {
             out
         }
 
-        fn line_idle(&mut self) {
+        fn line_idle(&mut self) -> Vec<u8> {
             self.idles.fetch_add(1, Ordering::Relaxed);
+            Vec::new()
         }
     }
 

@@ -3,17 +3,7 @@
 use super::SimError;
 use serde::{Deserialize, Serialize};
 
-pub use crate::protocol::c29u::Protocol;
-
-/// Which input edge advances a channel's counter (8-3 bit 7).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum CounterEdge {
-    /// The input becomes energized (the factory default).
-    Rising,
-    /// The input is released.
-    Falling,
-}
+pub use crate::protocol::c29u::{CounterEdge, Protocol};
 
 /// The digital I/O module type every C29U reports and accepts in `%` and `$ID2` (8-1, 8-12).
 pub const DIO_TYPE: u8 = 0x40;
