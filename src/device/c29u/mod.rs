@@ -1,0 +1,585 @@
+//! The TRP-C29U driver: one API over both of the module's protocols (ASCII and Modbus RTU),
+//! chosen by configuration, on a serial line that several modules may share.
+
+mod ascii;
+mod modbus;
+mod transport;
+
+pub use crate::protocol::c29u::{CounterEdge, Protocol};
+pub use crate::protocol::c29u_ascii::Preset;
+pub use transport::{share, SharedLink};
+
+use crate::device::exchange::{format_frame, ExchangeError, Tracer};
+use crate::link::{serial::SerialLink, tcp::TcpLink, LinkError};
+use crate::runtime::clock::SharedClock;
+use std::time::Duration;
+use transport::{Fault, Transport};
+
+/// How to reach one module and how patiently.
+#[derive(Debug, Clone, PartialEq)]
+pub struct C29uOptions {
+    /// The protocol its DIP switch selects.
+    pub protocol: Protocol,
+    /// Its ID (ASCII 0-255, Modbus 1-247).
+    pub id: u8,
+    /// Line speed.
+    pub baud: u32,
+    /// ASCII only: checksums on commands and answers.
+    pub checksum: bool,
+    /// Wait for one answer.
+    pub timeout: Duration,
+    /// Further attempts after a timeout or a garbled answer.
+    pub retries: u32,
+    /// Inputs read 0 on the wire when energized (NOTES: true for the real module).
+    pub di_active_low: bool,
+}
+
+impl Default for C29uOptions {
+    fn default() -> Self {
+        Self {
+            protocol: Protocol::Modbus,
+            id: 1,
+            baud: 9600,
+            checksum: false,
+            timeout: Duration::from_millis(200),
+            retries: 2,
+            di_active_low: true,
+        }
+    }
+}
+
+/// Why a request to a module failed, in words that say what to try.
+#[derive(Debug, thiserror::Error)]
+pub enum C29uError {
+    /// The link failed (port missing, permission, unplugged).
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// No complete answer in time.
+    #[error("no answer from TRP-C29U ID {id} on {port} to {request} within {timeout:?}{}; check the ID, protocol, baud rate and wiring (`rigscript scan` finds modules)", received_note(received, *text))]
+    Timeout {
+        /// The link.
+        port: String,
+        /// The module's ID.
+        id: u8,
+        /// The request in words.
+        request: String,
+        /// How long it waited.
+        timeout: Duration,
+        /// What did arrive, if anything.
+        received: Vec<u8>,
+        /// The protocol is text (ASCII): show what arrived as text too.
+        text: bool,
+    },
+    /// An answer arrived but could not be read.
+    #[error("garbled answer from TRP-C29U ID {id} on {port} to {request}: {detail}; check for noise on the line or another master")]
+    Garbled {
+        /// The link.
+        port: String,
+        /// The module's ID.
+        id: u8,
+        /// The request in words.
+        request: String,
+        /// What was wrong.
+        detail: String,
+    },
+    /// The module's host watchdog fired: it holds its safe value and refuses output writes.
+    #[error("TRP-C29U ID {id} on {port} is in safe mode (its host watchdog expired): it refuses output writes until the watchdog is disabled (`watchdog off`)")]
+    SafeMode {
+        /// The link.
+        port: String,
+        /// The module's ID.
+        id: u8,
+    },
+    /// The module answered that it will not do this.
+    #[error("TRP-C29U ID {id} on {port} refused {request}: {reason}")]
+    Refused {
+        /// The link.
+        port: String,
+        /// The module's ID.
+        id: u8,
+        /// The request in words.
+        request: String,
+        /// The module's reason.
+        reason: String,
+    },
+    /// The protocol in use has no command for this.
+    #[error("{what} is not available in the {protocol} protocol: {hint}")]
+    Unsupported {
+        /// What was asked.
+        what: &'static str,
+        /// The protocol in use.
+        protocol: Protocol,
+        /// What to do instead.
+        hint: &'static str,
+    },
+    /// A caller's argument is out of range.
+    #[error("{0}")]
+    InvalidArgument(String),
+}
+
+fn received_note(received: &[u8], text: bool) -> String {
+    if received.is_empty() {
+        " (nothing came back)".to_string()
+    } else {
+        let shown = format_frame(crate::device::exchange::Direction::Received, received, text);
+        format!(
+            " (only this came back: {})",
+            shown.trim_start_matches("<< ")
+        )
+    }
+}
+
+impl C29uError {
+    /// True when the module could not be reached at all (as opposed to answering "no").
+    pub fn is_unreachable(&self) -> bool {
+        match self {
+            Self::Link(e) => matches!(
+                e,
+                LinkError::NotFound { .. }
+                    | LinkError::PermissionDenied { .. }
+                    | LinkError::Disconnected { .. }
+            ),
+            Self::Timeout { .. } => true,
+            _ => false,
+        }
+    }
+}
+
+/// Outputs and inputs read together.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct IoState {
+    /// DO byte, bit n = DOn on.
+    pub outputs: u8,
+    /// DI byte, bit n = DIn energized.
+    pub inputs: u8,
+    /// DI byte as the module sent it.
+    pub inputs_raw: u8,
+}
+
+/// Latched inputs, bit n = DIn (as the module reports them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Latches {
+    /// Channels latched at logic 0 on the wire.
+    pub low: u8,
+    /// Channels latched at logic 1 on the wire.
+    pub high: u8,
+}
+
+/// The host watchdog as the module reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct WatchdogInfo {
+    /// Counting down (or fired, where the protocol cannot tell the two apart).
+    pub enabled: bool,
+    /// Timeout in 0.1 s steps (0 when disabled).
+    pub timeout_tenths: u8,
+    /// It has fired: outputs are at the safe value; `None` where the protocol does not say.
+    pub expired: Option<bool>,
+}
+
+/// Firmware version.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct Firmware {
+    /// What the module says, as text.
+    pub text: String,
+    /// The release date (year, month, day) when the answer carries one.
+    pub date: Option<(u16, u8, u8)>,
+}
+
+/// The module's communication settings as it reports them.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct Settings {
+    /// Its ID.
+    pub id: u8,
+    /// Line speed.
+    pub baud: Option<u32>,
+    /// ASCII checksums (ASCII only).
+    pub checksum: Option<bool>,
+    /// Counted edge (ASCII only).
+    pub counter_edge: Option<CounterEdge>,
+    /// Model code (ASCII only; 3 = TRP-C29U).
+    pub model: Option<u8>,
+}
+
+/// A change of the module's settings; `None` keeps a setting as it is.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ConfigChange {
+    /// New ID.
+    pub id: Option<u8>,
+    /// New line speed.
+    pub baud: Option<u32>,
+    /// ASCII checksums on or off.
+    pub checksum: Option<bool>,
+    /// Which edge the counters count.
+    pub counter_edge: Option<CounterEdge>,
+    /// Counters answered in hex (ASCII engineer mode).
+    pub hex_counters: Option<bool>,
+}
+
+/// The `#**` snapshot read back with `$ID4`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Snapshot {
+    /// First read since the snapshot was taken.
+    pub fresh: bool,
+    /// DO byte then.
+    pub outputs: u8,
+    /// DI byte then, bit n = energized.
+    pub inputs: u8,
+}
+
+/// What one protocol does for each operation; `C29u` checks arguments and converts polarity.
+pub(crate) trait Backend: Send {
+    fn id(&self) -> u8;
+    fn read_io(&mut self, t: &mut Transport) -> Result<(u8, u8), C29uError>;
+    fn read_outputs(&mut self, t: &mut Transport) -> Result<u8, C29uError>;
+    fn read_inputs_raw(&mut self, t: &mut Transport) -> Result<u8, C29uError>;
+    fn write_outputs(&mut self, t: &mut Transport, value: u8) -> Result<(), C29uError>;
+    fn write_output(&mut self, t: &mut Transport, channel: u8, on: bool) -> Result<(), C29uError>;
+    fn read_counter(&mut self, t: &mut Transport, channel: u8) -> Result<u16, C29uError>;
+    fn read_counters(&mut self, t: &mut Transport) -> Result<[u16; 8], C29uError>;
+    fn clear_counter(&mut self, t: &mut Transport, channel: u8) -> Result<(), C29uError>;
+    fn clear_counters(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn save_counters(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn read_latches(&mut self, t: &mut Transport) -> Result<Latches, C29uError>;
+    fn clear_latches(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn set_watchdog(&mut self, t: &mut Transport, tenths: u8) -> Result<(), C29uError>;
+    fn watchdog(&mut self, t: &mut Transport) -> Result<WatchdogInfo, C29uError>;
+    fn host_ok(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn read_preset(&mut self, t: &mut Transport, preset: Preset) -> Result<u8, C29uError>;
+    fn set_preset(&mut self, t: &mut Transport, preset: Preset, value: u8)
+        -> Result<(), C29uError>;
+    fn save_outputs_as(&mut self, t: &mut Transport, preset: Preset) -> Result<(), C29uError>;
+    fn name(&mut self, t: &mut Transport) -> Result<String, C29uError>;
+    fn set_name(&mut self, t: &mut Transport, name: &str) -> Result<(), C29uError>;
+    fn firmware(&mut self, t: &mut Transport) -> Result<Firmware, C29uError>;
+    fn settings(&mut self, t: &mut Transport) -> Result<Settings, C29uError>;
+    fn configure(&mut self, t: &mut Transport, change: &ConfigChange) -> Result<(), C29uError>;
+    fn reset(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn take_reset_flag(&mut self, t: &mut Transport) -> Result<bool, C29uError>;
+    fn set_led_mode(&mut self, t: &mut Transport, on: bool) -> Result<(), C29uError>;
+    fn take_snapshot(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn read_snapshot(&mut self, t: &mut Transport) -> Result<Snapshot, C29uError>;
+    fn raw(&mut self, t: &mut Transport, body: &[u8]) -> Result<Vec<u8>, C29uError>;
+}
+
+/// One TRP-C29U module.
+pub struct C29u {
+    transport: Transport,
+    backend: Box<dyn Backend>,
+    options: C29uOptions,
+}
+
+fn check_channel(channel: u8) -> Result<u8, C29uError> {
+    if channel < 8 {
+        Ok(channel)
+    } else {
+        Err(C29uError::InvalidArgument(format!(
+            "channel {channel} does not exist: use 0-7"
+        )))
+    }
+}
+
+/// Watchdog timeout in the module's 0.1 s steps (1-255), or why it cannot be one.
+pub fn watchdog_tenths(timeout: Duration) -> Result<u8, C29uError> {
+    let tenths = (timeout.as_secs_f64() * 10.0).round();
+    if (1.0..=255.0).contains(&tenths) && (timeout.as_secs_f64() * 10.0 - tenths).abs() < 1e-6 {
+        Ok(tenths as u8)
+    } else {
+        Err(C29uError::InvalidArgument(format!(
+            "watchdog timeout {:?} is not possible: use 0.1 s to 25.5 s in 0.1 s steps",
+            timeout
+        )))
+    }
+}
+
+impl C29u {
+    /// A driver for the module `options` describes, on a (possibly shared) line.
+    pub fn new(
+        link: SharedLink,
+        clock: SharedClock,
+        options: C29uOptions,
+    ) -> Result<Self, C29uError> {
+        let backend: Box<dyn Backend> = match options.protocol {
+            Protocol::Ascii => Box::new(ascii::AsciiBackend::new(options.id, options.checksum)),
+            Protocol::Modbus => {
+                if !(1..=247).contains(&options.id) {
+                    return Err(C29uError::InvalidArgument(format!(
+                        "Modbus ID {} is not possible: use 1-247",
+                        options.id
+                    )));
+                }
+                Box::new(modbus::ModbusBackend::new(options.id, options.baud))
+            }
+        };
+        Ok(Self {
+            transport: Transport::new(link, clock, options.timeout, options.retries),
+            backend,
+            options,
+        })
+    }
+
+    /// Opens `port` (a serial device path, or `tcp://host:port`) and makes a driver on it.
+    pub fn open(port: &str, clock: SharedClock, options: C29uOptions) -> Result<Self, C29uError> {
+        Self::new(
+            share(open_port(port, options.baud, options.timeout)?),
+            clock,
+            options,
+        )
+    }
+
+    /// Sends every frame and answer to `tracer` (`--trace`).
+    pub fn set_tracer(&mut self, tracer: Option<Tracer>) {
+        self.transport.set_tracer(tracer);
+    }
+
+    /// The options in force (they follow configuration changes).
+    pub fn options(&self) -> &C29uOptions {
+        &self.options
+    }
+
+    /// The module in words, for messages: `TRP-C29U ID 1 on serial port ...`.
+    pub fn describe(&self) -> String {
+        format!(
+            "TRP-C29U ID {} on {}",
+            self.backend.id(),
+            self.transport.port()
+        )
+    }
+
+    fn logical(&self, raw: u8) -> u8 {
+        if self.options.di_active_low {
+            !raw
+        } else {
+            raw
+        }
+    }
+
+    /// Outputs and inputs, in one transaction where the protocol has one.
+    pub fn read_io(&mut self) -> Result<IoState, C29uError> {
+        let (outputs, raw) = self.backend.read_io(&mut self.transport)?;
+        Ok(IoState {
+            outputs,
+            inputs: self.logical(raw),
+            inputs_raw: raw,
+        })
+    }
+
+    /// Inputs, bit n = DIn energized.
+    pub fn read_inputs(&mut self) -> Result<u8, C29uError> {
+        let raw = self.backend.read_inputs_raw(&mut self.transport)?;
+        Ok(self.logical(raw))
+    }
+
+    /// Inputs as the module sends them.
+    pub fn read_inputs_raw(&mut self) -> Result<u8, C29uError> {
+        self.backend.read_inputs_raw(&mut self.transport)
+    }
+
+    /// The DO byte.
+    pub fn read_outputs(&mut self) -> Result<u8, C29uError> {
+        self.backend.read_outputs(&mut self.transport)
+    }
+
+    /// Sets all eight outputs.
+    pub fn write_outputs(&mut self, value: u8) -> Result<(), C29uError> {
+        self.backend.write_outputs(&mut self.transport, value)
+    }
+
+    /// Sets one output.
+    pub fn write_output(&mut self, channel: u8, on: bool) -> Result<(), C29uError> {
+        let channel = check_channel(channel)?;
+        self.backend.write_output(&mut self.transport, channel, on)
+    }
+
+    /// One input's counter.
+    pub fn read_counter(&mut self, channel: u8) -> Result<u16, C29uError> {
+        let channel = check_channel(channel)?;
+        self.backend.read_counter(&mut self.transport, channel)
+    }
+
+    /// All eight counters.
+    pub fn read_counters(&mut self) -> Result<[u16; 8], C29uError> {
+        self.backend.read_counters(&mut self.transport)
+    }
+
+    /// Clears one counter.
+    pub fn clear_counter(&mut self, channel: u8) -> Result<(), C29uError> {
+        let channel = check_channel(channel)?;
+        self.backend.clear_counter(&mut self.transport, channel)
+    }
+
+    /// Clears all counters.
+    pub fn clear_counters(&mut self) -> Result<(), C29uError> {
+        self.backend.clear_counters(&mut self.transport)
+    }
+
+    /// Saves all counters to EEPROM, so they survive a reset or power loss.
+    pub fn save_counters(&mut self) -> Result<(), C29uError> {
+        self.backend.save_counters(&mut self.transport)
+    }
+
+    /// The latched inputs.
+    pub fn read_latches(&mut self) -> Result<Latches, C29uError> {
+        self.backend.read_latches(&mut self.transport)
+    }
+
+    /// Clears the latches.
+    pub fn clear_latches(&mut self) -> Result<(), C29uError> {
+        self.backend.clear_latches(&mut self.transport)
+    }
+
+    /// Enables the host watchdog with `timeout` (0.1-25.5 s), or disables it with `None`.
+    pub fn set_watchdog(&mut self, timeout: Option<Duration>) -> Result<(), C29uError> {
+        let tenths = match timeout {
+            Some(t) => watchdog_tenths(t)?,
+            None => 0,
+        };
+        self.backend.set_watchdog(&mut self.transport, tenths)
+    }
+
+    /// The watchdog's state.
+    pub fn watchdog(&mut self) -> Result<WatchdogInfo, C29uError> {
+        self.backend.watchdog(&mut self.transport)
+    }
+
+    /// Host OK: restarts the watchdog countdown (no answer; in ASCII it reaches every module).
+    pub fn host_ok(&mut self) -> Result<(), C29uError> {
+        self.backend.host_ok(&mut self.transport)
+    }
+
+    /// The stored safe value.
+    pub fn safe_value(&mut self) -> Result<u8, C29uError> {
+        self.backend.read_preset(&mut self.transport, Preset::Safe)
+    }
+
+    /// Stores the safe value (in ASCII, by briefly writing it to the outputs: see the CLI help).
+    pub fn set_safe_value(&mut self, value: u8) -> Result<(), C29uError> {
+        self.backend
+            .set_preset(&mut self.transport, Preset::Safe, value)
+    }
+
+    /// The stored power-on value.
+    pub fn power_on_value(&mut self) -> Result<u8, C29uError> {
+        self.backend
+            .read_preset(&mut self.transport, Preset::PowerOn)
+    }
+
+    /// Stores the power-on value (in ASCII, by briefly writing it to the outputs).
+    pub fn set_power_on_value(&mut self, value: u8) -> Result<(), C29uError> {
+        self.backend
+            .set_preset(&mut self.transport, Preset::PowerOn, value)
+    }
+
+    /// Stores the current outputs as the safe or power-on value.
+    pub fn save_outputs_as(&mut self, preset: Preset) -> Result<(), C29uError> {
+        self.backend.save_outputs_as(&mut self.transport, preset)
+    }
+
+    /// The module's name.
+    pub fn name(&mut self) -> Result<String, C29uError> {
+        self.backend.name(&mut self.transport)
+    }
+
+    /// Renames the module (ASCII only; 1-6 printable characters).
+    pub fn set_name(&mut self, name: &str) -> Result<(), C29uError> {
+        self.backend.set_name(&mut self.transport, name)
+    }
+
+    /// Firmware version.
+    pub fn firmware(&mut self) -> Result<Firmware, C29uError> {
+        self.backend.firmware(&mut self.transport)
+    }
+
+    /// Communication settings as the module reports them.
+    pub fn settings(&mut self) -> Result<Settings, C29uError> {
+        self.backend.settings(&mut self.transport)
+    }
+
+    /// Changes the module's settings; the driver then talks to it with the new ones.
+    pub fn configure(&mut self, change: &ConfigChange) -> Result<(), C29uError> {
+        self.backend.configure(&mut self.transport, change)?;
+        if let Some(id) = change.id {
+            self.options.id = id;
+        }
+        if let Some(baud) = change.baud {
+            self.options.baud = baud;
+        }
+        if let Some(checksum) = change.checksum {
+            self.options.checksum = checksum;
+        }
+        Ok(())
+    }
+
+    /// Resets the module (outputs go to the power-on value, unsaved counts are lost).
+    pub fn reset(&mut self) -> Result<(), C29uError> {
+        self.backend.reset(&mut self.transport)
+    }
+
+    /// Reads (and so clears) the flag the module sets when it has been reset.
+    pub fn take_reset_flag(&mut self) -> Result<bool, C29uError> {
+        self.backend.take_reset_flag(&mut self.transport)
+    }
+
+    /// LED mode (8-18, 10-10).
+    pub fn set_led_mode(&mut self, on: bool) -> Result<(), C29uError> {
+        self.backend.set_led_mode(&mut self.transport, on)
+    }
+
+    /// Broadcasts `#**`: every module on the line remembers its outputs and inputs (ASCII only).
+    pub fn take_snapshot(&mut self) -> Result<(), C29uError> {
+        self.backend.take_snapshot(&mut self.transport)
+    }
+
+    /// Reads this module's `#**` snapshot (ASCII only).
+    pub fn read_snapshot(&mut self) -> Result<Snapshot, C29uError> {
+        let mut s = self.backend.read_snapshot(&mut self.transport)?;
+        s.inputs = self.logical(s.inputs);
+        Ok(s)
+    }
+
+    /// Sends one raw frame (ASCII text without ID framing rules applied; Modbus bytes without
+    /// CRC), with the checksum or CRC appended, and returns the answer as received.
+    pub fn raw(&mut self, body: &[u8]) -> Result<Vec<u8>, C29uError> {
+        self.backend.raw(&mut self.transport, body)
+    }
+}
+
+/// Opens a serial port path or a `tcp://host:port` serial device server.
+pub fn open_port(
+    port: &str,
+    baud: u32,
+    timeout: Duration,
+) -> Result<Box<dyn crate::link::ByteLink>, LinkError> {
+    if port.starts_with(crate::link::tcp::SCHEME) {
+        Ok(Box::new(TcpLink::connect(
+            port,
+            timeout.max(Duration::from_secs(2)),
+        )?))
+    } else {
+        Ok(Box::new(SerialLink::open(port, baud)?))
+    }
+}
+
+/// Turns the end of an exchange into a fault: silence is worth retrying, link failures are not.
+pub(crate) fn exchange_fault(
+    e: ExchangeError,
+    port: &str,
+    id: u8,
+    request: &str,
+    timeout: Duration,
+    text: bool,
+) -> Fault {
+    match e {
+        ExchangeError::Link(e) => Fault::Final(C29uError::Link(e)),
+        ExchangeError::Timeout { received } => Fault::Retry(C29uError::Timeout {
+            port: port.to_string(),
+            id,
+            request: request.to_string(),
+            timeout,
+            received,
+            text,
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,339 @@
+//! Driver tests over in-memory links to the simulator, in virtual time, for both protocols.
+
+use super::*;
+use crate::link::memory::MemoryByteLink;
+use crate::runtime::clock::{Clock, VirtualClock};
+use crate::sim::c29u::{C29u as Model, Eeprom, ModuleConfig};
+use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
+use crate::sim::ByteDevice;
+use std::sync::{Arc, Mutex};
+
+struct Rig {
+    clock: VirtualClock,
+    model: SharedModel,
+    driver: C29u,
+}
+
+fn model(protocol: Protocol, clock: &VirtualClock, id: u8, checksum: bool) -> SimulatedC29u {
+    let eeprom = Eeprom {
+        config: ModuleConfig {
+            id,
+            checksum,
+            ..ModuleConfig::factory()
+        },
+        ..Eeprom::factory()
+    };
+    SimulatedC29u::new(Model::new(protocol, Arc::new(clock.clone()), eeprom))
+}
+
+fn rig_with(protocol: Protocol, checksum: bool) -> Rig {
+    let clock = VirtualClock::at_epoch();
+    let sim = model(protocol, &clock, 1, checksum);
+    let model = sim.model();
+    let link = MemoryByteLink::new(sim, "C29U").with_clock(Arc::new(clock.clone()));
+    let options = C29uOptions {
+        protocol,
+        checksum,
+        ..C29uOptions::default()
+    };
+    let driver = C29u::new(share(Box::new(link)), Arc::new(clock.clone()), options).unwrap();
+    Rig {
+        clock,
+        model,
+        driver,
+    }
+}
+
+fn both() -> [Rig; 3] {
+    [
+        rig_with(Protocol::Ascii, false),
+        rig_with(Protocol::Ascii, true),
+        rig_with(Protocol::Modbus, false),
+    ]
+}
+
+#[test]
+fn inputs_are_logical_and_raw_is_active_low() {
+    for mut r in both() {
+        lock(&r.model).set_inputs(0b0011_0000);
+        assert_eq!(r.driver.read_inputs().unwrap(), 0b0011_0000);
+        assert_eq!(r.driver.read_inputs_raw().unwrap(), 0b1100_1111);
+        let io = r.driver.read_io().unwrap();
+        assert_eq!((io.outputs, io.inputs, io.inputs_raw), (0, 0x30, 0xCF));
+    }
+}
+
+#[test]
+fn outputs_byte_and_channel() {
+    for mut r in both() {
+        r.driver.write_outputs(0x21).unwrap();
+        assert_eq!(lock(&r.model).outputs(), 0x21);
+        r.driver.write_output(7, true).unwrap();
+        r.driver.write_output(0, false).unwrap();
+        assert_eq!(r.driver.read_outputs().unwrap(), 0xA0);
+        assert!(matches!(
+            r.driver.write_output(8, true),
+            Err(C29uError::InvalidArgument(_))
+        ));
+    }
+}
+
+#[test]
+fn counters_clear_and_save_across_reset() {
+    for mut r in both() {
+        lock(&r.model).pulse(2, 23).unwrap();
+        lock(&r.model).pulse(5, 7).unwrap();
+        assert_eq!(r.driver.read_counter(2).unwrap(), 23);
+        assert_eq!(r.driver.read_counters().unwrap(), [0, 0, 23, 0, 0, 7, 0, 0]);
+        r.driver.clear_counter(2).unwrap();
+        assert_eq!(r.driver.read_counters().unwrap(), [0, 0, 0, 0, 0, 7, 0, 0]);
+        r.driver.save_counters().unwrap();
+        lock(&r.model).pulse(5, 1).unwrap();
+        r.driver.reset().unwrap();
+        assert_eq!(
+            r.driver.read_counters().unwrap(),
+            [0, 0, 0, 0, 0, 7, 0, 0],
+            "unsaved count lost"
+        );
+        r.driver.clear_counters().unwrap();
+        assert_eq!(r.driver.read_counters().unwrap(), [0; 8]);
+    }
+}
+
+#[test]
+fn latches_read_and_clear() {
+    for mut r in both() {
+        lock(&r.model).set_inputs(0x02);
+        lock(&r.model).set_inputs(0x00);
+        let latches = r.driver.read_latches().unwrap();
+        assert_eq!((latches.low, latches.high), (0x02, 0x02));
+        r.driver.clear_latches().unwrap();
+        let latches = r.driver.read_latches().unwrap();
+        assert_eq!((latches.low, latches.high), (0, 0));
+    }
+}
+
+#[test]
+fn watchdog_fires_to_safe_value_refuses_writes_and_host_ok_keeps_it_alive() {
+    for mut r in both() {
+        r.driver.set_safe_value(0x14).unwrap();
+        assert_eq!(r.driver.safe_value().unwrap(), 0x14);
+        r.driver.write_outputs(0x01).unwrap();
+        r.driver
+            .set_watchdog(Some(Duration::from_millis(500)))
+            .unwrap();
+        let w = r.driver.watchdog().unwrap();
+        assert!(w.enabled);
+        assert_eq!(w.timeout_tenths, 5);
+        for _ in 0..20 {
+            r.clock.advance(Duration::from_millis(400));
+            r.driver.host_ok().unwrap();
+        }
+        r.driver.write_outputs(0x03).unwrap();
+        r.clock.advance(Duration::from_millis(600));
+        assert_eq!(r.driver.read_outputs().unwrap(), 0x14);
+        match r.driver.write_outputs(0x00) {
+            Err(C29uError::SafeMode { id: 1, .. }) => {}
+            other => panic!("expected safe mode, got {other:?}"),
+        }
+        assert!(matches!(
+            r.driver.write_output(1, true),
+            Err(C29uError::SafeMode { .. })
+        ));
+        r.driver.set_watchdog(None).unwrap();
+        r.driver.write_outputs(0x00).unwrap();
+        assert_eq!(lock(&r.model).outputs(), 0x00);
+    }
+}
+
+#[test]
+fn power_on_value_after_reset_and_reset_flag() {
+    for mut r in both() {
+        r.driver.set_power_on_value(0x13).unwrap();
+        assert_eq!(r.driver.power_on_value().unwrap(), 0x13);
+        assert_eq!(
+            lock(&r.model).outputs(),
+            0x00,
+            "setting the value leaves the outputs as they were"
+        );
+        r.driver.take_reset_flag().unwrap();
+        assert!(!r.driver.take_reset_flag().unwrap());
+        r.driver.reset().unwrap();
+        assert!(r.driver.take_reset_flag().unwrap());
+        assert_eq!(r.driver.read_outputs().unwrap(), 0x13);
+        r.driver.write_outputs(0x42).unwrap();
+        r.driver.save_outputs_as(Preset::Safe).unwrap();
+        assert_eq!(r.driver.safe_value().unwrap(), 0x42);
+    }
+}
+
+#[test]
+fn name_and_firmware_per_protocol() {
+    let mut r = rig_with(Protocol::Ascii, false);
+    assert_eq!(r.driver.name().unwrap(), "TRPC29");
+    r.driver.set_name("ABCDE").unwrap();
+    assert_eq!(r.driver.name().unwrap(), "ABCDE");
+    assert!(matches!(
+        r.driver.set_name("TOOLONG"),
+        Err(C29uError::InvalidArgument(_))
+    ));
+    assert_eq!(r.driver.firmware().unwrap().date, Some((2009, 7, 3)));
+
+    let mut r = rig_with(Protocol::Modbus, false);
+    assert_eq!(r.driver.name().unwrap(), "C29");
+    assert!(matches!(
+        r.driver.set_name("X"),
+        Err(C29uError::Unsupported { .. })
+    ));
+    assert_eq!(r.driver.firmware().unwrap().date, Some((2009, 7, 3)));
+}
+
+#[test]
+fn configure_changes_id_and_the_driver_follows() {
+    for mut r in both() {
+        r.driver
+            .configure(&ConfigChange {
+                id: Some(5),
+                baud: Some(19200),
+                ..ConfigChange::default()
+            })
+            .unwrap();
+        assert_eq!(lock(&r.model).config().id, 5);
+        assert_eq!(lock(&r.model).config().baud_code, 0x07);
+        assert_eq!(r.driver.options().id, 5);
+        r.driver.write_outputs(0x55).unwrap();
+        assert_eq!(lock(&r.model).outputs(), 0x55);
+        assert_eq!(r.driver.settings().unwrap().baud, Some(19200));
+    }
+}
+
+#[test]
+fn ascii_configure_edge_checksum_and_hex_mode() {
+    let mut r = rig_with(Protocol::Ascii, false);
+    r.driver
+        .configure(&ConfigChange {
+            checksum: Some(true),
+            counter_edge: Some(CounterEdge::Falling),
+            hex_counters: Some(true),
+            ..ConfigChange::default()
+        })
+        .unwrap();
+    assert!(lock(&r.model).config().checksum);
+    assert!(r.driver.options().checksum);
+    let s = r.driver.settings().unwrap();
+    assert_eq!(
+        (s.checksum, s.counter_edge),
+        (Some(true), Some(CounterEdge::Falling))
+    );
+    lock(&r.model).pulse(0, 0x1B).unwrap();
+    assert_eq!(r.driver.read_counter(0).unwrap(), 0x1B);
+    let mut m = rig_with(Protocol::Modbus, false);
+    assert!(matches!(
+        m.driver.configure(&ConfigChange {
+            checksum: Some(true),
+            ..ConfigChange::default()
+        }),
+        Err(C29uError::Unsupported { .. })
+    ));
+}
+
+#[test]
+fn snapshot_in_ascii_only() {
+    let mut r = rig_with(Protocol::Ascii, false);
+    lock(&r.model).set_inputs(0x0E);
+    r.driver.write_outputs(0x01).unwrap();
+    r.driver.take_snapshot().unwrap();
+    let s = r.driver.read_snapshot().unwrap();
+    assert_eq!((s.fresh, s.outputs, s.inputs), (true, 0x01, 0x0E));
+    assert!(!r.driver.read_snapshot().unwrap().fresh);
+    let mut m = rig_with(Protocol::Modbus, false);
+    assert!(matches!(
+        m.driver.take_snapshot(),
+        Err(C29uError::Unsupported { .. })
+    ));
+}
+
+#[test]
+fn raw_frames_get_checksum_or_crc() {
+    let mut r = rig_with(Protocol::Ascii, true);
+    // "!01TRPC29" sums to 0x226: checksum 26.
+    assert_eq!(r.driver.raw(b"$01M").unwrap(), b"!01TRPC2926\r");
+    let mut m = rig_with(Protocol::Modbus, false);
+    let answer = m.driver.raw(&[1, 1, 0, 0, 0, 8]).unwrap();
+    assert_eq!(answer, crate::protocol::c29u_modbus::seal(&[1, 1, 1, 0]));
+}
+
+/// Drops the answers of one ID (a dead module) and flips a byte of the first few others.
+struct Faulty {
+    inner: MultiDrop,
+    garble: usize,
+}
+
+impl ByteDevice for Faulty {
+    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+        let mut answer = self.inner.receive(bytes);
+        if self.garble > 0 && !answer.is_empty() {
+            self.garble -= 1;
+            if let Some(b) = answer.get_mut(1) {
+                *b ^= 0x40;
+            }
+        }
+        answer
+    }
+}
+
+#[test]
+fn a_dead_id_times_out_alone_and_garbled_answers_are_retried() {
+    for protocol in [Protocol::Ascii, Protocol::Modbus] {
+        let clock = VirtualClock::at_epoch();
+        let mut line = MultiDrop::new();
+        line.attach(Box::new(model(protocol, &clock, 1, false)));
+        line.attach(Box::new(model(protocol, &clock, 2, false)));
+        let faulty = Arc::new(Mutex::new(Faulty {
+            inner: line,
+            garble: 2,
+        }));
+        let link = share(Box::new(
+            MemoryByteLink::new(faulty.clone(), "bus").with_clock(Arc::new(clock.clone())),
+        ));
+        let opts = |id| C29uOptions {
+            protocol,
+            id,
+            timeout: Duration::from_millis(100),
+            retries: 2,
+            ..C29uOptions::default()
+        };
+        let mut one = C29u::new(link.clone(), Arc::new(clock.clone()), opts(1)).unwrap();
+        let mut two = C29u::new(link.clone(), Arc::new(clock.clone()), opts(2)).unwrap();
+        let mut dead = C29u::new(link, Arc::new(clock.clone()), opts(9)).unwrap();
+
+        // Two garbled answers, then a good one: within the retries.
+        one.write_outputs(0x0F).unwrap();
+        two.write_outputs(0xF0).unwrap();
+        let before = clock.now();
+        match dead.read_outputs() {
+            Err(e @ C29uError::Timeout { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains("ID 9") && text.contains("nothing came back"),
+                    "{text}"
+                );
+                assert!(e.is_unreachable());
+            }
+            other => panic!("expected a timeout, got {other:?}"),
+        }
+        assert_eq!(
+            clock.now() - before,
+            Duration::from_millis(300),
+            "three attempts of 100 ms"
+        );
+        assert_eq!(one.read_outputs().unwrap(), 0x0F);
+        assert_eq!(two.read_outputs().unwrap(), 0xF0);
+
+        faulty.lock().unwrap().garble = 5;
+        assert!(
+            matches!(one.read_outputs(), Err(C29uError::Garbled { .. })),
+            "retries exhausted"
+        );
+    }
+}
