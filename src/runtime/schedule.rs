@@ -17,8 +17,9 @@
 //! - Cron occurrences are found by the `croner` crate, which follows Vixie cron / OCPS across
 //!   DST changes (its search moves in real time, never backwards):
 //!   - spring forward: a fixed time inside the gap (`0 30 2 * * *` on a day 02:00 jumps to
-//!     03:00) fires once, at the first valid time after the gap (03:00); wildcard or step
-//!     fields (`*/5 * * * * *`, `0 * * * *`) simply have no occurrences in the missing hour.
+//!     03:00) fires once, at the first valid time after the gap (03:00); with a wildcard or
+//!     step in the second, minute or hour field (`*/5 * * * * *`, `30 * * * *`) the job simply
+//!     has no occurrences in the missing hour.
 //!   - fall back: a fixed time in the repeated hour fires once, on its first pass; wildcard or
 //!     step fields fire on both passes, because those are distinct real instants
 //!     (`0 */15 * * * *` fires 100 times on a 25-hour day, and `0 0 * * * *` 25 times).
@@ -688,6 +689,24 @@ mod tests {
             assert!(q
                 .windows(2)
                 .all(|w| w[1] - w[0] == chrono::Duration::minutes(15)));
+        }
+    }
+
+    #[test]
+    fn a_fixed_minute_of_every_hour_follows_the_hours_that_exist() {
+        // The hour field is a wildcard, so 02:30 is simply absent on the short day (not moved
+        // to 03:00 as a fixed-time job is) and happens on both passes on the long day.
+        for (day, hours) in [((2024, 3, 31), 23usize), ((2024, 10, 27), 25)] {
+            let clock = VirtualClock::new(midnight(&Amsterdam, day.0, day.1, day.2));
+            let mut s = Schedule::with_time_zone(Amsterdam);
+            s.cron("30 * * * *", clock.wall()).unwrap();
+            let fired = run(&mut s, &clock, Duration::from_secs(hours as u64 * 3600));
+            assert_eq!(fired.len(), hours, "{day:?}");
+            let at_0230 = local_times(&Amsterdam, &fired)
+                .into_iter()
+                .filter(|t| t.contains("T02:30:00"))
+                .count();
+            assert_eq!(at_0230, hours - 23, "{day:?}");
         }
     }
 
