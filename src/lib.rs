@@ -4,6 +4,7 @@
 //! at the far end of a link. See DESIGN.md for the whole picture.
 
 pub mod cli;
+pub mod config;
 pub mod device;
 pub mod link;
 pub mod protocol;

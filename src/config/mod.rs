@@ -1,0 +1,195 @@
+//! `rig.toml`: the named devices, the scan period, the error policy and the records file.
+//!
+//! Every key is optional except a device's `kind` and a TRP-C29U's `port`; unknown keys and
+//! bad values are errors naming the file, the line and the key, all of them at once:
+//! `rig.toml:9: devices.io.protocol: "modbsu" is not a protocol; use "modbus" or "ascii"`.
+//! Durations are written as `"20ms"`, `"1.5s"`, `"5m"` or a number of milliseconds.
+
+mod device;
+mod error;
+mod reader;
+#[cfg(test)]
+mod tests;
+
+pub use device::{
+    is_device_name, C29uConfig, DeviceConfig, Port, Protocol, Trc1000Address, Trc1000Config,
+    WatchdogTimeout,
+};
+pub use error::{ConfigError, Problem, ProblemKind};
+
+use reader::{duration, line_and_column, string, Reader, TableRef};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use toml::de::{DeTable, DeValue};
+
+/// Scan period when rig.toml does not set one: 50 ticks a second.
+pub const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
+
+/// How long a device may be lost before its safe state is enforced, when not configured.
+pub const DEFAULT_GRACE: Duration = Duration::from_secs(1);
+
+const TOP_KEYS: &[&str] = &["period", "on_error", "records", "grace", "devices"];
+
+/// What the runner does when a script handler fails.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum ErrorPolicy {
+    /// Put every device in its safe state and end the run (the default).
+    #[default]
+    Stop,
+    /// Put devices in their safe state and start the script again, with back-off.
+    Restart,
+    /// Report the error and go on with the next tick.
+    Skip,
+}
+
+impl ErrorPolicy {
+    /// The policy's name as written in rig.toml.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ErrorPolicy::Stop => "stop",
+            ErrorPolicy::Restart => "restart",
+            ErrorPolicy::Skip => "skip",
+        }
+    }
+}
+
+/// A whole rig: loop settings and named devices.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RigConfig {
+    /// Scan period (above zero; default `DEFAULT_PERIOD`).
+    pub period: Duration,
+    /// What a handler error does (default stop).
+    pub on_error: ErrorPolicy,
+    /// JSON-lines file for `record` and `measure` (default none).
+    pub records: Option<PathBuf>,
+    /// How long a device may be lost before its outputs' safe state is enforced
+    /// (default `DEFAULT_GRACE`).
+    pub grace: Duration,
+    /// Devices by the name scripts use.
+    pub devices: BTreeMap<String, DeviceConfig>,
+}
+
+impl Default for RigConfig {
+    /// No devices, every setting at its default.
+    fn default() -> Self {
+        Self {
+            period: DEFAULT_PERIOD,
+            on_error: ErrorPolicy::Stop,
+            records: None,
+            grace: DEFAULT_GRACE,
+            devices: BTreeMap::new(),
+        }
+    }
+}
+
+impl RigConfig {
+    /// Reads and checks a rig.toml file; messages name it as `path` was given.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Checks rig.toml text; `file_name` is used in messages.
+    pub fn parse(text: &str, file_name: &str) -> Result<Self, ConfigError> {
+        let doc = DeTable::parse(text).map_err(|e| {
+            let (line, column) = line_and_column(text, e.span().map_or(0, |s| s.start));
+            ConfigError::Syntax {
+                file: file_name.to_string(),
+                line,
+                column,
+                message: e.message().to_string(),
+            }
+        })?;
+        let mut r = Reader::new(file_name, text);
+        let root = TableRef {
+            path: String::new(),
+            span: 0..0,
+            table: doc.get_ref(),
+        };
+        r.check_keys(&root, TOP_KEYS);
+        let defaults = Self::default();
+        let period = r
+            .read(&root, "period", |v| match duration(v)? {
+                d if d.is_zero() => Err(reader::bad(v, "is not a period; it must be above zero")),
+                d => Ok(d),
+            })
+            .unwrap_or(defaults.period);
+        let on_error = r
+            .read(&root, "on_error", |v| match string(v)?.as_str() {
+                "stop" => Ok(ErrorPolicy::Stop),
+                "restart" => Ok(ErrorPolicy::Restart),
+                "skip" => Ok(ErrorPolicy::Skip),
+                _ => Err(reader::bad(
+                    v,
+                    r#"is not an error policy; use "stop", "restart" or "skip""#,
+                )),
+            })
+            .unwrap_or(defaults.on_error);
+        let records = r.read(&root, "records", |v| match string(v)? {
+            s if s.trim().is_empty() => Err(reader::bad(v, "is not a file name")),
+            s => Ok(PathBuf::from(s)),
+        });
+        let grace = r.read(&root, "grace", duration).unwrap_or(defaults.grace);
+        let devices = match root.get("devices") {
+            None => BTreeMap::new(),
+            Some(value) => match value.get_ref() {
+                DeValue::Table(table) => device::read_devices(
+                    &mut r,
+                    &TableRef {
+                        path: "devices".into(),
+                        span: value.span(),
+                        table,
+                    },
+                ),
+                other => {
+                    r.report(
+                        &value.span(),
+                        "devices".into(),
+                        ProblemKind::WrongType {
+                            expected: "a table of devices ([devices.NAME])",
+                            found: reader::type_name(other),
+                        },
+                    );
+                    BTreeMap::new()
+                }
+            },
+        };
+        let problems = r.finish();
+        if !problems.is_empty() {
+            return Err(ConfigError::Invalid(problems));
+        }
+        Ok(Self {
+            period,
+            on_error,
+            records,
+            grace,
+            devices,
+        })
+    }
+
+    /// The rig `--sim` provides without a config: `panel`, a TRC1000 at unit 0 (safe relay 0),
+    /// and `io`, a TRP-C29U at Modbus id 1, both simulated, everything else at its default.
+    pub fn simulated_default() -> Self {
+        let mut devices = BTreeMap::new();
+        devices.insert(
+            "panel".to_string(),
+            DeviceConfig::Trc1000(Trc1000Config {
+                address: Trc1000Address::Unit(0),
+                safe_relay: Some(0),
+            }),
+        );
+        devices.insert(
+            "io".to_string(),
+            DeviceConfig::C29u(C29uConfig::with_defaults(Port::Simulated)),
+        );
+        Self {
+            devices,
+            ..Self::default()
+        }
+    }
+}
