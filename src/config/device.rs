@@ -2,7 +2,8 @@
 
 use super::error::ProblemKind;
 use super::reader::{bad, boolean, duration, integer_in, string, Reader, TableRef};
-use crate::protocol::c29u_baud::{baud_code, BAUD_CODES};
+use crate::protocol::c29u::{baud_code, BAUD_CODES};
+pub use crate::protocol::c29u::{Protocol, WatchdogTimeout};
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::PathBuf;
@@ -126,48 +127,6 @@ impl fmt::Display for Port {
             Port::Tcp { host, port } => write!(f, "tcp://{host}:{port}"),
             Port::Simulated => f.write_str("simulator"),
         }
-    }
-}
-
-/// The TRP-C29U's two wire protocols.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Protocol {
-    /// Modbus RTU (manual 9-10).
-    Modbus,
-    /// The ASCII command set (manual 6-8).
-    Ascii,
-}
-
-/// A host watchdog timeout: 0.1 s x N, N = 1..255 (manual 8-19).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub struct WatchdogTimeout(u8);
-
-impl WatchdogTimeout {
-    /// The timeout for `tenths` x 0.1 s, if 1-255.
-    pub fn from_tenths(tenths: u8) -> Option<Self> {
-        (tenths > 0).then_some(Self(tenths))
-    }
-
-    /// The timeout equal to `d`, if it is a whole number of tenths from 0.1 s to 25.5 s.
-    pub fn from_duration(d: Duration) -> Option<Self> {
-        const TENTH_NS: u128 = 100_000_000;
-        let nanos = d.as_nanos();
-        if nanos % TENTH_NS != 0 {
-            return None;
-        }
-        u8::try_from(nanos / TENTH_NS)
-            .ok()
-            .and_then(Self::from_tenths)
-    }
-
-    /// N, in units of 0.1 s, as the module takes it.
-    pub fn tenths(self) -> u8 {
-        self.0
-    }
-
-    /// The timeout as a duration.
-    pub fn as_duration(self) -> Duration {
-        Duration::from_millis(u64::from(self.0) * 100)
     }
 }
 

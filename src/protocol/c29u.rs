@@ -1,6 +1,7 @@
 //! What both TRP-C29U protocols share: the protocol choice itself and the baud rate codes (8-2).
 
 use serde::{Deserialize, Serialize};
+use std::time::Duration;
 
 /// Which protocol the module speaks, as chosen by its DIP switch (section 4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -77,6 +78,39 @@ impl BaudCode {
     pub fn baud(self) -> u32 {
         // Every BaudCode was checked against the table when it was made.
         baud_rate(self.0).unwrap_or(9600)
+    }
+}
+
+/// A host watchdog timeout: 0.1 s x N, N = 1..255 (manual 8-19).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct WatchdogTimeout(u8);
+
+impl WatchdogTimeout {
+    /// The timeout for `tenths` x 0.1 s, if 1-255.
+    pub fn from_tenths(tenths: u8) -> Option<Self> {
+        (tenths > 0).then_some(Self(tenths))
+    }
+
+    /// The timeout equal to `d`, if it is a whole number of tenths from 0.1 s to 25.5 s.
+    pub fn from_duration(d: Duration) -> Option<Self> {
+        const TENTH_NS: u128 = 100_000_000;
+        let nanos = d.as_nanos();
+        if nanos % TENTH_NS != 0 {
+            return None;
+        }
+        u8::try_from(nanos / TENTH_NS)
+            .ok()
+            .and_then(Self::from_tenths)
+    }
+
+    /// N, in units of 0.1 s, as the module takes it.
+    pub fn tenths(self) -> u8 {
+        self.0
+    }
+
+    /// The timeout as a duration.
+    pub fn as_duration(self) -> Duration {
+        Duration::from_millis(u64::from(self.0) * 100)
     }
 }
 

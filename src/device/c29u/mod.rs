@@ -5,7 +5,7 @@ mod ascii;
 mod modbus;
 mod transport;
 
-pub use crate::protocol::c29u::{CounterEdge, Protocol};
+pub use crate::protocol::c29u::{CounterEdge, Protocol, WatchdogTimeout};
 pub use crate::protocol::c29u_ascii::Preset;
 pub use transport::{share, SharedLink};
 
@@ -280,15 +280,13 @@ fn check_channel(channel: u8) -> Result<u8, C29uError> {
 
 /// Watchdog timeout in the module's 0.1 s steps (1-255), or why it cannot be one.
 pub fn watchdog_tenths(timeout: Duration) -> Result<u8, C29uError> {
-    let tenths = (timeout.as_secs_f64() * 10.0).round();
-    if (1.0..=255.0).contains(&tenths) && (timeout.as_secs_f64() * 10.0 - tenths).abs() < 1e-6 {
-        Ok(tenths as u8)
-    } else {
-        Err(C29uError::InvalidArgument(format!(
-            "watchdog timeout {:?} is not possible: use 0.1 s to 25.5 s in 0.1 s steps",
-            timeout
-        )))
-    }
+    WatchdogTimeout::from_duration(timeout)
+        .map(WatchdogTimeout::tenths)
+        .ok_or_else(|| {
+            C29uError::InvalidArgument(format!(
+                "watchdog timeout {timeout:?} is not possible: use 0.1 s to 25.5 s in 0.1 s steps"
+            ))
+        })
 }
 
 impl C29u {
