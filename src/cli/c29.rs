@@ -26,6 +26,7 @@ use std::time::Duration;
 /// Options and subcommand of `rigscript c29`.
 #[derive(Debug, Args)]
 #[command(
+    args_override_self = true,
     after_help = "Exit status: 0 done, 1 the module refused or misbehaved, 2 usage error, \
                         3 the module cannot be reached (no port, no permission, no answer)."
 )]
