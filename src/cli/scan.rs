@@ -579,6 +579,18 @@ fn probe_port(
                 continue;
             }
             progress.pass(port, protocol, baud, &ids, args.timeout);
+            if protocol == Protocol::Ascii {
+                // Bytes of other probes may sit unfinished in an ASCII module's line buffer and
+                // spoil the first command; a bare CR ends them.
+                let sent = link
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .write_all(b"\r");
+                if let Err(e) = sent {
+                    outcome.errors.push((port.to_string(), e.to_string()));
+                    return Ok(());
+                }
+            }
             for (n, &id) in (1..).zip(ids.iter()) {
                 progress.id(port, protocol, baud, id, n, ids.len());
                 match probe(&line, protocol, id) {
