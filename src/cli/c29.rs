@@ -428,10 +428,7 @@ fn watchdog_text(w: &WatchdogInfo) -> String {
             "expired (timeout {t}): outputs at the safe value; `watchdog off` leaves safe mode"
         ),
         (_, true, Some(false)) => format!("enabled, timeout {t}"),
-        (_, true, None) => format!(
-            "enabled, timeout {t} (the module does not say whether it has expired; if it has, \
-             output writes are refused)"
-        ),
+        (_, true, None) => format!("enabled, timeout {t} (the module does not report expiry)"),
         (_, false, Some(false)) => format!("disabled (timeout {t} stored)"),
         (_, false, None) => format!(
             "not counting, timeout {t}: disabled, or expired with the outputs at the safe value \

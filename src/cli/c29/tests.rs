@@ -323,5 +323,5 @@ fn watchdog_words_say_what_is_known() {
     );
     assert!(watchdog_text(&w(true, 5, Some(true))).starts_with("expired"));
     assert!(watchdog_text(&w(false, 5, None)).contains("does not say which"));
-    assert!(watchdog_text(&w(true, 5, None)).contains("does not say whether"));
+    assert!(watchdog_text(&w(true, 5, None)).contains("does not report expiry"));
 }
