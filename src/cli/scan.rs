@@ -35,7 +35,7 @@ pub struct ScanArgs {
     /// Probe only these ports (paths, pty symlinks, tcp://HOST:PORT) [default: every serial port found]
     #[arg(long, value_delimiter = ',', value_name = "P,..")]
     pub ports: Vec<String>,
-    /// IDs to try, such as 1-5,9 [default: 1-16, ASCII also 0]
+    /// IDs to try, such as 1-5,9; Modbus skips 0 and 248-255 [default: 1-16, ASCII also 0]
     #[arg(long, value_name = "LIST", value_parser = parse_ids)]
     pub ids: Option<IdList>,
     /// Baud rates to try, such as 9600,115200, or `all` [default: 9600]
