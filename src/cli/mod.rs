@@ -2,6 +2,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod c29;
+pub mod output;
+pub mod scan;
 pub mod sim;
 pub mod trc;
 
@@ -16,6 +19,10 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Find TRC1000 boards and TRP-C29U modules on this machine
+    Scan(scan::ScanArgs),
+    /// Talk to a TRP-C29U module: I/O, counters, latches, watchdog, presets, identity, config
+    C29(c29::C29Args),
     /// Talk to a TRC1000 panel board: list, relay, inputs, rotaries, monitor
     Trc(trc::TrcArgs),
     /// Serve a simulated device on a pseudo-terminal for any serial program
@@ -35,6 +42,8 @@ pub fn main() -> i32 {
         }
     };
     match cli.command {
+        Command::Scan(args) => scan::run(args),
+        Command::C29(args) => c29::run(args),
         Command::Trc(args) => trc::run(args),
         Command::Sim { device } => sim::run(device),
     }

@@ -21,12 +21,21 @@ pub enum SimCommand {
 }
 
 /// The protocol the simulated module's DIP switch selects.
-#[derive(Debug, Clone, Copy, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ProtocolArg {
     /// Modbus RTU (the factory setting).
     Modbus,
     /// Trycom's ASCII commands.
     Ascii,
+}
+
+impl From<ProtocolArg> for Protocol {
+    fn from(arg: ProtocolArg) -> Self {
+        match arg {
+            ProtocolArg::Modbus => Protocol::Modbus,
+            ProtocolArg::Ascii => Protocol::Ascii,
+        }
+    }
 }
 
 /// Options of `rigscript sim c29u`.
@@ -198,10 +207,7 @@ fn build_model(
     clock: &SharedClock,
     several: bool,
 ) -> Result<C29u, String> {
-    let protocol = match args.protocol {
-        ProtocolArg::Modbus => Protocol::Modbus,
-        ProtocolArg::Ascii => Protocol::Ascii,
-    };
+    let protocol = Protocol::from(args.protocol);
     let mut model = match &args.state {
         Some(path) => {
             let path = match (several, id) {

@@ -1,5 +1,6 @@
 //! `rigscript trc`: list TRC1000 boards, select a relay, read switches and rotaries, monitor.
 
+use crate::cli::output::{run_command, stop_flag, CommandError, EXIT_FAILED, EXIT_UNREACHABLE};
 use crate::device::trc1000::{rotary_changes, RotaryChange, Trc1000, Trc1000Error};
 use crate::link::usb::{list_boards, BoardInfo, UsbPacketLink, UsbTarget};
 use crate::link::{LinkError, PacketLink};
@@ -10,13 +11,6 @@ use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-
-/// Exit status: success.
-pub const EXIT_OK: i32 = 0;
-/// Exit status: anything not covered below (board misbehaves, times out, output failed).
-pub const EXIT_FAILED: i32 = 1;
-/// Exit status: the board cannot be reached (not found, no permission, disconnected).
-pub const EXIT_UNREACHABLE: i32 = 3;
 
 /// Options and subcommand of `rigscript trc`.
 #[derive(Debug, Args)]
@@ -90,15 +84,7 @@ pub fn parse_bus_address(s: &str) -> Result<BusAddress, String> {
 
 /// Runs `rigscript trc` and returns the exit status.
 pub fn run(args: TrcArgs) -> i32 {
-    let stdout = std::io::stdout();
-    let mut out = stdout.lock();
-    let json = args.json;
-    let status = match run_to(&args, &mut out) {
-        Ok(()) => EXIT_OK,
-        Err(e) => report_error(&e, json, &mut out),
-    };
-    let _ = out.flush();
-    status
+    run_command(args.json, |out| run_to(&args, out))
 }
 
 /// What can end a `trc` command early.
@@ -118,24 +104,13 @@ impl From<LinkError> for CliError {
     }
 }
 
-fn exit_status(e: &CliError) -> i32 {
-    match e {
-        CliError::Device(d) if d.is_unreachable() => EXIT_UNREACHABLE,
-        _ => EXIT_FAILED,
+impl CommandError for CliError {
+    fn exit_status(&self) -> i32 {
+        match self {
+            CliError::Device(d) if d.is_unreachable() => EXIT_UNREACHABLE,
+            _ => EXIT_FAILED,
+        }
     }
-}
-
-fn report_error(e: &CliError, json: bool, out: &mut dyn Write) -> i32 {
-    let status = exit_status(e);
-    eprintln!("error: {e}");
-    if json {
-        let _ = writeln!(
-            out,
-            "{}",
-            json!({ "error": e.to_string(), "status": status })
-        );
-    }
-    status
 }
 
 fn run_to(args: &TrcArgs, out: &mut dyn Write) -> Result<(), CliError> {
@@ -149,12 +124,10 @@ fn run_to(args: &TrcArgs, out: &mut dyn Write) -> Result<(), CliError> {
     let link = UsbPacketLink::open(target)?;
     let mut trc = Trc1000::new(link);
     trc.set_timeout(Duration::from_millis(args.timeout));
-    let stop = Arc::new(AtomicBool::new(false));
-    if let TrcCommand::Monitor { .. } = args.command {
-        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-            signal_hook::flag::register(signal, Arc::clone(&stop)).map_err(CliError::Signal)?;
-        }
-    }
+    let stop = match args.command {
+        TrcCommand::Monitor { .. } => stop_flag().map_err(CliError::Signal)?,
+        _ => Arc::new(AtomicBool::new(false)),
+    };
     execute(&args.command, &mut trc, args.json, out, &stop)
 }
 
@@ -181,7 +154,8 @@ fn list(json: bool, out: &mut dyn Write) -> Result<(), CliError> {
     Ok(())
 }
 
-fn board_json(b: &BoardInfo) -> Value {
+/// One board as JSON, as `trc list` and `scan` print it.
+pub(crate) fn board_json(b: &BoardInfo) -> Value {
     json!({
         "unit": b.unit,
         "bus": b.bus,
@@ -506,16 +480,16 @@ mod tests {
             what: "TRC1000 unit 1".into(),
             hint: "plug it in".into(),
         });
-        assert_eq!(exit_status(&nf), EXIT_UNREACHABLE);
+        assert_eq!(nf.exit_status(), EXIT_UNREACHABLE);
         let timeout = CliError::Device(Trc1000Error::Timeout {
             board: "b".into(),
             request: "r".into(),
             timeout: Duration::from_millis(1),
             discarded: 0,
         });
-        assert_eq!(exit_status(&timeout), EXIT_FAILED);
+        assert_eq!(timeout.exit_status(), EXIT_FAILED);
         let mut out = Vec::new();
-        assert_eq!(report_error(&nf, true, &mut out), 3);
+        assert_eq!(crate::cli::output::report_error(&nf, true, &mut out), 3);
         let v: Value = serde_json::from_slice(&out).unwrap();
         assert_eq!(v["status"], 3);
         assert!(v["error"].as_str().unwrap().contains("TRC1000 unit 1"));

@@ -30,6 +30,25 @@ impl SerialLink {
         })
     }
 
+    /// serialport reports a failed ioctl (tcflush, termios) without its errno (EIO becomes
+    /// "Unknown"), so a device node that has vanished is what tells a hangup from other trouble.
+    fn port_error(&self, e: serialport::Error) -> LinkError {
+        let io = match e.kind() {
+            serialport::ErrorKind::Io(kind) => io::Error::new(kind, e.description),
+            _ => io::Error::other(e.description),
+        };
+        if std::path::Path::new(&self.path).exists() {
+            self.io_error(io)
+        } else {
+            LinkError::Disconnected {
+                what: format!("serial port {}", self.path),
+                detail: format!(
+                    "{io}; the device is gone: check the cable and that the adapter is still plugged in"
+                ),
+            }
+        }
+    }
+
     fn io_error(&self, e: io::Error) -> LinkError {
         if is_disconnect(&e) {
             LinkError::Disconnected {
@@ -91,7 +110,7 @@ impl ByteLink for SerialLink {
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
         if let Err(e) = self.port.set_timeout(timeout) {
-            return Err(self.io_error(io::Error::other(e.description)));
+            return Err(self.port_error(e));
         }
         match self.port.read(buf) {
             // A tty that polls readable and then reads nothing has hung up.
@@ -111,13 +130,13 @@ impl ByteLink for SerialLink {
     fn discard_input(&mut self) -> Result<(), LinkError> {
         self.port
             .clear(ClearBuffer::Input)
-            .map_err(|e| self.io_error(io::Error::other(e.description)))
+            .map_err(|e| self.port_error(e))
     }
 
     fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
         self.port
             .set_baud_rate(baud)
-            .map_err(|e| self.io_error(io::Error::other(e.description)))?;
+            .map_err(|e| self.port_error(e))?;
         self.baud = baud;
         Ok(())
     }
@@ -175,6 +194,14 @@ mod tests {
         match link.read(&mut buf, Duration::from_millis(200)) {
             Err(LinkError::Disconnected { .. }) => {}
             other => panic!("expected Disconnected after the far end closed, got {other:?}"),
+        }
+        match link.discard_input() {
+            Err(LinkError::Disconnected { .. }) => {}
+            other => panic!("expected Disconnected from a flush after hangup, got {other:?}"),
+        }
+        match link.write_all(b"x") {
+            Err(LinkError::Disconnected { .. }) => {}
+            other => panic!("expected Disconnected from a write after hangup, got {other:?}"),
         }
     }
 }

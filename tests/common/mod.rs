@@ -87,6 +87,12 @@ impl SimProcess {
         self.child.wait().ok().and_then(|s| s.code())
     }
 
+    /// Kills the simulator at once (SIGKILL), as a pulled cable would end the line, and waits.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
     fn signal_term(&mut self) {
         let _ = Command::new("kill")
             .arg("-TERM")

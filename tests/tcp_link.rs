@@ -1,0 +1,130 @@
+//! The TCP link end to end: `rigscript c29 --port tcp://...` through a local relay (what a
+//! serial device server or ser2net does) to `rigscript sim c29u` on a real pty.
+
+mod common;
+
+use common::{rigscript, SimProcess};
+use rigscript::link::serial::SerialLink;
+use rigscript::link::ByteLink;
+use serde_json::Value;
+use std::io::{ErrorKind, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::process::{Command, Output};
+use std::time::Duration;
+
+/// Relays each accepted connection to the serial port at `path`, one at a time, until the
+/// client hangs up; returns the listening port.
+fn start_relay(path: &str) -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let path = path.to_string();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(stream) = stream else { break };
+            let Ok(serial) = SerialLink::open(&path, 9600) else {
+                break;
+            };
+            relay(stream, serial);
+        }
+    });
+    port
+}
+
+fn relay(mut socket: TcpStream, mut serial: SerialLink) {
+    socket
+        .set_read_timeout(Some(Duration::from_millis(1)))
+        .unwrap();
+    let mut buf = [0u8; 512];
+    loop {
+        match socket.read(&mut buf) {
+            Ok(0) => return,
+            Ok(n) => {
+                if serial.write_all(&buf[..n]).is_err() {
+                    return;
+                }
+            }
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(_) => return,
+        }
+        match serial.read(&mut buf, Duration::from_millis(1)) {
+            Ok(0) => {}
+            Ok(n) => {
+                if socket.write_all(&buf[..n]).is_err() {
+                    return;
+                }
+            }
+            Err(_) => return,
+        }
+    }
+}
+
+fn rigscript_run(args: &[&str]) -> Output {
+    Command::new(rigscript()).args(args).output().unwrap()
+}
+
+fn ok_json(args: &[&str]) -> Value {
+    let out = rigscript_run(args);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{args:?}: {stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_str(&stdout).unwrap()
+}
+
+#[test]
+fn c29_commands_reach_the_module_through_a_tcp_serial_server() {
+    for protocol in ["modbus", "ascii"] {
+        let mut sim = SimProcess::start(&["--protocol", protocol, "--di", "0x05"]);
+        let address = format!("tcp://127.0.0.1:{}", start_relay(&sim.path));
+        let base = ["c29", "--port", &address, "--protocol", protocol];
+
+        let out = rigscript_run(&[&base[..], &["status"]].concat());
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{stdout}");
+        assert!(
+            stdout.contains("DI    0x05  00000101  energized: DI0 DI2"),
+            "{stdout}"
+        );
+
+        ok_json(&[&base[..], &["--json", "do", "0x21"]].concat());
+        assert_eq!(sim.state()["do"], 0x21);
+        let v = ok_json(&[&base[..], &["--json", "info"]].concat());
+        assert!(
+            v["module"].as_str().unwrap().contains(&address),
+            "describes the link: {v}"
+        );
+    }
+}
+
+#[test]
+fn scan_finds_a_module_behind_a_tcp_serial_server() {
+    let sim = SimProcess::start(&["--protocol", "modbus", "--id", "4"]);
+    let address = format!("tcp://127.0.0.1:{}", start_relay(&sim.path));
+    let v = ok_json(&[
+        "scan",
+        "--json",
+        "--ports",
+        &address,
+        "--ids",
+        "3-5",
+        "--protocols",
+        "modbus",
+    ]);
+    assert_eq!(v["modules"][0]["id"], 4);
+    assert_eq!(v["modules"][0]["port"], address.as_str());
+}
+
+#[test]
+fn a_server_that_is_not_there_exits_3_with_a_hint() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    drop(listener);
+    let address = format!("tcp://127.0.0.1:{port}");
+    let out = rigscript_run(&["c29", "--port", &address, "status"]);
+    assert_eq!(out.status.code(), Some(3));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains(&format!("127.0.0.1:{port}")), "{stderr}");
+    assert!(stderr.contains("server is running"), "{stderr}");
+}
