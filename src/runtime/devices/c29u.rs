@@ -125,8 +125,11 @@ impl C29uDevice {
     /// Opens the line again, if this module has a real one.
     pub fn reopen(&mut self) -> Result<(), DeviceError> {
         if let Some(open) = &mut self.reopener {
-            let link = open().map_err(C29uError::Link)?;
-            *self.line.lock().unwrap_or_else(|e| e.into_inner()) = link;
+            let mut line = self.line.lock().unwrap_or_else(|e| e.into_inner());
+            // Release the old port first: serial ports are opened exclusively.
+            let what = line.describe();
+            *line = Box::new(super::links::ClosedLink(what));
+            *line = open().map_err(C29uError::Link)?;
         }
         Ok(())
     }

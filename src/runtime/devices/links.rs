@@ -129,6 +129,53 @@ impl<D: PacketDevice> PacketDevice for Unpluggable<D> {
     }
 }
 
+/// A link that is closed: put in place of a failed link before opening it again, so the old
+/// one is released first (serial ports and USB interfaces are opened exclusively).
+pub struct ClosedLink(pub String);
+
+fn closed(what: &str) -> LinkError {
+    LinkError::Disconnected {
+        what: what.to_string(),
+        detail: "closed, being reopened".into(),
+    }
+}
+
+impl ByteLink for ClosedLink {
+    fn write_all(&mut self, _bytes: &[u8]) -> Result<(), LinkError> {
+        Err(closed(&self.0))
+    }
+
+    fn read(&mut self, _buf: &mut [u8], _timeout: Duration) -> Result<usize, LinkError> {
+        Err(closed(&self.0))
+    }
+
+    fn discard_input(&mut self) -> Result<(), LinkError> {
+        Ok(())
+    }
+
+    fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        self.0.clone()
+    }
+}
+
+impl PacketLink for ClosedLink {
+    fn send(&mut self, _packet: &[u8; 8], _timeout: Duration) -> Result<(), LinkError> {
+        Err(closed(&self.0))
+    }
+
+    fn receive(&mut self, _timeout: Duration) -> Result<Option<[u8; 8]>, LinkError> {
+        Err(closed(&self.0))
+    }
+
+    fn describe(&self) -> String {
+        self.0.clone()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

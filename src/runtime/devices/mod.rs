@@ -78,6 +78,8 @@ pub struct Health {
     pub next_retry: Duration,
     /// Why it stopped answering.
     pub cause: String,
+    /// The link itself failed: reopen it before trying again.
+    pub link_failed: bool,
 }
 
 impl Health {
@@ -87,8 +89,10 @@ impl Health {
     }
 
     /// Marks the device lost at `now` (keeps the first time); true if it was online.
-    pub fn lose(&mut self, now: Duration, cause: String, retry_in: Duration) -> bool {
+    pub fn lose(&mut self, now: Duration, error: &DeviceError, retry_in: Duration) -> bool {
         let was_online = self.lost_at.is_none();
+        let cause = error.to_string();
+        self.link_failed = self.link_failed || error.is_link_failure();
         if was_online {
             self.lost_at = Some(now);
         }
@@ -101,6 +105,7 @@ impl Health {
     pub fn back(&mut self) {
         self.lost_at = None;
         self.cause.clear();
+        self.link_failed = false;
     }
 
     /// How long it has been lost at `now` (zero while online).

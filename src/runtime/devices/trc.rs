@@ -85,6 +85,9 @@ impl TrcDevice {
     /// Opens the USB link again, if this board has a real one.
     pub fn reopen(&mut self) -> Result<(), DeviceError> {
         if let Some(open) = &mut self.reopener {
+            let what = self.driver.describe();
+            // Release the old handle first: the interface is claimed exclusively.
+            *self.driver.link_mut() = Box::new(super::links::ClosedLink(what));
             let link = open().map_err(crate::device::trc1000::Trc1000Error::Link)?;
             *self.driver.link_mut() = link;
         }
