@@ -1,0 +1,1 @@
+//! `rigscript check`: static checks of a script.
