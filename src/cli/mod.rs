@@ -2,7 +2,10 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod check;
+pub mod run;
 pub mod sim;
+pub mod test;
 pub mod trc;
 
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
@@ -16,6 +19,12 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Run a script on the rig's devices (or --sim) in the supervised scan loop
+    Run(run::RunArgs),
+    /// Check a script without running it: syntax, device names, handler parameters
+    Check(check::CheckArgs),
+    /// Run scenario tests (*.test.rhai) in virtual time against the simulators
+    Test(test::TestArgs),
     /// Talk to a TRC1000 panel board: list, relay, inputs, rotaries, monitor
     Trc(trc::TrcArgs),
     /// Serve a simulated device on a pseudo-terminal for any serial program
@@ -35,6 +44,9 @@ pub fn main() -> i32 {
         }
     };
     match cli.command {
+        Command::Run(args) => run::run(args),
+        Command::Check(args) => check::run(args),
+        Command::Test(args) => test::run(args),
         Command::Trc(args) => trc::run(args),
         Command::Sim { device } => sim::run(device),
     }

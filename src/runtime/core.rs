@@ -553,7 +553,7 @@ impl<H: Clone> Runtime<H> {
 
     /// Checks that the modules still drive what was written (a module reset or power cycled
     /// by someone else goes back to its power-on value) and selects each relay again (a board
-    /// that was unplugged forgets it); run about once a second.
+    /// that was unplugged forgets it); run every few seconds.
     pub fn verify_outputs(&mut self) {
         for idx in 0..self.devices.len() {
             if !self.online(idx) {
@@ -644,6 +644,41 @@ impl<H: Clone> Runtime<H> {
     /// Whether the script still waits for anything (handlers other than `on_stop`, timers).
     pub fn has_work(&self) -> bool {
         self.subs.iter().any(|s| s.source != Source::Stop)
+    }
+
+    /// Whether some handler waits for device inputs (then every tick polls them).
+    pub fn polls_inputs(&self) -> bool {
+        self.subs
+            .iter()
+            .any(|s| !matches!(s.source, Source::Timer(_) | Source::Stop))
+    }
+
+    /// When the next tick has something to do, if no handler polls inputs: the earliest
+    /// timer, watchdog feed or retry of a lost device. `None` when every tick has work.
+    pub fn idle_until(&self) -> Option<Duration> {
+        if self.polls_inputs() {
+            return None;
+        }
+        let now = self.now();
+        let mut next = self.schedule.next_deadline(now, self.clock.wall());
+        for d in &self.devices {
+            let h = d.health();
+            let due = if !h.online() {
+                Some(h.next_retry)
+            } else {
+                match d {
+                    Device::C29u(c) => c
+                        .watchdog
+                        .map(|t| c.last_feed.saturating_add(t.as_duration() / 4)),
+                    Device::Trc(_) => None,
+                }
+            };
+            next = match (next, due) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
+        }
+        Some(next.unwrap_or(Duration::MAX))
     }
 
     /// The handlers, for inspection.

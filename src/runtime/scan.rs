@@ -2,7 +2,7 @@
 //! the grace time); (1) read the inputs the handlers wait for, lazily, once per device per
 //! tick; (2) turn edges and due timers into handler calls; (3) run the handlers; (4) write
 //! the outputs that changed, one transaction per device; (5) feed the host watchdogs (at a
-//! quarter of their timeout) and, once a second, check the modules still drive what was
+//! quarter of their timeout) and, every few seconds, check the modules still drive what was
 //! written; (6) sleep to the next deadline. Overruns are counted and the schedule skips to
 //! the next period boundary, keeping its phase.
 //!
@@ -22,8 +22,9 @@ use std::time::Duration;
 /// SIGTERM are handled promptly whatever the period.
 pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
 
-/// How often the modules' outputs are read back and the relays selected again.
-pub const VERIFY_INTERVAL: Duration = Duration::from_secs(1);
+/// How often the modules' outputs are read back and the relays selected again (a module
+/// reset or power cycled behind the runner's back is set right within this time).
+pub const VERIFY_INTERVAL: Duration = Duration::from_secs(5);
 
 /// The first wait before a script is started again under policy `restart`; it doubles with
 /// each failure in a row, up to `MAX_BACKOFF`.
@@ -280,19 +281,35 @@ impl<P: Program> Runner<P> {
     }
 
     /// Moves the deadline one period on; past it already, counts an overrun and skips to the
-    /// first period boundary after `now`.
+    /// first period boundary after `now`. When no handler polls inputs, ticks that would have
+    /// nothing to do are skipped too: the next deadline is the first period boundary at or
+    /// after the next timer, watchdog feed, output check, retry or end (idle runs cost no CPU,
+    /// and a day of a cron script in virtual time takes a moment).
     fn schedule_next(&mut self, now: Duration) {
         let period = self.options.period.max(Duration::from_micros(1));
         self.next_deadline = self.next_deadline.saturating_add(period);
         if now > self.next_deadline {
             self.stats.overruns = self.stats.overruns.saturating_add(1);
-            let behind = now.saturating_sub(self.next_deadline).as_nanos();
-            let periods = behind / period.as_nanos() + 1;
-            let skip = u32::try_from(periods).unwrap_or(u32::MAX);
-            self.next_deadline = self
-                .next_deadline
-                .saturating_add(period.saturating_mul(skip));
+            self.next_deadline = boundary_at_or_after(self.next_deadline, period, now);
         }
+        if let Some(idle) = self.idle_until() {
+            if idle > self.next_deadline {
+                self.next_deadline = boundary_at_or_after(self.next_deadline, period, idle);
+            }
+        }
+    }
+
+    /// When the next tick has work, if no handler polls inputs (see `schedule_next`).
+    fn idle_until(&self) -> Option<Duration> {
+        let mut next = self.rt.borrow().idle_until()?;
+        next = next.min(self.last_verify.saturating_add(VERIFY_INTERVAL));
+        if let State::Restarting { at } = self.state {
+            next = next.min(at);
+        }
+        if let Some(end) = self.options.end_after {
+            next = next.min(self.rt.borrow().started.saturating_add(end));
+        }
+        Some(next)
     }
 
     fn run_handlers(&mut self) {
@@ -432,6 +449,17 @@ impl<P: Program> Runner<P> {
         rt.log.info(&format!("stopped; exit status {status}"));
         self.state = State::Stopped { status };
     }
+}
+
+/// The first of the deadlines `start + k * period` that is at or after `t`.
+fn boundary_at_or_after(start: Duration, period: Duration, t: Duration) -> Duration {
+    if t <= start {
+        return start;
+    }
+    let behind = t.saturating_sub(start).as_nanos();
+    let periods = behind.div_ceil(period.as_nanos().max(1));
+    let skip = u32::try_from(periods).unwrap_or(u32::MAX);
+    start.saturating_add(period.saturating_mul(skip))
 }
 
 /// `file:line:col: handler: cause`.
