@@ -212,29 +212,74 @@ pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     register_records(engine, rt);
 }
 
+/// Registers a property setter as pure: a handle is a name for a device, and setting a
+/// property changes the device, not the handle, so it may be done on a constant handle (such
+/// as the copies `on_var` hands out, below).
+fn setter<T: rhai::Variant + Clone>(
+    engine: &mut Engine,
+    property: &str,
+    f: impl Fn(&mut T, i64) -> R<()> + 'static,
+) {
+    rhai::FuncRegistration::new(format!("set${property}"))
+        .with_purity(true)
+        .register_into_engine(engine, f);
+}
+
+/// The handle of the device at `idx`.
+fn handle(rt: &Rt, idx: usize) -> Option<Dynamic> {
+    let r = rt.borrow();
+    let d = r.devices.get(idx)?;
+    let name: Rc<str> = Rc::from(d.name());
+    Some(match d {
+        Device::Trc(_) => Dynamic::from(Panel {
+            rt: Rc::clone(rt),
+            idx,
+            name,
+        }),
+        Device::C29u(_) => Dynamic::from(Io {
+            rt: Rc::clone(rt),
+            idx,
+            name,
+        }),
+    })
+}
+
 fn register_device(engine: &mut Engine, rt: &Rt) {
-    let rt = Rc::clone(rt);
+    let r = Rc::clone(rt);
     engine.register_fn("device", move |name: &str| -> R<Dynamic> {
-        let r = rt.borrow();
-        let Some(idx) = r.device_index(name) else {
-            return fail(format!(
+        let idx = r.borrow().device_index(name);
+        match idx.and_then(|i| handle(&r, i)) {
+            Some(h) => Ok(h),
+            None => fail(format!(
                 "no device called {name:?} in this rig (devices: {})",
-                r.device_names()
-            ));
-        };
-        let name: Rc<str> = Rc::from(name);
-        Ok(match r.devices.get(idx) {
-            Some(Device::Trc(_)) => Dynamic::from(Panel {
-                rt: Rc::clone(&rt),
-                idx,
-                name,
-            }),
-            _ => Dynamic::from(Io {
-                rt: Rc::clone(&rt),
-                idx,
-                name,
-            }),
-        })
+                r.borrow().device_names()
+            )),
+        }
+    });
+    // Each device is also a variable of its name. And a variable holding a device handle is
+    // read as a plain copy of it: a handler that uses the device it is registered on
+    // (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and locks while
+    // `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that.
+    let r = Rc::clone(rt);
+    let names: Vec<(String, usize)> = {
+        let b = rt.borrow();
+        b.devices
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (d.name().to_string(), i))
+            .collect()
+    };
+    // Rhai marks on_var "volatile" (it may change in a later release), not deprecated.
+    #[allow(deprecated)]
+    engine.on_var(move |name, _index, ctx| match ctx.scope().get(name) {
+        Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
+            Ok(Some(v.flatten_clone()))
+        }
+        Some(_) => Ok(None),
+        None => Ok(names
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, i)| handle(&r, *i))),
     });
 }
 
@@ -248,7 +293,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
             .trc(p.idx)
             .map_or(0, |d| i64::from(d.relay))
     });
-    engine.register_set("relay", |p: &mut Panel, v: i64| -> R<()> {
+    setter(engine, "relay", |p: &mut Panel, v: i64| -> R<()> {
         match u8::try_from(v) {
             Ok(r) if r < 8 => {
                 p.rt.borrow_mut().set_relay(p.idx, r);
@@ -333,7 +378,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
             .c29u(d.idx)
             .map_or(0, |c| i64::from(c.outputs))
     });
-    engine.register_set("outputs", |d: &mut Io, v: i64| -> R<()> {
+    setter(engine, "outputs", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("DO byte", v)?;
         d.rt.borrow_mut().set_outputs(d.idx, v);
         Ok(())
@@ -455,7 +500,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     engine.register_get("safe_value", |d: &mut Io| -> R<i64> {
         c29u_op(d, |m| Ok(i64::from(m.driver.safe_value()?)))
     });
-    engine.register_set("safe_value", |d: &mut Io, v: i64| -> R<()> {
+    setter(engine, "safe_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("safe value", v)?;
         c29u_op(d, |m| {
             m.driver.set_safe_value(v)?;
@@ -467,7 +512,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     engine.register_get("power_on_value", |d: &mut Io| -> R<i64> {
         c29u_op(d, |m| Ok(i64::from(m.driver.power_on_value()?)))
     });
-    engine.register_set("power_on_value", |d: &mut Io, v: i64| -> R<()> {
+    setter(engine, "power_on_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("power-on value", v)?;
         c29u_op(d, |m| {
             m.driver.set_power_on_value(v)?;

@@ -368,11 +368,13 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
             return results;
         }
     };
-    let tests: Vec<String> = ast
+    let mut tests: Vec<String> = ast
         .iter_functions()
         .filter(|f| f.name.starts_with("test_") && f.params.is_empty())
         .map(|f| f.name.to_string())
         .collect();
+    // In the order they are written.
+    tests.sort_by_key(|name| source.find(&format!("fn {name}(")).unwrap_or(usize::MAX));
     for name in tests {
         let mut engine = sandboxed(TEST_BUDGET);
         register(&mut engine, &base);
