@@ -52,12 +52,23 @@ fn a_tiny_script_runs_for_a_second_on_the_simulators_and_shows_what_it_does() {
     let o = run(&["run", "--sim", "--for", "1s", "--stats", &s]);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(0), "{err}");
-    assert!(err.contains("io: outputs 0x00 -> 0x01 (every 100ms)"), "{err}");
+    assert!(
+        err.contains("io: outputs 0x00 -> 0x01 (every 100ms)"),
+        "{err}"
+    );
     assert!(err.contains("panel: relay 0 -> 4 (top level)"), "{err}");
     assert!(err.contains("stopping: ran for 1s"), "{err}");
-    assert!(err.contains("safe state (end of run): io outputs 0x00, panel relay 0"), "{err}");
+    assert!(
+        err.contains("safe state (end of run): io outputs 0x00, panel relay 0"),
+        "{err}"
+    );
     let out = stdout(&o);
-    for key in ["ticks: ", "jitter: p50 ", "overruns: ", "transactions per tick: "] {
+    for key in [
+        "ticks: ",
+        "jitter: p50 ",
+        "overruns: ",
+        "transactions per tick: ",
+    ] {
         assert!(out.contains(key), "{out}");
     }
 }
@@ -68,17 +79,28 @@ fn without_config_or_sim_it_is_a_usage_error() {
     let s = d.file("s.rhai", "print(1);");
     let o = run(&["run", &s]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(stderr(&o).contains("give --config rig.toml"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("give --config rig.toml"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
 fn a_bad_config_is_exit_2_and_a_missing_device_exit_3() {
     let d = Dir::new("config");
     let s = d.file("s.rhai", "print(1);");
-    let bad = d.file("bad.toml", "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nprotocol = \"modbsu\"\n");
+    let bad = d.file(
+        "bad.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nprotocol = \"modbsu\"\n",
+    );
     let o = run(&["run", "--config", &bad, &s]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(stderr(&o).contains("bad.toml:4: devices.io.protocol"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("bad.toml:4: devices.io.protocol"),
+        "{}",
+        stderr(&o)
+    );
     let missing = d.file(
         "missing.toml",
         "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/rigscript-no-such-port\"\n",
@@ -100,7 +122,9 @@ fn script_errors_are_exit_1_with_file_line_and_column() {
     assert_eq!(o.status.code(), Some(1));
     let err = stderr(&o);
     assert!(
-        err.contains(&format!("{s}:2:18: in after 50ms: no device called \"nope\"")),
+        err.contains(&format!(
+            "{s}:2:18: in after 50ms: no device called \"nope\""
+        )),
         "{err}"
     );
     let s = d.file("import.rhai", "import \"fs\" as fs;\n");
@@ -143,9 +167,18 @@ fn check_reports_problems_with_line_and_column() {
     let o = run(&["check", &bad]);
     assert_eq!(o.status.code(), Some(1));
     let out = stdout(&o);
-    assert!(out.contains(&format!("{bad}:1:17: no device called \"oi\"")), "{out}");
-    assert!(out.contains(&format!("{bad}:2:16: no switch called \"S46\"")), "{out}");
-    let cfg = d.file("rig.toml", "[devices.oi]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n");
+    assert!(
+        out.contains(&format!("{bad}:1:17: no device called \"oi\"")),
+        "{out}"
+    );
+    assert!(
+        out.contains(&format!("{bad}:2:16: no switch called \"S46\"")),
+        "{out}"
+    );
+    let cfg = d.file(
+        "rig.toml",
+        "[devices.oi]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
+    );
     let o = run(&["check", "--config", &cfg, &bad]);
     assert_eq!(o.status.code(), Some(1));
     let out = stdout(&o);

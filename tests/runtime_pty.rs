@@ -81,7 +81,10 @@ fn sigterm_leaves_the_module_at_its_safe_value() {
     assert_eq!(status.code(), Some(0), "{err}");
     let s = sim.state();
     assert_eq!(s["do"], 0x05, "{s}\n{err}");
-    assert_eq!(s["watchdog"]["enabled"], false, "a clean end turns it off: {s}");
+    assert_eq!(
+        s["watchdog"]["enabled"], false,
+        "a clean end turns it off: {s}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 

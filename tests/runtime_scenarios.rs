@@ -18,23 +18,26 @@ fn the_runtime_scenarios_pass() {
         .output()
         .unwrap();
     let stdout = text(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        text(&out.stderr)
-    );
+    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
     let last = stdout.lines().last().unwrap_or_default();
     assert!(last.ends_with(" passed, 0 failed"), "{stdout}");
     let passed: usize = last.split_whitespace().next().unwrap().parse().unwrap();
     assert!(passed >= 30, "{stdout}");
-    assert!(stdout.lines().all(|l| l.starts_with("ok   ") || l == last), "{stdout}");
+    assert!(
+        stdout.lines().all(|l| l.starts_with("ok   ") || l == last),
+        "{stdout}"
+    );
 }
 
 #[test]
 fn failures_name_the_test_the_message_and_where() {
     let dir = std::env::temp_dir().join(format!("rigscript-scn-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("s.rhai"), "io.outputs = 3;\nevery(\"1s\", || {});\n").unwrap();
+    std::fs::write(
+        dir.join("s.rhai"),
+        "io.outputs = 3;\nevery(\"1s\", || {});\n",
+    )
+    .unwrap();
     std::fs::write(
         dir.join("a.test.rhai"),
         r#"fn test_good() {

@@ -474,3 +474,139 @@ fn describe(fault: &Fault, label: &str) -> String {
         None => format!("in {label}: {}{budget}", fault.cause),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::clock::{Clock, VirtualClock};
+    use crate::runtime::devices::links::TransactionCounter;
+    use crate::runtime::log::Logger;
+    use crate::runtime::records::Records;
+    use crate::runtime::zone::Zone;
+
+    /// A program with one `every` timer whose handler takes `burn` of (virtual) time.
+    struct Burner {
+        rt: Shared<()>,
+        clock: VirtualClock,
+        every: Duration,
+        burn: Duration,
+        calls: u32,
+        fail_at: Option<u32>,
+    }
+
+    impl Program for Burner {
+        type Handler = ();
+        fn start(&mut self) -> Result<(), Fault> {
+            self.rt.borrow_mut().every(self.every, ()).unwrap();
+            Ok(())
+        }
+        fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+            self.calls += 1;
+            self.clock.advance(self.burn);
+            if self.fail_at == Some(self.calls) {
+                return Err(Fault {
+                    location: Some("x.rhai:1:1".into()),
+                    cause: "boom".into(),
+                    over_budget: false,
+                });
+            }
+            Ok(())
+        }
+    }
+
+    fn runner(
+        every: Duration,
+        burn: Duration,
+        policy: ErrorPolicy,
+    ) -> (Runner<Burner>, VirtualClock) {
+        let clock = VirtualClock::at_epoch();
+        let shared: SharedClock = Arc::new(clock.clone());
+        let rt = Rc::new(RefCell::new(Runtime::new(
+            Arc::clone(&shared),
+            Zone::utc(),
+            Vec::new(),
+            Records::in_memory(),
+            Logger::new(Arc::clone(&shared), Zone::utc(), false),
+            TransactionCounter::default(),
+            Duration::from_secs(1),
+        )));
+        rt.borrow_mut().log.keep_lines();
+        let program = Burner {
+            rt: Rc::clone(&rt),
+            clock: clock.clone(),
+            every,
+            burn,
+            calls: 0,
+            fail_at: None,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy,
+            end_after: None,
+            stop_flag: Arc::default(),
+        };
+        let mut r = Runner::new(rt, program, options);
+        r.start();
+        (r, clock)
+    }
+
+    #[test]
+    fn overruns_are_counted_and_the_loop_keeps_its_phase() {
+        let (mut r, clock) = runner(
+            Duration::from_millis(20),
+            Duration::from_millis(50),
+            ErrorPolicy::Stop,
+        );
+        r.advance(Duration::from_millis(400));
+        assert!(r.stats.overruns > 0);
+        assert_eq!(
+            r.next_deadline().as_nanos() % Duration::from_millis(20).as_nanos(),
+            0,
+            "deadlines stay on the 20 ms grid"
+        );
+        assert!(r.next_deadline() > clock.now().saturating_sub(Duration::from_millis(20)));
+        assert!(r.stats.work.max() >= Duration::from_millis(50));
+    }
+
+    #[test]
+    fn idle_ticks_are_skipped_when_no_handler_polls_inputs() {
+        let (mut r, _clock) = runner(Duration::from_secs(1), Duration::ZERO, ErrorPolicy::Stop);
+        r.advance(Duration::from_secs(10));
+        assert_eq!(r.program().calls, 10);
+        assert!(r.stats.ticks <= 13, "{} ticks for 10 s", r.stats.ticks);
+        assert_eq!(r.stats.overruns, 0);
+    }
+
+    #[test]
+    fn restart_backs_off_doubling() {
+        let (mut r, clock) = runner(
+            Duration::from_millis(100),
+            Duration::ZERO,
+            ErrorPolicy::Restart,
+        );
+        r.program.fail_at = Some(1);
+        r.advance(Duration::from_millis(100));
+        assert_eq!(r.program().calls, 1);
+        r.program.fail_at = Some(2);
+        // Restarted after 1 s; its timer fires 100 ms later and fails again.
+        r.advance(Duration::from_millis(1100));
+        assert_eq!(r.program().calls, 2);
+        r.advance(Duration::from_millis(1900));
+        assert_eq!(r.program().calls, 2, "the second wait is 2 s");
+        r.advance(Duration::from_millis(200));
+        assert_eq!(r.program().calls, 3);
+        assert!(r.status().is_none());
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("x.rhai:1:1: in every 100ms: boom"), "{log}");
+        assert!(clock.now() >= Duration::from_millis(3300));
+    }
+
+    #[test]
+    fn boundaries() {
+        let ms = Duration::from_millis;
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(50)), ms(100));
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(100)), ms(100));
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(101)), ms(120));
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(140)), ms(140));
+    }
+}
