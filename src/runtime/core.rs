@@ -736,16 +736,17 @@ impl<H: Clone> Runtime<H> {
         }
         let mut calls = Vec::new();
         for (dev, need) in needs.iter().enumerate() {
-            if need[0] {
+            let [switches, rotaries, inputs, counters] = *need;
+            if switches {
                 self.switches(dev);
             }
-            if need[1] {
+            if rotaries {
                 self.rotaries(dev);
             }
-            if need[2] {
+            if inputs {
                 self.inputs(dev);
             }
-            if need[3] {
+            if counters {
                 self.counters(dev);
             }
             for (event, args) in self.device_events(dev) {
