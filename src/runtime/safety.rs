@@ -95,8 +95,12 @@ impl<H: Clone> Runtime<H> {
                 Ok(()) => {
                     let name = d.name().to_string();
                     let lost_for = d.health().lost_for(now);
-                    d.health_mut().back();
+                    // Back only once it is under control again: a device that answers a probe
+                    // but fails the rest stays lost, and its grace time keeps running.
                     if self.take_control(idx) {
+                        if let Some(d) = self.devices.get_mut(idx) {
+                            d.health_mut().back();
+                        }
                         self.log.info(&format!(
                             "{name}: back after {}; watchdog, safe value and outputs applied \
                              again",

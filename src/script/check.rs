@@ -203,6 +203,11 @@ impl Checker<'_> {
             }
             true
         });
+        // Each device is also a variable of its name, unless the script binds that name to
+        // something else.
+        for (name, kind) in &self.devices {
+            seen.entry(name.clone()).or_insert(Some(*kind));
+        }
         self.bound = seen
             .into_iter()
             .filter_map(|(n, k)| k.map(|k| (n, k)))
@@ -477,6 +482,20 @@ after("1s", |x| {});
             "{}",
             p[8]
         );
+    }
+
+    #[test]
+    fn device_names_are_variables_too() {
+        let p = problems("io.on_press(\"S1\", || {});\npanel.outputs = 1;\nlet io = 5;\n");
+        assert_eq!(
+            p.len(),
+            1,
+            "io is rebound to a number, so it is not checked: {p:?}"
+        );
+        let p = problems("io.on_press(\"S1\", || {});\npanel.outputs = 1;\n");
+        assert_eq!(p.len(), 2, "{p:?}");
+        assert!(p[0].starts_with("1:4: io is a TRP-C29U"), "{p:?}");
+        assert!(p[1].starts_with("2:7: panel is a TRC1000"), "{p:?}");
     }
 
     #[test]

@@ -337,6 +337,15 @@ fn register_asserts(engine: &mut Engine) {
     });
 }
 
+/// An engine with the test API; a test's own `print` and `debug` go to stderr.
+fn test_engine(base: &Path) -> Engine {
+    let mut engine = sandboxed(TEST_BUDGET);
+    register(&mut engine, base);
+    engine.on_print(|s| eprintln!("{s}"));
+    engine.on_debug(|s, _, _| eprintln!("{s}"));
+    engine
+}
+
 /// Runs every `test_*` function of the test file at `path` (called `file` in messages),
 /// each in a fresh engine; calls `report` with each result as it comes.
 pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) -> Vec<TestResult> {
@@ -356,8 +365,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
             return results;
         }
     };
-    let mut engine = sandboxed(TEST_BUDGET);
-    register(&mut engine, &base);
+    let engine = test_engine(&base);
     let ast = match engine.compile(&source) {
         Ok(ast) => ast,
         Err(e) => {
@@ -376,8 +384,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
     // In the order they are written.
     tests.sort_by_key(|name| source.find(&format!("fn {name}(")).unwrap_or(usize::MAX));
     for name in tests {
-        let mut engine = sandboxed(TEST_BUDGET);
-        register(&mut engine, &base);
+        let engine = test_engine(&base);
         let options = CallFnOptions::new().eval_ast(false);
         let result =
             engine.call_fn_with_options::<Dynamic>(options, &mut Scope::new(), &ast, &name, ());
