@@ -8,7 +8,9 @@
 //!   `config`, else `panel` and `io` as with `--sim`), wall time starting at
 //!   2026-03-28T12:00:00Z (or `iso_time`), cron and log in UTC (or the offset of `iso_time`,
 //!   or the IANA `zone`). Its top level has run when `rig` returns.
-//! - `r.advance(dur)`, `r.tick()`.
+//! - `r.advance(dur)` runs every tick due until virtual time has moved by `dur`; `r.tick()`
+//!   runs the next tick (when no handler polls inputs, idle ticks are skipped, so this can move
+//!   time to the next timer). Each tick at the period of rig.toml (20 ms by default).
 //! - Field side: `r.press(dev, name)`, `r.release(dev, name)`, `r.turn(dev, name,
 //!   half_turns)`, `r.set_inputs(dev, byte)`, `r.set_input(dev, ch, on)`, `r.pulse(dev, ch,
 //!   n)`, `r.fail(dev)`, `r.restore(dev)`, `r.power_cycle(dev)`, `r.signal_stop()`.
