@@ -9,4 +9,5 @@ pub mod device;
 pub mod link;
 pub mod protocol;
 pub mod runtime;
+pub mod script;
 pub mod sim;

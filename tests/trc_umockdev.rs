@@ -184,7 +184,7 @@ fn list_shows_each_board_with_its_unit_and_bus_address() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(stdout(&o), "unit 0  001:002  (0d59:02ac)\n");
 
-    let two = one_board() + &device_description(1, 3, 1);
+    let two = one_board() + device_description(1, 3, 1).as_str();
     let o = run_trc(&dir, &two, None, &["--json", "list"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let v = json(&o);

@@ -2,10 +2,13 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod check;
+pub mod run;
 pub mod c29;
 pub mod output;
 pub mod scan;
 pub mod sim;
+pub mod test;
 pub mod trc;
 
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
@@ -19,6 +22,12 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Run a script on the rig's devices (or --sim) in the supervised scan loop
+    Run(run::RunArgs),
+    /// Check a script without running it: syntax, device names, handler parameters
+    Check(check::CheckArgs),
+    /// Run scenario tests (*.test.rhai) in virtual time against the simulators
+    Test(test::TestArgs),
     /// Find TRC1000 boards and TRP-C29U modules on this machine
     Scan(scan::ScanArgs),
     /// Talk to a TRP-C29U module: I/O, counters, latches, watchdog, presets, identity, config
@@ -42,6 +51,9 @@ pub fn main() -> i32 {
         }
     };
     match cli.command {
+        Command::Run(args) => run::run(args),
+        Command::Check(args) => check::run(args),
+        Command::Test(args) => test::run(args),
         Command::Scan(args) => scan::run(args),
         Command::C29(args) => c29::run(args),
         Command::Trc(args) => trc::run(args),

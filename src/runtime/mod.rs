@@ -1,5 +1,14 @@
-//! Time and supervision for everything that runs: clocks now; the scan loop with the script runtime.
+//! Time and supervision for everything that runs: clocks, durations, timer schedules, the
+//! rig's devices, the state scripts act on, the scan loop and its fail-safe supervision.
 
 pub mod clock;
+pub mod core;
+pub mod devices;
 pub mod duration;
+pub mod log;
+pub mod records;
+pub mod safety;
+pub mod scan;
 pub mod schedule;
+pub mod stats;
+pub mod zone;

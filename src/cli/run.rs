@@ -1,0 +1,122 @@
+//! `rigscript run SCRIPT`: runs a script on the rig's devices (or their simulators) in the
+//! supervised scan loop until it ends, is stopped, or fails; logs what it does to stderr.
+//!
+//! Exit status: 0 ok, 1 script or runtime error, 2 usage or config error, 3 a device not
+//! available at start, 4 a measurement out of its limits.
+
+use crate::config::RigConfig;
+use crate::runtime::clock::SystemClock;
+use crate::runtime::duration::parse_duration;
+use crate::runtime::zone::Zone;
+use crate::script::engine::DEFAULT_BUDGET;
+use crate::script::rig::{start, RigSetup};
+use clap::Args;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Options of `rigscript run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The script to run (.rhai).
+    pub script: PathBuf,
+    /// The rig: devices, period, error policy, records file.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Replace every device by its simulator (without --config: `panel`, a TRC1000, and
+    /// `io`, a TRP-C29U at Modbus ID 1).
+    #[arg(long)]
+    pub sim: bool,
+    /// Scan period, overriding rig.toml ("20ms", "0.1s", or milliseconds).
+    #[arg(long, value_parser = period)]
+    pub period: Option<Duration>,
+    /// End the run normally after this long ("10s", "5m", "24h").
+    #[arg(long = "for", value_name = "DURATION", value_parser = dur)]
+    pub run_for: Option<Duration>,
+    /// Append records and measurements to this JSON-lines file (overrides rig.toml).
+    #[arg(long)]
+    pub records: Option<PathBuf>,
+    /// At the end, print ticks, period jitter, tick work, overruns and transactions per tick.
+    #[arg(long)]
+    pub stats: bool,
+    /// Log only warnings, errors and the script's own messages.
+    #[arg(short, long)]
+    pub quiet: bool,
+    /// Operations each handler call may take before it is stopped as a runaway.
+    #[arg(long, default_value_t = DEFAULT_BUDGET)]
+    pub budget: u64,
+}
+
+fn dur(text: &str) -> Result<Duration, String> {
+    parse_duration(text).map_err(|e| e.to_string())
+}
+
+fn period(text: &str) -> Result<Duration, String> {
+    match dur(text)? {
+        d if d.is_zero() => Err("a period must be above zero".into()),
+        d => Ok(d),
+    }
+}
+
+/// Runs `rigscript run`; returns the exit status.
+pub fn run(args: RunArgs) -> i32 {
+    let config = match (&args.config, args.sim) {
+        (Some(path), _) => match RigConfig::load(path) {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("rigscript run: {e}");
+                return 2;
+            }
+        },
+        (None, true) => RigConfig::simulated_default(),
+        (None, false) => {
+            eprintln!(
+                "rigscript run: give --config rig.toml (the devices to drive) or --sim \
+                 (simulated devices: panel, a TRC1000, and io, a TRP-C29U)"
+            );
+            return 2;
+        }
+    };
+    let file = args.script.display().to_string();
+    let source = match std::fs::read_to_string(&args.script) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("rigscript run: cannot read {file}: {e}");
+            return 2;
+        }
+    };
+    let stop_flag = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop_flag)) {
+            eprintln!("rigscript run: cannot watch for signal {signal}: {e}");
+            return 1;
+        }
+    }
+    let setup = RigSetup {
+        config,
+        simulate: args.sim,
+        clock: SystemClock::shared(),
+        zone: Zone::Local,
+        period: args.period,
+        end_after: args.run_for,
+        records: args.records,
+        log_to_stderr: true,
+        quiet: args.quiet,
+        keep_log: false,
+        budget: args.budget,
+        stop_flag,
+    };
+    let mut rig = match start(&source, &file, setup) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("rigscript run: {e}");
+            return e.status();
+        }
+    };
+    let status = rig.runner.run();
+    if args.stats {
+        println!("{}", rig.runner.stats);
+    }
+    status
+}

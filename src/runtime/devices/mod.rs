@@ -1,0 +1,219 @@
+//! The rig's devices as the runtime holds them: the real drivers (`device::c29u::C29u`,
+//! `device::trc1000::Trc1000`) over real links or in-memory links to simulators, with the
+//! per-tick input snapshots, the outputs the script wants, and the link's health.
+
+mod c29u;
+mod open;
+mod sim;
+mod trc;
+
+pub mod links;
+
+pub use c29u::C29uDevice;
+pub use open::{open_devices, OpenError, Opened};
+pub use sim::{FieldError, SimDevice, SimRig};
+pub use trc::TrcDevice;
+
+use crate::device::c29u::C29uError;
+use crate::device::trc1000::Trc1000Error;
+use std::time::Duration;
+
+/// Why a device operation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// From the TRC1000 driver.
+    #[error(transparent)]
+    Trc(#[from] Trc1000Error),
+    /// From the TRP-C29U driver.
+    #[error(transparent)]
+    C29u(#[from] C29uError),
+    /// The device is lost; the operation was not tried.
+    #[error("{device} is offline (lost {ago:.1?} ago: {cause}); the operation was not done")]
+    Offline {
+        /// The device's name.
+        device: String,
+        /// How long ago it was lost.
+        ago: Duration,
+        /// Why it was lost.
+        cause: String,
+    },
+}
+
+impl DeviceError {
+    /// Whether the device could not be reached (no answer, a garbled one, a link failure), as
+    /// opposed to a device that answered "no".
+    pub fn is_comm_failure(&self) -> bool {
+        match self {
+            DeviceError::Trc(e) => {
+                matches!(e, Trc1000Error::Link(_) | Trc1000Error::Timeout { .. })
+            }
+            DeviceError::C29u(e) => matches!(
+                e,
+                C29uError::Link(_) | C29uError::Timeout { .. } | C29uError::Garbled { .. }
+            ),
+            DeviceError::Offline { .. } => false,
+        }
+    }
+
+    /// Whether the link itself failed (worth reopening), not just the device's answer.
+    pub fn is_link_failure(&self) -> bool {
+        matches!(
+            self,
+            DeviceError::Trc(Trc1000Error::Link(_)) | DeviceError::C29u(C29uError::Link(_))
+        )
+    }
+
+    /// Whether a TRP-C29U refused because its host watchdog has fired.
+    pub fn is_safe_mode(&self) -> bool {
+        matches!(self, DeviceError::C29u(C29uError::SafeMode { .. }))
+    }
+}
+
+/// Whether a device answers, and since when it does not.
+#[derive(Debug, Clone, Default)]
+pub struct Health {
+    /// When it stopped answering (`None` while it answers).
+    pub lost_at: Option<Duration>,
+    /// When to try it again.
+    pub next_retry: Duration,
+    /// Why it stopped answering.
+    pub cause: String,
+    /// The link itself failed: reopen it before trying again.
+    pub link_failed: bool,
+}
+
+impl Health {
+    /// Whether the device answers.
+    pub fn online(&self) -> bool {
+        self.lost_at.is_none()
+    }
+
+    /// Marks the device lost at `now` (keeps the first time); true if it was online.
+    pub fn lose(&mut self, now: Duration, error: &DeviceError, retry_in: Duration) -> bool {
+        let was_online = self.lost_at.is_none();
+        let cause = error.to_string();
+        self.link_failed = self.link_failed || error.is_link_failure();
+        if was_online {
+            self.lost_at = Some(now);
+        }
+        self.cause = cause;
+        self.next_retry = now.saturating_add(retry_in);
+        was_online
+    }
+
+    /// Marks the device back.
+    pub fn back(&mut self) {
+        self.lost_at = None;
+        self.cause.clear();
+        self.link_failed = false;
+    }
+
+    /// How long it has been lost at `now` (zero while online).
+    pub fn lost_for(&self, now: Duration) -> Duration {
+        self.lost_at
+            .map_or(Duration::ZERO, |at| now.saturating_sub(at))
+    }
+
+    /// The error to give an operation that was not tried because the device is lost.
+    pub fn offline_error(&self, device: &str, now: Duration) -> DeviceError {
+        DeviceError::Offline {
+            device: device.to_string(),
+            ago: self.lost_for(now),
+            cause: self.cause.clone(),
+        }
+    }
+}
+
+/// An input value with the value read before it, and the tick it was read at (lazy reads:
+/// the first access in a tick reads, later ones reuse it).
+#[derive(Debug, Clone, Copy)]
+pub struct Snapshot<T> {
+    /// The latest value read.
+    pub current: Option<T>,
+    /// The value read before it.
+    pub previous: Option<T>,
+    /// The tick `current` was read at.
+    pub tick: Option<u64>,
+}
+
+impl<T> Default for Snapshot<T> {
+    fn default() -> Self {
+        Self {
+            current: None,
+            previous: None,
+            tick: None,
+        }
+    }
+}
+
+impl<T: Copy> Snapshot<T> {
+    /// Whether `current` was read at `tick`.
+    pub fn fresh(&self, tick: u64) -> bool {
+        self.tick == Some(tick) && self.current.is_some()
+    }
+
+    /// Takes a new reading made at `tick`.
+    pub fn update(&mut self, value: T, tick: u64) {
+        self.previous = self.current;
+        self.current = Some(value);
+        self.tick = Some(tick);
+    }
+
+    /// (previous, current) if a reading was made at `tick` and there was one before it.
+    pub fn change_at(&self, tick: u64) -> Option<(T, T)> {
+        match (self.fresh(tick), self.previous, self.current) {
+            (true, Some(p), Some(c)) => Some((p, c)),
+            _ => None,
+        }
+    }
+}
+
+/// One device of the rig.
+pub enum Device {
+    /// A TRC1000 panel board.
+    Trc(Box<TrcDevice>),
+    /// A TRP-C29U I/O module.
+    C29u(Box<C29uDevice>),
+}
+
+impl Device {
+    /// The name scripts use.
+    pub fn name(&self) -> &str {
+        match self {
+            Device::Trc(d) => &d.name,
+            Device::C29u(d) => &d.name,
+        }
+    }
+
+    /// The device's health.
+    pub fn health(&self) -> &Health {
+        match self {
+            Device::Trc(d) => &d.health,
+            Device::C29u(d) => &d.health,
+        }
+    }
+
+    /// The device's health, to change.
+    pub fn health_mut(&mut self) -> &mut Health {
+        match self {
+            Device::Trc(d) => &mut d.health,
+            Device::C29u(d) => &mut d.health,
+        }
+    }
+
+    /// The kind in words, for messages.
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Device::Trc(_) => "TRC1000",
+            Device::C29u(_) => "TRP-C29U",
+        }
+    }
+
+    /// Reopens the link if it has one to reopen (real hardware), after a link failure.
+    pub fn reopen(&mut self) -> Result<(), DeviceError> {
+        match self {
+            Device::Trc(d) => d.reopen(),
+            Device::C29u(d) => d.reopen(),
+        }
+    }
+}

@@ -1,0 +1,228 @@
+//! Makes the rig's devices from rig.toml: real drivers over real links, or (`--sim`, scenario
+//! tests) the same drivers over in-memory links to simulators.
+
+use super::c29u::{ByteReopener, C29uDevice};
+use super::links::{Counted, Presence, TransactionCounter, Unpluggable};
+use super::sim::{SimDevice, SimRig};
+use super::trc::{PacketReopener, TrcDevice};
+use super::{Device, DeviceError};
+use crate::config::{C29uConfig, DeviceConfig, Port, RigConfig, Trc1000Address, Trc1000Config};
+use crate::device::c29u::{open_port, share, C29u, C29uOptions, SharedLink};
+use crate::device::trc1000::{Trc1000, Trc1000Error};
+use crate::link::memory::{MemoryByteLink, MemoryPacketLink};
+use crate::link::usb::{UsbPacketLink, UsbTarget};
+use crate::link::{ByteLink, PacketLink};
+use crate::protocol::c29u::baud_code;
+use crate::runtime::clock::SharedClock;
+use crate::sim::c29u::{C29u as SimModule, Eeprom, ModuleConfig};
+use crate::sim::c29u_line::SimulatedC29u;
+use crate::sim::trc1000::Trc1000Sim;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// How long a TRC1000 request waits for its answer in a run (the board answers within a few
+/// milliseconds; a lost board costs this much per retry).
+pub const TRC_TIMEOUT: Duration = Duration::from_millis(250);
+
+/// A device that could not be opened.
+#[derive(Debug, thiserror::Error)]
+#[error("device {device}: {source}")]
+pub struct OpenError {
+    /// The device's name.
+    pub device: String,
+    /// Why.
+    #[source]
+    pub source: DeviceError,
+}
+
+/// The devices of a rig, and their simulators when simulated.
+pub struct Opened {
+    /// In name order.
+    pub devices: Vec<Device>,
+    /// The field side of the simulators (empty for real hardware).
+    pub sim: SimRig,
+}
+
+/// Opens every device `config` names: simulators for all when `simulate`, and for those whose
+/// port is `Port::Simulated` in any case. Every request is counted in `count`.
+pub fn open_devices(
+    config: &RigConfig,
+    clock: &SharedClock,
+    simulate: bool,
+    count: &TransactionCounter,
+) -> Result<Opened, OpenError> {
+    let mut devices = Vec::new();
+    let mut sim = SimRig::default();
+    let mut lines: BTreeMap<String, SharedLink> = BTreeMap::new();
+    for (name, device) in &config.devices {
+        let opened = match device {
+            DeviceConfig::Trc1000(c) if simulate => {
+                let (d, s) = simulated_trc(name, c, clock, count);
+                sim.insert(name, s);
+                Device::Trc(Box::new(d))
+            }
+            DeviceConfig::Trc1000(c) => Device::Trc(Box::new(real_trc(name, c, clock, count)?)),
+            DeviceConfig::C29u(c) if simulate || c.port == Port::Simulated => {
+                let (d, s) = simulated_c29u(name, c, clock, count)?;
+                sim.insert(name, s);
+                Device::C29u(Box::new(d))
+            }
+            DeviceConfig::C29u(c) => {
+                Device::C29u(Box::new(real_c29u(name, c, clock, count, &mut lines)?))
+            }
+        };
+        devices.push(opened);
+    }
+    Ok(Opened { devices, sim })
+}
+
+fn open_error(device: &str, source: impl Into<DeviceError>) -> OpenError {
+    OpenError {
+        device: device.to_string(),
+        source: source.into(),
+    }
+}
+
+fn simulated_trc(
+    name: &str,
+    config: &Trc1000Config,
+    clock: &SharedClock,
+    count: &TransactionCounter,
+) -> (TrcDevice, SimDevice) {
+    let board = Arc::new(Mutex::new(Trc1000Sim::new()));
+    let presence = Presence::new();
+    let link = MemoryPacketLink::new(
+        Unpluggable::new(Arc::clone(&board), presence.clone()),
+        format!("TRC1000 {name}"),
+    )
+    .with_clock(Arc::clone(clock));
+    let link: Box<dyn PacketLink> = Box::new(Counted::new(link, Arc::clone(count)));
+    let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
+    driver.set_timeout(TRC_TIMEOUT);
+    (
+        TrcDevice::new(name, config.clone(), driver, None),
+        SimDevice::Trc { board, presence },
+    )
+}
+
+fn real_trc(
+    name: &str,
+    config: &Trc1000Config,
+    clock: &SharedClock,
+    count: &TransactionCounter,
+) -> Result<TrcDevice, OpenError> {
+    let target = match config.address {
+        Trc1000Address::Unit(u) => UsbTarget::Unit(u),
+        Trc1000Address::BusAddress { bus, address } => UsbTarget::BusAddress { bus, address },
+    };
+    let count = Arc::clone(count);
+    let mut reopener: PacketReopener = Box::new(move || {
+        let link = UsbPacketLink::open(target)?;
+        Ok(Box::new(Counted::new(link, Arc::clone(&count))) as Box<dyn PacketLink>)
+    });
+    let link = reopener().map_err(|e| open_error(name, Trc1000Error::Link(e)))?;
+    let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
+    driver.set_timeout(TRC_TIMEOUT);
+    Ok(TrcDevice::new(name, config.clone(), driver, Some(reopener)))
+}
+
+fn options(c: &C29uConfig) -> C29uOptions {
+    C29uOptions {
+        protocol: c.protocol,
+        id: c.id,
+        baud: c.baud,
+        checksum: c.checksum,
+        timeout: c.timeout,
+        retries: u32::from(c.retries),
+        di_active_low: c.di_active_low,
+    }
+}
+
+fn drivers(
+    name: &str,
+    c: &C29uConfig,
+    line: &SharedLink,
+    clock: &SharedClock,
+) -> Result<(C29u, C29u), OpenError> {
+    let driver = C29u::new(Arc::clone(line), Arc::clone(clock), options(c))
+        .map_err(|e| open_error(name, e))?;
+    let probe = C29u::new(
+        Arc::clone(line),
+        Arc::clone(clock),
+        C29uOptions {
+            retries: 0,
+            ..options(c)
+        },
+    )
+    .map_err(|e| open_error(name, e))?;
+    Ok((driver, probe))
+}
+
+fn simulated_c29u(
+    name: &str,
+    c: &C29uConfig,
+    clock: &SharedClock,
+    count: &TransactionCounter,
+) -> Result<(C29uDevice, SimDevice), OpenError> {
+    let eeprom = Eeprom {
+        config: ModuleConfig {
+            id: c.id,
+            baud_code: baud_code(c.baud).unwrap_or(ModuleConfig::factory().baud_code),
+            checksum: c.checksum,
+            ..ModuleConfig::factory()
+        },
+        ..Eeprom::factory()
+    };
+    let module = SimulatedC29u::new(SimModule::new(c.protocol, Arc::clone(clock), eeprom));
+    let model = module.model();
+    let presence = Presence::new();
+    let link = MemoryByteLink::new(
+        Unpluggable::new(module, presence.clone()),
+        format!("TRP-C29U {name}"),
+    )
+    .with_clock(Arc::clone(clock));
+    let line = share(Box::new(Counted::new(link, Arc::clone(count))));
+    let (driver, probe) = drivers(name, c, &line, clock)?;
+    Ok((
+        C29uDevice::new(name, c.clone(), driver, probe, line, None),
+        SimDevice::C29u { model, presence },
+    ))
+}
+
+fn real_c29u(
+    name: &str,
+    c: &C29uConfig,
+    clock: &SharedClock,
+    count: &TransactionCounter,
+    lines: &mut BTreeMap<String, SharedLink>,
+) -> Result<C29uDevice, OpenError> {
+    let port = c.port.to_string();
+    let (baud, timeout) = (c.baud, c.timeout);
+    let reopen_count = Arc::clone(count);
+    let reopen_port = port.clone();
+    let reopener: ByteReopener = Box::new(move || {
+        let link = open_port(&reopen_port, baud, timeout)?;
+        Ok(Box::new(Counted::new(link, Arc::clone(&reopen_count))) as Box<dyn ByteLink>)
+    });
+    // Modules on one RS-485 line share one port (and take turns on it).
+    let line = match lines.get(&port) {
+        Some(line) => Arc::clone(line),
+        None => {
+            let link = open_port(&port, baud, timeout)
+                .map_err(|e| open_error(name, crate::device::c29u::C29uError::Link(e)))?;
+            let line = share(Box::new(Counted::new(link, Arc::clone(count))));
+            lines.insert(port, Arc::clone(&line));
+            line
+        }
+    };
+    let (driver, probe) = drivers(name, c, &line, clock)?;
+    Ok(C29uDevice::new(
+        name,
+        c.clone(),
+        driver,
+        probe,
+        line,
+        Some(reopener),
+    ))
+}

@@ -1,0 +1,96 @@
+//! A TRC1000 as the runtime holds it: driver, switch and rotary snapshots, the relay the
+//! script wants and the one last written.
+
+use super::{DeviceError, Health, Snapshot};
+use crate::config::Trc1000Config;
+use crate::device::trc1000::Trc1000;
+use crate::link::{LinkError, PacketLink};
+use crate::protocol::trc1000::{RotaryValues, SwitchSet};
+
+/// Opens the board's link again (real USB after an unplug); `None` for a simulator.
+pub type PacketReopener = Box<dyn FnMut() -> Result<Box<dyn PacketLink>, LinkError>>;
+
+/// A TRC1000 in the rig.
+pub struct TrcDevice {
+    /// The name scripts use.
+    pub name: String,
+    /// Its configuration (safe relay).
+    pub config: Trc1000Config,
+    /// The driver.
+    pub driver: Trc1000<Box<dyn PacketLink>>,
+    reopener: Option<PacketReopener>,
+    /// Whether it answers.
+    pub health: Health,
+    /// The 45 switches, read lazily.
+    pub switches: Snapshot<SwitchSet>,
+    /// The 14 rotary counters, read lazily.
+    pub rotaries: Snapshot<RotaryValues>,
+    /// The relay the script wants (0-7).
+    pub relay: u8,
+    /// The relay last selected on the board (`None`: unknown, select again).
+    pub relay_written: Option<u8>,
+    /// The handler that last changed `relay`, for the log.
+    pub relay_cause: String,
+}
+
+impl TrcDevice {
+    /// A board called `name` behind `driver`.
+    pub fn new(
+        name: &str,
+        config: Trc1000Config,
+        driver: Trc1000<Box<dyn PacketLink>>,
+        reopener: Option<PacketReopener>,
+    ) -> Self {
+        Self {
+            name: name.to_string(),
+            relay: config.safe_relay.unwrap_or(0),
+            config,
+            driver,
+            reopener,
+            health: Health::default(),
+            switches: Snapshot::default(),
+            rotaries: Snapshot::default(),
+            relay_written: None,
+            relay_cause: String::new(),
+        }
+    }
+
+    /// Reads the switches into the snapshot at `tick`.
+    pub fn read_switches(&mut self, tick: u64) -> Result<SwitchSet, DeviceError> {
+        let s = self.driver.read_switches()?;
+        self.switches.update(s, tick);
+        Ok(s)
+    }
+
+    /// Reads the rotaries into the snapshot at `tick`.
+    pub fn read_rotaries(&mut self, tick: u64) -> Result<RotaryValues, DeviceError> {
+        let r = self.driver.read_rotaries()?;
+        self.rotaries.update(r, tick);
+        Ok(r)
+    }
+
+    /// Selects `relay` on the board and remembers it as written.
+    pub fn select_relay(&mut self, relay: u8) -> Result<(), DeviceError> {
+        self.driver.select_relay(relay)?;
+        self.relay_written = Some(relay);
+        Ok(())
+    }
+
+    /// A cheap request that tells whether the board answers.
+    pub fn probe(&mut self) -> Result<(), DeviceError> {
+        self.driver.read_switches()?;
+        Ok(())
+    }
+
+    /// Opens the USB link again, if this board has a real one.
+    pub fn reopen(&mut self) -> Result<(), DeviceError> {
+        if let Some(open) = &mut self.reopener {
+            let what = self.driver.describe();
+            // Release the old handle first: the interface is claimed exclusively.
+            *self.driver.link_mut() = Box::new(super::links::ClosedLink(what));
+            let link = open().map_err(crate::device::trc1000::Trc1000Error::Link)?;
+            *self.driver.link_mut() = link;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,612 @@
+//! The scan loop. Each tick: (0) supervise devices (retry lost ones, hold outputs safe past
+//! the grace time); (1) read the inputs the handlers wait for, lazily, once per device per
+//! tick; (2) turn edges and due timers into handler calls; (3) run the handlers; (4) write
+//! the outputs that changed, one transaction per device; (5) feed the host watchdogs (at a
+//! quarter of their timeout) and, every few seconds, check the modules still drive what was
+//! written; (6) sleep to the next deadline. Overruns are counted and the schedule skips to
+//! the next period boundary, keeping its phase.
+//!
+//! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
+
+use super::clock::SharedClock;
+use super::core::{Call, Runtime};
+use super::stats::Stats;
+use crate::config::ErrorPolicy;
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// How long the loop sleeps at most before it looks at the stop flag again, so that SIGINT and
+/// SIGTERM are handled promptly whatever the period.
+pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
+
+/// How often the modules' outputs are read back and the relays selected again (a module
+/// reset or power cycled behind the runner's back is set right within this time).
+pub const VERIFY_INTERVAL: Duration = Duration::from_secs(5);
+
+/// The first wait before a script is started again under policy `restart`; it doubles with
+/// each failure in a row, up to `MAX_BACKOFF`.
+pub const FIRST_BACKOFF: Duration = Duration::from_secs(1);
+
+/// The longest wait before a restart.
+pub const MAX_BACKOFF: Duration = Duration::from_secs(60);
+
+/// A script that ran this long without failing starts its back-off afresh.
+pub const BACKOFF_RESET: Duration = Duration::from_secs(60);
+
+/// The runtime shared between the scan loop and the script's bindings.
+pub type Shared<H> = Rc<RefCell<Runtime<H>>>;
+
+/// Why a handler failed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Fault {
+    /// `file:line:column` of the fault, when known.
+    pub location: Option<String>,
+    /// What went wrong.
+    pub cause: String,
+    /// The handler ran over its operation budget (a runaway loop).
+    pub over_budget: bool,
+}
+
+/// The script, as the scan loop sees it.
+pub trait Program {
+    /// The script's handler type.
+    type Handler: Clone;
+    /// Runs the script's top level from scratch (it adds handlers and timers).
+    fn start(&mut self) -> Result<(), Fault>;
+    /// Runs one handler.
+    fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
+}
+
+/// How a run is driven.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Scan period.
+    pub period: Duration,
+    /// What a handler error does.
+    pub policy: ErrorPolicy,
+    /// End the run normally after this long (`--for`).
+    pub end_after: Option<Duration>,
+    /// Set by SIGINT/SIGTERM (or a scenario test): stop at once, outputs safe.
+    pub stop_flag: Arc<AtomicBool>,
+}
+
+/// Why a run ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum EndReason {
+    /// `--for` elapsed, or the script has nothing left to wait for.
+    Finished(String),
+    /// The script called `stop(code)`.
+    Stopped(i64),
+    /// SIGINT or SIGTERM.
+    Signal,
+    /// A script or runtime error (policy `stop`, or at the first start).
+    Error(String),
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum State {
+    Running,
+    Restarting { at: Duration },
+    Stopped { status: i32 },
+}
+
+/// One run of a script over its devices.
+pub struct Runner<P: Program> {
+    rt: Shared<P::Handler>,
+    program: P,
+    clock: SharedClock,
+    options: RunOptions,
+    state: State,
+    next_deadline: Duration,
+    last_verify: Duration,
+    failures_in_a_row: u32,
+    last_start: Duration,
+    /// What the loop measured.
+    pub stats: Stats,
+}
+
+impl<P: Program> Runner<P> {
+    /// A runner for `program` over `rt`; the first tick is due at once.
+    pub fn new(rt: Shared<P::Handler>, program: P, options: RunOptions) -> Self {
+        let clock = Arc::clone(&rt.borrow().clock);
+        let now = clock.now();
+        Self {
+            rt,
+            program,
+            clock,
+            options,
+            state: State::Running,
+            next_deadline: now,
+            last_verify: now,
+            failures_in_a_row: 0,
+            last_start: now,
+            stats: Stats::default(),
+        }
+    }
+
+    /// The runtime.
+    pub fn runtime(&self) -> &Shared<P::Handler> {
+        &self.rt
+    }
+
+    /// The program.
+    pub fn program(&self) -> &P {
+        &self.program
+    }
+
+    /// The exit status once the run has ended.
+    pub fn status(&self) -> Option<i32> {
+        match self.state {
+            State::Stopped { status } => Some(status),
+            _ => None,
+        }
+    }
+
+    /// When the next tick is due.
+    pub fn next_deadline(&self) -> Duration {
+        self.next_deadline
+    }
+
+    /// Runs the script's top level; on failure the run ends with status 1 whatever the
+    /// policy (a script that cannot start is not restarted).
+    pub fn start(&mut self) {
+        self.rt.borrow_mut().cause = "top level".into();
+        self.last_start = self.clock.now();
+        if let Err(f) = self.program.start() {
+            let message = describe(&f, "top level");
+            self.finish(EndReason::Error(message));
+        }
+    }
+
+    /// Runs until the run ends, sleeping between ticks; returns the exit status.
+    pub fn run(&mut self) -> i32 {
+        loop {
+            if let Some(status) = self.status() {
+                return status;
+            }
+            self.sleep_to_deadline();
+            self.tick();
+        }
+    }
+
+    /// Sleeps to the next deadline in slices, waking early for the stop flag.
+    fn sleep_to_deadline(&self) {
+        loop {
+            let now = self.clock.now();
+            if now >= self.next_deadline || self.options.stop_flag.load(Ordering::SeqCst) {
+                return;
+            }
+            let until = self.next_deadline.min(now.saturating_add(SLEEP_SLICE));
+            self.clock.sleep_until(until);
+        }
+    }
+
+    /// Runs ticks until the clock has advanced by `by` (virtual time: scenario tests).
+    pub fn advance(&mut self, by: Duration) {
+        let target = self.clock.now().saturating_add(by);
+        while self.status().is_none() && self.next_deadline <= target {
+            self.clock.sleep_until(self.next_deadline);
+            self.tick();
+        }
+        self.clock.sleep_until(target);
+    }
+
+    /// Waits for the next deadline and runs one tick.
+    pub fn step(&mut self) {
+        if self.status().is_none() {
+            self.clock.sleep_until(self.next_deadline);
+            self.tick();
+        }
+    }
+
+    /// Stops at once as SIGTERM would (outputs safe, on_stop handlers run).
+    pub fn signal_stop(&mut self) {
+        self.options.stop_flag.store(true, Ordering::SeqCst);
+        self.finish(EndReason::Signal);
+    }
+
+    /// One scan tick at the current time.
+    pub fn tick(&mut self) {
+        if self.status().is_some() {
+            return;
+        }
+        let start = self.clock.now();
+        let transactions_before = self.rt.borrow().transaction_count();
+        self.stats.ticks = self.stats.ticks.saturating_add(1);
+        self.stats
+            .jitter
+            .add(start.saturating_sub(self.next_deadline));
+        {
+            let mut rt = self.rt.borrow_mut();
+            rt.tick = rt.tick.saturating_add(1);
+        }
+        if self.options.stop_flag.load(Ordering::SeqCst) {
+            self.finish(EndReason::Signal);
+            return;
+        }
+        let uptime = self.rt.borrow().uptime();
+        if let Some(end) = self.options.end_after {
+            if uptime >= end {
+                self.finish(EndReason::Finished(format!(
+                    "ran for {}",
+                    super::duration::format_duration(end)
+                )));
+                return;
+            }
+        }
+        self.rt.borrow_mut().supervise();
+        match self.state {
+            State::Restarting { at } if start >= at => self.restart(),
+            State::Running => self.run_handlers(),
+            _ => {}
+        }
+        if self.status().is_some() {
+            return;
+        }
+        let stop = self.rt.borrow().stop_request;
+        if let Some(code) = stop {
+            self.finish(EndReason::Stopped(code));
+            return;
+        }
+        {
+            let mut rt = self.rt.borrow_mut();
+            rt.flush_outputs();
+            rt.feed_watchdogs();
+            let now = rt.now();
+            if now.saturating_sub(self.last_verify) >= VERIFY_INTERVAL {
+                self.last_verify = now;
+                rt.verify_outputs();
+                rt.flush_outputs();
+            }
+        }
+        if self.state == State::Running && !self.rt.borrow().has_work() {
+            self.finish(EndReason::Finished(
+                "the script has no handlers or timers left".into(),
+            ));
+            return;
+        }
+        let end = self.clock.now();
+        self.stats.work.add(end.saturating_sub(start));
+        let spent = self
+            .rt
+            .borrow()
+            .transaction_count()
+            .saturating_sub(transactions_before);
+        self.stats.transactions = self.stats.transactions.saturating_add(spent);
+        self.stats.max_transactions = self.stats.max_transactions.max(spent);
+        self.schedule_next(end);
+    }
+
+    /// Moves the deadline one period on; past it already, counts an overrun and skips to the
+    /// first period boundary after `now`. When no handler polls inputs, ticks that would have
+    /// nothing to do are skipped too: the next deadline is the first period boundary at or
+    /// after the next timer, watchdog feed, output check, retry or end (idle runs cost no CPU,
+    /// and a day of a cron script in virtual time takes a moment).
+    fn schedule_next(&mut self, now: Duration) {
+        let period = self.options.period.max(Duration::from_micros(1));
+        self.next_deadline = self.next_deadline.saturating_add(period);
+        if now > self.next_deadline {
+            self.stats.overruns = self.stats.overruns.saturating_add(1);
+            self.next_deadline = boundary_at_or_after(self.next_deadline, period, now);
+        }
+        if let Some(idle) = self.idle_until() {
+            if idle > self.next_deadline {
+                self.next_deadline = boundary_at_or_after(self.next_deadline, period, idle);
+            }
+        }
+    }
+
+    /// When the next tick has work, if no handler polls inputs (see `schedule_next`).
+    fn idle_until(&self) -> Option<Duration> {
+        let mut next = self.rt.borrow().idle_until()?;
+        next = next.min(self.last_verify.saturating_add(VERIFY_INTERVAL));
+        if let State::Restarting { at } = self.state {
+            next = next.min(at);
+        }
+        if let Some(end) = self.options.end_after {
+            next = next.min(self.rt.borrow().started.saturating_add(end));
+        }
+        Some(next)
+    }
+
+    fn run_handlers(&mut self) {
+        let calls = self.rt.borrow_mut().collect_calls();
+        for call in calls {
+            self.rt.borrow_mut().cause.clone_from(&call.label);
+            let result = self.program.call(&call);
+            if let Err(f) = result {
+                if !self.handle_fault(&f, &call.label) {
+                    return;
+                }
+            }
+            if self.rt.borrow().stop_request.is_some() {
+                return;
+            }
+        }
+    }
+
+    /// Applies the error policy to a failed handler; true if the tick goes on.
+    fn handle_fault(&mut self, fault: &Fault, label: &str) -> bool {
+        let message = describe(fault, label);
+        let policy = match (self.options.policy, fault.over_budget) {
+            // A runaway handler is never skipped: it would run away again.
+            (ErrorPolicy::Skip, true) => ErrorPolicy::Stop,
+            (p, _) => p,
+        };
+        match policy {
+            ErrorPolicy::Stop => {
+                self.finish(EndReason::Error(message));
+                false
+            }
+            ErrorPolicy::Skip => {
+                self.rt
+                    .borrow_mut()
+                    .log
+                    .error(&format!("{message} (policy skip: going on)"));
+                true
+            }
+            ErrorPolicy::Restart => {
+                self.schedule_restart(&message);
+                false
+            }
+        }
+    }
+
+    fn schedule_restart(&mut self, message: &str) {
+        let now = self.clock.now();
+        if now.saturating_sub(self.last_start) >= BACKOFF_RESET {
+            self.failures_in_a_row = 0;
+        }
+        let wait = FIRST_BACKOFF
+            .saturating_mul(1u32 << self.failures_in_a_row.min(6))
+            .min(MAX_BACKOFF);
+        self.failures_in_a_row = self.failures_in_a_row.saturating_add(1);
+        let mut rt = self.rt.borrow_mut();
+        rt.log.error(message);
+        rt.write_safe_state("script error");
+        rt.reset_program();
+        rt.log.info(&format!(
+            "policy restart: starting the script again in {} (failure {} in a row); outputs \
+             safe meanwhile",
+            super::duration::format_duration(wait),
+            self.failures_in_a_row
+        ));
+        self.state = State::Restarting {
+            at: now.saturating_add(wait),
+        };
+    }
+
+    fn restart(&mut self) {
+        self.state = State::Running;
+        self.last_start = self.clock.now();
+        {
+            let mut rt = self.rt.borrow_mut();
+            rt.reset_program();
+            rt.cause = "top level".into();
+            rt.log.info("starting the script again");
+        }
+        if let Err(f) = self.program.start() {
+            let message = describe(&f, "top level");
+            self.schedule_restart(&message);
+        }
+    }
+
+    /// Ends the run: `on_stop` handlers, safe state, watchdogs released, exit status.
+    pub fn finish(&mut self, reason: EndReason) {
+        if self.status().is_some() {
+            return;
+        }
+        let was_running = self.state == State::Running;
+        self.state = State::Stopped { status: 1 };
+        {
+            let mut rt = self.rt.borrow_mut();
+            match &reason {
+                EndReason::Error(m) => rt.log.error(m),
+                EndReason::Signal => rt.log.info("stopping: signal received"),
+                EndReason::Stopped(code) => {
+                    rt.log
+                        .info(&format!("stopping: the script called stop({code})"));
+                }
+                EndReason::Finished(why) => rt.log.info(&format!("stopping: {why}")),
+            }
+        }
+        if was_running {
+            let calls = self.rt.borrow().stop_calls();
+            for call in calls {
+                self.rt.borrow_mut().cause.clone_from(&call.label);
+                if let Err(f) = self.program.call(&call) {
+                    let message = describe(&f, &call.label);
+                    self.rt.borrow_mut().log.error(&message);
+                }
+            }
+        }
+        let mut rt = self.rt.borrow_mut();
+        let why = match &reason {
+            EndReason::Error(_) => "script error",
+            EndReason::Signal => "signal",
+            EndReason::Stopped(_) => "stop()",
+            EndReason::Finished(_) => "end of run",
+        };
+        rt.write_safe_state(why);
+        rt.release_watchdogs();
+        let failed = rt.records.failed();
+        let status = match reason {
+            EndReason::Error(_) => 1,
+            EndReason::Stopped(code) => i32::try_from(code.clamp(0, 255)).unwrap_or(1),
+            EndReason::Signal | EndReason::Finished(_) => 0,
+        };
+        let status = if status == 0 && failed > 0 {
+            rt.log.warn(&format!(
+                "{failed} measurement(s) out of limits: exit status 4"
+            ));
+            4
+        } else {
+            status
+        };
+        rt.log.info(&format!("stopped; exit status {status}"));
+        self.state = State::Stopped { status };
+    }
+}
+
+/// The first of the deadlines `start + k * period` that is at or after `t`.
+fn boundary_at_or_after(start: Duration, period: Duration, t: Duration) -> Duration {
+    if t <= start {
+        return start;
+    }
+    let behind = t.saturating_sub(start).as_nanos();
+    let periods = behind.div_ceil(period.as_nanos().max(1));
+    let skip = u32::try_from(periods).unwrap_or(u32::MAX);
+    start.saturating_add(period.saturating_mul(skip))
+}
+
+/// `file:line:col: handler: cause`.
+fn describe(fault: &Fault, label: &str) -> String {
+    let budget = if fault.over_budget {
+        " (over its operation budget: a runaway loop?)"
+    } else {
+        ""
+    };
+    match &fault.location {
+        Some(at) => format!("{at}: in {label}: {}{budget}", fault.cause),
+        None => format!("in {label}: {}{budget}", fault.cause),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::clock::{Clock, VirtualClock};
+    use crate::runtime::devices::links::TransactionCounter;
+    use crate::runtime::log::Logger;
+    use crate::runtime::records::Records;
+    use crate::runtime::zone::Zone;
+
+    /// A program with one `every` timer whose handler takes `burn` of (virtual) time.
+    struct Burner {
+        rt: Shared<()>,
+        clock: VirtualClock,
+        every: Duration,
+        burn: Duration,
+        calls: u32,
+        fail_at: Option<u32>,
+    }
+
+    impl Program for Burner {
+        type Handler = ();
+        fn start(&mut self) -> Result<(), Fault> {
+            self.rt.borrow_mut().every(self.every, ()).unwrap();
+            Ok(())
+        }
+        fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+            self.calls += 1;
+            self.clock.advance(self.burn);
+            if self.fail_at == Some(self.calls) {
+                return Err(Fault {
+                    location: Some("x.rhai:1:1".into()),
+                    cause: "boom".into(),
+                    over_budget: false,
+                });
+            }
+            Ok(())
+        }
+    }
+
+    fn runner(
+        every: Duration,
+        burn: Duration,
+        policy: ErrorPolicy,
+    ) -> (Runner<Burner>, VirtualClock) {
+        let clock = VirtualClock::at_epoch();
+        let shared: SharedClock = Arc::new(clock.clone());
+        let rt = Rc::new(RefCell::new(Runtime::new(
+            Arc::clone(&shared),
+            Zone::utc(),
+            Vec::new(),
+            Records::in_memory(),
+            Logger::new(Arc::clone(&shared), Zone::utc(), false),
+            TransactionCounter::default(),
+            Duration::from_secs(1),
+        )));
+        rt.borrow_mut().log.keep_lines();
+        let program = Burner {
+            rt: Rc::clone(&rt),
+            clock: clock.clone(),
+            every,
+            burn,
+            calls: 0,
+            fail_at: None,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy,
+            end_after: None,
+            stop_flag: Arc::default(),
+        };
+        let mut r = Runner::new(rt, program, options);
+        r.start();
+        (r, clock)
+    }
+
+    #[test]
+    fn overruns_are_counted_and_the_loop_keeps_its_phase() {
+        let (mut r, clock) = runner(
+            Duration::from_millis(20),
+            Duration::from_millis(50),
+            ErrorPolicy::Stop,
+        );
+        r.advance(Duration::from_millis(400));
+        assert!(r.stats.overruns > 0);
+        assert_eq!(
+            r.next_deadline().as_nanos() % Duration::from_millis(20).as_nanos(),
+            0,
+            "deadlines stay on the 20 ms grid"
+        );
+        assert!(r.next_deadline() > clock.now().saturating_sub(Duration::from_millis(20)));
+        assert!(r.stats.work.max() >= Duration::from_millis(50));
+    }
+
+    #[test]
+    fn idle_ticks_are_skipped_when_no_handler_polls_inputs() {
+        let (mut r, _clock) = runner(Duration::from_secs(1), Duration::ZERO, ErrorPolicy::Stop);
+        r.advance(Duration::from_secs(10));
+        assert_eq!(r.program().calls, 10);
+        assert!(r.stats.ticks <= 13, "{} ticks for 10 s", r.stats.ticks);
+        assert_eq!(r.stats.overruns, 0);
+    }
+
+    #[test]
+    fn restart_backs_off_doubling() {
+        let (mut r, clock) = runner(
+            Duration::from_millis(100),
+            Duration::ZERO,
+            ErrorPolicy::Restart,
+        );
+        r.program.fail_at = Some(1);
+        r.advance(Duration::from_millis(100));
+        assert_eq!(r.program().calls, 1);
+        r.program.fail_at = Some(2);
+        // Restarted after 1 s; its timer fires 100 ms later and fails again.
+        r.advance(Duration::from_millis(1100));
+        assert_eq!(r.program().calls, 2);
+        r.advance(Duration::from_millis(1900));
+        assert_eq!(r.program().calls, 2, "the second wait is 2 s");
+        r.advance(Duration::from_millis(200));
+        assert_eq!(r.program().calls, 3);
+        assert!(r.status().is_none());
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("x.rhai:1:1: in every 100ms: boom"), "{log}");
+        assert!(clock.now() >= Duration::from_millis(3300));
+    }
+
+    #[test]
+    fn boundaries() {
+        let ms = Duration::from_millis;
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(50)), ms(100));
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(100)), ms(100));
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(101)), ms(120));
+        assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(140)), ms(140));
+    }
+}

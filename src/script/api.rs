@@ -1,0 +1,756 @@
+//! The script API: `device(name)` and its TRC1000 and TRP-C29U handles, timers and flow
+//! (`every`, `after`, `cron`, `cancel`, `on_stop`, `stop`, `now`, `uptime`), records
+//! (`record`, `measure`) and messages (`print`, `log`, `warn`), bound to the runtime.
+//!
+//! Inputs read through a handle come from the tick's snapshot (the first access in a tick
+//! reads the device); outputs set through it are written once at the end of the tick. Other
+//! operations (`clear_counter`, `save_counters`, `watchdog`, `safe_value = ..`, `reset`, ...)
+//! are done at once. A bad device name, switch name or channel is a script error at the
+//! call's line and column.
+
+use super::error::STOP_MARKER;
+use super::values::to_json;
+use crate::device::c29u::{C29uError, WatchdogTimeout};
+use crate::protocol::trc1000::{Rotary, Switch};
+use crate::runtime::core::Source;
+use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::duration::{
+    duration_from_millis_f64, duration_from_millis_i64, parse_duration,
+};
+use crate::runtime::records::Limits;
+use crate::runtime::scan::Shared;
+use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, Position, AST};
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::rc::Rc;
+use std::time::Duration;
+
+/// The runtime as the bindings hold it.
+pub type Rt = Shared<FnPtr>;
+
+/// What a binding returns.
+pub type R<T> = Result<T, Box<EvalAltResult>>;
+
+/// A script error with `message` (Rhai adds the call's position).
+pub fn fail<T>(message: impl Into<String>) -> R<T> {
+    Err(message.into().into())
+}
+
+/// How many parameters each function of the script takes, by name (filled after compiling,
+/// so handlers get only the arguments they take, and too many parameters are an error).
+#[derive(Clone, Default)]
+pub struct Arities(Rc<RefCell<HashMap<String, Vec<usize>>>>);
+
+impl Arities {
+    /// Learns the functions of `ast`.
+    pub fn learn(&self, ast: &AST) {
+        let mut map = self.0.borrow_mut();
+        map.clear();
+        for f in ast.iter_functions() {
+            map.entry(f.name.to_string())
+                .or_default()
+                .push(f.params.len());
+        }
+    }
+
+    /// The parameter counts `f` can be called with (its curried captures taken off), if
+    /// it is a function of the script.
+    pub fn of(&self, f: &FnPtr) -> Option<Vec<usize>> {
+        let curried = f.curry().len();
+        self.0.borrow().get(f.fn_name()).map(|counts| {
+            counts
+                .iter()
+                .filter_map(|n| n.checked_sub(curried))
+                .collect()
+        })
+    }
+
+    /// How many of `offered` arguments to pass to `f`: the most it takes, up to `offered`.
+    pub fn pick(&self, f: &FnPtr, offered: usize) -> usize {
+        match self.of(f) {
+            Some(counts) => counts
+                .into_iter()
+                .filter(|n| *n <= offered)
+                .max()
+                .unwrap_or(offered),
+            None => offered,
+        }
+    }
+
+    /// An error if `f` cannot be a handler for `what`, which passes `params`.
+    pub fn check(&self, f: &FnPtr, what: &str, params: &[&str]) -> R<()> {
+        let Some(counts) = self.of(f) else {
+            return Ok(());
+        };
+        if counts.is_empty() || counts.iter().any(|n| *n <= params.len()) {
+            return Ok(());
+        }
+        let takes = counts.iter().min().copied().unwrap_or(0);
+        fail(format!(
+            "the handler of {what} {}; this function takes {takes}",
+            takes_words(params)
+        ))
+    }
+}
+
+/// "takes no parameters" / "takes at most 1 parameter (name)".
+pub fn takes_words(params: &[&str]) -> String {
+    match params {
+        [] => "takes no parameters".into(),
+        [one] => format!("takes at most 1 parameter ({one})"),
+        many => format!(
+            "takes at most {} parameters ({})",
+            many.len(),
+            many.join(", ")
+        ),
+    }
+}
+
+/// A TRC1000 in a script.
+#[derive(Clone)]
+pub struct Panel {
+    rt: Rt,
+    idx: usize,
+    name: Rc<str>,
+}
+
+/// A TRP-C29U in a script.
+#[derive(Clone)]
+pub struct Io {
+    rt: Rt,
+    idx: usize,
+    name: Rc<str>,
+}
+
+/// A duration from a script value: `"20ms"`, `"1.5s"`, `"5m"`, or milliseconds.
+pub fn duration(v: &Dynamic) -> R<Duration> {
+    let r = if v.is_string() {
+        parse_duration(&v.to_string())
+    } else if let Some(i) = v.clone().try_cast::<i64>() {
+        duration_from_millis_i64(i)
+    } else if let Some(f) = v.clone().try_cast::<f64>() {
+        duration_from_millis_f64(f)
+    } else {
+        return fail(format!(
+            "{} is not a duration; use \"20ms\", \"1.5s\", \"5m\" or a number of milliseconds",
+            v.type_name()
+        ));
+    };
+    r.or_else(|e| fail(e.to_string()))
+}
+
+fn channel(dev: &str, ch: i64) -> R<u8> {
+    match u8::try_from(ch) {
+        Ok(c) if c < 8 => Ok(c),
+        _ => fail(format!(
+            "channel {ch} does not exist on {dev} (TRP-C29U): use 0-7"
+        )),
+    }
+}
+
+fn byte(what: &str, v: i64) -> R<u8> {
+    u8::try_from(v).or_else(|_| {
+        fail(format!(
+            "{v} is not a {what}: use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"
+        ))
+    })
+}
+
+fn switch(dev: &str, name: &str) -> R<Switch> {
+    Switch::from_name(name).map_or_else(
+        || {
+            fail(format!(
+                "no switch called {name:?} on {dev} (TRC1000): use S1-S45"
+            ))
+        },
+        Ok,
+    )
+}
+
+fn rotary(dev: &str, name: &str) -> R<Rotary> {
+    Rotary::from_name(name).map_or_else(
+        || {
+            fail(format!(
+                "no rotary called {name:?} on {dev} (TRC1000): use S37-S40 or S41A/B-S45A/B"
+            ))
+        },
+        Ok,
+    )
+}
+
+fn device_error<T>(dev: &str, e: &DeviceError) -> R<T> {
+    let text = e.to_string();
+    if text.starts_with(dev) {
+        fail(text)
+    } else {
+        fail(format!("{dev}: {text}"))
+    }
+}
+
+/// Runs a TRP-C29U operation at once (refused while the device is lost).
+fn c29u_op<T>(
+    io: &Io,
+    op: impl FnOnce(&mut crate::runtime::devices::C29uDevice) -> Result<T, DeviceError>,
+) -> R<T> {
+    let r = io.rt.borrow_mut().command(io.idx, |d| match d {
+        Device::C29u(c) => op(c),
+        Device::Trc(_) => Err(DeviceError::Offline {
+            device: "not a TRP-C29U".into(),
+            ago: Duration::ZERO,
+            cause: String::new(),
+        }),
+    });
+    r.or_else(|e| device_error(&io.name, &e))
+}
+
+/// Registers the whole script API on `engine` over `rt`.
+pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities) {
+    register_device(engine, rt);
+    register_panel(engine, arities);
+    register_io(engine, arities);
+    register_flow(engine, rt, arities);
+    register_records(engine, rt);
+}
+
+/// Registers a property setter as pure: a handle is a name for a device, and setting a
+/// property changes the device, not the handle, so it may be done on a constant handle (such
+/// as the copies `on_var` hands out, below).
+fn setter<T: rhai::Variant + Clone>(
+    engine: &mut Engine,
+    property: &str,
+    f: impl Fn(&mut T, i64) -> R<()> + 'static,
+) {
+    rhai::FuncRegistration::new(format!("set${property}"))
+        .with_purity(true)
+        .register_into_engine(engine, f);
+}
+
+/// The handle of the device at `idx`.
+fn handle(rt: &Rt, idx: usize) -> Option<Dynamic> {
+    let r = rt.borrow();
+    let d = r.devices.get(idx)?;
+    let name: Rc<str> = Rc::from(d.name());
+    Some(match d {
+        Device::Trc(_) => Dynamic::from(Panel {
+            rt: Rc::clone(rt),
+            idx,
+            name,
+        }),
+        Device::C29u(_) => Dynamic::from(Io {
+            rt: Rc::clone(rt),
+            idx,
+            name,
+        }),
+    })
+}
+
+fn register_device(engine: &mut Engine, rt: &Rt) {
+    let r = Rc::clone(rt);
+    engine.register_fn("device", move |name: &str| -> R<Dynamic> {
+        let idx = r.borrow().device_index(name);
+        match idx.and_then(|i| handle(&r, i)) {
+            Some(h) => Ok(h),
+            None => fail(format!(
+                "no device called {name:?} in this rig (devices: {})",
+                r.borrow().device_names()
+            )),
+        }
+    });
+    // Each device is also a variable of its name. And a variable holding a device handle is
+    // read as a plain copy of it: a handler that uses the device it is registered on
+    // (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and locks while
+    // `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that.
+    let r = Rc::clone(rt);
+    let names: Vec<(String, usize)> = {
+        let b = rt.borrow();
+        b.devices
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (d.name().to_string(), i))
+            .collect()
+    };
+    // Rhai marks on_var "volatile" (it may change in a later release), not deprecated.
+    #[allow(deprecated)]
+    engine.on_var(move |name, _index, ctx| match ctx.scope().get(name) {
+        Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
+            Ok(Some(v.flatten_clone()))
+        }
+        Some(_) => Ok(None),
+        None => Ok(names
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, i)| handle(&r, *i))),
+    });
+}
+
+fn register_panel(engine: &mut Engine, arities: &Arities) {
+    engine.register_type_with_name::<Panel>("TRC1000");
+    engine.register_fn("to_string", |p: &mut Panel| format!("TRC1000 {}", p.name));
+    engine.register_fn("to_debug", |p: &mut Panel| format!("TRC1000 {}", p.name));
+    engine.register_get("online", |p: &mut Panel| p.rt.borrow().online(p.idx));
+    engine.register_get("relay", |p: &mut Panel| {
+        p.rt.borrow_mut()
+            .trc(p.idx)
+            .map_or(0, |d| i64::from(d.relay))
+    });
+    setter(engine, "relay", |p: &mut Panel, v: i64| -> R<()> {
+        match u8::try_from(v) {
+            Ok(r) if r < 8 => {
+                p.rt.borrow_mut().set_relay(p.idx, r);
+                Ok(())
+            }
+            _ => fail(format!(
+                "relay {v} does not exist on {} (TRC1000): use 0-7",
+                p.name
+            )),
+        }
+    });
+    engine.register_fn("pressed", |p: &mut Panel, name: &str| -> R<bool> {
+        let s = switch(&p.name, name)?;
+        Ok(p.rt.borrow_mut().switches(p.idx).is_pressed(s))
+    });
+    engine.register_fn("pressed", |p: &mut Panel| -> Array {
+        let set = p.rt.borrow_mut().switches(p.idx);
+        set.pressed_names()
+            .into_iter()
+            .map(|n| Dynamic::from(n.to_string()))
+            .collect()
+    });
+    engine.register_fn("rotary", |p: &mut Panel, name: &str| -> R<i64> {
+        let r = rotary(&p.name, name)?;
+        Ok(i64::from(p.rt.borrow_mut().rotaries(p.idx).get(r)))
+    });
+    engine.register_fn("turned", |p: &mut Panel, name: &str| -> R<i64> {
+        let r = rotary(&p.name, name)?;
+        Ok(p.rt.borrow_mut().turned(p.idx, r))
+    });
+    for (method, pressed) in [("on_press", true), ("on_release", false)] {
+        let a = arities.clone();
+        engine.register_fn(
+            method,
+            move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
+                let s = switch(&p.name, name)?;
+                a.check(&f, method, &["switch name"])?;
+                let source = if pressed {
+                    Source::Press {
+                        dev: p.idx,
+                        switch: s,
+                    }
+                } else {
+                    Source::Release {
+                        dev: p.idx,
+                        switch: s,
+                    }
+                };
+                let label = format!("{}.{method} {s}", p.name);
+                let id = p.rt.borrow_mut().subscribe(source, f, label);
+                Ok(id_value(id))
+            },
+        );
+    }
+    let a = arities.clone();
+    engine.register_fn(
+        "on_turn",
+        move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
+            let r = rotary(&p.name, name)?;
+            a.check(&f, "on_turn", &["delta", "value"])?;
+            let label = format!("{}.on_turn {}", p.name, r.name());
+            let source = Source::Turn {
+                dev: p.idx,
+                rotary: r,
+            };
+            Ok(id_value(p.rt.borrow_mut().subscribe(source, f, label)))
+        },
+    );
+}
+
+fn id_value(id: u64) -> i64 {
+    i64::try_from(id).unwrap_or(i64::MAX)
+}
+
+fn register_io(engine: &mut Engine, arities: &Arities) {
+    engine.register_type_with_name::<Io>("TRP-C29U");
+    engine.register_fn("to_string", |d: &mut Io| format!("TRP-C29U {}", d.name));
+    engine.register_fn("to_debug", |d: &mut Io| format!("TRP-C29U {}", d.name));
+    engine.register_get("online", |d: &mut Io| d.rt.borrow().online(d.idx));
+    engine.register_get("outputs", |d: &mut Io| {
+        d.rt.borrow_mut()
+            .c29u(d.idx)
+            .map_or(0, |c| i64::from(c.outputs))
+    });
+    setter(engine, "outputs", |d: &mut Io, v: i64| -> R<()> {
+        let v = byte("DO byte", v)?;
+        d.rt.borrow_mut().set_outputs(d.idx, v);
+        Ok(())
+    });
+    engine.register_fn("output", |d: &mut Io, ch: i64| -> R<bool> {
+        let c = channel(&d.name, ch)?;
+        let v = d.rt.borrow_mut().c29u(d.idx).map_or(0, |c| c.outputs);
+        Ok(v & (1 << c) != 0)
+    });
+    engine.register_fn("set_output", |d: &mut Io, ch: i64, on: bool| -> R<()> {
+        let c = channel(&d.name, ch)?;
+        let mut rt = d.rt.borrow_mut();
+        let v = rt.c29u(d.idx).map_or(0, |c| c.outputs);
+        let v = if on { v | (1 << c) } else { v & !(1 << c) };
+        rt.set_outputs(d.idx, v);
+        Ok(())
+    });
+    engine.register_get("inputs", |d: &mut Io| {
+        i64::from(d.rt.borrow_mut().inputs(d.idx))
+    });
+    engine.register_fn("input", |d: &mut Io, ch: i64| -> R<bool> {
+        let c = channel(&d.name, ch)?;
+        Ok(d.rt.borrow_mut().inputs(d.idx) & (1 << c) != 0)
+    });
+    engine.register_fn("counter", |d: &mut Io, ch: i64| -> R<i64> {
+        let c = channel(&d.name, ch)?;
+        let counts = d.rt.borrow_mut().counters(d.idx);
+        Ok(counts.get(usize::from(c)).map_or(0, |v| i64::from(*v)))
+    });
+    engine.register_fn("counters", |d: &mut Io| -> Array {
+        let counts = d.rt.borrow_mut().counters(d.idx);
+        counts
+            .iter()
+            .map(|v| Dynamic::from(i64::from(*v)))
+            .collect()
+    });
+    engine.register_fn("clear_counter", |d: &mut Io, ch: i64| -> R<()> {
+        let c = channel(&d.name, ch)?;
+        c29u_op(d, |m| {
+            m.driver.clear_counter(c)?;
+            if let Some(slot) = m
+                .counters
+                .current
+                .as_mut()
+                .and_then(|v| v.get_mut(usize::from(c)))
+            {
+                *slot = 0;
+            }
+            Ok(())
+        })
+    });
+    engine.register_fn("clear_counters", |d: &mut Io| -> R<()> {
+        c29u_op(d, |m| {
+            m.driver.clear_counters()?;
+            if let Some(v) = m.counters.current.as_mut() {
+                *v = [0; 8];
+            }
+            Ok(())
+        })
+    });
+    engine.register_fn("save_counters", |d: &mut Io| -> R<()> {
+        c29u_op(d, |m| Ok(m.driver.save_counters()?))
+    });
+    engine.register_fn("latched", |d: &mut Io| -> Map {
+        let l = d.rt.borrow_mut().latches(d.idx);
+        let active_low =
+            d.rt.borrow_mut()
+                .c29u(d.idx)
+                .map_or(true, |c| c.config.di_active_low);
+        // "on": channels energized since the last clear; "off": released since then.
+        let (on, off) = if active_low {
+            (l.low, l.high)
+        } else {
+            (l.high, l.low)
+        };
+        let mut m = Map::new();
+        m.insert("on".into(), Dynamic::from(i64::from(on)));
+        m.insert("off".into(), Dynamic::from(i64::from(off)));
+        m
+    });
+    engine.register_fn("clear_latch", |d: &mut Io| -> R<()> {
+        c29u_op(d, |m| {
+            m.driver.clear_latches()?;
+            if let Some(l) = m.latches.current.as_mut() {
+                l.low = 0;
+                l.high = 0;
+            }
+            Ok(())
+        })
+    });
+    engine.register_fn("watchdog", |d: &mut Io, seconds: i64| -> R<()> {
+        set_watchdog(d, seconds as f64)
+    });
+    engine.register_fn("watchdog", |d: &mut Io, seconds: f64| -> R<()> {
+        set_watchdog(d, seconds)
+    });
+    engine.register_fn("watchdog", |d: &mut Io| -> R<Map> {
+        let info = c29u_op(d, |m| Ok(m.driver.watchdog()?))?;
+        let mut map = Map::new();
+        map.insert("enabled".into(), Dynamic::from(info.enabled));
+        map.insert(
+            "timeout_ms".into(),
+            Dynamic::from(i64::from(info.timeout_tenths) * 100),
+        );
+        map.insert(
+            "expired".into(),
+            info.expired.map_or(Dynamic::UNIT, Dynamic::from),
+        );
+        Ok(map)
+    });
+    engine.register_fn("watchdog_off", |d: &mut Io| -> R<()> {
+        c29u_op(d, |m| {
+            m.driver.set_watchdog(None)?;
+            m.watchdog = None;
+            m.watchdog_ours = false;
+            Ok(())
+        })
+    });
+    engine.register_get("safe_value", |d: &mut Io| -> R<i64> {
+        c29u_op(d, |m| Ok(i64::from(m.driver.safe_value()?)))
+    });
+    setter(engine, "safe_value", |d: &mut Io, v: i64| -> R<()> {
+        let v = byte("safe value", v)?;
+        c29u_op(d, |m| {
+            m.driver.set_safe_value(v)?;
+            // The runner's safe state follows the module's.
+            m.config.safe_value = v;
+            Ok(())
+        })
+    });
+    engine.register_get("power_on_value", |d: &mut Io| -> R<i64> {
+        c29u_op(d, |m| Ok(i64::from(m.driver.power_on_value()?)))
+    });
+    setter(engine, "power_on_value", |d: &mut Io, v: i64| -> R<()> {
+        let v = byte("power-on value", v)?;
+        c29u_op(d, |m| {
+            m.driver.set_power_on_value(v)?;
+            m.config.power_on_value = Some(v);
+            Ok(())
+        })
+    });
+    engine.register_get("name", |d: &mut Io| -> R<String> {
+        c29u_op(d, |m| Ok(m.driver.name()?))
+    });
+    engine.register_get("firmware", |d: &mut Io| -> R<String> {
+        c29u_op(d, |m| Ok(m.driver.firmware()?.text))
+    });
+    engine.register_fn("reset", |d: &mut Io| -> R<()> {
+        c29u_op(d, |m| {
+            m.driver.reset()?;
+            // The module comes back at its power-on value; the script's outputs are written
+            // again at the end of the tick.
+            m.outputs_written = None;
+            Ok(())
+        })
+    });
+    engine.register_get("in_safe_mode", |d: &mut Io| -> R<bool> {
+        c29u_op(d, |m| {
+            if let Some(expired) = m.driver.watchdog()?.expired {
+                return Ok(expired);
+            }
+            // The protocol cannot say: write the module's own outputs back, which only a
+            // module in safe mode refuses.
+            let now = m.driver.read_outputs()?;
+            match m.driver.write_outputs(now) {
+                Ok(()) => Ok(false),
+                Err(C29uError::SafeMode { .. }) => Ok(true),
+                Err(e) => Err(e.into()),
+            }
+        })
+    });
+    for (method, rise) in [("on_rise", true), ("on_fall", false)] {
+        let a = arities.clone();
+        engine.register_fn(method, move |d: &mut Io, ch: i64, f: FnPtr| -> R<i64> {
+            let c = channel(&d.name, ch)?;
+            a.check(&f, method, &["channel"])?;
+            let source = if rise {
+                Source::Rise { dev: d.idx, ch: c }
+            } else {
+                Source::Fall { dev: d.idx, ch: c }
+            };
+            let label = format!("{}.{method} DI{c}", d.name);
+            Ok(id_value(d.rt.borrow_mut().subscribe(source, f, label)))
+        });
+    }
+    let a = arities.clone();
+    engine.register_fn(
+        "on_counter",
+        move |d: &mut Io, ch: i64, threshold: i64, f: FnPtr| -> R<i64> {
+            let c = channel(&d.name, ch)?;
+            let Ok(t) = u16::try_from(threshold) else {
+                return fail(format!(
+                    "counter threshold {threshold} is not possible: the counters count 0-65535"
+                ));
+            };
+            a.check(&f, "on_counter", &["count"])?;
+            let label = format!("{}.on_counter DI{c} >= {t}", d.name);
+            let source = Source::Counter {
+                dev: d.idx,
+                ch: c,
+                threshold: t,
+                armed: true,
+            };
+            Ok(id_value(d.rt.borrow_mut().subscribe(source, f, label)))
+        },
+    );
+}
+
+fn set_watchdog(d: &Io, seconds: f64) -> R<()> {
+    let t = Duration::try_from_secs_f64(seconds)
+        .ok()
+        // 0.1 s steps: round to the nearest tenth so that 2.3 means 23 tenths.
+        .map(|s| Duration::from_millis(((s.as_secs_f64() * 10.0).round() as u64) * 100))
+        .and_then(WatchdogTimeout::from_duration);
+    let Some(t) = t else {
+        return fail(format!(
+            "watchdog({seconds}) is not possible: use 0.1 to 25.5 seconds (watchdog_off() turns it off)"
+        ));
+    };
+    let now = d.rt.borrow().now();
+    c29u_op(d, |m| {
+        m.driver.set_watchdog(Some(t.as_duration()))?;
+        m.watchdog = Some(t);
+        m.watchdog_ours = true;
+        m.last_feed = now;
+        Ok(())
+    })
+}
+
+fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
+    let (r, a) = (Rc::clone(rt), arities.clone());
+    engine.register_fn("every", move |d: Dynamic, f: FnPtr| -> R<i64> {
+        let d = duration(&d)?;
+        a.check(&f, "every", &["missed"])?;
+        let id = r.borrow_mut().every(d, f);
+        id.map(id_value).or_else(|e| fail(e.to_string()))
+    });
+    let (r, a) = (Rc::clone(rt), arities.clone());
+    engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
+        let d = duration(&d)?;
+        a.check(&f, "after", &[])?;
+        Ok(id_value(r.borrow_mut().after(d, f)))
+    });
+    let (r, a) = (Rc::clone(rt), arities.clone());
+    engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {
+        a.check(&f, "cron", &["missed"])?;
+        let id = r.borrow_mut().cron(expr, f);
+        id.map(id_value).or_else(|e| fail(e.to_string()))
+    });
+    let r = Rc::clone(rt);
+    engine.register_fn("cancel", move |id: i64| -> bool {
+        u64::try_from(id).is_ok_and(|id| r.borrow_mut().cancel(id))
+    });
+    let (r, a) = (Rc::clone(rt), arities.clone());
+    engine.register_fn("on_stop", move |f: FnPtr| -> R<i64> {
+        a.check(&f, "on_stop", &[])?;
+        let id = r
+            .borrow_mut()
+            .subscribe(Source::Stop, f, "on_stop".to_string());
+        Ok(id_value(id))
+    });
+    let r = Rc::clone(rt);
+    engine.register_fn("stop", move || -> R<()> { stop(&r, 0) });
+    let r = Rc::clone(rt);
+    engine.register_fn("stop", move |code: i64| -> R<()> {
+        if !(0..=255).contains(&code) {
+            return fail(format!("stop({code}): an exit status is 0-255"));
+        }
+        stop(&r, code)
+    });
+    let r = Rc::clone(rt);
+    engine.register_fn("now", move || r.borrow().wall_text());
+    let r = Rc::clone(rt);
+    engine.register_fn("uptime", move || {
+        i64::try_from(r.borrow().uptime().as_millis()).unwrap_or(i64::MAX)
+    });
+    let r = Rc::clone(rt);
+    engine.on_print(move |s| r.borrow_mut().log.info(&format!("script: {s}")));
+    let r = Rc::clone(rt);
+    engine.on_debug(move |s, _, _| r.borrow_mut().log.info(&format!("script: {s}")));
+    let r = Rc::clone(rt);
+    engine.register_fn("log", move |m: Dynamic| {
+        r.borrow_mut().log.info(&format!("script: {m}"));
+    });
+    let r = Rc::clone(rt);
+    engine.register_fn("warn", move |m: Dynamic| {
+        r.borrow_mut().log.warn(&format!("script: {m}"));
+    });
+}
+
+/// `stop(code)`: asks the runner to stop, and ends the handler at once.
+fn stop(rt: &Rt, code: i64) -> R<()> {
+    let mut r = rt.borrow_mut();
+    if r.stop_request.is_none() {
+        r.stop_request = Some(code);
+    }
+    Err(
+        EvalAltResult::ErrorTerminated(Dynamic::from(STOP_MARKER.to_string()), Position::NONE)
+            .into(),
+    )
+}
+
+fn number(v: &Dynamic, what: &str) -> R<f64> {
+    if let Some(i) = v.clone().try_cast::<i64>() {
+        Ok(i as f64)
+    } else if let Some(f) = v.clone().try_cast::<f64>() {
+        Ok(f)
+    } else {
+        fail(format!("{what} must be a number, not {}", v.type_name()))
+    }
+}
+
+fn limits(map: &Map) -> R<Limits> {
+    let mut l = Limits::default();
+    for (key, value) in map {
+        match key.as_str() {
+            "min" => l.min = Some(number(value, "min")?),
+            "max" => l.max = Some(number(value, "max")?),
+            "unit" => l.unit = Some(value.to_string()),
+            other => {
+                return fail(format!(
+                    "measure: unknown limit {other:?}; use #{{min, max, unit}}"
+                ))
+            }
+        }
+    }
+    Ok(l)
+}
+
+fn register_records(engine: &mut Engine, rt: &Rt) {
+    let r = Rc::clone(rt);
+    engine.register_fn("record", move |name: &str, value: Dynamic| -> R<()> {
+        let mut rt = r.borrow_mut();
+        let time = rt.wall_text();
+        let result = rt.records.record(&time, name, to_json(&value));
+        result.or_else(|e| fail(e.to_string()))
+    });
+    let measure = move |rt: &Rt, name: &str, value: &Dynamic, l: &Limits| -> R<bool> {
+        let v = number(value, "a measured value")?;
+        let mut r = rt.borrow_mut();
+        let time = r.wall_text();
+        let pass = r
+            .records
+            .measure(&time, name, v, l)
+            .or_else(|e| fail(e.to_string()))?;
+        let unit = l.unit.as_deref().unwrap_or("");
+        let range = match (l.min, l.max) {
+            (Some(a), Some(b)) => format!(" [{a}, {b}]"),
+            (Some(a), None) => format!(" [>= {a}]"),
+            (None, Some(b)) => format!(" [<= {b}]"),
+            (None, None) => String::new(),
+        };
+        let line = format!(
+            "measure {name} = {v}{unit}{range}: {}",
+            if pass { "pass" } else { "FAIL" }
+        );
+        if pass {
+            r.log.activity(&line);
+        } else {
+            r.log.warn(&line);
+        }
+        Ok(pass)
+    };
+    let r = Rc::clone(rt);
+    engine.register_fn(
+        "measure",
+        move |name: &str, value: Dynamic, l: Map| -> R<bool> {
+            measure(&r, name, &value, &limits(&l)?)
+        },
+    );
+    let r = Rc::clone(rt);
+    engine.register_fn("measure", move |name: &str, value: Dynamic| -> R<bool> {
+        measure(&r, name, &value, &Limits::default())
+    });
+}

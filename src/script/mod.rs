@@ -1,0 +1,12 @@
+//! Rhai scripts: the sandboxed engine, the script API bound to the runtime, running a script
+//! as the scan loop's program, static checks (`rigscript check`) and scenario tests
+//! (`rigscript test`). Nothing below this layer knows Rhai.
+
+pub mod api;
+pub mod check;
+pub mod engine;
+pub mod error;
+pub mod program;
+pub mod rig;
+pub mod scenario;
+pub mod values;

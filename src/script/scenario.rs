@@ -1,0 +1,431 @@
+//! Scenario tests (`rigscript test`): `*.test.rhai` files whose `test_*` functions load a
+//! script under test on simulated devices in virtual time, play the field side, advance
+//! time, and assert on what the simulators show.
+//!
+//! The test API:
+//! - `rig(path)`, `rig(path, config)`, `rig_at(path, iso_time)`, `rig_at(path, iso_time,
+//!   zone)`: the script at `path` (relative to the test file) on simulated devices (those of
+//!   `config`, else `panel` and `io` as with `--sim`), wall time starting at
+//!   2026-03-28T12:00:00Z (or `iso_time`), cron and log in UTC (or the offset of `iso_time`,
+//!   or the IANA `zone`). Its top level has run when `rig` returns.
+//! - `r.advance(dur)` runs every tick due until virtual time has moved by `dur`; `r.tick()`
+//!   runs the next tick (when no handler polls inputs, idle ticks are skipped, so this can move
+//!   time to the next timer). Each tick at the period of rig.toml (20 ms by default).
+//! - Field side: `r.press(dev, name)`, `r.release(dev, name)`, `r.turn(dev, name,
+//!   half_turns)`, `r.set_inputs(dev, byte)`, `r.set_input(dev, ch, on)`, `r.pulse(dev, ch,
+//!   n)`, `r.fail(dev)`, `r.restore(dev)`, `r.power_cycle(dev)`, `r.signal_stop()`.
+//! - Read from the simulators: `r.outputs(dev)`, `r.relay(dev)`, `r.safe_mode(dev)`,
+//!   `r.safe_value(dev)`, `r.power_on_value(dev)`, `r.watchdog(dev)` (`#{enabled,
+//!   timeout_ms, expired}`), `r.counter(dev, ch)`.
+//! - Read from the run: `r.records()`, `r.stopped()`, `r.exit_status()` (`()` while
+//!   running), `r.log()`, `r.now()`, `r.overruns()`, `r.online(dev)`.
+//! - `assert(cond)`, `assert(cond, msg)`, `assert_eq(a, b)`, `assert_eq(a, b, msg)`.
+
+use super::api::{duration, fail, R};
+use super::engine::{sandboxed, DEFAULT_BUDGET};
+use super::error::{cause, innermost, location, parse_error};
+use super::rig::{start, Rig, RigSetup};
+use super::values::{from_json, show, to_json};
+use crate::config::RigConfig;
+use crate::runtime::clock::VirtualClock;
+use crate::runtime::devices::FieldError;
+use crate::runtime::zone::Zone;
+use chrono::{DateTime, FixedOffset, Utc};
+use rhai::{Array, CallFnOptions, Dynamic, Engine, Map, Scope};
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+use std::sync::Arc;
+
+/// Operations a test function may take (its own, not the script under test's).
+pub const TEST_BUDGET: u64 = 50_000_000;
+
+/// Where virtual wall time starts unless a test says otherwise.
+pub const DEFAULT_START: &str = "2026-03-28T12:00:00Z";
+
+/// One test function's outcome.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TestResult {
+    /// `file::test_name`.
+    pub name: String,
+    /// Why it failed (`message at file:line:col`), or `None` if it passed.
+    pub failure: Option<String>,
+}
+
+/// A script under test on its simulators.
+struct Scenario {
+    rig: Rig,
+}
+
+/// A scenario as a test script holds it.
+#[derive(Clone)]
+pub struct RigHandle(Rc<RefCell<Scenario>>);
+
+fn field<T>(r: Result<T, FieldError>) -> R<T> {
+    r.or_else(|e| fail(e.to_string()))
+}
+
+fn u8_arg(what: &str, v: i64) -> R<u8> {
+    u8::try_from(v).or_else(|_| fail(format!("{v} is not a {what} (0-255)")))
+}
+
+fn channel_arg(v: i64) -> R<u8> {
+    match u8::try_from(v) {
+        Ok(c) if c < 8 => Ok(c),
+        _ => fail(format!("channel {v} does not exist: use 0-7")),
+    }
+}
+
+fn parse_time(text: &str) -> R<DateTime<FixedOffset>> {
+    DateTime::parse_from_rfc3339(text).or_else(|e| {
+        fail(format!(
+            "{text:?} is not an ISO 8601 time such as \"2026-03-29T00:30:00+01:00\": {e}"
+        ))
+    })
+}
+
+/// Loads the script under test.
+fn load(
+    base: &Path,
+    script: &str,
+    config: Option<&str>,
+    start_at: DateTime<FixedOffset>,
+    zone: Zone,
+) -> R<RigHandle> {
+    let path = base.join(script);
+    let config = match config {
+        Some(c) => {
+            let p = base.join(c);
+            RigConfig::load(&p).or_else(|e| fail(e.to_string()))?
+        }
+        None => RigConfig::simulated_default(),
+    };
+    let source = std::fs::read_to_string(&path)
+        .or_else(|e| fail(format!("cannot read {}: {e}", path.display())))?;
+    let clock = VirtualClock::new(start_at.with_timezone(&Utc));
+    let setup = RigSetup {
+        config,
+        simulate: true,
+        clock: Arc::new(clock),
+        zone,
+        period: None,
+        end_after: None,
+        records: None,
+        log_to_stderr: false,
+        quiet: false,
+        keep_log: true,
+        budget: DEFAULT_BUDGET,
+        stop_flag: Arc::default(),
+    };
+    let rig = start(&source, &path.display().to_string(), setup)
+        .or_else(|e| fail(format!("cannot start {}: {e}", path.display())))?;
+    Ok(RigHandle(Rc::new(RefCell::new(Scenario { rig }))))
+}
+
+impl RigHandle {
+    fn sim<T>(
+        &self,
+        f: impl FnOnce(&crate::runtime::devices::SimRig) -> Result<T, FieldError>,
+    ) -> R<T> {
+        field(f(&self.0.borrow().rig.sim))
+    }
+}
+
+/// Registers the test API on `engine`; script paths are relative to `base`.
+pub fn register(engine: &mut Engine, base: &Path) {
+    engine.register_type_with_name::<RigHandle>("Rig");
+    let default_start = parse_time(DEFAULT_START).ok();
+    let b = base.to_path_buf();
+    let start0 = default_start;
+    engine.register_fn("rig", move |path: &str| -> R<RigHandle> {
+        let at = start0.map_or_else(|| parse_time(DEFAULT_START), Ok)?;
+        load(&b, path, None, at, Zone::utc())
+    });
+    let b = base.to_path_buf();
+    engine.register_fn("rig", move |path: &str, config: &str| -> R<RigHandle> {
+        let at = default_start.map_or_else(|| parse_time(DEFAULT_START), Ok)?;
+        load(&b, path, Some(config), at, Zone::utc())
+    });
+    let b = base.to_path_buf();
+    engine.register_fn("rig_at", move |path: &str, time: &str| -> R<RigHandle> {
+        let at = parse_time(time)?;
+        load(&b, path, None, at, Zone::Fixed(*at.offset()))
+    });
+    let b = base.to_path_buf();
+    engine.register_fn(
+        "rig_at",
+        move |path: &str, time: &str, zone: &str| -> R<RigHandle> {
+            let at = parse_time(time)?;
+            let zone = Zone::parse(zone).or_else(|e| fail(e.to_string()))?;
+            load(&b, path, None, at, zone)
+        },
+    );
+    register_driving(engine);
+    register_field(engine);
+    register_observations(engine);
+    register_asserts(engine);
+}
+
+fn register_driving(engine: &mut Engine) {
+    engine.register_fn("advance", |r: &mut RigHandle, d: Dynamic| -> R<()> {
+        let d = duration(&d)?;
+        r.0.borrow_mut().rig.runner.advance(d);
+        Ok(())
+    });
+    engine.register_fn("tick", |r: &mut RigHandle| {
+        r.0.borrow_mut().rig.runner.step();
+    });
+    engine.register_fn("signal_stop", |r: &mut RigHandle| {
+        r.0.borrow_mut().rig.runner.signal_stop();
+    });
+}
+
+fn register_field(engine: &mut Engine) {
+    engine.register_fn("press", |r: &mut RigHandle, dev: &str, name: &str| {
+        r.sim(|s| s.set_switch(dev, name, true))
+    });
+    engine.register_fn("release", |r: &mut RigHandle, dev: &str, name: &str| {
+        r.sim(|s| s.set_switch(dev, name, false))
+    });
+    engine.register_fn(
+        "turn",
+        |r: &mut RigHandle, dev: &str, name: &str, half_turns: i64| -> R<()> {
+            let n = i32::try_from(half_turns)
+                .or_else(|_| fail(format!("turn by {half_turns}: too far")))?;
+            r.sim(|s| s.turn(dev, name, n))
+        },
+    );
+    engine.register_fn(
+        "set_inputs",
+        |r: &mut RigHandle, dev: &str, v: i64| -> R<()> {
+            let v = u8_arg("DI byte", v)?;
+            r.sim(|s| s.set_inputs(dev, v))
+        },
+    );
+    engine.register_fn(
+        "set_input",
+        |r: &mut RigHandle, dev: &str, ch: i64, on: bool| -> R<()> {
+            let ch = channel_arg(ch)?;
+            r.sim(|s| s.set_input(dev, ch, on))
+        },
+    );
+    engine.register_fn(
+        "pulse",
+        |r: &mut RigHandle, dev: &str, ch: i64, n: i64| -> R<()> {
+            let ch = channel_arg(ch)?;
+            let n =
+                u32::try_from(n).or_else(|_| fail(format!("pulse count {n}: use 0 or more")))?;
+            r.sim(|s| s.pulse(dev, ch, n))
+        },
+    );
+    engine.register_fn("fail", |r: &mut RigHandle, dev: &str| {
+        r.sim(|s| s.set_gone(dev, true))
+    });
+    engine.register_fn("restore", |r: &mut RigHandle, dev: &str| {
+        r.sim(|s| s.set_gone(dev, false))
+    });
+    engine.register_fn("power_cycle", |r: &mut RigHandle, dev: &str| {
+        r.sim(|s| s.power_cycle(dev))
+    });
+}
+
+fn register_observations(engine: &mut Engine) {
+    engine.register_fn("outputs", |r: &mut RigHandle, dev: &str| -> R<i64> {
+        r.sim(|s| s.outputs(dev)).map(i64::from)
+    });
+    engine.register_fn("relay", |r: &mut RigHandle, dev: &str| -> R<i64> {
+        r.sim(|s| s.relay(dev)).map(i64::from)
+    });
+    engine.register_fn("safe_mode", |r: &mut RigHandle, dev: &str| -> R<bool> {
+        r.sim(|s| s.safe_mode(dev))
+    });
+    engine.register_fn("safe_value", |r: &mut RigHandle, dev: &str| -> R<i64> {
+        r.sim(|s| s.safe_value(dev)).map(i64::from)
+    });
+    engine.register_fn("power_on_value", |r: &mut RigHandle, dev: &str| -> R<i64> {
+        r.sim(|s| s.power_on_value(dev)).map(i64::from)
+    });
+    engine.register_fn("watchdog", |r: &mut RigHandle, dev: &str| -> R<Map> {
+        let w = r.sim(|s| s.watchdog(dev))?;
+        let mut m = Map::new();
+        m.insert("enabled".into(), Dynamic::from(w.enabled));
+        m.insert(
+            "timeout_ms".into(),
+            Dynamic::from(i64::from(w.timeout_tenths) * 100),
+        );
+        m.insert("expired".into(), Dynamic::from(w.expired));
+        Ok(m)
+    });
+    engine.register_fn(
+        "counter",
+        |r: &mut RigHandle, dev: &str, ch: i64| -> R<i64> {
+            let ch = channel_arg(ch)?;
+            r.sim(|s| s.counter(dev, ch)).map(i64::from)
+        },
+    );
+    engine.register_fn("records", |r: &mut RigHandle| -> Array {
+        let s = r.0.borrow();
+        let rt = s.rig.runner.runtime().borrow();
+        rt.records.kept().iter().map(from_json).collect()
+    });
+    engine.register_fn("stopped", |r: &mut RigHandle| {
+        r.0.borrow().rig.runner.status().is_some()
+    });
+    engine.register_fn("exit_status", |r: &mut RigHandle| -> Dynamic {
+        r.0.borrow()
+            .rig
+            .runner
+            .status()
+            .map_or(Dynamic::UNIT, |s| Dynamic::from(i64::from(s)))
+    });
+    engine.register_fn("log", |r: &mut RigHandle| -> Array {
+        let s = r.0.borrow();
+        let rt = s.rig.runner.runtime().borrow();
+        rt.log
+            .lines()
+            .iter()
+            .map(|l| Dynamic::from(l.clone()))
+            .collect()
+    });
+    engine.register_fn("now", |r: &mut RigHandle| -> String {
+        r.0.borrow().rig.runner.runtime().borrow().wall_text()
+    });
+    engine.register_fn("overruns", |r: &mut RigHandle| -> i64 {
+        i64::try_from(r.0.borrow().rig.runner.stats.overruns).unwrap_or(i64::MAX)
+    });
+    engine.register_fn("online", |r: &mut RigHandle, dev: &str| -> R<bool> {
+        let s = r.0.borrow();
+        let rt = s.rig.runner.runtime().borrow();
+        match rt.device_index(dev) {
+            Some(i) => Ok(rt.online(i)),
+            None => fail(format!(
+                "no device called {dev:?} (devices: {})",
+                rt.device_names()
+            )),
+        }
+    });
+}
+
+fn register_asserts(engine: &mut Engine) {
+    engine.register_fn("assert", |cond: bool| -> R<()> {
+        if cond {
+            Ok(())
+        } else {
+            fail("assertion failed")
+        }
+    });
+    engine.register_fn("assert", |cond: bool, msg: &str| -> R<()> {
+        if cond {
+            Ok(())
+        } else {
+            fail(format!("assertion failed: {msg}"))
+        }
+    });
+    let eq = |a: &Dynamic, b: &Dynamic, msg: &str| -> R<()> {
+        if to_json(a) == to_json(b) {
+            Ok(())
+        } else {
+            let what = if msg.is_empty() {
+                "assert_eq failed".to_string()
+            } else {
+                format!("assert_eq failed: {msg}")
+            };
+            fail(format!("{what}: left {}, right {}", show(a), show(b)))
+        }
+    };
+    engine.register_fn("assert_eq", move |a: Dynamic, b: Dynamic| eq(&a, &b, ""));
+    engine.register_fn("assert_eq", move |a: Dynamic, b: Dynamic, msg: &str| {
+        eq(&a, &b, msg)
+    });
+}
+
+/// An engine with the test API; a test's own `print` and `debug` go to stderr.
+fn test_engine(base: &Path) -> Engine {
+    let mut engine = sandboxed(TEST_BUDGET);
+    register(&mut engine, base);
+    engine.on_print(|s| eprintln!("{s}"));
+    engine.on_debug(|s, _, _| eprintln!("{s}"));
+    engine
+}
+
+/// Runs every `test_*` function of the test file at `path` (called `file` in messages),
+/// each in a fresh engine; calls `report` with each result as it comes.
+pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) -> Vec<TestResult> {
+    let base: PathBuf = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut results = Vec::new();
+    let mut push = |r: TestResult| {
+        report(&r);
+        results.push(r);
+    };
+    let source = match std::fs::read_to_string(path) {
+        Ok(s) => s,
+        Err(e) => {
+            push(TestResult {
+                name: format!("{file}::(load)"),
+                failure: Some(format!("cannot read {file}: {e}")),
+            });
+            return results;
+        }
+    };
+    let engine = test_engine(&base);
+    let ast = match engine.compile(&source) {
+        Ok(ast) => ast,
+        Err(e) => {
+            push(TestResult {
+                name: format!("{file}::(compile)"),
+                failure: Some(parse_error(file, &e)),
+            });
+            return results;
+        }
+    };
+    let mut tests: Vec<String> = ast
+        .iter_functions()
+        .filter(|f| f.name.starts_with("test_") && f.params.is_empty())
+        .map(|f| f.name.to_string())
+        .collect();
+    // In the order they are written.
+    tests.sort_by_key(|name| source.find(&format!("fn {name}(")).unwrap_or(usize::MAX));
+    for name in tests {
+        let engine = test_engine(&base);
+        let options = CallFnOptions::new().eval_ast(false);
+        let result =
+            engine.call_fn_with_options::<Dynamic>(options, &mut Scope::new(), &ast, &name, ());
+        let failure = result.err().map(|e| {
+            let (inner, pos) = innermost(&e);
+            match location(file, pos) {
+                Some(at) => format!("{} at {at}", cause(inner)),
+                None => cause(inner),
+            }
+        });
+        push(TestResult {
+            name: format!("{file}::{name}"),
+            failure,
+        });
+    }
+    results
+}
+
+/// The `*.test.rhai` files under `path` (itself, if it is one), sorted.
+pub fn test_files(path: &Path) -> std::io::Result<Vec<PathBuf>> {
+    if path.is_file() {
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let mut found = Vec::new();
+    let mut dirs = vec![path.to_path_buf()];
+    while let Some(dir) = dirs.pop() {
+        for entry in std::fs::read_dir(&dir)? {
+            let p = entry?.path();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if p
+                .file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.ends_with(".test.rhai"))
+            {
+                found.push(p);
+            }
+        }
+    }
+    found.sort();
+    Ok(found)
+}

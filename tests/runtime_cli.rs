@@ -1,0 +1,186 @@
+//! `rigscript run` and `rigscript check` as a user runs them: exit statuses, what the run
+//! shows on stderr, records files, `--stats`.
+
+mod common;
+
+use common::rigscript;
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+struct Dir(PathBuf);
+
+impl Dir {
+    fn new(tag: &str) -> Self {
+        let d = std::env::temp_dir().join(format!("rigscript-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        Self(d)
+    }
+
+    fn file(&self, name: &str, text: &str) -> String {
+        let p = self.0.join(name);
+        std::fs::write(&p, text).unwrap();
+        p.display().to_string()
+    }
+}
+
+impl Drop for Dir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(rigscript()).args(args).output().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn a_tiny_script_runs_for_a_second_on_the_simulators_and_shows_what_it_does() {
+    let d = Dir::new("tiny");
+    let s = d.file(
+        "blink.rhai",
+        "every(\"100ms\", || io.outputs = io.outputs ^ 1);\npanel.relay = 4;\n",
+    );
+    let o = run(&["run", "--sim", "--for", "1s", "--stats", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(
+        err.contains("io: outputs 0x00 -> 0x01 (every 100ms)"),
+        "{err}"
+    );
+    assert!(err.contains("panel: relay 0 -> 4 (top level)"), "{err}");
+    assert!(err.contains("stopping: ran for 1s"), "{err}");
+    assert!(
+        err.contains("safe state (end of run): io outputs 0x00, panel relay 0"),
+        "{err}"
+    );
+    let out = stdout(&o);
+    for key in [
+        "ticks: ",
+        "jitter: p50 ",
+        "overruns: ",
+        "transactions per tick: ",
+    ] {
+        assert!(out.contains(key), "{out}");
+    }
+}
+
+#[test]
+fn without_config_or_sim_it_is_a_usage_error() {
+    let d = Dir::new("usage");
+    let s = d.file("s.rhai", "print(1);");
+    let o = run(&["run", &s]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("give --config rig.toml"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn a_bad_config_is_exit_2_and_a_missing_device_exit_3() {
+    let d = Dir::new("config");
+    let s = d.file("s.rhai", "print(1);");
+    let bad = d.file(
+        "bad.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nprotocol = \"modbsu\"\n",
+    );
+    let o = run(&["run", "--config", &bad, &s]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("bad.toml:4: devices.io.protocol"),
+        "{}",
+        stderr(&o)
+    );
+    let missing = d.file(
+        "missing.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/rigscript-no-such-port\"\n",
+    );
+    let o = run(&["run", "--config", &missing, &s]);
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert!(stderr(&o).contains("device io"), "{}", stderr(&o));
+}
+
+#[test]
+fn script_errors_are_exit_1_with_file_line_and_column() {
+    let d = Dir::new("errors");
+    let s = d.file("syntax.rhai", "let x = ;\n");
+    let o = run(&["run", "--sim", &s]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains(&format!("{s}:1:9: ")), "{}", stderr(&o));
+    let s = d.file("runtime.rhai", "\nafter(\"50ms\", || device(\"nope\"));\n");
+    let o = run(&["run", "--sim", &s]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(
+        err.contains(&format!(
+            "{s}:2:18: in after 50ms: no device called \"nope\""
+        )),
+        "{err}"
+    );
+    let s = d.file("import.rhai", "import \"fs\" as fs;\n");
+    assert_eq!(run(&["run", "--sim", &s]).status.code(), Some(1));
+}
+
+#[test]
+fn a_failed_measurement_is_exit_4_and_records_are_json_lines() {
+    let d = Dir::new("records");
+    let s = d.file(
+        "m.rhai",
+        "record(\"id\", 42);\nmeasure(\"v\", 3.3, #{min: 3.0, max: 3.2, unit: \"V\"});\n",
+    );
+    let records = d.0.join("out.jsonl").display().to_string();
+    let o = run(&["run", "--sim", "--records", &records, &s]);
+    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&records).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2);
+    assert_eq!(lines[0]["name"], "id");
+    assert_eq!(lines[0]["value"], 42);
+    assert!(lines[0]["time"].as_str().unwrap().contains('T'));
+    assert_eq!(lines[1]["pass"], false);
+    assert_eq!(lines[1]["unit"], "V");
+}
+
+#[test]
+fn check_reports_problems_with_line_and_column() {
+    let d = Dir::new("check");
+    let good = d.file("good.rhai", "io.on_rise(3, |ch| io.outputs = 1 << ch);\n");
+    let o = run(&["check", &good]);
+    assert_eq!(o.status.code(), Some(0), "{}", stdout(&o));
+    let bad = d.file(
+        "bad.rhai",
+        "let io = device(\"oi\");\npanel.on_press(\"S46\", || {});\n",
+    );
+    let o = run(&["check", &bad]);
+    assert_eq!(o.status.code(), Some(1));
+    let out = stdout(&o);
+    assert!(
+        out.contains(&format!("{bad}:1:17: no device called \"oi\"")),
+        "{out}"
+    );
+    assert!(
+        out.contains(&format!("{bad}:2:16: no switch called \"S46\"")),
+        "{out}"
+    );
+    let cfg = d.file(
+        "rig.toml",
+        "[devices.oi]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
+    );
+    let o = run(&["check", "--config", &cfg, &bad]);
+    assert_eq!(o.status.code(), Some(1));
+    let out = stdout(&o);
+    assert!(!out.contains("no device called"), "{out}");
+}

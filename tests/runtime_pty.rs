@@ -1,0 +1,106 @@
+//! `rigscript run` against the TRP-C29U simulator on a real pseudo-terminal: SIGTERM leaves
+//! the module at its safe value; after `kill -9` the module's own host watchdog, enabled and
+//! fed by the runner, drives it there.
+
+mod common;
+
+use common::{rigscript, SimProcess};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn setup(sim: &SimProcess, tag: &str) -> (std::path::PathBuf, String, String) {
+    let dir = std::env::temp_dir().join(format!("rigscript-pty-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("rig.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nsafe_value = 0x05\nwatchdog = \"1s\"\n",
+            sim.path
+        ),
+    )
+    .unwrap();
+    let script = dir.join("work.rhai");
+    std::fs::write(&script, "io.outputs = 0xF0;\nevery(\"100ms\", || {});\n").unwrap();
+    (
+        dir,
+        config.display().to_string(),
+        script.display().to_string(),
+    )
+}
+
+fn start_run(config: &str, script: &str) -> Child {
+    Command::new(rigscript())
+        .args(["run", "--quiet", "--config", config, script])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Polls the simulator until `pred` holds of its state, or gives up after `limit`.
+fn wait_for(
+    sim: &mut SimProcess,
+    limit: Duration,
+    pred: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let start = Instant::now();
+    loop {
+        let s = sim.state();
+        if pred(&s) || start.elapsed() > limit {
+            return s;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn signal(child: &Child, sig: &str) {
+    let ok = Command::new("kill")
+        .arg(sig)
+        .arg(child.id().to_string())
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+}
+
+#[test]
+fn sigterm_leaves_the_module_at_its_safe_value() {
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let (dir, config, script) = setup(&sim, "term");
+    let mut run = start_run(&config, &script);
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    assert_eq!(s["do"], 0xF0, "the script drives the module: {s}");
+    assert_eq!(s["safe_value"], 0x05);
+    assert_eq!(s["watchdog"]["enabled"], true);
+    signal(&run, "-TERM");
+    let status = run.wait().unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(0), "{err}");
+    let s = sim.state();
+    assert_eq!(s["do"], 0x05, "{s}\n{err}");
+    assert_eq!(
+        s["watchdog"]["enabled"], false,
+        "a clean end turns it off: {s}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn after_kill_9_the_modules_own_watchdog_drives_it_safe() {
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let (dir, config, script) = setup(&sim, "kill");
+    let mut run = start_run(&config, &script);
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    assert_eq!(s["do"], 0xF0, "{s}");
+    signal(&run, "-KILL");
+    run.wait().unwrap();
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| {
+        s["watchdog"]["expired"] == true
+    });
+    assert_eq!(s["watchdog"]["expired"], true, "{s}");
+    assert_eq!(s["do"], 0x05, "{s}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
