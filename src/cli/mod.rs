@@ -2,10 +2,10 @@
 
 use clap::{Parser, Subcommand};
 
-pub mod check;
-pub mod run;
 pub mod c29;
+pub mod check;
 pub mod output;
+pub mod run;
 pub mod scan;
 pub mod sim;
 pub mod test;
