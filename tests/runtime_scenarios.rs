@@ -94,3 +94,38 @@ fn no_test_files_is_a_usage_error() {
     assert!(text(&out.stderr).contains("no *.test.rhai files"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_scripts_in_scripts_pass_their_scenarios_and_check_clean() {
+    let out = Command::new(rigscript())
+        .arg("test")
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    for script in [
+        "rotary_relay",
+        "counter_threshold",
+        "safe_values",
+        "cron_rig",
+        "interlock",
+    ] {
+        assert!(
+            stdout.contains(&format!("scripts/tests/{script}.test.rhai::test_")),
+            "{script} has scenario tests: {stdout}"
+        );
+        let check = Command::new(rigscript())
+            .args(["check", &format!("scripts/{script}.rhai")])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        assert!(
+            check.status.success(),
+            "check {script}: {}{}",
+            text(&check.stdout),
+            text(&check.stderr)
+        );
+    }
+    assert!(stdout.trim_end().ends_with(" passed, 0 failed"), "{stdout}");
+}
