@@ -267,9 +267,23 @@ fn a_stale_answer_before_the_real_one_is_dropped() {
         .answer([0xC3, 1, 2, 3, 4, 5, 6, 7])
         .answer(sim.receive(&Command::RequestInput.encode()).unwrap());
     let dir = TempDir::new("stale");
-    let o = run_trc(&dir, &one_board(), Some(&script), &["inputs"]);
+    let o = run_trc(&dir, &one_board(), Some(&script), &["inputs", "--trace"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(stdout(&o), "S9\n");
+    // --trace shows the request, the stale packet and the answer, in order.
+    let err = stderr(&o);
+    let trace: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with(">>") || l.starts_with("<<"))
+        .collect();
+    assert_eq!(
+        trace,
+        [
+            ">> 41 00 00 00 00 00 00 00",
+            "<< C3 01 02 03 04 05 06 07",
+            "<< C1 00 01 00 00 00 00 00"
+        ]
+    );
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! `rigscript trc`: list TRC1000 boards, select a relay, read switches and rotaries, monitor.
 
 use crate::cli::output::{run_command, stop_flag, CommandError, EXIT_FAILED, EXIT_UNREACHABLE};
+use crate::device::exchange::{format_frame, TracedPacketLink};
 use crate::device::trc1000::{rotary_changes, RotaryChange, Trc1000, Trc1000Error};
 use crate::link::usb::{list_boards, BoardInfo, UsbPacketLink, UsbTarget};
 use crate::link::{LinkError, PacketLink};
@@ -28,6 +29,9 @@ pub struct TrcArgs {
     /// Print JSON for machines instead of text (monitor: one JSON object a line)
     #[arg(long, global = true)]
     pub json: bool,
+    /// Print every packet sent and received to standard error, as hex
+    #[arg(long, global = true)]
+    pub trace: bool,
     /// What to do
     #[command(subcommand)]
     pub command: TrcCommand,
@@ -121,7 +125,14 @@ fn run_to(args: &TrcArgs, out: &mut dyn Write) -> Result<(), CliError> {
         (Some(BusAddress { bus, address }), _) => UsbTarget::BusAddress { bus, address },
         (None, unit) => UsbTarget::Unit(unit.unwrap_or(0)),
     };
-    let link = UsbPacketLink::open(target)?;
+    let link: Box<dyn PacketLink> = if args.trace {
+        Box::new(TracedPacketLink::new(
+            UsbPacketLink::open(target)?,
+            Box::new(|direction, packet| eprintln!("{}", format_frame(direction, packet, false))),
+        ))
+    } else {
+        Box::new(UsbPacketLink::open(target)?)
+    };
     let mut trc = Trc1000::new(link);
     trc.set_timeout(Duration::from_millis(args.timeout));
     let stop = match args.command {

@@ -127,6 +127,38 @@ pub fn format_frame(direction: Direction, bytes: &[u8], as_text: bool) -> String
     }
 }
 
+/// A packet link that reports every packet sent and received to a tracer (`trc --trace`).
+pub struct TracedPacketLink<L: crate::link::PacketLink> {
+    inner: L,
+    tracer: Tracer,
+}
+
+impl<L: crate::link::PacketLink> TracedPacketLink<L> {
+    /// Wraps `inner`, reporting its packets to `tracer`.
+    pub fn new(inner: L, tracer: Tracer) -> Self {
+        Self { inner, tracer }
+    }
+}
+
+impl<L: crate::link::PacketLink> crate::link::PacketLink for TracedPacketLink<L> {
+    fn send(&mut self, packet: &[u8; 8], timeout: Duration) -> Result<(), LinkError> {
+        (self.tracer)(Direction::Sent, packet);
+        self.inner.send(packet, timeout)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Option<[u8; 8]>, LinkError> {
+        let packet = self.inner.receive(timeout)?;
+        if let Some(p) = &packet {
+            (self.tracer)(Direction::Received, p);
+        }
+        Ok(packet)
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -250,6 +282,26 @@ mod tests {
         .unwrap()
         .is_empty());
         assert_eq!(clock.now(), Duration::ZERO);
+    }
+
+    #[test]
+    fn traced_packet_link_reports_both_directions() {
+        use crate::link::memory::MemoryPacketLink;
+        use crate::link::PacketLink;
+        use crate::sim::trc1000::Trc1000Sim;
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let log2 = log.clone();
+        let mut link = TracedPacketLink::new(
+            MemoryPacketLink::new(Trc1000Sim::new(), "panel"),
+            Box::new(move |d, b| log2.lock().unwrap().push(format_frame(d, b, false))),
+        );
+        link.send(&[0x41, 0, 0, 0, 0, 0, 0, 0], Duration::ZERO)
+            .unwrap();
+        assert!(link.receive(Duration::ZERO).unwrap().is_some());
+        assert_eq!(
+            *log.lock().unwrap(),
+            vec![">> 41 00 00 00 00 00 00 00", "<< C1 00 00 00 00 00 00 00"]
+        );
     }
 
     #[test]
