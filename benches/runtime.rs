@@ -3,6 +3,10 @@
 //! the script's handlers active, scan-period jitter at a 10 ms period in real time, and the
 //! wall time of a simulated day of `cron_rig.rhai`.
 //!
+//! The tail of the jitter on a virtual machine follows the time the host takes the virtual CPUs
+//! away (steal time), which no process inside can prevent: each jitter line shows the steal
+//! time during its run (from /proc/stat, Linux) to read it by.
+//!
 //! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name). CPU while
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
 
@@ -166,8 +170,18 @@ fn tick_overhead(case: &Case, sizes: &Sizes) -> (Duration, f64) {
     (per_tick, rig.runner.stats.transactions_per_tick())
 }
 
+/// CPU time stolen by the hypervisor so far, all CPUs (the `steal` column of /proc/stat, in
+/// USER_HZ ticks of 10 ms); `None` where there is no such file.
+fn steal() -> Option<Duration> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let cpu = stat.lines().find(|l| l.starts_with("cpu "))?;
+    let ticks: u64 = cpu.split_whitespace().nth(8)?.parse().ok()?;
+    Some(Duration::from_millis(ticks * 10))
+}
+
 /// Runs the script for `run` at a 10 ms period in real time, as `rigscript run` does.
 fn jitter(case: &Case, sizes: &Sizes) -> String {
+    let stolen_before = steal();
     let mut rig = rig(
         case.file,
         SystemClock::shared(),
@@ -176,10 +190,14 @@ fn jitter(case: &Case, sizes: &Sizes) -> String {
     );
     let status = rig.runner.run();
     assert!(status == 0 || status == 4, "{} exited {status}", case.file);
+    let stolen = match (stolen_before, steal()) {
+        (Some(a), Some(b)) => format!(", steal {} ms", b.saturating_sub(a).as_millis()),
+        _ => String::new(),
+    };
     let s = &rig.runner.stats;
     let us = |d: Duration| d.as_micros();
     format!(
-        "{} ticks, p50 {} µs, p99 {} µs, max {} µs, {} overruns",
+        "{} ticks, p50 {} µs, p99 {} µs, max {} µs, {} overruns{stolen}",
         s.ticks,
         us(s.jitter.quantile(0.5)),
         us(s.jitter.quantile(0.99)),
