@@ -1,0 +1,264 @@
+//! The script runtime's costs, for each script in scripts/ on the in-memory simulators (`--sim`
+//! devices: `panel`, a TRC1000, and `io`, a TRP-C29U): work per scan tick in virtual time with
+//! the script's handlers active, scan-period jitter at a 10 ms period in real time, and the
+//! wall time of a simulated day of `cron_rig.rhai`.
+//!
+//! The tail of the jitter on a virtual machine follows the time the host takes the virtual CPUs
+//! away (steal time), which no process inside can prevent: each jitter line shows the steal
+//! time during its run (from /proc/stat, Linux) to read it by.
+//!
+//! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name). CPU while
+//! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
+
+use rigscript::config::RigConfig;
+use rigscript::runtime::clock::{Clock, SharedClock, SystemClock, VirtualClock};
+use rigscript::runtime::devices::SimRig;
+use rigscript::runtime::zone::Zone;
+use rigscript::script::engine::DEFAULT_BUDGET;
+use rigscript::script::rig::{start, Rig, RigSetup};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Where virtual wall time starts (as in the scenario tests).
+const START: &str = "2026-03-28T00:00:30Z";
+
+/// What the field side does before tick `n` so that the script's handlers run.
+type Stimulus = fn(&SimRig, u64);
+
+/// A script and the field activity that keeps its handlers busy.
+struct Case {
+    file: &'static str,
+    stimulus: Stimulus,
+}
+
+/// How much work the benchmark does.
+struct Sizes {
+    warm_up: u64,
+    ticks: u64,
+    jitter_run: Duration,
+    day: Duration,
+}
+
+const FULL: Sizes = Sizes {
+    warm_up: 200,
+    ticks: 20_000,
+    jitter_run: Duration::from_secs(5),
+    day: Duration::from_secs(24 * 3600),
+};
+
+/// `cargo test --all-targets` runs this without `--bench`: just check that it still works.
+const SMOKE: Sizes = Sizes {
+    warm_up: 5,
+    ticks: 50,
+    jitter_run: Duration::from_millis(100),
+    day: Duration::from_secs(3600),
+};
+
+fn cases() -> Vec<Case> {
+    vec![
+        Case {
+            file: "rotary_relay.rhai",
+            // A detent every 5 ticks, a reset press every 100.
+            stimulus: |sim, n| {
+                if n % 5 == 0 {
+                    sim.turn("panel", "S41A", 2).unwrap();
+                }
+                match n % 100 {
+                    0 => sim.set_switch("panel", "S1", true).unwrap(),
+                    2 => sim.set_switch("panel", "S1", false).unwrap(),
+                    _ => {}
+                }
+            },
+        },
+        Case {
+            file: "counter_threshold.rhai",
+            // A part every tick (a batch of 100 every 100 ticks), acknowledged 20 ticks later.
+            stimulus: |sim, n| {
+                sim.pulse("io", 0, 1).unwrap();
+                match n % 100 {
+                    20 => sim.set_input("io", 7, true).unwrap(),
+                    22 => sim.set_input("io", 7, false).unwrap(),
+                    _ => {}
+                }
+            },
+        },
+        Case {
+            file: "safe_values.rhai",
+            // Timers only: nothing to do on the field side.
+            stimulus: |_, _| {},
+        },
+        Case {
+            file: "cron_rig.rhai",
+            // The unit under test answers a trigger with two pulses.
+            stimulus: answer_trigger,
+        },
+        Case {
+            file: "interlock.rhai",
+            // Guards closed and armed early; a stop press trips it every 500 ticks, re-armed
+            // 10 ticks later; the 20 ms check runs armed in between.
+            stimulus: |sim, n| {
+                if n == 0 {
+                    sim.set_inputs("io", 0x0F).unwrap();
+                }
+                match n % 500 {
+                    2 | 12 => sim.set_switch("panel", "S12", true).unwrap(),
+                    4 | 14 => sim.set_switch("panel", "S12", false).unwrap(),
+                    300 => sim.set_switch("panel", "S10", true).unwrap(),
+                    302 => sim.set_switch("panel", "S10", false).unwrap(),
+                    _ => {}
+                }
+            },
+        },
+    ]
+}
+
+/// `cron_rig.rhai`'s unit under test: two response pulses on DI2 while DO2 is on.
+fn answer_trigger(sim: &SimRig, _: u64) {
+    if sim.outputs("io").unwrap() & 0x04 != 0 {
+        sim.pulse("io", 2, 2).unwrap();
+    }
+}
+
+/// The run `rigscript run SCRIPT --sim` would put together, on `clock`.
+fn rig(file: &str, clock: SharedClock, period: Option<Duration>, end: Option<Duration>) -> Rig {
+    let path = format!("{}/scripts/{file}", env!("CARGO_MANIFEST_DIR"));
+    let source = std::fs::read_to_string(&path).expect("read the script");
+    let setup = RigSetup {
+        config: RigConfig::simulated_default(),
+        simulate: true,
+        clock,
+        zone: Zone::utc(),
+        period,
+        end_after: end,
+        records: None,
+        log_to_stderr: false,
+        quiet: false,
+        keep_log: false,
+        budget: DEFAULT_BUDGET,
+        stop_flag: Arc::default(),
+    };
+    let rig = start(&source, &path, setup).expect("start the script");
+    assert!(
+        rig.runner.status().is_none(),
+        "{file} ended at its top level"
+    );
+    rig
+}
+
+fn virtual_clock() -> VirtualClock {
+    let at = chrono::DateTime::parse_from_rfc3339(START).unwrap();
+    VirtualClock::new(at.with_timezone(&chrono::Utc))
+}
+
+/// Mean real time per tick over `sizes.ticks` ticks in virtual time (after a warm-up), with
+/// the field side driven before each tick; and transactions per tick.
+fn tick_overhead(case: &Case, sizes: &Sizes) -> (Duration, f64) {
+    let clock = virtual_clock();
+    let mut rig = rig(case.file, Arc::new(clock), None, None);
+    let mut spent = Duration::ZERO;
+    let total = sizes.warm_up + sizes.ticks;
+    for n in 0..total {
+        (case.stimulus)(&rig.sim, n);
+        let t = Instant::now();
+        rig.runner.step();
+        if n >= sizes.warm_up {
+            spent += t.elapsed();
+        }
+        assert!(rig.runner.status().is_none(), "{} stopped", case.file);
+    }
+    let per_tick = spent / u32::try_from(sizes.ticks).unwrap();
+    (per_tick, rig.runner.stats.transactions_per_tick())
+}
+
+/// CPU time stolen by the hypervisor so far, all CPUs (the `steal` column of /proc/stat, in
+/// USER_HZ ticks of 10 ms); `None` where there is no such file.
+fn steal() -> Option<Duration> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let cpu = stat.lines().find(|l| l.starts_with("cpu "))?;
+    let ticks: u64 = cpu.split_whitespace().nth(8)?.parse().ok()?;
+    Some(Duration::from_millis(ticks * 10))
+}
+
+/// Runs the script for `run` at a 10 ms period in real time, as `rigscript run` does.
+fn jitter(case: &Case, sizes: &Sizes) -> String {
+    let stolen_before = steal();
+    let mut rig = rig(
+        case.file,
+        SystemClock::shared(),
+        Some(Duration::from_millis(10)),
+        Some(sizes.jitter_run),
+    );
+    let status = rig.runner.run();
+    assert!(status == 0 || status == 4, "{} exited {status}", case.file);
+    let stolen = match (stolen_before, steal()) {
+        (Some(a), Some(b)) => format!(", steal {} ms", b.saturating_sub(a).as_millis()),
+        _ => String::new(),
+    };
+    let s = &rig.runner.stats;
+    let us = |d: Duration| d.as_micros();
+    format!(
+        "{} ticks, p50 {} µs, p99 {} µs, max {} µs, {} overruns{stolen}",
+        s.ticks,
+        us(s.jitter.quantile(0.5)),
+        us(s.jitter.quantile(0.99)),
+        us(s.jitter.max()),
+        s.overruns
+    )
+}
+
+/// Wall time of `sizes.day` of `cron_rig.rhai` in virtual time, its unit under test answering.
+fn cron_day(sizes: &Sizes) -> (Duration, u64, usize) {
+    let clock = virtual_clock();
+    let shared: SharedClock = Arc::new(clock.clone());
+    let t = Instant::now();
+    let mut rig = rig("cron_rig.rhai", shared, None, None);
+    let mut n = 0;
+    while clock.now() < sizes.day && rig.runner.status().is_none() {
+        answer_trigger(&rig.sim, n);
+        rig.runner.step();
+        n += 1;
+    }
+    let wall = t.elapsed();
+    let records = rig.runner.runtime().borrow().records.kept().len();
+    (wall, rig.runner.stats.ticks, records)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let sizes = if args.iter().any(|a| a == "--bench") {
+        &FULL
+    } else {
+        &SMOKE
+    };
+    let filter: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
+    let wanted = |name: &str| filter.is_empty() || filter.iter().any(|f| name.contains(f.as_str()));
+    println!(
+        "tick work: mean real time per tick over {} ticks in virtual time (target <= 20 µs)",
+        sizes.ticks
+    );
+    let cases = cases();
+    for case in cases.iter().filter(|c| wanted(c.file)) {
+        let (per_tick, tx) = tick_overhead(case, sizes);
+        println!(
+            "  {:24} {:6.1} µs/tick, {tx:.2} transactions/tick",
+            case.file,
+            per_tick.as_secs_f64() * 1e6
+        );
+    }
+    println!(
+        "jitter: lateness of tick starts at a 10 ms period over {} s, real time (target p99 <= 1 ms)",
+        sizes.jitter_run.as_secs_f64()
+    );
+    for case in cases.iter().filter(|c| wanted(c.file)) {
+        println!("  {:24} {}", case.file, jitter(case, sizes));
+    }
+    if wanted("cron_rig.rhai") {
+        let (wall, ticks, records) = cron_day(sizes);
+        println!(
+            "cron_rig.rhai: {} h of virtual time in {:.3} s ({ticks} ticks, {records} \
+             measurements; target a day in < 1 s)",
+            sizes.day.as_secs() / 3600,
+            wall.as_secs_f64()
+        );
+    }
+}
