@@ -560,7 +560,7 @@ fn usage_errors_exit_2_and_say_what_to_write() {
 
 #[test]
 fn no_answer_exits_3_naming_port_id_and_request() {
-    for (protocol, request) in [("modbus", "ReadBits"), ("ascii", "`$016`")] {
+    for (protocol, request) in [("modbus", "`01 01 00 00 00 08`"), ("ascii", "`$016`")] {
         let flavor = Flavor { protocol, ..MODBUS };
         let r = Rig::start(flavor, &["--drop", "1"]);
         let run = r.c29(&["--timeout", "40", "--retries", "1", "status"]);

@@ -42,7 +42,12 @@ impl ModbusBackend {
 
     fn call(&mut self, t: &mut Transport, request: &Request) -> Result<Response, C29uError> {
         let frame = request.encode(self.id);
-        let name = format!("{request:?}");
+        // The frame as sent (CRC aside) is what a person compares with a bus capture or the manual.
+        let name = describe_frame(
+            frame
+                .get(..frame.len().saturating_sub(2))
+                .unwrap_or_default(),
+        );
         let port = t.port();
         let (id, gap) = (self.id, Some(self.gap()));
         let expects = request.expects_answer();
@@ -97,6 +102,12 @@ impl ModbusBackend {
     fn write(&mut self, t: &mut Transport, request: Request) -> Result<(), C29uError> {
         self.call(t, &request).map(|_| ())
     }
+}
+
+/// A request in words for messages: its bytes in hex, as section 10 writes them.
+fn describe_frame(body: &[u8]) -> String {
+    let hex: Vec<String> = body.iter().map(|b| format!("{b:02X}")).collect();
+    format!("request `{}`", hex.join(" "))
 }
 
 fn unexpected(t: &Transport, id: u8, request: &Request, answer: &Response) -> C29uError {
@@ -388,7 +399,7 @@ impl Backend for ModbusBackend {
 
     fn raw(&mut self, t: &mut Transport, body: &[u8]) -> Result<Vec<u8>, C29uError> {
         let frame = seal(body);
-        let name = format!("{body:02X?}");
+        let name = describe_frame(body);
         let port = t.port();
         let (id, gap) = (self.id, Some(self.gap()));
         // 10-15: host OK is the one request that gets no answer.
