@@ -100,6 +100,11 @@ pub enum WatchdogArg {
     Timeout(Duration),
 }
 
+/// Why setting a preset in ASCII touches the outputs (shown under `safe-value` and `power-on-value`).
+const PRESET_HELP: &str = "In ASCII the module can only store its current outputs (8-24): \
+                           setting a value briefly writes it to the outputs, stores it, and \
+                           writes the previous outputs back. Modbus stores it directly.";
+
 /// The `c29` subcommands.
 #[derive(Debug, Clone, Subcommand)]
 pub enum C29Command {
@@ -149,22 +154,14 @@ pub enum C29Command {
     /// Tell the watchdog the host is alive (restarts its countdown; ASCII: every module on the line)
     HostOk,
     /// Show the safe value (outputs when the watchdog expires), or set it
-    #[command(
-        after_help = "In ASCII the module can only store its current outputs (8-24): \
-                            setting a value briefly writes it to the outputs, stores it, and \
-                            writes the previous outputs back. Modbus stores it directly."
-    )]
+    #[command(after_help = PRESET_HELP)]
     SafeValue {
         /// New safe value, bit n = DOn
         #[arg(value_parser = parse_byte)]
         byte: Option<u8>,
     },
     /// Show the power-on value (outputs at power on and after reset), or set it
-    #[command(
-        after_help = "In ASCII the module can only store its current outputs (8-24): \
-                            setting a value briefly writes it to the outputs, stores it, and \
-                            writes the previous outputs back. Modbus stores it directly."
-    )]
+    #[command(after_help = PRESET_HELP)]
     PowerOnValue {
         /// New power-on value, bit n = DOn
         #[arg(value_parser = parse_byte)]
