@@ -5,7 +5,12 @@
 //!
 //! The tail of the jitter on a virtual machine follows the time the host takes the virtual CPUs
 //! away (steal time), which no process inside can prevent: each jitter line shows the steal
-//! time during its run (from /proc/stat, Linux) to read it by.
+//! time during its run (from /proc/stat, Linux) to read it by, and each script's run follows a
+//! run of a bare loop that only sleeps to the same 10 ms deadlines through the same clock: what
+//! the machine itself allows at that moment, so the difference is what rigscript adds. Runs
+//! hold the CPU wake-up latency request `rigscript run` holds at 10 ms (0 µs, when the process
+//! may write /dev/cpu_dma_latency; the first jitter line says); the last line is interlock.rhai
+//! without it.
 //!
 //! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name). CPU while
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
@@ -13,6 +18,8 @@
 use rigscript::config::RigConfig;
 use rigscript::runtime::clock::{Clock, SharedClock, SystemClock, VirtualClock};
 use rigscript::runtime::devices::SimRig;
+use rigscript::runtime::stats::Histogram;
+use rigscript::runtime::wake_latency::{self, WakeLatency};
 use rigscript::runtime::zone::Zone;
 use rigscript::script::engine::DEFAULT_BUDGET;
 use rigscript::script::rig::{start, Rig, RigSetup};
@@ -21,6 +28,9 @@ use std::time::{Duration, Instant};
 
 /// Where virtual wall time starts (as in the scenario tests).
 const START: &str = "2026-03-28T00:00:30Z";
+
+/// The scan period of the jitter runs.
+const PERIOD: Duration = Duration::from_millis(10);
 
 /// What the field side does before tick `n` so that the script's handlers run.
 type Stimulus = fn(&SimRig, u64);
@@ -120,11 +130,20 @@ fn answer_trigger(sim: &SimRig, _: u64) {
 }
 
 /// The run `rigscript run SCRIPT --sim` would put together, on `clock`.
-fn rig(file: &str, clock: SharedClock, period: Option<Duration>, end: Option<Duration>) -> Rig {
+fn rig(
+    file: &str,
+    clock: SharedClock,
+    period: Option<Duration>,
+    end: Option<Duration>,
+    wake_latency: WakeLatency,
+) -> Rig {
     let path = format!("{}/scripts/{file}", env!("CARGO_MANIFEST_DIR"));
     let source = std::fs::read_to_string(&path).expect("read the script");
     let setup = RigSetup {
-        config: RigConfig::simulated_default(),
+        config: RigConfig {
+            wake_latency,
+            ..RigConfig::simulated_default()
+        },
         simulate: true,
         clock,
         zone: Zone::utc(),
@@ -154,7 +173,7 @@ fn virtual_clock() -> VirtualClock {
 /// the field side driven before each tick; and transactions per tick.
 fn tick_overhead(case: &Case, sizes: &Sizes) -> (Duration, f64) {
     let clock = virtual_clock();
-    let mut rig = rig(case.file, Arc::new(clock), None, None);
+    let mut rig = rig(case.file, Arc::new(clock), None, None, WakeLatency::Auto);
     let mut spent = Duration::ZERO;
     let total = sizes.warm_up + sizes.ticks;
     for n in 0..total {
@@ -179,31 +198,62 @@ fn steal() -> Option<Duration> {
     Some(Duration::from_millis(ticks * 10))
 }
 
+/// Steal time since `before`, as text for a result line.
+fn stolen_since(before: Option<Duration>) -> String {
+    match (before, steal()) {
+        (Some(a), Some(b)) => format!(", steal {} ms", b.saturating_sub(a).as_millis()),
+        _ => String::new(),
+    }
+}
+
+/// One result line: quantiles of how late ticks started.
+fn lateness_line(ticks: u64, h: &Histogram, overruns: u64, stolen: &str) -> String {
+    let us = |d: Duration| d.as_micros();
+    format!(
+        "{ticks} ticks, p50 {} µs, p99 {} µs, max {} µs, {overruns} overruns{stolen}",
+        us(h.quantile(0.5)),
+        us(h.quantile(0.99)),
+        us(h.max()),
+    )
+}
+
+/// The machine's own floor: a loop that does nothing but sleep to 10 ms deadlines for `run`,
+/// with the scan loop's clock, thread hints and wake-up latency request, measured the same way.
+fn bare_loop_jitter(run: Duration) -> String {
+    let stolen_before = steal();
+    let _ = rigscript::runtime::clock::prefer_prompt_wakeups();
+    let _hold = WakeLatency::Auto
+        .limit_for(PERIOD)
+        .and_then(|l| wake_latency::hold(l).ok());
+    let clock = SystemClock::new();
+    let period = PERIOD;
+    let start = clock.now();
+    let mut deadline = start;
+    let mut late = Histogram::default();
+    let mut ticks = 0;
+    while deadline < start + run {
+        clock.sleep_until(deadline);
+        late.add(clock.now().saturating_sub(deadline));
+        ticks += 1;
+        deadline += period;
+    }
+    lateness_line(ticks, &late, 0, &stolen_since(stolen_before))
+}
+
 /// Runs the script for `run` at a 10 ms period in real time, as `rigscript run` does.
-fn jitter(case: &Case, sizes: &Sizes) -> String {
+fn jitter(case: &Case, sizes: &Sizes, wake: WakeLatency) -> String {
     let stolen_before = steal();
     let mut rig = rig(
         case.file,
         SystemClock::shared(),
-        Some(Duration::from_millis(10)),
+        Some(PERIOD),
         Some(sizes.jitter_run),
+        wake,
     );
     let status = rig.runner.run();
     assert!(status == 0 || status == 4, "{} exited {status}", case.file);
-    let stolen = match (stolen_before, steal()) {
-        (Some(a), Some(b)) => format!(", steal {} ms", b.saturating_sub(a).as_millis()),
-        _ => String::new(),
-    };
     let s = &rig.runner.stats;
-    let us = |d: Duration| d.as_micros();
-    format!(
-        "{} ticks, p50 {} µs, p99 {} µs, max {} µs, {} overruns{stolen}",
-        s.ticks,
-        us(s.jitter.quantile(0.5)),
-        us(s.jitter.quantile(0.99)),
-        us(s.jitter.max()),
-        s.overruns
-    )
+    lateness_line(s.ticks, &s.jitter, s.overruns, &stolen_since(stolen_before))
 }
 
 /// Wall time of `sizes.day` of `cron_rig.rhai` in virtual time, its unit under test answering.
@@ -211,7 +261,7 @@ fn cron_day(sizes: &Sizes) -> (Duration, u64, usize) {
     let clock = virtual_clock();
     let shared: SharedClock = Arc::new(clock.clone());
     let t = Instant::now();
-    let mut rig = rig("cron_rig.rhai", shared, None, None);
+    let mut rig = rig("cron_rig.rhai", shared, None, None, WakeLatency::Auto);
     let mut n = 0;
     while clock.now() < sizes.day && rig.runner.status().is_none() {
         answer_trigger(&rig.sim, n);
@@ -249,8 +299,31 @@ fn main() {
         "jitter: lateness of tick starts at a 10 ms period over {} s, real time (target p99 <= 1 ms)",
         sizes.jitter_run.as_secs_f64()
     );
+    println!(
+        "  wake latency {}",
+        wake_latency::describe(&WakeLatency::Auto.limit_for(PERIOD).map(wake_latency::hold))
+    );
     for case in cases.iter().filter(|c| wanted(c.file)) {
-        println!("  {:24} {}", case.file, jitter(case, sizes));
+        println!(
+            "  {:24} {}",
+            "(bare sleep loop)",
+            bare_loop_jitter(sizes.jitter_run)
+        );
+        println!(
+            "  {:24} {}",
+            case.file,
+            jitter(case, sizes, WakeLatency::Auto)
+        );
+    }
+    if let Some(case) = cases
+        .iter()
+        .find(|c| c.file == "interlock.rhai" && wanted(c.file))
+    {
+        println!(
+            "  {:24} {}",
+            "interlock, latency off",
+            jitter(case, sizes, WakeLatency::Off)
+        );
     }
     if wanted("cron_rig.rhai") {
         let (wall, ticks, records) = cron_day(sizes);

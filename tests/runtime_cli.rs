@@ -184,3 +184,90 @@ fn check_reports_problems_with_line_and_column() {
     let out = stdout(&o);
     assert!(!out.contains("no device called"), "{out}");
 }
+
+/// Whether this process may write Linux's PM QoS file, as `run` would.
+fn may_hold_wake_latency() -> bool {
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/cpu_dma_latency")
+        .is_ok()
+}
+
+/// Whether process `pid` has /dev/cpu_dma_latency open.
+fn holds_wake_latency(pid: u32) -> bool {
+    std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .map(|fds| {
+            fds.flatten().any(|fd| {
+                std::fs::read_link(fd.path())
+                    .is_ok_and(|t| t == std::path::Path::new("/dev/cpu_dma_latency"))
+            })
+        })
+        .unwrap_or(false)
+}
+
+#[test]
+fn a_short_period_holds_the_wake_latency_request_while_running_and_stats_say_so() {
+    let d = Dir::new("wake");
+    let s = d.file("idle.rhai", "every(\"10ms\", || ());\n");
+    let child = Command::new(rigscript())
+        .args([
+            "run", "--sim", "--period", "10ms", "--for", "3s", "--stats", &s,
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let allowed = may_hold_wake_latency();
+    let give_up = std::time::Instant::now() + std::time::Duration::from_secs(2);
+    let mut seen = false;
+    while !seen && std::time::Instant::now() < give_up {
+        seen = holds_wake_latency(child.id());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    let (out, err) = (stdout(&o), stderr(&o));
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert_eq!(seen, allowed, "the request is held exactly when it can be");
+    if allowed {
+        assert!(out.contains("wake latency: held at 0 µs\n"), "{out}");
+        assert!(err.contains("CPU wake-up latency held at 0 µs"), "{err}");
+    } else {
+        assert!(
+            out.contains("wake latency: not held (/dev/cpu_dma_latency: "),
+            "{out}"
+        );
+        assert!(err.contains("README \"Timing\""), "{err}");
+    }
+}
+
+#[test]
+fn the_wake_latency_follows_the_period_and_the_option() {
+    let d = Dir::new("wake-options");
+    let s = d.file("idle.rhai", "every(\"50ms\", || ());\n");
+    let stats = |extra: &[&str]| {
+        let mut args = vec!["run", "--sim", "--for", "200ms", "--stats", "-q", &s];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        stdout(&o)
+    };
+    let none = "wake latency: not requested\n";
+    assert!(stats(&["--period", "50ms"]).contains(none));
+    assert!(stats(&["--period", "10ms", "--wake-latency", "off"]).contains(none));
+    let explicit = stats(&["--period", "50ms", "--wake-latency", "75us"]);
+    if may_hold_wake_latency() {
+        assert!(
+            explicit.contains("wake latency: held at 75 µs\n"),
+            "{explicit}"
+        );
+    } else {
+        assert!(explicit.contains("wake latency: not held ("), "{explicit}");
+    }
+    let o = run(&["run", "--sim", "--wake-latency", "low", &s]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("\"low\" is not a wake latency; use \"auto\", \"off\""),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -7,6 +7,7 @@
 use crate::config::RigConfig;
 use crate::runtime::clock::SystemClock;
 use crate::runtime::duration::parse_duration;
+use crate::runtime::wake_latency::WakeLatency;
 use crate::runtime::zone::Zone;
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
@@ -43,6 +44,11 @@ pub struct RunArgs {
     /// Log only warnings, errors and the script's own messages.
     #[arg(short, long)]
     pub quiet: bool,
+    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs at periods
+    /// up to 20 ms), "off", or a duration ("0us", "50us"). Needs write access to
+    /// /dev/cpu_dma_latency; idle CPUs poll instead of sleeping while it is held.
+    #[arg(long, value_name = "auto|off|DURATION", value_parser = WakeLatency::parse)]
+    pub wake_latency: Option<WakeLatency>,
     /// Operations each handler call may take before it is stopped as a runaway.
     #[arg(long, default_value_t = DEFAULT_BUDGET)]
     pub budget: u64,
@@ -61,7 +67,7 @@ fn period(text: &str) -> Result<Duration, String> {
 
 /// Runs `rigscript run`; returns the exit status.
 pub fn run(args: RunArgs) -> i32 {
-    let config = match (&args.config, args.sim) {
+    let mut config = match (&args.config, args.sim) {
         (Some(path), _) => match RigConfig::load(path) {
             Ok(c) => c,
             Err(e) => {
@@ -78,6 +84,9 @@ pub fn run(args: RunArgs) -> i32 {
             return 2;
         }
     };
+    if let Some(w) = args.wake_latency {
+        config.wake_latency = w;
+    }
     let file = args.script.display().to_string();
     let source = match std::fs::read_to_string(&args.script) {
         Ok(s) => s,

@@ -1,4 +1,5 @@
-//! `rig.toml`: the named devices, the scan period, the error policy and the records file.
+//! `rig.toml`: the named devices, the scan period, the error policy, the records file and the
+//! CPU wake-up latency the run asks for.
 //!
 //! Every key is optional except a device's `kind` and a TRP-C29U's `port`; unknown keys and
 //! bad values are errors naming the file, the line and the key, all of them at once:
@@ -17,6 +18,7 @@ pub use device::{
 };
 pub use error::{ConfigError, Problem, ProblemKind};
 
+use crate::runtime::wake_latency::{WakeLatency, ACCEPTED_FORMS as WAKE_FORMS};
 use reader::{duration, line_and_column, string, Reader, TableRef};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -29,7 +31,14 @@ pub const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
 /// How long a device may be lost before its safe state is enforced, when not configured.
 pub const DEFAULT_GRACE: Duration = Duration::from_secs(1);
 
-const TOP_KEYS: &[&str] = &["period", "on_error", "records", "grace", "devices"];
+const TOP_KEYS: &[&str] = &[
+    "period",
+    "on_error",
+    "records",
+    "grace",
+    "wake_latency",
+    "devices",
+];
 
 /// What the runner does when a script handler fails.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -66,6 +75,8 @@ pub struct RigConfig {
     /// How long a device may be lost before its outputs' safe state is enforced
     /// (default `DEFAULT_GRACE`).
     pub grace: Duration,
+    /// What the run asks of the CPUs' idle states (default auto).
+    pub wake_latency: WakeLatency,
     /// Devices by the name scripts use.
     pub devices: BTreeMap<String, DeviceConfig>,
 }
@@ -78,6 +89,7 @@ impl Default for RigConfig {
             on_error: ErrorPolicy::Stop,
             records: None,
             grace: DEFAULT_GRACE,
+            wake_latency: WakeLatency::Auto,
             devices: BTreeMap::new(),
         }
     }
@@ -135,6 +147,15 @@ impl RigConfig {
             s => Ok(PathBuf::from(s)),
         });
         let grace = r.read(&root, "grace", duration).unwrap_or(defaults.grace);
+        let wake_latency = r
+            .read(&root, "wake_latency", |v| match v {
+                DeValue::String(s) if *s == "auto" => Ok(WakeLatency::Auto),
+                DeValue::String(s) if *s == "off" => Ok(WakeLatency::Off),
+                _ => duration(v).map(WakeLatency::Limit).map_err(|_| {
+                    reader::bad(v, format!("is not a wake latency; use {WAKE_FORMS}"))
+                }),
+            })
+            .unwrap_or(defaults.wake_latency);
         let devices = match root.get("devices") {
             None => BTreeMap::new(),
             Some(value) => match value.get_ref() {
@@ -168,6 +189,7 @@ impl RigConfig {
             on_error,
             records,
             grace,
+            wake_latency,
             devices,
         })
     }

@@ -1,12 +1,14 @@
 //! Tests of rig.toml reading: every key, every error with its line, the defaults.
 
 use super::*;
+use crate::runtime::wake_latency::WakeLatency;
 use proptest::prelude::*;
 
 const EXAMPLE: &str = r#"period = "20ms"
 on_error = "stop"          # stop (default) | restart | skip
 records = "records.jsonl"  # optional
 grace = "2s"
+wake_latency = "50us"      # auto (default) | off | a duration
 
 [devices.panel]
 kind = "trc1000"
@@ -110,6 +112,7 @@ fn the_example_reads_as_written() {
             on_error: ErrorPolicy::Stop,
             records: Some("records.jsonl".into()),
             grace: Duration::from_secs(2),
+            wake_latency: WakeLatency::Limit(Duration::from_micros(50)),
             devices,
         }
     );
@@ -123,6 +126,7 @@ fn an_empty_file_is_all_defaults_and_no_devices() {
     assert_eq!(c.on_error, ErrorPolicy::Stop);
     assert_eq!(c.records, None);
     assert_eq!(c.grace, Duration::from_secs(1));
+    assert_eq!(c.wake_latency, WakeLatency::Auto);
     assert!(c.devices.is_empty());
 }
 
@@ -169,6 +173,11 @@ fn top_level_keys() {
         parse("period = \"1.5s\"").unwrap().period,
         Duration::from_millis(1500)
     );
+    let wake = |t: &str| parse(&format!("wake_latency = {t}")).unwrap().wake_latency;
+    assert_eq!(wake("\"off\""), WakeLatency::Off);
+    assert_eq!(wake("\"auto\""), WakeLatency::Auto);
+    assert_eq!(wake("0"), WakeLatency::Limit(Duration::ZERO));
+    assert_eq!(wake("\"0us\""), WakeLatency::Limit(Duration::ZERO));
 }
 
 #[test]
@@ -370,6 +379,8 @@ fn bad_values_name_line_and_key() {
         ("records = [\"a\"]", "rig.toml:1: records: expected a string, found an array"),
         ("grace = \"-1s\"", r#"rig.toml:1: grace: "-1s" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m") or a number of milliseconds"#),
         ("grace = 1979-05-27", "rig.toml:1: grace: expected a duration (\"20ms\", \"1.5s\") or milliseconds, found a date-time"),
+        ("\n\nwake_latency = \"low\"", r#"rig.toml:3: wake_latency: "low" is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#),
+        ("wake_latency = true", r#"rig.toml:1: wake_latency: true is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#),
         ("devices = 3", "rig.toml:1: devices: expected a table of devices ([devices.NAME]), found an integer"),
         ("[devices]\nio = 3", "rig.toml:2: devices.io: expected a table ([devices.NAME]), found an integer"),
     ];
@@ -466,11 +477,11 @@ fn missing_and_unknown_kinds() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = 20\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, devices"]
+        vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, wake_latency, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key; known keys here: period, on_error, records, grace, devices"]
+        vec!["rig.toml:1: device: unknown key; known keys here: period, on_error, records, grace, wake_latency, devices"]
     );
 }
 

@@ -11,4 +11,5 @@ pub mod safety;
 pub mod scan;
 pub mod schedule;
 pub mod stats;
+pub mod wake_latency;
 pub mod zone;

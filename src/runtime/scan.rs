@@ -11,6 +11,7 @@
 use super::clock::SharedClock;
 use super::core::{Call, Runtime};
 use super::stats::Stats;
+use super::wake_latency;
 use crate::config::ErrorPolicy;
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -71,6 +72,8 @@ pub struct RunOptions {
     pub end_after: Option<Duration>,
     /// Set by SIGINT/SIGTERM (or a scenario test): stop at once, outputs safe.
     pub stop_flag: Arc<AtomicBool>,
+    /// The CPU wake-up latency to hold while `run` runs in real time, if any.
+    pub wake_latency: Option<Duration>,
 }
 
 /// Why a run ended.
@@ -167,6 +170,7 @@ impl<P: Program> Runner<P> {
         // when other processes keep the CPUs busy; they are hints only, so a refusal (an old
         // kernel, a sandbox) leaves the loop as it was.
         let _ = super::clock::prefer_prompt_wakeups();
+        let _hold = self.hold_wake_latency();
         loop {
             if let Some(status) = self.status() {
                 return status;
@@ -174,6 +178,24 @@ impl<P: Program> Runner<P> {
             self.sleep_to_deadline();
             self.tick();
         }
+    }
+
+    /// Asks for the configured CPU wake-up latency for the run, logs how that went and notes it
+    /// for `--stats`; a refusal only costs timing, so the run goes on.
+    fn hold_wake_latency(&mut self) -> Option<wake_latency::LatencyHold> {
+        let outcome = self.options.wake_latency.map(wake_latency::hold);
+        let text = wake_latency::describe(&outcome);
+        let mut rt = self.rt.borrow_mut();
+        match &outcome {
+            None => {}
+            Some(Ok(_)) => rt.log.info(&format!("CPU wake-up latency {text}")),
+            Some(Err(_)) => rt.log.info(&format!(
+                "CPU wake-up latency {text}: ticks may start up to milliseconds late; give \
+                 this user write access to it (README \"Timing\") or set wake_latency = \"off\""
+            )),
+        }
+        self.stats.wake_latency = Some(text);
+        outcome.and_then(Result::ok)
     }
 
     /// Sleeps to the next deadline in slices, waking early for the stop flag.
@@ -548,6 +570,7 @@ mod tests {
             policy,
             end_after: None,
             stop_flag: Arc::default(),
+            wake_latency: None,
         };
         let mut r = Runner::new(rt, program, options);
         r.start();

@@ -120,6 +120,8 @@ pub struct Stats {
     pub transactions: u64,
     /// The most requests in one tick.
     pub max_transactions: u64,
+    /// How the run's CPU wake-up latency request went (real-time runs only).
+    pub wake_latency: Option<String>,
 }
 
 impl Stats {
@@ -140,6 +142,9 @@ fn ms(d: Duration) -> String {
 impl fmt::Display for Stats {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "ticks: {}", self.ticks)?;
+        if let Some(w) = &self.wake_latency {
+            writeln!(f, "wake latency: {w}")?;
+        }
         writeln!(
             f,
             "jitter: p50 {} p99 {} max {}",
