@@ -226,7 +226,6 @@ fn bare_loop_jitter(run: Duration) -> String {
         .limit_for(PERIOD)
         .and_then(|l| wake_latency::hold(l).ok());
     let clock = SystemClock::new();
-    let period = PERIOD;
     let start = clock.now();
     let mut deadline = start;
     let mut late = Histogram::default();
@@ -235,7 +234,7 @@ fn bare_loop_jitter(run: Duration) -> String {
         clock.sleep_until(deadline);
         late.add(clock.now().saturating_sub(deadline));
         ticks += 1;
-        deadline += period;
+        deadline += PERIOD;
     }
     lateness_line(ticks, &late, 0, &stolen_since(stolen_before))
 }

@@ -148,12 +148,14 @@ impl RigConfig {
         });
         let grace = r.read(&root, "grace", duration).unwrap_or(defaults.grace);
         let wake_latency = r
-            .read(&root, "wake_latency", |v| match v {
-                DeValue::String(s) if *s == "auto" => Ok(WakeLatency::Auto),
-                DeValue::String(s) if *s == "off" => Ok(WakeLatency::Off),
-                _ => duration(v).map(WakeLatency::Limit).map_err(|_| {
+            .read(&root, "wake_latency", |v| {
+                let read = match v {
+                    DeValue::String(s) => WakeLatency::parse(s).ok(),
+                    _ => duration(v).ok().map(WakeLatency::Limit),
+                };
+                read.ok_or_else(|| {
                     reader::bad(v, format!("is not a wake latency; use {WAKE_FORMS}"))
-                }),
+                })
             })
             .unwrap_or(defaults.wake_latency);
         let devices = match root.get("devices") {
