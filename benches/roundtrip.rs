@@ -4,10 +4,10 @@
 use rigscript::device::c29u::{share, C29u, C29uOptions, Protocol};
 use rigscript::link::serial::SerialLink;
 use rigscript::protocol::c29u_modbus::silence_gap;
-use rigscript::runtime::clock::SystemClock;
 use rigscript::sim::c29u::{C29u as Model, Eeprom};
 use rigscript::sim::c29u_line::SimulatedC29u;
 use rigscript::sim::pty::{Faults, PtyServer};
+use rigscript::time::clock::SystemClock;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};

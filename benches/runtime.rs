@@ -16,13 +16,13 @@
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
 
 use rigscript::config::RigConfig;
-use rigscript::runtime::clock::{Clock, SharedClock, SystemClock, VirtualClock};
 use rigscript::runtime::devices::SimRig;
 use rigscript::runtime::stats::Histogram;
 use rigscript::runtime::wake_latency::{self, WakeLatency};
-use rigscript::runtime::zone::Zone;
 use rigscript::script::engine::DEFAULT_BUDGET;
 use rigscript::script::rig::{start, Rig, RigSetup};
+use rigscript::time::clock::{Clock, SharedClock, SystemClock, VirtualClock};
+use rigscript::time::zone::Zone;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -221,7 +221,7 @@ fn lateness_line(ticks: u64, h: &Histogram, overruns: u64, stolen: &str) -> Stri
 /// with the scan loop's clock, thread hints and wake-up latency request, measured the same way.
 fn bare_loop_jitter(run: Duration) -> String {
     let stolen_before = steal();
-    let _ = rigscript::runtime::clock::prefer_prompt_wakeups();
+    let _ = rigscript::time::clock::prefer_prompt_wakeups();
     let _hold = WakeLatency::Auto
         .limit_for(PERIOD)
         .and_then(|l| wake_latency::hold(l).ok());

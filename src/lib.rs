@@ -11,3 +11,4 @@ pub mod protocol;
 pub mod runtime;
 pub mod script;
 pub mod sim;
+pub mod time;

@@ -15,8 +15,8 @@ use crate::device::c29u::{
 use crate::device::exchange::{format_frame, Direction};
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
 use crate::protocol::c29u_ascii::ModuleName;
-use crate::runtime::clock::SystemClock;
-use crate::runtime::duration::parse_duration;
+use crate::time::clock::SystemClock;
+use crate::time::duration::parse_duration;
 use clap::{Args, Subcommand, ValueEnum};
 use serde_json::{json, Value};
 use show::{byte_row, byte_table, set_channels, tenths};

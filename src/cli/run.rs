@@ -5,12 +5,12 @@
 //! available at start, 4 a measurement out of its limits.
 
 use crate::config::RigConfig;
-use crate::runtime::clock::SystemClock;
-use crate::runtime::duration::parse_duration;
 use crate::runtime::wake_latency::WakeLatency;
-use crate::runtime::zone::Zone;
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
+use crate::time::clock::SystemClock;
+use crate::time::duration::parse_duration;
+use crate::time::zone::Zone;
 use clap::Args;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;

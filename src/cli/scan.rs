@@ -8,7 +8,7 @@ use crate::cli::trc::board_json;
 use crate::device::c29u::{open_port, share, C29u, C29uError, C29uOptions, Protocol, SharedLink};
 use crate::link::usb::{list_boards, BoardInfo};
 use crate::protocol::c29u::BAUD_CODES;
-use crate::runtime::clock::{SharedClock, SystemClock};
+use crate::time::clock::{SharedClock, SystemClock};
 use clap::Args;
 use serde_json::{json, Value};
 use std::collections::BTreeSet;

@@ -2,10 +2,10 @@
 //! control lines on standard input.
 
 use crate::protocol::c29u_modbus::silence_gap;
-use crate::runtime::clock::{SharedClock, SystemClock};
 use crate::sim::c29u::{C29u, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::pty::{Faults, PtyServer};
+use crate::time::clock::{SharedClock, SystemClock};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, Write};
 use std::path::PathBuf;

@@ -1,7 +1,7 @@
 //! Reads typed values out of spanned TOML tables, collecting every problem with its line.
 
 use super::error::{Problem, ProblemKind};
-use crate::runtime::duration::{
+use crate::time::duration::{
     duration_from_millis_f64, duration_from_millis_i64, parse_duration, DurationError,
     ACCEPTED_FORMS,
 };

@@ -2,7 +2,7 @@
 //! until the protocol says it is complete, the line falls silent after it, or time runs out.
 
 use crate::link::{ByteLink, LinkError};
-use crate::runtime::clock::Clock;
+use crate::time::clock::Clock;
 use std::time::Duration;
 
 /// How an exchange waits.
@@ -163,8 +163,8 @@ impl<L: crate::link::PacketLink> crate::link::PacketLink for TracedPacketLink<L>
 mod tests {
     use super::*;
     use crate::link::memory::MemoryByteLink;
-    use crate::runtime::clock::VirtualClock;
     use crate::sim::ByteDevice;
+    use crate::time::clock::VirtualClock;
     use std::sync::{Arc, Mutex};
 
     /// Answers with a fixed reply, recording what it heard.

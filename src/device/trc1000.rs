@@ -5,7 +5,7 @@ use crate::link::{LinkError, PacketLink};
 use crate::protocol::trc1000::{
     rotary_delta, Command, InvalidRelay, Relay, Response, Rotary, RotaryValues, SwitchSet,
 };
-use crate::runtime::clock::{SharedClock, SystemClock};
+use crate::time::clock::{SharedClock, SystemClock};
 use std::time::Duration;
 
 /// How long a request waits for its answer unless told otherwise.
@@ -217,9 +217,9 @@ pub fn rotary_changes(old: &RotaryValues, new: &RotaryValues) -> Vec<RotaryChang
 mod tests {
     use super::*;
     use crate::link::memory::MemoryPacketLink;
-    use crate::runtime::clock::VirtualClock;
     use crate::sim::trc1000::Trc1000Sim;
     use crate::sim::PacketDevice;
+    use crate::time::clock::VirtualClock;
     use std::collections::VecDeque;
     use std::sync::Arc;
 

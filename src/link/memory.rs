@@ -1,8 +1,8 @@
 //! In-memory links to simulators, for tests and `--sim` runs: the same driver code, no wire.
 
 use super::{ByteLink, LinkError, PacketLink};
-use crate::runtime::clock::SharedClock;
 use crate::sim::{ByteDevice, PacketDevice};
+use crate::time::clock::SharedClock;
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -135,7 +135,7 @@ fn wait_out(clock: Option<&SharedClock>, timeout: Duration) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runtime::clock::{Clock, VirtualClock};
+    use crate::time::clock::{Clock, VirtualClock};
     use std::sync::Arc;
 
     struct Echo;

@@ -3,17 +3,17 @@
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
-use super::clock::SharedClock;
 use super::devices::links::TransactionCounter;
 use super::devices::{C29uDevice, Device, DeviceError, TrcDevice};
-use super::duration::format_duration;
 use super::log::Logger;
 use super::records::Records;
 use super::schedule::{Schedule, ScheduleError, TimerId, TimerKind};
-use super::zone::Zone;
 use crate::device::c29u::Latches;
 use crate::device::trc1000::rotary_changes;
 use crate::protocol::trc1000::{Rotary, RotaryValues, Switch, SwitchSet};
+use crate::time::clock::SharedClock;
+use crate::time::duration::format_duration;
+use crate::time::zone::Zone;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 

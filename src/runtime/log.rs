@@ -2,8 +2,8 @@
 //! output written, timer fired, script message, warning or error; to stderr, and kept in
 //! memory for scenario tests.
 
-use super::clock::SharedClock;
-use super::zone::Zone;
+use crate::time::clock::SharedClock;
+use crate::time::zone::Zone;
 use std::io::Write;
 
 /// Lines kept in memory at most (the oldest go first), so a long run cannot grow without bound.
@@ -107,7 +107,7 @@ impl Logger {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runtime::clock::VirtualClock;
+    use crate::time::clock::VirtualClock;
     use chrono::{TimeZone, Utc};
     use std::sync::Arc;
     use std::time::Duration;

@@ -1,10 +1,8 @@
-//! Time and supervision for everything that runs: clocks, durations, timer schedules, the
-//! rig's devices, the state scripts act on, the scan loop and its fail-safe supervision.
+//! Supervision for everything that runs: timer schedules, the rig's devices, the state scripts
+//! act on, the scan loop and its fail-safe supervision.
 
-pub mod clock;
 pub mod core;
 pub mod devices;
-pub mod duration;
 pub mod log;
 pub mod records;
 pub mod safety;
@@ -12,4 +10,3 @@ pub mod scan;
 pub mod schedule;
 pub mod stats;
 pub mod wake_latency;
-pub mod zone;

@@ -5,7 +5,7 @@
 
 use super::core::Runtime;
 use super::devices::{Device, DeviceError};
-use super::duration::format_duration;
+use crate::time::duration::format_duration;
 
 /// A device that could not be brought under control at start.
 #[derive(Debug, thiserror::Error)]

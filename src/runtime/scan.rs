@@ -8,11 +8,11 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
-use super::clock::SharedClock;
 use super::core::{Call, Runtime};
 use super::stats::Stats;
 use super::wake_latency;
 use crate::config::ErrorPolicy;
+use crate::time::clock::SharedClock;
 use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -169,7 +169,7 @@ impl<P: Program> Runner<P> {
         // Without these hints a tick starts 100-150 µs late as a rule and milliseconds late
         // when other processes keep the CPUs busy; they are hints only, so a refusal (an old
         // kernel, a sandbox) leaves the loop as it was.
-        let _ = super::clock::prefer_prompt_wakeups();
+        let _ = crate::time::clock::prefer_prompt_wakeups();
         let _hold = self.hold_wake_latency();
         loop {
             if let Some(status) = self.status() {
@@ -258,7 +258,7 @@ impl<P: Program> Runner<P> {
             if uptime >= end {
                 self.finish(EndReason::Finished(format!(
                     "ran for {}",
-                    super::duration::format_duration(end)
+                    crate::time::duration::format_duration(end)
                 )));
                 return;
             }
@@ -397,7 +397,7 @@ impl<P: Program> Runner<P> {
         rt.log.info(&format!(
             "policy restart: starting the script again in {} (failure {} in a row); outputs \
              safe meanwhile",
-            super::duration::format_duration(wait),
+            crate::time::duration::format_duration(wait),
             self.failures_in_a_row
         ));
         self.state = State::Restarting {
@@ -504,11 +504,11 @@ fn describe(fault: &Fault, label: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runtime::clock::{Clock, VirtualClock};
     use crate::runtime::devices::links::TransactionCounter;
     use crate::runtime::log::Logger;
     use crate::runtime::records::Records;
-    use crate::runtime::zone::Zone;
+    use crate::time::clock::{Clock, VirtualClock};
+    use crate::time::zone::Zone;
 
     /// A program with one `every` timer whose handler takes `burn` of (virtual) time.
     struct Burner {

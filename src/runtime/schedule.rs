@@ -388,7 +388,7 @@ fn nanos_to_duration(nanos: u128) -> Option<Duration> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runtime::clock::{Clock, VirtualClock};
+    use crate::time::clock::{Clock, VirtualClock};
     use chrono_tz::America::New_York;
     use chrono_tz::Europe::Amsterdam;
     use proptest::prelude::*;

@@ -13,7 +13,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::duration::parse_duration;
+use crate::time::duration::parse_duration;
 
 /// Where Linux takes CPU latency requests.
 pub const PM_QOS_DEVICE: &str = "/dev/cpu_dma_latency";

@@ -14,11 +14,9 @@ use crate::device::c29u::{C29uError, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::core::Source;
 use crate::runtime::devices::{Device, DeviceError};
-use crate::runtime::duration::{
-    duration_from_millis_f64, duration_from_millis_i64, parse_duration,
-};
 use crate::runtime::records::Limits;
 use crate::runtime::scan::Shared;
+use crate::time::duration::{duration_from_millis_f64, duration_from_millis_i64, parse_duration};
 use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, Position, AST};
 use std::cell::RefCell;
 use std::collections::HashMap;

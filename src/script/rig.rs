@@ -6,16 +6,16 @@ use super::engine::sandboxed;
 use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
-use crate::runtime::clock::SharedClock;
 use crate::runtime::core::Runtime;
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::devices::{open_devices, Device, OpenError, SimRig};
-use crate::runtime::duration::format_duration;
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
 use crate::runtime::scan::{RunOptions, Runner};
-use crate::runtime::zone::Zone;
+use crate::time::clock::SharedClock;
+use crate::time::duration::format_duration;
+use crate::time::zone::Zone;
 use std::cell::RefCell;
 use std::path::PathBuf;
 use std::rc::Rc;
@@ -170,7 +170,7 @@ fn warn_short_watchdogs(rt: &mut Runtime<rhai::FnPtr>, period: Duration) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runtime::clock::{Clock, VirtualClock};
+    use crate::time::clock::{Clock, VirtualClock};
     use chrono::{TimeZone, Utc};
 
     fn setup(clock: &VirtualClock) -> RigSetup {

@@ -216,8 +216,8 @@ impl AsciiFrontEnd {
 mod tests {
     use super::*;
     use crate::protocol::c29u_ascii::{checksum, parse_answer, AsciiError};
-    use crate::runtime::clock::VirtualClock;
     use crate::sim::c29u::Eeprom;
+    use crate::time::clock::VirtualClock;
     use proptest::prelude::*;
     use std::sync::Arc;
     use std::time::Duration;

@@ -101,8 +101,8 @@ impl ByteDevice for MultiDrop {
 mod tests {
     use super::*;
     use crate::protocol::c29u_modbus::seal;
-    use crate::runtime::clock::VirtualClock;
     use crate::sim::c29u::{Eeprom, ModuleConfig};
+    use crate::time::clock::VirtualClock;
 
     fn module(protocol: Protocol, id: u8) -> SimulatedC29u {
         let eeprom = Eeprom {

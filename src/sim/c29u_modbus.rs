@@ -272,8 +272,8 @@ mod tests {
     use crate::protocol::c29u_modbus::{
         parse_response, seal, CounterFunction, ModbusError, Request, Response,
     };
-    use crate::runtime::clock::VirtualClock;
     use crate::sim::c29u::{Eeprom, Protocol};
+    use crate::time::clock::VirtualClock;
     use std::path::PathBuf;
     use std::sync::Arc;
     use std::time::Duration;

@@ -5,9 +5,9 @@ use crate::cli::{Cli, Command};
 use crate::device::c29u::share;
 use crate::link::memory::MemoryByteLink;
 use crate::link::LinkError;
-use crate::runtime::clock::VirtualClock;
 use crate::sim::c29u::{C29u as Model, Eeprom};
 use crate::sim::c29u_line::{lock, SharedModel, SimulatedC29u};
+use crate::time::clock::VirtualClock;
 use clap::Parser;
 use std::sync::Arc;
 

@@ -11,7 +11,7 @@ pub use transport::{share, SharedLink};
 
 use crate::device::exchange::{format_frame, ExchangeError, Tracer};
 use crate::link::{serial::SerialLink, tcp::TcpLink, LinkError};
-use crate::runtime::clock::SharedClock;
+use crate::time::clock::SharedClock;
 use std::time::Duration;
 use transport::{Fault, Transport};
 

@@ -2,10 +2,10 @@
 
 use super::*;
 use crate::link::memory::MemoryByteLink;
-use crate::runtime::clock::{Clock, VirtualClock};
 use crate::sim::c29u::{C29u as Model, Eeprom, ModuleConfig};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::ByteDevice;
+use crate::time::clock::{Clock, VirtualClock};
 use std::sync::{Arc, Mutex};
 
 struct Rig {

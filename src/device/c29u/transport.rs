@@ -3,7 +3,7 @@
 
 use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
 use crate::link::{ByteLink, LinkError};
-use crate::runtime::clock::SharedClock;
+use crate::time::clock::SharedClock;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 

@@ -34,7 +34,7 @@ pub use config::{baud_rate, CounterEdge, ModuleConfig, Protocol, DIO_TYPE, MODEL
 pub use eeprom::{validate_led_mode, validate_name, Eeprom, DEFAULT_NAME, MAX_NAME_LEN};
 pub use view::{Firmware, SimState, Snapshot, WatchdogState, WatchdogStatus, FIRMWARE};
 
-use crate::runtime::clock::SharedClock;
+use crate::time::clock::SharedClock;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

@@ -1,7 +1,7 @@
 //! Behaviour of the TRP-C29U model in virtual time.
 
 use super::*;
-use crate::runtime::clock::VirtualClock;
+use crate::time::clock::VirtualClock;
 use std::sync::Arc;
 
 fn ms(n: u64) -> Duration {
