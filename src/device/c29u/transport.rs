@@ -1,13 +1,40 @@
-//! The shared serial line under a TRP-C29U driver: one request at a time, per-request timeout,
-//! retries, and `--trace` output.
+//! The shared serial line under a TRP-C29U driver: one request at a time, the silence before
+//! each, per-request timeout, retries, and `--trace` output.
 
 use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
+use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
+use crate::protocol::c29u::Protocol;
+use crate::protocol::c29u_modbus::{silence_gap, MAX_FRAME_LEN};
 use crate::time::clock::SharedClock;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::C29uError;
+
+/// The longest ASCII answer is 16 characters (`!01C29M090703`, checksum, CR); four times that
+/// leaves room for noise before a whole answer and bounds what a babbling line can fill.
+pub const ASCII_MAX_ANSWER: usize = 64;
+
+/// The silence kept before each ASCII request on a serial line: 1.5 character times, 0.75 ms
+/// above 19200 baud (the shape of Modbus's t1.5). ASCII frames end at their CR, so no module
+/// needs silence to find a frame's end; what a shared RS-485 pair needs is turnaround, the
+/// answering module letting go of the line before the next request starts, and a receiver
+/// that also frames by silence must see the request apart from the answer. Both take well
+/// under 1.5 characters; t3.5 would cost a quarter of a 9600 baud poll, this costs a tenth.
+pub fn ascii_frame_gap(baud: u32) -> Duration {
+    // t3.5 scaled by 1.5/3.5 keeps Modbus's rule for the speeds (and its fixed value above 19200).
+    silence_gap(baud) * 3 / 7
+}
+
+/// The silence `FrameGap::Auto` keeps before each request in `protocol` at `baud`: Modbus
+/// RTU's t3.5 (Modbus over Serial Line 2.5.1.1), or `ascii_frame_gap`.
+pub fn auto_frame_gap(protocol: Protocol, baud: u32) -> Duration {
+    match protocol {
+        Protocol::Modbus => silence_gap(baud),
+        Protocol::Ascii => ascii_frame_gap(baud),
+    }
+}
 
 /// A byte link that several drivers (modules with different IDs on one line) take turns on.
 pub type SharedLink = Arc<Mutex<Box<dyn ByteLink>>>;
@@ -33,16 +60,27 @@ pub(crate) struct Transport {
     pub timeout: Duration,
     /// Further attempts after a timeout or a garbled answer.
     pub retries: u32,
+    protocol: Protocol,
+    frame_gap: FrameGap,
     tracer: Option<Tracer>,
 }
 
 impl Transport {
-    pub fn new(link: SharedLink, clock: SharedClock, timeout: Duration, retries: u32) -> Self {
+    pub fn new(
+        link: SharedLink,
+        clock: SharedClock,
+        timeout: Duration,
+        retries: u32,
+        protocol: Protocol,
+        frame_gap: FrameGap,
+    ) -> Self {
         Self {
             link,
             clock,
             timeout,
             retries,
+            protocol,
+            frame_gap,
             tracer: None,
         }
     }
@@ -67,7 +105,7 @@ impl Transport {
     }
 
     /// One exchange; the line is held for exactly this long, so one dead module costs the
-    /// others at most its own timeout.
+    /// others at most its own timeout (and, at the next request, the settling after it).
     pub fn exchange(
         &mut self,
         request: &[u8],
@@ -75,9 +113,16 @@ impl Transport {
         gap: Option<Duration>,
         frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     ) -> Result<Vec<u8>, ExchangeError> {
+        let (auto_gap, max_answer): (fn(u32) -> Duration, usize) = match self.protocol {
+            Protocol::Modbus => (silence_gap, MAX_FRAME_LEN),
+            Protocol::Ascii => (ascii_frame_gap, ASCII_MAX_ANSWER),
+        };
         let timing = Timing {
             timeout: self.timeout,
             gap,
+            frame_gap: self.frame_gap,
+            auto_gap,
+            max_answer,
         };
         let mut link = self.link.lock().unwrap_or_else(|e| e.into_inner());
         exchange(

@@ -136,6 +136,7 @@ fn options(c: &C29uConfig) -> C29uOptions {
         timeout: c.timeout,
         retries: u32::from(c.retries),
         di_active_low: c.di_active_low,
+        frame_gap: c.frame_gap,
     }
 }
 
