@@ -108,6 +108,44 @@ pub fn write_all_within(fd: RawFd, mut bytes: &[u8], timeout: Duration) -> io::R
     Ok(())
 }
 
+/// Waits up to `timeout` until one of `fds` has bytes to read (or has hung up); tells which.
+pub fn wait_readable(fds: &[RawFd], timeout: Duration) -> io::Result<Vec<bool>> {
+    let mut pfds: Vec<libc::pollfd> = fds
+        .iter()
+        .map(|&fd| libc::pollfd {
+            fd,
+            events: libc::POLLIN,
+            revents: 0,
+        })
+        .collect();
+    let ts = timespec(timeout);
+    loop {
+        // SAFETY: `pfds` is a valid array of `pfds.len()` pollfds; a valid timespec.
+        let n = unsafe {
+            libc::ppoll(
+                pfds.as_mut_ptr(),
+                pfds.len() as libc::nfds_t,
+                &ts,
+                std::ptr::null(),
+            )
+        };
+        if n >= 0 {
+            return Ok(pfds.iter().map(|p| p.revents != 0).collect());
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
+fn timespec(timeout: Duration) -> libc::timespec {
+    libc::timespec {
+        tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
+        tv_nsec: libc::c_long::from(timeout.subsec_nanos()),
+    }
+}
+
 #[derive(Debug, PartialEq, Eq)]
 enum Ready {
     Yes,
@@ -121,10 +159,7 @@ fn wait(fd: RawFd, events: libc::c_short, timeout: Duration) -> io::Result<Ready
         events,
         revents: 0,
     };
-    let ts = libc::timespec {
-        tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
-        tv_nsec: libc::c_long::from(timeout.subsec_nanos()),
-    };
+    let ts = timespec(timeout);
     loop {
         // SAFETY: one valid pollfd, a valid timespec, no signal mask.
         let n = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };

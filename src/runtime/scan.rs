@@ -316,7 +316,9 @@ impl<P: Program> Runner<P> {
         self.next_deadline = self.next_deadline.saturating_add(period);
         if now > self.next_deadline {
             self.stats.overruns = self.stats.overruns.saturating_add(1);
-            self.next_deadline = boundary_at_or_after(self.next_deadline, period, now);
+            // Already late: the next tick starts at once, on the last boundary passed.
+            self.next_deadline =
+                boundary_at_or_after(self.next_deadline, period, now).saturating_sub(period);
         }
         if let Some(idle) = self.idle_until() {
             if idle > self.next_deadline {
@@ -593,6 +595,21 @@ mod tests {
         );
         assert!(r.next_deadline() > clock.now().saturating_sub(Duration::from_millis(20)));
         assert!(r.stats.work.max() >= Duration::from_millis(50));
+    }
+
+    #[test]
+    fn after_an_overrun_the_next_tick_starts_at_once() {
+        let (mut r, clock) = runner(
+            Duration::from_millis(20),
+            Duration::from_millis(50),
+            ErrorPolicy::Stop,
+        );
+        r.advance(Duration::from_millis(100));
+        assert!(r.stats.overruns > 0);
+        assert!(
+            r.next_deadline() <= clock.now(),
+            "no sleep to the next boundary after a tick that ran late"
+        );
     }
 
     #[test]

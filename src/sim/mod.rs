@@ -5,7 +5,9 @@ pub mod c29u_ascii;
 pub mod c29u_line;
 pub mod c29u_modbus;
 pub mod pty;
+pub mod relay;
 pub mod trc1000;
+pub mod wire;
 
 use std::sync::{Arc, Mutex};
 
