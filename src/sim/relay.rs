@@ -153,11 +153,8 @@ fn relay(
     stop: &AtomicBool,
     record: &Record,
 ) -> Result<(), PtyError> {
-    // Best effort: a real-time thread and prompt timers keep the byte times close to the baud.
-    let _ = crate::time::clock::prefer_prompt_wakeups();
-    let param = libc::sched_param { sched_priority: 10 };
-    // SAFETY: a valid sched_param for the calling thread; failure (no privilege) is harmless.
-    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    // Prompt timers keep the byte times close to the baud.
+    super::pty::prefer_realtime();
     let (near, far) = (ends.near.as_raw_fd(), ends.far.as_raw_fd());
     let mut lanes = [
         Direction {
@@ -189,8 +186,9 @@ fn relay(
                 lane.queue.pop_front();
             }
             if !out.is_empty() {
-                fd::write_all_within(lane.to, &out, Duration::from_secs(1))?;
+                // Stamped before the write: the receiver can have the bytes before it returns.
                 line.delivered(lane.side, origin.elapsed());
+                fd::write_all_within(lane.to, &out, Duration::from_secs(1))?;
             }
             if let Some(frame) = line.close_if_idle(lane.side, now) {
                 record.push(frame);

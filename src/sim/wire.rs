@@ -28,6 +28,8 @@ pub struct Frame {
     /// Silence on the line before it (from the end of the frame before, whoever sent it);
     /// `None` for the first frame, zero when it overlapped another.
     pub silence: Option<Duration>,
+    /// Who sent the frame the silence counts from.
+    pub after: Option<Side>,
 }
 
 /// The frames of one line, as they start, grow and end.
@@ -38,7 +40,7 @@ pub struct Timeline {
     /// longer pause inside a frame breaks it).
     joint: Duration,
     open: [Option<Frame>; 2],
-    last_end: Option<Duration>,
+    last_end: Option<(Duration, Side)>,
 }
 
 fn slot(side: Side) -> usize {
@@ -83,12 +85,14 @@ impl Timeline {
             }
         }
         let closed = self.close(side);
+        let (silence, after) = self.silence_before(side, at);
         let frame = Frame {
             side,
             start: at,
             end: at.saturating_add(self.wire_time(bytes)),
             bytes,
-            silence: self.silence_before(side, at),
+            silence,
+            after,
         };
         self.set_open(side, Some(frame));
         Sent {
@@ -102,14 +106,16 @@ impl Timeline {
     /// itself); returns it with its silence.
     pub fn frame(&mut self, side: Side, start: Duration, end: Duration, bytes: usize) -> Frame {
         let _ = self.close(side);
+        let (silence, after) = self.silence_before(side, start);
         let frame = Frame {
             side,
             start,
             end,
             bytes,
-            silence: self.silence_before(side, start),
+            silence,
+            after,
         };
-        self.last_end = Some(self.last_end.map_or(end, |e| e.max(end)));
+        self.ended(end, side);
         frame
     }
 
@@ -137,8 +143,14 @@ impl Timeline {
     /// Closes the open frame on `side`, if any.
     pub fn close(&mut self, side: Side) -> Option<Frame> {
         let frame = self.open.get_mut(slot(side)).and_then(Option::take)?;
-        self.last_end = Some(self.last_end.map_or(frame.end, |e| e.max(frame.end)));
+        self.ended(frame.end, side);
         Some(frame)
+    }
+
+    fn ended(&mut self, end: Duration, side: Side) {
+        if self.last_end.map_or(true, |(last, _)| end >= last) {
+            self.last_end = Some((end, side));
+        }
     }
 
     fn set_open(&mut self, side: Side, frame: Option<Frame>) {
@@ -147,16 +159,20 @@ impl Timeline {
         }
     }
 
-    fn silence_before(&self, side: Side, at: Duration) -> Option<Duration> {
+    fn silence_before(&self, side: Side, at: Duration) -> (Option<Duration>, Option<Side>) {
         let other = match side {
             Side::Master => Side::Slave,
             Side::Slave => Side::Master,
         };
-        let ends = [self.last_end, self.busy_until(other)];
-        ends.iter()
+        let still_sending = self.busy_until(other).map(|end| (end, other));
+        match [self.last_end, still_sending]
+            .into_iter()
             .flatten()
-            .max()
-            .map(|&end| at.saturating_sub(end))
+            .max_by_key(|(end, _)| *end)
+        {
+            Some((end, after)) => (Some(at.saturating_sub(end)), Some(after)),
+            None => (None, None),
+        }
     }
 }
 
@@ -184,7 +200,10 @@ mod tests {
         let mut line = Timeline::new(9600);
         let request = line.send(Side::Master, ms(0), 8);
         assert!(request.started);
-        assert_eq!(request.frame.silence, None, "nothing before the first frame");
+        assert_eq!(
+            request.frame.silence, None,
+            "nothing before the first frame"
+        );
         let request_end = line.wire_time(8);
         assert_eq!(line.busy_until(Side::Master), Some(request_end));
         let answer = line.frame(Side::Slave, request_end, request_end + line.wire_time(6), 6);
@@ -192,12 +211,18 @@ mod tests {
         let answer_end = answer.end;
         let next = line.send(Side::Master, answer_end + ms(2), 8);
         assert!(next.started);
-        assert_eq!(next.closed.map(|f| f.bytes), Some(8), "the first request closed");
+        assert_eq!(
+            next.closed.map(|f| f.bytes),
+            Some(8),
+            "the first request closed"
+        );
         assert_eq!(next.frame.silence, Some(ms(2)));
+        assert_eq!(next.frame.after, Some(Side::Slave));
         // A request with no answer: the next one counts from its own end.
         let late = next.frame.end + ms(5);
         let after = line.send(Side::Master, late, 8);
         assert_eq!(after.frame.silence, Some(ms(5)));
+        assert_eq!(after.frame.after, Some(Side::Master));
     }
 
     #[test]
@@ -208,7 +233,11 @@ mod tests {
         assert!(!more.started);
         assert_eq!(more.frame.bytes, 4);
         assert_eq!(more.frame.end, line.wire_time(4), "they wait for the line");
-        assert_eq!(line.close_if_idle(Side::Master, ms(4)), None, "still sending");
+        assert_eq!(
+            line.close_if_idle(Side::Master, ms(4)),
+            None,
+            "still sending"
+        );
         let closed = line.close_if_idle(Side::Master, ms(10)).unwrap();
         assert_eq!(closed.bytes, 4);
         line.delivered(Side::Master, ms(20));
