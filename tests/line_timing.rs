@@ -6,7 +6,7 @@
 mod common;
 
 use common::{rigscript, run, SimProcess};
-use rigscript::device::c29u::{share, C29u, C29uOptions};
+use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions};
 use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;
 use rigscript::protocol::c29u_modbus::seal;
@@ -49,15 +49,22 @@ fn back_to_back_requests_to_two_modules_keep_the_silence_of_the_line() {
         let mut one = C29u::new(link.clone(), clock.clone(), options(1)).unwrap();
         let mut two = C29u::new(link, clock, options(2)).unwrap();
         for round in 0..rounds {
-            let at = |what: &str| format!("{what} at {baud} baud, round {round}");
-            assert_eq!(one.read_inputs().expect(&at("ID 1 DI")), 0x0A);
+            let at = |what: &str, e: C29uError| -> u8 {
+                panic!("{what} at {baud} baud, round {round}: {e}")
+            };
+            assert_eq!(one.read_inputs().unwrap_or_else(|e| at("ID 1 DI", e)), 0x0A);
             // The next module waits for the silence after the first one's answer.
-            assert_eq!(two.read_inputs().expect(&at("ID 2 DI")), 0x0A);
+            assert_eq!(two.read_inputs().unwrap_or_else(|e| at("ID 2 DI", e)), 0x0A);
             // A write and a read in the same breath, as a tick does.
-            one.write_outputs(round).expect(&at("ID 1 DO write"));
-            assert_eq!(one.read_outputs().expect(&at("ID 1 DO")), round);
+            one.write_outputs(round)
+                .map_err(|e| at("ID 1 DO write", e))
+                .ok();
+            assert_eq!(
+                one.read_outputs().unwrap_or_else(|e| at("ID 1 DO", e)),
+                round
+            );
             // No answer: the next request counts from the end of this one on the wire.
-            one.host_ok().expect(&at("host OK"));
+            one.host_ok().map_err(|e| at("host OK", e)).ok();
         }
         assert_eq!(early_frames(&mut sim), 0, "at {baud} baud");
     }
