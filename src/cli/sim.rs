@@ -79,7 +79,8 @@ pub struct C29uSimArgs {
     pub baud: Option<u32>,
     /// Time the line in real time at the configured baud: answers take their time on the
     /// wire, and a request that starts less than t3.5 (ASCII: t1.5) after the previous frame
-    /// ended is dropped and counted (`state` shows "early_frames").
+    /// ended is dropped and counted (`state` shows "early_frames"); after a request that got
+    /// no answer a pty only allows checking for one character of silence.
     #[arg(long)]
     pub strict_timing: bool,
 }

@@ -13,6 +13,10 @@ use crate::link::{ByteLink, LinkError};
 use crate::time::clock::Clock;
 use std::time::Duration;
 
+/// How long after a write returns a USB-serial adapter may start sending the bytes: they go
+/// out with its next USB frame, at most 1 ms away at full speed.
+pub const ADAPTER_LATENCY: Duration = Duration::from_millis(1);
+
 /// How an exchange waits.
 #[derive(Debug, Clone, Copy)]
 pub struct Timing {
@@ -126,12 +130,15 @@ fn send_and_collect(
     }
     link.write_all(request)?;
     // A USB-serial adapter returns from the write before the bytes are out: they are on the
-    // wire until `request_end`.
+    // wire until `request_end` at the earliest.
     let request_end = clock.now().saturating_add(line.wire_time(request.len()));
-    line.quiet_since = Some(request_end);
     if !expect_answer {
+        // No answer will say when the request really ended: allow for its leaving late.
+        let latency = line.baud.map_or(Duration::ZERO, |_| ADAPTER_LATENCY);
+        line.quiet_since = Some(request_end.saturating_add(latency));
         return Ok(Vec::new());
     }
+    line.quiet_since = Some(request_end);
     let deadline = request_end.saturating_add(timing.timeout);
     let mut received = Vec::new();
     let mut chunk = [0u8; 256];
@@ -333,9 +340,14 @@ mod tests {
         heard_at: Arc<Mutex<Vec<Duration>>>,
     }
     impl ByteDevice for Stamped {
-        fn receive(&mut self, _bytes: &[u8]) -> Vec<u8> {
+        fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
             self.heard_at.lock().unwrap().push(self.clock.now());
-            self.answer.clone()
+            // `~**` (host OK) gets no answer.
+            if bytes.starts_with(b"~") {
+                Vec::new()
+            } else {
+                self.answer.clone()
+            }
         }
     }
 
@@ -362,10 +374,11 @@ mod tests {
         clock: &VirtualClock,
         expect: bool,
     ) -> Result<Vec<u8>, ExchangeError> {
+        let request: &[u8] = if expect { b"ask\r" } else { b"~**\r" };
         exchange(
             link,
             clock,
-            b"ask\r",
+            request,
             expect,
             timing(None),
             line_end,
@@ -491,8 +504,8 @@ mod tests {
         assert_eq!(heard[2], second_end + t35(9600));
         assert_eq!(
             heard[3],
-            heard[2] + wire(4) + t35(9600),
-            "an unanswered request is on the wire until its last byte has left"
+            heard[2] + ADAPTER_LATENCY + wire(4) + t35(9600),
+            "an unanswered request is on the wire until its last byte has left the adapter"
         );
     }
 
@@ -671,7 +684,16 @@ mod tests {
         let (clock, _heard, link) = stamped(b"!02\r");
         let mut link = link.with_line(9600);
         // An answer to a request nobody waits for any more (sent without expecting one).
-        ask(&mut link, &clock, false).unwrap();
+        exchange(
+            &mut link,
+            &clock,
+            b"x\r",
+            false,
+            timing(None),
+            line_end,
+            &mut None,
+        )
+        .unwrap();
         clock.advance(Duration::from_millis(100));
         let got = ask(&mut link, &clock, true).unwrap();
         assert_eq!(got, b"!02\r");

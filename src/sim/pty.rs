@@ -87,18 +87,16 @@ impl Line {
         if sent.started {
             // A pty hands a request over through a kernel worker, so the server sees it late by
             // a delay it cannot measure (milliseconds on a loaded machine). After an answer the
-            // server timed itself that only lengthens the silence it measures; after a request
-            // of the master's that got no answer both ends of the silence carry such a delay,
-            // so half of the required silence is allowed there: a master that keeps none is
-            // still caught.
-            let allowance = match sent.frame.after {
-                Some(Side::Master) => self.rules.required / 2,
-                _ => Duration::ZERO,
+            // server timed itself that only lengthens the silence it measures, and the full
+            // silence is required; after a request of the master's that got no answer both ends
+            // of the silence carry such a delay, so there only one character of silence is
+            // required: a master that keeps none is still caught. (The driver's rule after an
+            // unanswered request is pinned exactly in virtual time, in `device::exchange`.)
+            let required = match sent.frame.after {
+                Some(Side::Master) => self.timeline.wire_time(1).min(self.rules.required),
+                _ => self.rules.required,
             };
-            self.dropping = sent
-                .frame
-                .silence
-                .is_some_and(|s| s.saturating_add(allowance) < self.rules.required);
+            self.dropping = sent.frame.silence.is_some_and(|s| s < required);
             if self.dropping {
                 self.rules.early.fetch_add(1, Ordering::Relaxed);
             }
