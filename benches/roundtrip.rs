@@ -1,7 +1,8 @@
 //! Request round trips per second through the real TRP-C29U driver over a pseudo-terminal to
-//! the simulator served in this process, for each protocol. Run: `cargo bench --bench roundtrip`.
+//! the simulator served in this process, for each protocol, with no frame gap (a pty has no
+//! wire). Run: `cargo bench --bench roundtrip`.
 
-use rigscript::device::c29u::{share, C29u, C29uOptions, Protocol};
+use rigscript::device::c29u::{share, C29u, C29uOptions, FrameGap, Protocol};
 use rigscript::link::serial::SerialLink;
 use rigscript::protocol::c29u_modbus::silence_gap;
 use rigscript::sim::c29u::{C29u as Model, Eeprom};
@@ -62,6 +63,8 @@ fn measure(protocol: Protocol, count: u32, request: fn(&mut C29u)) -> f64 {
         protocol,
         timeout: Duration::from_millis(500),
         retries: 0,
+        // The exchange itself; the silence a line needs is measured by benches/line.rs.
+        frame_gap: FrameGap::Fixed(Duration::ZERO),
         ..C29uOptions::default()
     };
     let mut dev = C29u::new(share(Box::new(link)), SystemClock::shared(), options).unwrap();

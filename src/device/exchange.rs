@@ -177,9 +177,8 @@ fn send_and_collect(
         }
         received.extend_from_slice(bytes);
         if let Some(answer) = frame(&received) {
-            // On a wire the answer cannot end before it has been sent whole after the request.
-            let on_wire = request_end.saturating_add(line.wire_time(received.len()));
-            line.quiet_since = Some(clock.now().max(on_wire));
+            // On a wire the answer has ended when its last byte is in.
+            line.quiet_since = Some(clock.now());
             trace_received(tracer, &answer);
             return Ok(answer);
         }
