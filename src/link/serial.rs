@@ -216,4 +216,27 @@ mod tests {
             other => panic!("expected Disconnected from a write after hangup, got {other:?}"),
         }
     }
+
+    #[test]
+    fn writes_never_wait_for_the_line_to_drain_and_give_up_when_it_takes_nothing() {
+        // Nobody reads the far end: a tcdrain would wait for ever.
+        let (_master, slave) = TTYPort::pair().unwrap();
+        let path = slave.name().unwrap();
+        let (done, outcome) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut link = SerialLink::open(&path, 9600).unwrap();
+            let small = link.write_all(b"01 01 00 20");
+            let big = (0..64).find_map(|_| link.write_all(&[0u8; 65536]).err());
+            let _ = done.send((small.is_ok(), big.map(|e| e.to_string())));
+        });
+        let (small, big) = outcome
+            .recv_timeout(Duration::from_secs(20))
+            .expect("the writes returned");
+        assert!(
+            small,
+            "a frame is handed over without waiting for it to leave"
+        );
+        let big = big.expect("a port that takes nothing fails the write");
+        assert!(big.contains("takes no data"), "{big}");
+    }
 }

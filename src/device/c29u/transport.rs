@@ -1,7 +1,7 @@
 //! The shared serial line under a TRP-C29U driver: one request at a time, the silence before
 //! each, per-request timeout, retries, and `--trace` output.
 
-use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
+use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer, ADAPTER_LATENCY};
 use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
 use crate::protocol::c29u::Protocol;
@@ -23,8 +23,11 @@ pub const ASCII_MAX_ANSWER: usize = 64;
 /// that also frames by silence must see the request apart from the answer. Both take well
 /// under 1.5 characters; t3.5 would cost a quarter of a 9600 baud poll, this costs a tenth.
 pub fn ascii_frame_gap(baud: u32) -> Duration {
-    // t3.5 scaled by 1.5/3.5 keeps Modbus's rule for the speeds (and its fixed value above 19200).
-    silence_gap(baud) * 3 / 7
+    if baud > 19_200 {
+        return Duration::from_micros(750);
+    }
+    // 1.5 characters x 10 bits = 15 bit times.
+    Duration::from_nanos(15_000_000_000 / u64::from(baud.max(1)))
 }
 
 /// The silence `FrameGap::Auto` keeps before each request in `protocol` at `baud`: Modbus
@@ -50,6 +53,21 @@ pub(crate) enum Fault {
     Retry(C29uError),
     /// Give up at once.
     Final(C29uError),
+}
+
+/// The longest one request can hold the line when the module stays silent: every attempt
+/// waits out `timeout` after the request has left (`ADAPTER_LATENCY` and its time on the wire
+/// at `baud` included), and every retry first waits a further `timeout` of silence for a late
+/// answer. What watchdog feeds and a SIGTERM's safe-state write must allow for per request.
+pub fn longest_request(timeout: Duration, retries: u32, baud: u32) -> Duration {
+    let longest_frame = crate::link::line::wire_time(MAX_FRAME_LEN, baud);
+    let attempt = timeout
+        .saturating_add(ADAPTER_LATENCY)
+        .saturating_add(longest_frame);
+    let attempts = retries.saturating_add(1);
+    attempt
+        .saturating_mul(attempts)
+        .saturating_add(timeout.saturating_mul(retries))
 }
 
 /// One driver's view of the line: its link, clock, timing and trace.
@@ -149,6 +167,65 @@ impl Transport {
                 Err(Fault::Retry(e)) if tries_left == 0 => return Err(e),
                 Err(Fault::Retry(_)) => tries_left -= 1,
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::c29u::{share, C29u, C29uError, C29uOptions};
+    use crate::link::memory::MemoryByteLink;
+    use crate::sim::ByteDevice;
+    use crate::time::clock::{Clock, VirtualClock};
+
+    #[test]
+    fn ascii_keeps_one_and_a_half_characters_modbus_three_and_a_half() {
+        assert_eq!(
+            ascii_frame_gap(9600),
+            Duration::from_micros(1562) + Duration::from_nanos(500)
+        );
+        assert_eq!(ascii_frame_gap(115_200), Duration::from_micros(750));
+        assert_eq!(
+            auto_frame_gap(Protocol::Ascii, 19_200),
+            Duration::from_nanos(781_250)
+        );
+        assert_eq!(auto_frame_gap(Protocol::Modbus, 9600), silence_gap(9600));
+        assert_eq!(
+            auto_frame_gap(Protocol::Modbus, 38_400),
+            Duration::from_micros(1750)
+        );
+    }
+
+    struct Silent;
+    impl ByteDevice for Silent {
+        fn receive(&mut self, _bytes: &[u8]) -> Vec<u8> {
+            Vec::new()
+        }
+    }
+
+    #[test]
+    fn a_silent_module_holds_the_line_no_longer_than_longest_request() {
+        for (retries, baud) in [(0, 9600), (2, 9600), (3, 1200)] {
+            let clock = VirtualClock::at_epoch();
+            let link = MemoryByteLink::new(Silent, "silent")
+                .with_clock(Arc::new(clock.clone()))
+                .with_line(baud);
+            let options = C29uOptions {
+                baud,
+                timeout: Duration::from_millis(100),
+                retries,
+                ..C29uOptions::default()
+            };
+            let mut dev =
+                C29u::new(share(Box::new(link)), Arc::new(clock.clone()), options).unwrap();
+            assert!(matches!(
+                dev.read_counters(),
+                Err(C29uError::Timeout { .. })
+            ));
+            let bound = longest_request(Duration::from_millis(100), retries, baud);
+            assert!(clock.now() <= bound, "{:?} > {bound:?}", clock.now());
+            assert!(clock.now() >= Duration::from_millis(100) * (2 * retries + 1));
         }
     }
 }
