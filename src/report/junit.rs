@@ -203,6 +203,19 @@ fn render_properties(out: &mut String, indent: &str, properties: &[(String, Stri
     let _ = writeln!(out, "{indent}</properties>");
 }
 
+/// A suite timestamp as the JUnit schema writes it (`YYYY-MM-DDTHH:MM:SS`, no zone).
+pub fn timestamp<Tz: chrono::TimeZone>(at: &chrono::DateTime<Tz>) -> String
+where
+    Tz::Offset: std::fmt::Display,
+{
+    at.format("%Y-%m-%dT%H:%M:%S").to_string()
+}
+
+/// The local time now as a suite timestamp.
+pub fn timestamp_now() -> String {
+    timestamp(&chrono::Local::now())
+}
+
 /// Seconds with millisecond precision, as JUnit readers expect.
 fn seconds(d: Duration) -> String {
     format!("{:.3}", d.as_secs_f64())
@@ -267,6 +280,29 @@ pub fn write(path: &Path, suites: &[TestSuite]) -> io::Result<()> {
         .inspect_err(|_| {
             let _ = std::fs::remove_file(&partial);
         })
+}
+
+/// Refuses a report path that cannot be written (a directory, or a file in a missing
+/// directory), so a command can say so before it runs anything.
+pub fn check_path(path: &Path) -> Result<(), String> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if path.is_dir() {
+        return Err(format!(
+            "--junit {}: that is a directory; give a file name such as report.xml",
+            path.display()
+        ));
+    }
+    if !dir.is_dir() {
+        return Err(format!(
+            "--junit {}: the directory {} does not exist; create it or give another path",
+            path.display(),
+            dir.display()
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
