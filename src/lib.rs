@@ -31,7 +31,7 @@
 //! let clock = SystemClock::shared();
 //! let module = SimulatedC29u::new(Module::new(Protocol::Modbus, clock.clone(), Eeprom::factory()));
 //! let field = module.model(); // the wiring side: inputs, pulses, power cycles
-//! let link = MemoryByteLink::new(module, "simulated TRP-C29U");
+//! let link = MemoryByteLink::new(module, "TRP-C29U");
 //! let mut io = C29u::new(share(Box::new(link)), clock, C29uOptions::default())?;
 //!
 //! io.write_outputs(0x21)?; // DO0 and DO5 on: a Modbus FC15 frame to the module
