@@ -100,3 +100,103 @@ impl<H: Clone> Runtime<H> {
             .unwrap_or(Latches { low: 0, high: 0 })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::device::c29u::Latches;
+    use crate::protocol::trc1000::{Rotary, Switch};
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    #[test]
+    fn the_first_access_in_a_tick_reads_and_later_ones_reuse_that_reading() {
+        let mut r = TestRig::started();
+        r.sim.set_inputs("io", 0b1000).unwrap();
+        r.next_tick(TICK);
+        let before = r.requests();
+        assert_eq!(r.rt.inputs(IO), 0b1000);
+        assert_eq!(r.requests(), before + 1);
+        r.sim.set_inputs("io", 0b0100).unwrap();
+        assert_eq!(r.rt.inputs(IO), 0b1000, "same tick: the snapshot");
+        assert_eq!(r.requests(), before + 1);
+        r.next_tick(TICK);
+        assert_eq!(r.rt.inputs(IO), 0b0100, "next tick: read again");
+        assert_eq!(r.requests(), before + 2);
+    }
+
+    #[test]
+    fn switches_rotaries_counters_and_latches_are_read_lazily_too() {
+        let mut r = TestRig::started();
+        r.sim.set_switch("panel", "S2", true).unwrap();
+        r.sim.turn("panel", "S41A", 3).unwrap();
+        r.sim.pulse("io", 4, 7).unwrap();
+        r.sim.set_input("io", 1, true).unwrap();
+        r.next_tick(TICK);
+        let mut cost = Vec::new();
+        for _ in 0..3 {
+            let before = r.requests();
+            let s2 = Switch::from_name("S2").unwrap();
+            assert!(r.rt.switches(PANEL).is_pressed(s2));
+            let s41a = Rotary::from_name("S41A").unwrap();
+            assert_eq!(r.rt.rotaries(PANEL).get(s41a), 3);
+            assert_eq!(r.rt.counters(IO)[4], 7);
+            assert_ne!(r.rt.latches(IO), Latches { low: 0, high: 0 });
+            cost.push(r.requests() - before);
+        }
+        assert!(cost[0] >= 4, "each read once: {cost:?}");
+        assert_eq!(cost[1..], [0, 0], "then the snapshot: {cost:?}");
+    }
+
+    #[test]
+    fn turned_is_the_change_made_this_tick_only() {
+        let mut r = TestRig::started();
+        let s41a = Rotary::from_name("S41A").unwrap();
+        r.next_tick(TICK);
+        assert_eq!(
+            r.rt.turned(PANEL, s41a),
+            0,
+            "the first reading is a baseline"
+        );
+        r.sim.turn("panel", "S41A", -2).unwrap();
+        r.next_tick(TICK);
+        assert_eq!(r.rt.turned(PANEL, s41a), -2);
+        r.next_tick(TICK);
+        assert_eq!(r.rt.turned(PANEL, s41a), 0);
+    }
+
+    #[test]
+    fn a_lost_device_answers_with_its_last_reading_and_is_not_asked() {
+        let mut r = TestRig::started();
+        r.sim.set_inputs("io", 0x81).unwrap();
+        r.next_tick(TICK);
+        assert_eq!(r.rt.inputs(IO), 0x81);
+        r.sim.set_gone("io", true).unwrap();
+        r.next_tick(TICK);
+        assert_eq!(
+            r.rt.inputs(IO),
+            0x81,
+            "the failed read leaves the last reading"
+        );
+        assert!(!r.rt.online(IO));
+        let before = r.requests();
+        r.next_tick(TICK);
+        assert_eq!(r.rt.inputs(IO), 0x81);
+        assert_eq!(r.rt.counters(IO), [0; 8], "never read: nothing counted");
+        assert_eq!(r.requests(), before);
+    }
+
+    #[test]
+    fn inputs_a_device_does_not_have_are_empty_and_cost_nothing() {
+        let mut r = TestRig::started();
+        r.sim.set_inputs("io", 0xFF).unwrap();
+        r.next_tick(TICK);
+        let before = r.requests();
+        assert_eq!(r.rt.switches(IO), Default::default());
+        assert_eq!(r.rt.inputs(PANEL), 0);
+        assert_eq!(r.rt.counters(9), [0; 8]);
+        assert_eq!(r.rt.latches(PANEL), Latches { low: 0, high: 0 });
+        assert_eq!(r.requests(), before);
+    }
+}

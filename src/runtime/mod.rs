@@ -14,4 +14,6 @@ pub mod schedule;
 pub mod state;
 pub mod stats;
 pub mod subscriptions;
+#[cfg(test)]
+mod testing;
 pub mod wake_latency;

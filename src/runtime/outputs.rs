@@ -107,3 +107,111 @@ impl<H: Clone> Runtime<H> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    #[test]
+    fn what_the_script_sets_is_written_once_at_flush_and_only_when_it_changed() {
+        let mut r = TestRig::started();
+        r.rt.cause = "io.on_rise DI3".into();
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.set_relay(PANEL, 6);
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05, "not before the flush");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3);
+        let before = r.requests();
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x21);
+        assert_eq!(r.sim.relay("panel").unwrap(), 6);
+        assert_eq!(r.requests(), before + 2, "one transaction per device");
+        let log = r.log();
+        assert!(
+            log.contains("io: outputs 0x05 -> 0x21 (io.on_rise DI3)"),
+            "{log}"
+        );
+        assert!(
+            log.contains("panel: relay 3 -> 6 (io.on_rise DI3)"),
+            "{log}"
+        );
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.flush_outputs();
+        assert_eq!(r.requests(), before + 2, "nothing changed, nothing written");
+    }
+
+    #[test]
+    fn while_held_safe_the_safe_values_are_written_instead() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0xF0);
+        r.rt.set_relay(PANEL, 7);
+        r.rt.flush_outputs();
+        r.rt.held_safe = true;
+        r.rt.set_outputs(IO, 0xF1);
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        assert_eq!(r.sim.relay("panel").unwrap(), 3);
+        assert!(
+            r.log().contains("io: outputs 0xf0 -> 0x05 (held safe)"),
+            "{}",
+            r.log()
+        );
+        r.rt.held_safe = false;
+        r.rt.flush_outputs();
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0xF1,
+            "the script's outputs again"
+        );
+        assert_eq!(r.sim.relay("panel").unwrap(), 7);
+    }
+
+    #[test]
+    fn a_write_refused_in_safe_mode_takes_control_again_with_the_scripts_outputs() {
+        let mut r = TestRig::started();
+        r.clock.advance(Duration::from_millis(1500));
+        assert!(
+            r.sim.safe_mode("io").unwrap(),
+            "nobody fed the 1 s watchdog"
+        );
+        r.rt.set_outputs(IO, 0x42);
+        r.rt.flush_outputs();
+        assert!(!r.sim.safe_mode("io").unwrap());
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x42);
+        assert!(
+            r.sim.watchdog("io").unwrap().enabled,
+            "the watchdog is on again"
+        );
+        assert!(r.rt.online(IO));
+        let log = r.log();
+        assert!(log.contains("io: the module is in safe mode"), "{log}");
+        assert!(log.contains("io: was in safe mode"), "{log}");
+    }
+
+    #[test]
+    fn a_lost_device_is_not_written_and_its_outputs_wait() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        r.rt.set_outputs(IO, 0x33);
+        r.rt.flush_outputs();
+        assert!(!r.rt.online(IO), "the failed write loses it");
+        let before = r.requests();
+        r.rt.flush_outputs();
+        assert_eq!(r.requests(), before, "a lost device is not written");
+        assert_eq!(
+            r.rt.c29u(IO).unwrap().outputs,
+            0x33,
+            "what the script wants is kept"
+        );
+    }
+
+    #[test]
+    fn reset_outputs_goes_back_to_the_safe_values() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x77);
+        r.rt.set_relay(PANEL, 1);
+        r.rt.reset_outputs();
+        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+    }
+}

@@ -62,3 +62,71 @@ impl<H: Clone> Runtime<H> {
         result
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::devices::{Device, DeviceError};
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    #[test]
+    fn devices_are_found_by_name_and_index_in_name_order() {
+        let mut r = TestRig::started();
+        let rt = &mut r.rt;
+        assert_eq!(rt.device_index("io"), Some(IO));
+        assert_eq!(rt.device_index("panel"), Some(PANEL));
+        assert_eq!(rt.device_index("nope"), None);
+        assert_eq!(rt.device_names(), "io, panel");
+        assert_eq!(rt.device_name(PANEL), "panel");
+        assert_eq!(rt.device_name(7), "");
+        assert!(rt.c29u(IO).is_some() && rt.trc(IO).is_none());
+        assert!(rt.trc(PANEL).is_some() && rt.c29u(PANEL).is_none());
+        assert!(rt.c29u(7).is_none() && rt.trc(7).is_none());
+        assert!(rt.online(IO) && rt.online(PANEL));
+        assert!(!rt.online(7));
+    }
+
+    #[test]
+    fn a_command_that_gets_no_answer_loses_the_device_and_the_next_is_not_sent() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        let read = |d: &mut Device| match d {
+            Device::C29u(c) => Ok(c.driver.read_inputs()?),
+            Device::Trc(_) => unreachable!("IO is a TRP-C29U"),
+        };
+        let e = r.rt.command(IO, read).unwrap_err();
+        assert!(e.is_comm_failure(), "{e}");
+        assert!(!r.rt.online(IO));
+        assert!(r.rt.online(PANEL), "the other device goes on");
+        assert!(r.log().contains("io: lost: "), "{}", r.log());
+        let before = r.requests();
+        r.clock.advance(Duration::from_millis(300));
+        let e = r.rt.command(IO, read).unwrap_err();
+        assert_eq!(r.requests(), before, "a lost device is not asked");
+        let text = e.to_string();
+        assert!(text.starts_with("io is offline (lost 300"), "{text}");
+        assert!(text.ends_with("the operation was not done"), "{text}");
+    }
+
+    #[test]
+    fn a_refusal_is_returned_without_losing_the_device() {
+        let mut r = TestRig::started();
+        let refused = r.rt.command(IO, |_| {
+            Err::<(), _>(DeviceError::Offline {
+                device: "io".into(),
+                ago: Duration::ZERO,
+                cause: "refused".into(),
+            })
+        });
+        assert!(refused.is_err());
+        assert!(r.rt.online(IO));
+    }
+
+    #[test]
+    fn a_command_on_no_such_device_says_so() {
+        let mut r = TestRig::started();
+        let e = r.rt.command(9, |_| Ok(())).unwrap_err();
+        assert!(e.to_string().contains("device #9"), "{e}");
+        assert!(e.to_string().contains("no such device"), "{e}");
+    }
+}

@@ -147,3 +147,99 @@ impl<H: Clone> Runtime<H> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL, RIG};
+    use std::time::Duration;
+
+    #[test]
+    fn at_start_every_device_gets_its_configured_safe_state_and_watchdog() {
+        let mut r = TestRig::new(RIG);
+        r.rt.start_devices().unwrap();
+        assert_eq!(r.sim.safe_value("io").unwrap(), 0x05);
+        assert_eq!(r.sim.power_on_value("io").unwrap(), 0x11);
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        let wd = r.sim.watchdog("io").unwrap();
+        assert!(wd.enabled && wd.timeout_tenths == 10, "{wd:?}");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3);
+        let log = r.log();
+        assert!(
+            log.contains("outputs at safe value 0x05, host watchdog 1s"),
+            "{log}"
+        );
+        assert!(log.contains("relay at safe position 3"), "{log}");
+    }
+
+    #[test]
+    fn stored_values_are_set_again_only_where_they_differ() {
+        let mut r = TestRig::started();
+        let io = r.rt.c29u(IO).unwrap();
+        io.driver.set_safe_value(0x09).unwrap();
+        io.driver.set_power_on_value(0x11).unwrap();
+        assert!(r.rt.take_control(IO));
+        assert_eq!(r.sim.safe_value("io").unwrap(), 0x05);
+        let log = r.log();
+        assert!(log.contains("io: stored safe value 0x09 -> 0x05"), "{log}");
+        assert!(!log.contains("power-on value"), "{log}");
+        assert!(r.rt.take_control(IO));
+        assert_eq!(r.log().matches("stored").count(), 1, "{}", r.log());
+    }
+
+    #[test]
+    fn a_device_that_does_not_answer_at_start_is_unavailable() {
+        let mut r = TestRig::new(RIG);
+        r.sim.set_gone("panel", true).unwrap();
+        let e = r.rt.start_devices().unwrap_err();
+        assert_eq!(e.device, "panel");
+        assert!(
+            e.to_string().starts_with("device panel is not available: "),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn taking_control_again_leaves_safe_mode_and_writes_the_scripts_outputs() {
+        let mut r = TestRig::started();
+        r.rt.c29u(IO).unwrap().outputs = 0x60;
+        r.clock.advance(Duration::from_secs(2));
+        assert!(r.sim.safe_mode("io").unwrap());
+        assert!(r.rt.take_control(IO));
+        assert!(!r.sim.safe_mode("io").unwrap());
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x60);
+        assert!(r.sim.watchdog("io").unwrap().enabled);
+        assert!(
+            r.log().contains("watchdog was turned off to leave it"),
+            "{}",
+            r.log()
+        );
+    }
+
+    #[test]
+    fn taking_control_while_held_safe_writes_the_safe_value() {
+        let mut r = TestRig::started();
+        r.rt.c29u(IO).unwrap().outputs = 0x60;
+        r.rt.held_safe = true;
+        assert!(r.rt.take_control(IO));
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+    }
+
+    #[test]
+    fn a_panel_taken_control_of_again_gets_its_relay_at_the_next_write() {
+        let mut r = TestRig::started();
+        r.rt.set_relay(PANEL, 5);
+        r.rt.flush_outputs();
+        r.sim.power_cycle("panel").unwrap();
+        assert!(r.rt.take_control(PANEL));
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.relay("panel").unwrap(), 5);
+    }
+
+    #[test]
+    fn failing_to_take_control_loses_the_device() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        assert!(!r.rt.take_control(IO));
+        assert!(!r.rt.online(IO));
+    }
+}

@@ -101,3 +101,94 @@ impl<H: Clone> Runtime<H> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::RETRY_INTERVAL;
+    use crate::runtime::devices::DeviceError;
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    /// Reads the module's inputs in a new tick, as a handler would.
+    fn poll(r: &mut TestRig) {
+        r.next_tick(TICK);
+        r.rt.inputs(IO);
+    }
+
+    #[test]
+    fn a_lost_device_is_tried_once_a_second_and_taken_control_of_when_back() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        poll(&mut r);
+        assert!(!r.rt.online(IO));
+        assert_eq!(r.log().matches("io: lost: ").count(), 1);
+        let before = r.requests();
+        r.clock.advance(RETRY_INTERVAL - TICK);
+        r.rt.supervise();
+        assert_eq!(r.requests(), before, "not before its retry time");
+        r.clock.advance(TICK);
+        r.rt.supervise();
+        assert_eq!(r.requests(), before + 1, "one try, no retries");
+        assert!(!r.rt.online(IO));
+        r.sim.set_gone("io", false).unwrap();
+        r.rt.c29u(IO).unwrap().outputs = 0x0C;
+        r.clock.advance(RETRY_INTERVAL);
+        r.rt.supervise();
+        assert!(r.rt.online(IO));
+        assert!(!r.rt.held_safe, "lost past the grace time, and now back");
+        r.rt.flush_outputs();
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x0C,
+            "the script's outputs again"
+        );
+        assert!(r.log().contains("io: back after 2"), "{}", r.log());
+        assert_eq!(r.log().matches("io: lost: ").count(), 1, "lost once");
+    }
+
+    #[test]
+    fn past_the_grace_time_everything_is_held_safe_until_every_device_is_back() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x30);
+        r.rt.flush_outputs();
+        r.sim.set_gone("panel", true).unwrap();
+        r.next_tick(TICK);
+        r.rt.switches(PANEL);
+        r.clock.advance(Duration::from_millis(900));
+        r.rt.supervise();
+        assert!(!r.rt.held_safe, "within the grace time");
+        r.clock.advance(Duration::from_millis(200));
+        r.rt.supervise();
+        assert!(r.rt.held_safe);
+        r.rt.flush_outputs();
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x05,
+            "the device that answers goes safe"
+        );
+        assert!(r
+            .log()
+            .contains("panel lost for longer than the grace time (1s)"));
+        r.sim.set_gone("panel", false).unwrap();
+        r.clock.advance(RETRY_INTERVAL);
+        r.rt.supervise();
+        assert!(!r.rt.held_safe);
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x30);
+        assert!(r.log().contains("every device is back"), "{}", r.log());
+    }
+
+    #[test]
+    fn only_communication_failures_lose_a_device() {
+        let mut r = TestRig::started();
+        let refused = DeviceError::Offline {
+            device: "io".into(),
+            ago: Duration::ZERO,
+            cause: String::new(),
+        };
+        r.rt.note_failure(IO, &refused);
+        assert!(r.rt.online(IO));
+    }
+}

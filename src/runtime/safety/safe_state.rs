@@ -62,3 +62,58 @@ impl<H: Clone> Runtime<H> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL, RIG};
+    use std::time::Duration;
+
+    #[test]
+    fn the_safe_state_goes_to_every_device_that_answers() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.set_relay(PANEL, 6);
+        r.rt.flush_outputs();
+        r.sim.set_gone("panel", true).unwrap();
+        r.rt.tick += 1;
+        r.rt.switches(PANEL);
+        r.rt.write_safe_state("signal");
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        assert!(
+            r.log().contains(
+                "safe state (signal): io outputs 0x05, panel lost (its own watchdog, if on, acts)"
+            ),
+            "{}",
+            r.log()
+        );
+    }
+
+    #[test]
+    fn a_module_in_safe_mode_already_holds_its_safe_value() {
+        let mut r = TestRig::started();
+        r.clock.advance(Duration::from_secs(2));
+        r.rt.write_safe_state("end of run");
+        assert!(r.rt.online(IO));
+        assert!(!r.log().contains("failed"), "{}", r.log());
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+    }
+
+    #[test]
+    fn only_the_watchdogs_the_runner_turned_on_are_turned_off() {
+        let mut r = TestRig::started();
+        r.rt.release_watchdogs();
+        assert!(!r.sim.watchdog("io").unwrap().enabled);
+
+        let rig = RIG.replace("watchdog = \"1s\"\n", "");
+        let mut r = TestRig::new(&rig);
+        let own = Some(Duration::from_secs(3));
+        r.rt.c29u(IO).unwrap().driver.set_watchdog(own).unwrap();
+        r.rt.start_devices().unwrap();
+        assert!(r.log().contains("host watchdog 3s"), "{}", r.log());
+        r.rt.release_watchdogs();
+        assert!(
+            r.sim.watchdog("io").unwrap().enabled,
+            "the module's own stays on"
+        );
+    }
+}

@@ -83,3 +83,68 @@ impl<H: Clone> Runtime<H> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    #[test]
+    fn host_watchdogs_are_fed_at_a_quarter_of_their_timeout() {
+        let mut r = TestRig::started();
+        let before = r.requests();
+        for _ in 0..500 {
+            r.next_tick(TICK);
+            r.rt.feed_watchdogs();
+        }
+        assert!(!r.sim.safe_mode("io").unwrap(), "10 s fed, never expired");
+        // At the first tick at least 250 ms after the last feed: every 260 ms at 20 ms ticks.
+        assert_eq!(r.requests() - before, 10_000 / 260);
+    }
+
+    #[test]
+    fn next_upkeep_is_the_earliest_feed_or_retry() {
+        let mut r = TestRig::started();
+        assert_eq!(r.rt.next_upkeep(), Some(Duration::from_millis(250)));
+        r.sim.set_gone("panel", true).unwrap();
+        r.clock.advance(Duration::from_millis(100));
+        r.rt.switches(PANEL);
+        let lost_at = r.rt.now();
+        assert_eq!(r.rt.next_upkeep(), Some(Duration::from_millis(250)));
+        r.rt.c29u(IO).unwrap().watchdog = None;
+        assert_eq!(r.rt.next_upkeep(), Some(lost_at + Duration::from_secs(1)));
+    }
+
+    #[test]
+    fn outputs_changed_behind_the_runners_back_are_noticed_and_written_again() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.flush_outputs();
+        r.sim.power_cycle("io").unwrap();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x11, "the power-on value");
+        r.rt.verify_outputs();
+        assert!(
+            r.log().contains(
+                "io: outputs read 0x11 but 0x21 was written (module reset or power cycled?)"
+            ),
+            "{}",
+            r.log()
+        );
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x21);
+    }
+
+    #[test]
+    fn relays_are_selected_again_at_each_check() {
+        let mut r = TestRig::started();
+        r.rt.set_relay(PANEL, 4);
+        r.rt.flush_outputs();
+        r.sim.power_cycle("panel").unwrap();
+        assert_ne!(r.sim.relay("panel").unwrap(), 4);
+        r.rt.verify_outputs();
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.relay("panel").unwrap(), 4);
+    }
+}
