@@ -246,3 +246,209 @@ fn event_line(name: &str, event: &Source, args: &[Arg]) -> Option<String> {
         _ => return None,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::protocol::trc1000::{Rotary, Switch};
+    use crate::runtime::subscriptions::{Arg, Call, Source};
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    /// One tick: what fires, as (handler, args).
+    fn tick(r: &mut TestRig) -> Vec<(&'static str, Vec<Arg>)> {
+        r.next_tick(TICK);
+        let calls: Vec<Call<&'static str>> = r.rt.collect_calls();
+        calls.into_iter().map(|c| (c.handler, c.args)).collect()
+    }
+
+    fn sub(r: &mut TestRig, source: Source, handler: &'static str) {
+        r.rt.subscribe(source, handler, handler.into());
+    }
+
+    #[test]
+    fn the_first_reading_is_a_baseline_then_input_edges_fire_their_handlers() {
+        let mut r = TestRig::started();
+        sub(&mut r, Source::Rise { dev: IO, ch: 3 }, "rise3");
+        sub(&mut r, Source::Fall { dev: IO, ch: 3 }, "fall3");
+        r.sim.set_input("io", 3, true).unwrap();
+        assert!(tick(&mut r).is_empty(), "held at start is not a rise");
+        r.sim.set_input("io", 3, false).unwrap();
+        assert_eq!(tick(&mut r), [("fall3", vec![Arg::Int(3)])]);
+        assert!(tick(&mut r).is_empty());
+        r.sim.set_input("io", 3, true).unwrap();
+        assert_eq!(tick(&mut r), [("rise3", vec![Arg::Int(3)])]);
+        let log = r.log();
+        assert!(
+            log.contains("io: DI3 off") && log.contains("io: DI3 on"),
+            "{log}"
+        );
+    }
+
+    #[test]
+    fn an_edge_nobody_waits_for_fires_nothing_and_is_not_logged() {
+        let mut r = TestRig::started();
+        sub(&mut r, Source::Rise { dev: IO, ch: 3 }, "rise3");
+        tick(&mut r);
+        r.sim.set_input("io", 5, true).unwrap();
+        assert!(tick(&mut r).is_empty());
+        assert!(!r.log().contains("DI5"), "{}", r.log());
+    }
+
+    #[test]
+    fn switches_and_rotaries_fire_press_release_and_turn() {
+        let mut r = TestRig::started();
+        let s1 = Switch::from_name("S1").unwrap();
+        let s41a = Rotary::from_name("S41A").unwrap();
+        sub(
+            &mut r,
+            Source::Press {
+                dev: PANEL,
+                switch: s1,
+            },
+            "press",
+        );
+        sub(
+            &mut r,
+            Source::Release {
+                dev: PANEL,
+                switch: s1,
+            },
+            "release",
+        );
+        sub(
+            &mut r,
+            Source::Turn {
+                dev: PANEL,
+                rotary: s41a,
+            },
+            "turn",
+        );
+        tick(&mut r);
+        r.sim.set_switch("panel", "S1", true).unwrap();
+        r.sim.turn("panel", "S41A", 2).unwrap();
+        assert_eq!(
+            tick(&mut r),
+            [
+                ("press", vec![Arg::Str("S1".into())]),
+                ("turn", vec![Arg::Int(2), Arg::Int(2)])
+            ]
+        );
+        r.sim.set_switch("panel", "S1", false).unwrap();
+        assert_eq!(tick(&mut r), [("release", vec![Arg::Str("S1".into())])]);
+        let log = r.log();
+        assert!(log.contains("panel: S1 pressed"), "{log}");
+        assert!(log.contains("panel: S41A turned +2 (now 2)"), "{log}");
+        assert!(log.contains("panel: S1 released"), "{log}");
+    }
+
+    #[test]
+    fn a_counter_handler_fires_once_at_its_threshold_and_is_rearmed_below_it() {
+        let mut r = TestRig::started();
+        let at = |threshold| Source::Counter {
+            dev: IO,
+            ch: 2,
+            threshold,
+            armed: true,
+        };
+        sub(&mut r, at(3), "three");
+        sub(&mut r, at(0), "zero");
+        assert_eq!(
+            tick(&mut r),
+            [("zero", vec![Arg::Int(0)])],
+            "also at the first reading"
+        );
+        r.sim.pulse("io", 2, 2).unwrap();
+        assert!(tick(&mut r).is_empty());
+        r.sim.pulse("io", 2, 1).unwrap();
+        assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])]);
+        r.sim.pulse("io", 2, 5).unwrap();
+        assert!(tick(&mut r).is_empty(), "once");
+        r.rt.c29u(IO).unwrap().driver.clear_counter(2).unwrap();
+        assert!(tick(&mut r).is_empty(), "below again: re-armed");
+        r.sim.pulse("io", 2, 4).unwrap();
+        assert_eq!(tick(&mut r), [("three", vec![Arg::Int(4)])]);
+        assert!(
+            r.log().contains("io: counter DI2 at 4 (threshold 3)"),
+            "{}",
+            r.log()
+        );
+    }
+
+    #[test]
+    fn device_events_come_first_by_device_then_counters_then_timers() {
+        let mut r = TestRig::started();
+        r.rt.after(TICK, "timer");
+        let s1 = Switch::from_name("S1").unwrap();
+        let counter = Source::Counter {
+            dev: IO,
+            ch: 0,
+            threshold: 1,
+            armed: true,
+        };
+        sub(&mut r, counter, "counter");
+        sub(
+            &mut r,
+            Source::Press {
+                dev: PANEL,
+                switch: s1,
+            },
+            "press",
+        );
+        sub(&mut r, Source::Rise { dev: IO, ch: 0 }, "rise");
+        r.rt.tick += 1;
+        r.rt.collect_calls();
+        r.sim.set_switch("panel", "S1", true).unwrap();
+        r.sim.pulse("io", 0, 1).unwrap();
+        r.sim.set_input("io", 0, true).unwrap();
+        let order: Vec<&str> = tick(&mut r).into_iter().map(|(h, _)| h).collect();
+        assert_eq!(order, ["rise", "press", "counter", "timer"]);
+    }
+
+    #[test]
+    fn due_timers_fire_with_what_they_missed_and_spent_ones_go() {
+        let mut r = TestRig::started();
+        r.rt.every(Duration::from_millis(100), "every").unwrap();
+        r.rt.after(Duration::from_millis(250), "after");
+        r.clock.advance(Duration::from_millis(280));
+        let fired = tick(&mut r);
+        assert_eq!(
+            fired,
+            [("every", vec![Arg::Int(2)]), ("after", vec![Arg::Int(0)])],
+            "every: due at 100 ms, 200 and 300 missed at 300 ms"
+        );
+        assert_eq!(r.rt.handlers.list().len(), 1, "the spent `after` went");
+        let log = r.log();
+        assert!(log.contains("every 100ms fired (2 missed)"), "{log}");
+        assert!(log.contains("after 250ms fired"), "{log}");
+    }
+
+    #[test]
+    fn a_fast_timer_is_logged_at_most_once_a_second() {
+        let mut r = TestRig::started();
+        r.rt.every(TICK, "fast").unwrap();
+        let mut fired = 0;
+        for _ in 0..100 {
+            fired += tick(&mut r).len();
+        }
+        assert_eq!(fired, 100);
+        assert_eq!(
+            r.log().matches("every 20ms fired").count(),
+            2,
+            "{}",
+            r.log()
+        );
+    }
+
+    #[test]
+    fn devices_nobody_waits_on_are_not_read() {
+        let mut r = TestRig::started();
+        r.rt.every(TICK, "timer").unwrap();
+        let before = r.requests();
+        for _ in 0..10 {
+            tick(&mut r);
+        }
+        assert_eq!(r.requests(), before);
+    }
+}

@@ -121,3 +121,60 @@ impl<H: Clone> Runtime<H> {
         self.reset_outputs();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::subscriptions::Source;
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    #[test]
+    fn idle_until_is_none_while_a_handler_polls_inputs() {
+        let mut r = TestRig::started();
+        r.rt.subscribe(Source::Rise { dev: IO, ch: 0 }, "rise", "rise".into());
+        assert_eq!(r.rt.idle_until(), None);
+    }
+
+    #[test]
+    fn idle_until_is_the_earliest_timer_feed_or_retry() {
+        let mut r = TestRig::started();
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(Duration::from_millis(250)),
+            "the feed"
+        );
+        r.rt.after(Duration::from_millis(100), "soon");
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(Duration::from_millis(100)),
+            "the timer"
+        );
+        r.rt.reset_program();
+        r.rt.c29u(IO).unwrap().watchdog = None;
+        assert_eq!(r.rt.idle_until(), Some(Duration::MAX), "nothing to do");
+    }
+
+    #[test]
+    fn reset_program_forgets_handlers_the_stop_request_and_the_scripts_outputs() {
+        let mut r = TestRig::started();
+        r.rt.every(Duration::from_secs(1), "t").unwrap();
+        r.rt.subscribe(Source::Stop, "s", "on_stop".into());
+        r.rt.stop_request = Some(3);
+        r.rt.set_outputs(IO, 0x99);
+        r.rt.set_relay(PANEL, 7);
+        r.rt.reset_program();
+        assert!(r.rt.handlers.list().is_empty());
+        assert!(!r.rt.has_work());
+        assert_eq!(r.rt.stop_request, None);
+        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+    }
+
+    #[test]
+    fn uptime_and_wall_time_come_from_the_runs_clock() {
+        let r = TestRig::started();
+        r.clock.advance(Duration::from_millis(1500));
+        assert_eq!(r.rt.uptime(), Duration::from_millis(1500));
+        assert_eq!(r.rt.wall_text(), "1970-01-01T00:00:01.500+00:00");
+    }
+}

@@ -272,3 +272,130 @@ impl<H: Clone> Runtime<H> {
         self.handlers.stop_calls()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::schedule::TimerKind;
+    use crate::time::clock::{Clock, VirtualClock};
+
+    fn store() -> Subscriptions<&'static str> {
+        Subscriptions::new(Zone::utc())
+    }
+
+    #[test]
+    fn ids_count_up_and_cancel_takes_a_timer_off_the_schedule() {
+        let clock = VirtualClock::at_epoch();
+        let mut s = store();
+        let a = s.every(Duration::from_secs(1), clock.now(), "a").unwrap();
+        let b = s.after(Duration::from_millis(500), clock.now(), "b");
+        let c = s.cron("0 * * * * *", clock.wall(), "c").unwrap();
+        let d = s.add(Source::Stop, "d", "on_stop".into());
+        assert_eq!((a, b, c, d), (1, 2, 3, 4));
+        let labels: Vec<&str> = s.list().iter().map(|x| x.label.as_str()).collect();
+        assert_eq!(
+            labels,
+            ["every 1s", "after 500ms", "cron \"0 * * * * *\"", "on_stop"]
+        );
+        assert_eq!(
+            s.next_timer(clock.now(), clock.wall()),
+            Some(Duration::from_millis(500))
+        );
+        assert!(s.cancel(b));
+        assert!(!s.cancel(b), "gone already");
+        assert!(!s.cancel(99));
+        assert_eq!(s.schedule.len(), 2, "its timer went with it");
+        assert_eq!(
+            s.next_timer(clock.now(), clock.wall()),
+            Some(Duration::from_secs(1))
+        );
+    }
+
+    #[test]
+    fn a_bad_timer_is_refused_and_adds_nothing() {
+        let clock = VirtualClock::at_epoch();
+        let mut s = store();
+        assert!(s.every(Duration::ZERO, clock.now(), "x").is_err());
+        assert!(s.cron("not cron", clock.wall(), "x").is_err());
+        assert!(s.list().is_empty());
+        assert_eq!(
+            s.add(Source::Stop, "y", "on_stop".into()),
+            1,
+            "no id was used"
+        );
+    }
+
+    #[test]
+    fn timers_remember_what_they_were_made_from() {
+        let mut s = store();
+        s.after(Duration::from_secs(2), Duration::ZERO, "x");
+        let Source::Timer(t) = s.list()[0].source else {
+            panic!("a timer")
+        };
+        assert_eq!(
+            s.timer_kind(t),
+            Some(&TimerKind::After(Duration::from_secs(2)))
+        );
+    }
+
+    #[test]
+    fn on_stop_alone_is_no_work_and_only_device_events_poll_inputs() {
+        let mut s = store();
+        s.add(Source::Stop, "bye", "on_stop".into());
+        assert!(!s.has_work());
+        assert!(!s.polls_inputs());
+        s.after(Duration::from_secs(1), Duration::ZERO, "later");
+        assert!(s.has_work());
+        assert!(!s.polls_inputs(), "timers do not poll");
+        s.add(
+            Source::Rise { dev: 0, ch: 3 },
+            "rise",
+            "io.on_rise 3".into(),
+        );
+        assert!(s.polls_inputs());
+    }
+
+    #[test]
+    fn stop_calls_come_in_the_order_they_were_added() {
+        let mut s = store();
+        s.add(Source::Stop, "first", "on_stop 1".into());
+        s.add(
+            Source::Rise { dev: 0, ch: 1 },
+            "rise",
+            "io.on_rise 1".into(),
+        );
+        s.add(Source::Stop, "second", "on_stop 2".into());
+        let calls: Vec<(&str, String)> = s
+            .stop_calls()
+            .into_iter()
+            .map(|c| (c.handler, c.label))
+            .collect();
+        assert_eq!(
+            calls,
+            [
+                ("first", "on_stop 1".into()),
+                ("second", "on_stop 2".into())
+            ]
+        );
+        assert!(s.stop_calls().iter().all(|c| c.args.is_empty()));
+    }
+
+    #[test]
+    fn clear_forgets_every_handler_and_timer_and_old_ids_cancel_nothing() {
+        let mut s = store();
+        let old = s
+            .every(Duration::from_secs(1), Duration::ZERO, "x")
+            .unwrap();
+        s.add(Source::Stop, "y", "on_stop".into());
+        s.clear();
+        assert!(s.list().is_empty());
+        assert!(s.schedule.is_empty());
+        assert!(!s.cancel(old));
+        let new = s
+            .every(Duration::from_secs(1), Duration::ZERO, "z")
+            .unwrap();
+        assert!(new > old, "ids go on counting");
+        assert!(!s.cancel(old));
+        assert!(s.has_work());
+    }
+}
