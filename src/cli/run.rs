@@ -9,8 +9,7 @@
 //! measurements as JUnit XML.
 
 use super::run_outputs::RunOutputs;
-use crate::config::RigConfig;
-use crate::runtime::wake_latency::WakeLatency;
+use crate::config::{RigConfig, WakeLatency};
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
