@@ -4,17 +4,10 @@
 
 mod common;
 
-use common::rigscript;
+use common::{fresh_dir, rigscript};
 use roxmltree::{Document, Node};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("rigscript-junit-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn rigscript_in(dir: &Path, args: &[&str]) -> Output {
     Command::new(rigscript())
@@ -95,7 +88,7 @@ fn read_report(path: &Path) -> String {
 
 #[test]
 fn run_writes_each_measurement_as_a_case_with_value_and_limits() {
-    let dir = temp_dir("run");
+    let dir = fresh_dir("junit-run");
     std::fs::write(
         dir.join("rig.rhai"),
         r#"
@@ -161,7 +154,7 @@ measure("odd", 0.0 / 0.0);
 fn the_packaged_timer_check_reports_its_measurement() {
     // packaging/systemd/bench-check.rhai on the simulator: nothing answers the trigger, so
     // the count is 0, below its minimum.
-    let dir = temp_dir("check");
+    let dir = fresh_dir("junit-check");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("packaging/systemd/bench-check.rhai");
     let report = dir.join("check.xml");
     let out = rigscript_in(
@@ -193,7 +186,7 @@ fn the_packaged_timer_check_reports_its_measurement() {
 
 #[test]
 fn a_run_that_fails_is_an_error_case_naming_the_place() {
-    let dir = temp_dir("error");
+    let dir = fresh_dir("junit-error");
     std::fs::write(
         dir.join("bad.rhai"),
         "measure(\"before\", 1);\nafter(\"50ms\", || {\n    let x = [1][5];\n});\n",
@@ -224,7 +217,7 @@ fn a_run_that_fails_is_an_error_case_naming_the_place() {
 
 #[test]
 fn a_run_that_cannot_start_still_leaves_a_report() {
-    let dir = temp_dir("absent");
+    let dir = fresh_dir("junit-absent");
     std::fs::write(
         dir.join("rig.toml"),
         "[devices.io]\nkind = \"trp-c29u\"\nport = \"/nonexistent/ttyUSB9\"\n",
@@ -254,7 +247,7 @@ fn a_run_that_cannot_start_still_leaves_a_report() {
 
 #[test]
 fn a_report_path_in_a_missing_directory_is_refused_before_the_run() {
-    let dir = temp_dir("nodir");
+    let dir = fresh_dir("junit-nodir");
     std::fs::write(dir.join("s.rhai"), "io.outputs = 0xFF;\n").unwrap();
     let out = rigscript_in(
         &dir,
@@ -280,7 +273,7 @@ fn a_report_path_in_a_missing_directory_is_refused_before_the_run() {
 
 #[test]
 fn test_writes_a_suite_per_file_and_a_case_per_test() {
-    let dir = temp_dir("test");
+    let dir = fresh_dir("junit-test");
     std::fs::write(
         dir.join("s.rhai"),
         "io.outputs = 0x03;\nevery(\"1s\", || {});\n",

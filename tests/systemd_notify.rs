@@ -5,19 +5,11 @@
 
 mod common;
 
-use common::{rigscript, SimProcess};
+use common::{fresh_dir, receive_notifications, rigscript, Notification, SimProcess};
 use std::os::linux::net::SocketAddrExt;
 use std::os::unix::net::{SocketAddr, UnixDatagram};
-use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("rigscript-notify-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 /// A datagram socket bound at a path in `dir`, as systemd binds /run/systemd/notify.
 fn listen_at_path(dir: &std::path::Path) -> (UnixDatagram, String) {
@@ -51,36 +43,6 @@ fn start_run(args: &[&str], notify_socket: &str, watchdog_usec: Option<&str>) ->
     cmd.spawn().expect("start rigscript run")
 }
 
-/// One message as received, with when it came.
-struct Message {
-    text: String,
-    at: Instant,
-}
-
-/// Receives messages until `last` says the run is over (or 30 s pass).
-fn receive_until(socket: &UnixDatagram, last: impl Fn(&str) -> bool) -> Vec<Message> {
-    socket
-        .set_read_timeout(Some(Duration::from_millis(200)))
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let mut got = Vec::new();
-    let mut buf = [0u8; 4096];
-    while Instant::now() < deadline {
-        if let Ok(n) = socket.recv(&mut buf) {
-            let text = String::from_utf8_lossy(&buf[..n]).into_owned();
-            let done = last(&text);
-            got.push(Message {
-                text,
-                at: Instant::now(),
-            });
-            if done {
-                break;
-            }
-        }
-    }
-    got
-}
-
 fn finish(mut child: Child) -> (i32, String) {
     let status = child.wait().unwrap();
     let mut err = String::new();
@@ -93,7 +55,7 @@ fn ready_comes_once_the_module_is_under_control_then_watchdog_pings_then_stoppin
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let before = sim.state();
     assert_eq!(before["watchdog"]["enabled"], false, "{before}");
-    let dir = temp_dir("ready");
+    let dir = fresh_dir("notify-ready");
     let config = dir.join("rig.toml");
     std::fs::write(
         &config,
@@ -133,7 +95,7 @@ fn ready_comes_once_the_module_is_under_control_then_watchdog_pings_then_stoppin
     assert_eq!(at_ready["watchdog"]["enabled"], true, "{at_ready}");
     assert_eq!(at_ready["safe_value"], 0x05, "{at_ready}");
 
-    let rest = receive_until(&socket, |m| m.starts_with("STOPPING=1"));
+    let rest = receive_notifications(&socket, |m| m.starts_with("STOPPING=1"));
     let (status, err) = finish(run);
     assert_eq!(status, 0, "{err}");
     let texts: Vec<&str> = rest.iter().map(|m| m.text.as_str()).collect();
@@ -142,7 +104,7 @@ fn ready_comes_once_the_module_is_under_control_then_watchdog_pings_then_stoppin
         Some("STOPPING=1\nSTATUS=stopped; exit status 0"),
         "{texts:?}"
     );
-    let pings: Vec<&Message> = rest.iter().filter(|m| m.text == "WATCHDOG=1").collect();
+    let pings: Vec<&Notification> = rest.iter().filter(|m| m.text == "WATCHDOG=1").collect();
     assert_eq!(
         pings.len() + 1,
         rest.len(),
@@ -166,7 +128,7 @@ fn a_loop_stuck_in_a_handler_sends_no_watchdog_pings_until_it_turns_again() {
     // The handler keeps the loop busy for 800 ms; with pings due every 100 ms, the gap around
     // it shows they come from the loop itself (systemd would kill a loop stuck for longer
     // than WatchdogSec).
-    let dir = temp_dir("stuck");
+    let dir = fresh_dir("notify-stuck");
     let script = dir.join("stuck.rhai");
     std::fs::write(
         &script,
@@ -188,7 +150,7 @@ fn a_loop_stuck_in_a_handler_sends_no_watchdog_pings_until_it_turns_again() {
         &name,
         Some("200000"),
     );
-    let got = receive_until(&socket, |m| m.starts_with("STOPPING=1"));
+    let got = receive_notifications(&socket, |m| m.starts_with("STOPPING=1"));
     let (status, err) = finish(run);
     assert_eq!(status, 0, "{err}");
     assert!(err.contains("busy done"), "{err}");
@@ -219,7 +181,7 @@ fn a_loop_stuck_in_a_handler_sends_no_watchdog_pings_until_it_turns_again() {
 
 #[test]
 fn a_device_unavailable_at_start_means_no_ready() {
-    let dir = temp_dir("absent");
+    let dir = fresh_dir("notify-absent");
     let config = dir.join("rig.toml");
     std::fs::write(
         &config,
@@ -255,7 +217,7 @@ fn a_device_unavailable_at_start_means_no_ready() {
 
 #[test]
 fn a_bad_notify_socket_is_reported_and_the_run_goes_on() {
-    let dir = temp_dir("bad");
+    let dir = fresh_dir("notify-bad");
     let script = dir.join("s.rhai");
     std::fs::write(&script, "log(\"ran\");\n").unwrap();
     let run = start_run(&["--sim", &script.display().to_string()], "vsock:2:1", None);

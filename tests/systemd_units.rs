@@ -6,12 +6,11 @@
 
 mod common;
 
-use common::{require_tool, rigscript};
+use common::{fresh_dir, receive_notifications, require_tool, rigscript};
 use std::collections::BTreeMap;
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::{Duration, Instant};
 
 const UNITS: [&str; 3] = [
     "rigscript@.service",
@@ -21,13 +20,6 @@ const UNITS: [&str; 3] = [
 
 fn packaging() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("packaging/systemd")
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("rigscript-units-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// `section -> key -> values` (a key may repeat), comments and blank lines left out.
@@ -91,7 +83,7 @@ fn exec_start(unit: &str, script: &Path, config: &Path) -> Vec<String> {
 #[test]
 fn systemd_accepts_the_units() {
     require_tool("systemd-analyze", "systemd");
-    let dir = temp_dir("verify");
+    let dir = fresh_dir("units-verify");
     for name in UNITS {
         let text = std::fs::read_to_string(packaging().join(name)).unwrap();
         // verify checks that ExecStart's program exists: point it at the binary under test.
@@ -149,7 +141,7 @@ fn the_interlock_unit_restarts_only_where_a_restart_can_help() {
 
 #[test]
 fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
-    let dir = temp_dir("notify");
+    let dir = fresh_dir("units-notify");
     let script = dir.join("interlock.rhai");
     std::fs::write(&script, "every(\"100ms\", || {});\n").unwrap();
     let config = dir.join("interlock.toml");
@@ -166,9 +158,6 @@ fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
         .unwrap();
     let socket_path = dir.join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
-    socket
-        .set_read_timeout(Some(Duration::from_millis(200)))
-        .unwrap();
     // As systemd starts it, plus --sim (no hardware here) and an end.
     let child = Command::new(&args[0])
         .args(&args[1..])
@@ -180,14 +169,10 @@ fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let mut got = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let mut buf = [0u8; 1024];
-    while Instant::now() < deadline && !got.iter().any(|m: &String| m.starts_with("STOPPING")) {
-        if let Ok(n) = socket.recv(&mut buf) {
-            got.push(String::from_utf8_lossy(&buf[..n]).into_owned());
-        }
-    }
+    let got: Vec<String> = receive_notifications(&socket, |m| m.starts_with("STOPPING"))
+        .into_iter()
+        .map(|n| n.text)
+        .collect();
     let out = child.wait_with_output().unwrap();
     assert_eq!(
         out.status.code(),
@@ -203,7 +188,7 @@ fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
 
 #[test]
 fn the_check_unit_leaves_records_and_a_report_in_its_working_directory() {
-    let dir = temp_dir("check");
+    let dir = fresh_dir("units-check");
     let config = dir.join("bench.toml");
     std::fs::write(
         &config,
