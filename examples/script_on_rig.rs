@@ -89,10 +89,16 @@ fn play_field(sim: SimRig) -> std::thread::JoinHandle<()> {
     })
 }
 
-/// Runs the script to its end; returns the exit status and the rig (records, log) it leaves.
-fn run_script(args: &Args, stop: Arc<AtomicBool>) -> Result<(i32, Rig), Box<dyn Error>> {
+/// Runs the script to its end (its log on stderr if `log_to_stderr`); returns the exit status
+/// and the rig (records, log) it leaves.
+fn run_script(
+    args: &Args,
+    stop: Arc<AtomicBool>,
+    log_to_stderr: bool,
+) -> Result<(i32, Rig), Box<dyn Error>> {
     let mut rig = rig(args.real, args.port.clone())
         .run_for(args.run_for)
+        .log_to_stderr(log_to_stderr)
         .keep_log()
         .stop_flag(stop)
         .start(SCRIPT, "script_on_rig.rhai")?;
@@ -113,7 +119,7 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     }
-    match run_script(&args, stop) {
+    match run_script(&args, stop, true) {
         Ok((status, rig)) => {
             for record in rig.records() {
                 println!("{record}");
@@ -134,7 +140,7 @@ mod tests {
     #[test]
     fn the_script_runs_on_the_rig_in_code_and_sees_the_field() {
         let args = Args::parse_from(["script_on_rig", "--for", "1200ms"]);
-        let (status, rig) = run_script(&args, Arc::default()).unwrap();
+        let (status, rig) = run_script(&args, Arc::default(), false).unwrap();
         let log = rig.log().join("\n");
         assert_eq!(status, 0, "{log}");
         let records = rig.records();
