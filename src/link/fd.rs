@@ -55,8 +55,11 @@ pub fn read_now(fd: RawFd, buf: &mut [u8]) -> io::Result<Read> {
 }
 
 /// Waits up to `timeout` for bytes, then reads what is there. Costs one `poll` and one `read`
-/// when bytes come; a `timeout` of zero only looks.
+/// when bytes come; a `timeout` of zero only looks (one `read`).
 pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<Read> {
+    if timeout.is_zero() {
+        return read_now(fd, buf);
+    }
     let deadline = Instant::now().checked_add(timeout);
     loop {
         let left = deadline.map_or(timeout, |d| d.saturating_duration_since(Instant::now()));

@@ -121,13 +121,7 @@ impl ByteLink for SerialLink {
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
-        let fd = self.port.as_raw_fd();
-        let read = if timeout.is_zero() {
-            fd::read_now(fd, buf)
-        } else {
-            fd::read_within(fd, buf, timeout)
-        };
-        match read {
+        match fd::read_within(self.port.as_raw_fd(), buf, timeout) {
             Ok(Read::Bytes(n)) => Ok(n),
             Ok(Read::Nothing) => Ok(0),
             // A tty that polls readable and then reads nothing has hung up.

@@ -124,13 +124,7 @@ impl ByteLink for TcpLink {
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
-        let fd = self.stream.as_raw_fd();
-        let read = if timeout.is_zero() {
-            fd::read_now(fd, buf)
-        } else {
-            fd::read_within(fd, buf, timeout)
-        };
-        match read {
+        match fd::read_within(self.stream.as_raw_fd(), buf, timeout) {
             Ok(Read::Bytes(n)) => Ok(n),
             Ok(Read::Nothing) => Ok(0),
             Ok(Read::Closed) => Err(self.io_error(io::ErrorKind::UnexpectedEof.into())),
