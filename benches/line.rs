@@ -22,7 +22,7 @@ use rigscript::link::line::wire_time;
 use rigscript::protocol::c29u::Protocol;
 use rigscript::protocol::c29u_modbus::silence_gap;
 use rigscript::sim::relay::LineRelay;
-use rigscript::sim::wire::Side;
+use rigscript::sim::wire::{Frame, Side};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -77,7 +77,7 @@ fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Ch
                 &config,
                 format!(
                     "[devices.io]\nkind = \"trp-c29u\"\nport = \"{port}\"\nbaud = {baud}\n\
-                     timeout = \"1s\"\nframe_gap = \"{frame_gap}\"\n"
+                     timeout = \"200ms\"\nframe_gap = \"{frame_gap}\"\n"
                 ),
             )
             .expect("write rig.toml");
@@ -136,6 +136,8 @@ struct Row {
     share: Option<f64>,
     /// Silence before its requests, 2nd / 50th / 99th percentile, through a relay.
     silence: Option<[Option<Duration>; 3]>,
+    /// Requests that got no answer (lost on a loaded machine), through a relay.
+    unanswered: Option<usize>,
     cpu_us: f64,
 }
 
@@ -176,26 +178,40 @@ fn measure(
     assert!(polls > 0, "{} made no poll in {window:?}", master.name());
     let rate = polls as f64 / elapsed.as_secs_f64();
     let cpu_us = cpu1.saturating_sub(cpu0).as_secs_f64() * 1e6 / polls as f64;
-    let (share, silence) = match (relay, mark0, mark1) {
+    let (share, silence, unanswered) = match (relay, mark0, mark1) {
         (Some(relay), Some(from), Some(to)) => {
-            let mut silences: Vec<Duration> = relay
+            let frames: Vec<Frame> = relay
                 .stop()
                 .expect("stop the relay")
                 .into_iter()
-                .filter(|f| f.side == Side::Master && f.start >= from && f.start <= to)
+                .filter(|f| f.start >= from && f.start <= to)
+                .collect();
+            let mut silences: Vec<Duration> = frames
+                .iter()
+                .filter(|f| f.side == Side::Master)
                 .filter_map(|f| f.silence)
                 .collect();
             silences.sort();
+            // A request followed by another request got no answer.
+            let unanswered = frames
+                .windows(2)
+                .filter(|w| w.iter().all(|f| f.side == Side::Master))
+                .count();
             let ideal = 1.0 / (wire_time(14, baud) + silence_gap(baud)).as_secs_f64();
             let at = |p| percentile(&silences, p);
-            (Some(rate / ideal), Some([at(2.0), at(50.0), at(99.0)]))
+            (
+                Some(rate / ideal),
+                Some([at(2.0), at(50.0), at(99.0)]),
+                Some(unanswered),
+            )
         }
-        _ => (None, None),
+        _ => (None, None, None),
     };
     Row {
         rate,
         share,
         silence,
+        unanswered,
         cpu_us,
     }
 }
@@ -205,8 +221,9 @@ fn print_row(setup: &str, master: Master, baud: u32, row: &Row) {
         .share
         .map_or("-".into(), |s| format!("{:.0}%", s * 100.0));
     let [p2, p50, p99] = row.silence.unwrap_or([None; 3]);
+    let unanswered = row.unanswered.map_or("-".into(), |n| n.to_string());
     println!(
-        "| {setup} | {} | {:.1} | {share} | {} | {} | {} | {:.3} | {:.1} |",
+        "| {setup} | {} | {:.1} | {share} | {} | {} | {} | {unanswered} | {:.3} | {:.1} |",
         master.name(),
         row.rate,
         ms(p2),
@@ -249,9 +266,9 @@ fn main() {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("line-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a scratch directory");
     println!(
-        "| setup | master | polls/s | of 14 chars + t3.5 | silence p2 ms | p50 ms | p99 ms | t3.5 ms | CPU µs/poll |"
+        "| setup | master | polls/s | of 14 chars + t3.5 | silence p2 ms | p50 ms | p99 ms | unanswered | t3.5 ms | CPU µs/poll |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     let on_a_line = [
         Master::Rigscript { gap: true },
         Master::Libmodbus { gap: true },
@@ -284,6 +301,7 @@ fn main() {
             rate: median(seen.iter().map(|r| r.rate).collect()),
             share: None,
             silence: None,
+            unanswered: None,
             cpu_us: median(seen.iter().map(|r| r.cpu_us).collect()),
         };
         print_row(

@@ -10,6 +10,7 @@ use rigscript::sim::ByteDevice;
 use rigscript::time::clock::SystemClock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 /// A device that counts the requests it answers.
 struct Counting<D> {
@@ -49,6 +50,8 @@ impl Served {
         let answered = Arc::new(AtomicU64::new(0));
         let (stop2, answered2) = (Arc::clone(&stop), Arc::clone(&answered));
         let thread = std::thread::spawn(move || {
+            // A module answers at once: keep the simulator's own delays out of the timings.
+            rigscript::sim::pty::prefer_realtime();
             let eeprom = Eeprom {
                 config: ModuleConfig {
                     baud_code: baud_code(baud).expect("a baud rate of the module"),
@@ -60,8 +63,11 @@ impl Served {
                 inner: SimulatedC29u::new(Model::new(protocol, SystemClock::shared(), eeprom)),
                 answered: answered2,
             };
+            // Requests end on their CRC; a pause inside one (a loaded machine stalling the
+            // test line for milliseconds) must not cut it short, as silence_gap alone would.
+            let idle = silence_gap(baud).max(Duration::from_millis(20));
             server
-                .serve(&mut device, &Faults::default(), silence_gap(baud), &stop2)
+                .serve(&mut device, &Faults::default(), idle, &stop2)
                 .expect("serve the simulator");
         });
         Self {

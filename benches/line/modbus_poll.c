@@ -31,7 +31,7 @@ int main(int argc, char **argv) {
         fprintf(stderr, "modbus_poll: cannot open %s: %s\n", argv[1], modbus_strerror(errno));
         return 1;
     }
-    modbus_set_response_timeout(ctx, 1, 0);
+    modbus_set_response_timeout(ctx, 0, 200000);
     struct sigaction sa = {0};
     sa.sa_handler = on_term;
     sigaction(SIGTERM, &sa, NULL);
