@@ -6,10 +6,10 @@
 //! Through a baud-accurate line (`sim::relay`, each byte held 10 bit times) at 9600 and 115200
 //! baud it reports polls per second (and the share of what a compliant master can reach: 14
 //! characters and t3.5 a poll) and the 2nd, 50th and 99th percentiles of the silence each master
-//! leaves before its requests (10 s a row). Straight on the pty (at 115200 baud settings) the
-//! masters take turns for 7 rounds of 2 s and the medians are shown. Every row shows CPU time
-//! per poll of the polling process (user + system, from the scheduler's accounting, start-up
-//! excluded).
+//! leaves before its requests; straight on the pty (at 115200 baud settings) how fast each
+//! goes. The masters of a setup take turns, 5 rounds of 3 s, and the table shows medians (and
+//! percentiles of every silence seen). Every row shows CPU time per poll of the polling process
+//! (user + system, from the scheduler's accounting, start-up excluded).
 //!
 //! Run: `cargo bench --bench line [WORDS]` (words pick rows: `9600`, `raw`, `libmodbus`...).
 //! `cargo test` runs it for half a second a row, so the comparison never silently drops out;
@@ -130,15 +130,13 @@ fn ms(d: Option<Duration>) -> String {
 }
 
 /// What one master did in one measurement.
-struct Row {
+struct Run {
     rate: f64,
-    /// Share of a compliant master's rate, through a relay.
-    share: Option<f64>,
-    /// Silence before its requests, 2nd / 50th / 99th percentile, through a relay.
-    silence: Option<[Option<Duration>; 3]>,
-    /// Requests that got no answer (lost on a loaded machine), through a relay.
-    unanswered: Option<usize>,
     cpu_us: f64,
+    /// Silence before each request, through a relay.
+    silences: Vec<Duration>,
+    /// Requests that got no answer (lost on a loaded machine), through a relay.
+    unanswered: usize,
 }
 
 /// `master` polling for `window` after `warm_up`, through a relay at `baud` or (`relayed`
@@ -150,7 +148,7 @@ fn measure(
     (warm_up, window): (Duration, Duration),
     c_loop: &Path,
     dir: &Path,
-) -> Row {
+) -> Run {
     let served = Served::start(Protocol::Modbus, baud);
     let relay = relayed.then(|| LineRelay::start(&served.path, baud).expect("start the relay"));
     let port = relay
@@ -178,7 +176,7 @@ fn measure(
     assert!(polls > 0, "{} made no poll in {window:?}", master.name());
     let rate = polls as f64 / elapsed.as_secs_f64();
     let cpu_us = cpu1.saturating_sub(cpu0).as_secs_f64() * 1e6 / polls as f64;
-    let (share, silence, unanswered) = match (relay, mark0, mark1) {
+    let (silences, unanswered) = match (relay, mark0, mark1) {
         (Some(relay), Some(from), Some(to)) => {
             let frames: Vec<Frame> = relay
                 .stop()
@@ -186,51 +184,53 @@ fn measure(
                 .into_iter()
                 .filter(|f| f.start >= from && f.start <= to)
                 .collect();
-            let mut silences: Vec<Duration> = frames
+            let silences = frames
                 .iter()
                 .filter(|f| f.side == Side::Master)
                 .filter_map(|f| f.silence)
                 .collect();
-            silences.sort();
             // A request followed by another request got no answer.
             let unanswered = frames
                 .windows(2)
                 .filter(|w| w.iter().all(|f| f.side == Side::Master))
                 .count();
-            let ideal = 1.0 / (wire_time(14, baud) + silence_gap(baud)).as_secs_f64();
-            let at = |p| percentile(&silences, p);
-            (
-                Some(rate / ideal),
-                Some([at(2.0), at(50.0), at(99.0)]),
-                Some(unanswered),
-            )
+            (silences, unanswered)
         }
-        _ => (None, None, None),
+        _ => (Vec::new(), 0),
     };
-    Row {
+    Run {
         rate,
-        share,
-        silence,
-        unanswered,
         cpu_us,
+        silences,
+        unanswered,
     }
 }
 
-fn print_row(setup: &str, master: Master, baud: u32, row: &Row) {
-    let share = row
-        .share
-        .map_or("-".into(), |s| format!("{:.0}%", s * 100.0));
-    let [p2, p50, p99] = row.silence.unwrap_or([None; 3]);
-    let unanswered = row.unanswered.map_or("-".into(), |n| n.to_string());
+/// One line of the table from the runs of one master: medians of rate and CPU, percentiles of
+/// every silence seen.
+fn print_row(setup: &str, master: Master, baud: u32, relayed: bool, runs: &[Run]) {
+    let rate = median(runs.iter().map(|r| r.rate).collect());
+    let cpu_us = median(runs.iter().map(|r| r.cpu_us).collect());
+    let mut silences: Vec<Duration> = runs.iter().flat_map(|r| r.silences.clone()).collect();
+    silences.sort();
+    let at = |p| ms(percentile(&silences, p));
+    let t35 = silence_gap(baud);
+    let (share, unanswered) = if relayed {
+        let ideal = 1.0 / (wire_time(14, baud) + t35).as_secs_f64();
+        (
+            format!("{:.0}%", rate / ideal * 100.0),
+            runs.iter().map(|r| r.unanswered).sum::<usize>().to_string(),
+        )
+    } else {
+        ("-".into(), "-".into())
+    };
     println!(
-        "| {setup} | {} | {:.1} | {share} | {} | {} | {} | {unanswered} | {:.3} | {:.1} |",
+        "| {setup} | {} | {rate:.1} | {share} | {} | {} | {} | {unanswered} | {:.3} | {cpu_us:.1} |",
         master.name(),
-        row.rate,
-        ms(p2),
-        ms(p50),
-        ms(p99),
-        silence_gap(baud).as_secs_f64() * 1e3,
-        row.cpu_us,
+        at(2.0),
+        at(50.0),
+        at(99.0),
+        t35.as_secs_f64() * 1e3,
     );
 }
 
@@ -250,17 +250,12 @@ fn main() {
                 .iter()
                 .all(|w| setup.contains(w.as_str()) || master.name().contains(w.as_str()))
     };
-    // The line rows run once each; the pty rows take turns, round after round, and show the
-    // median, so load that comes and goes on the machine falls on all of them alike.
-    let (line_times, pty_times, rounds) = if full {
-        (
-            (Duration::from_secs(1), Duration::from_secs(10)),
-            (Duration::from_millis(500), Duration::from_secs(2)),
-            7,
-        )
+    // The masters of a setup take turns, round after round, and the table shows medians, so
+    // load that comes and goes on the machine falls on all of them alike.
+    let (times, rounds) = if full {
+        ((Duration::from_millis(500), Duration::from_secs(3)), 5)
     } else {
-        let smoke = (Duration::from_millis(300), Duration::from_millis(500));
-        (smoke, smoke, 1)
+        ((Duration::from_millis(300), Duration::from_millis(500)), 1)
     };
     let c_loop = build_c_loop();
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("line-{}", std::process::id()));
@@ -274,42 +269,32 @@ fn main() {
         Master::Libmodbus { gap: true },
         Master::Libmodbus { gap: false },
     ];
-    for baud in [9600, 115_200] {
-        let setup = format!("{baud} baud line");
-        for master in on_a_line.into_iter().filter(|&m| wanted(&setup, m)) {
-            let row = measure(master, baud, true, line_times, &c_loop, &dir);
-            print_row(&setup, master, baud, &row);
-        }
-    }
-    let on_the_pty: Vec<Master> = [
+    let on_the_pty = [
         Master::Rigscript { gap: true },
         Master::Libmodbus { gap: true },
         Master::Rigscript { gap: false },
         Master::Libmodbus { gap: false },
-    ]
-    .into_iter()
-    .filter(|&m| wanted("raw pty", m))
-    .collect();
-    let mut rows: Vec<Vec<Row>> = on_the_pty.iter().map(|_| Vec::new()).collect();
-    for _ in 0..rounds {
-        for (&master, seen) in on_the_pty.iter().zip(rows.iter_mut()) {
-            seen.push(measure(master, 115_200, false, pty_times, &c_loop, &dir));
+    ];
+    let setups = [
+        ("9600 baud line", 9600, true, &on_a_line[..]),
+        ("115200 baud line", 115_200, true, &on_a_line[..]),
+        ("raw pty", 115_200, false, &on_the_pty[..]),
+    ];
+    for (setup, baud, relayed, masters) in setups {
+        let masters: Vec<Master> = masters
+            .iter()
+            .copied()
+            .filter(|&m| wanted(setup, m))
+            .collect();
+        let mut runs: Vec<Vec<Run>> = masters.iter().map(|_| Vec::new()).collect();
+        for _ in 0..rounds {
+            for (&master, seen) in masters.iter().zip(runs.iter_mut()) {
+                seen.push(measure(master, baud, relayed, times, &c_loop, &dir));
+            }
         }
-    }
-    for (&master, seen) in on_the_pty.iter().zip(rows) {
-        let row = Row {
-            rate: median(seen.iter().map(|r| r.rate).collect()),
-            share: None,
-            silence: None,
-            unanswered: None,
-            cpu_us: median(seen.iter().map(|r| r.cpu_us).collect()),
-        };
-        print_row(
-            &format!("raw pty, median of {rounds}"),
-            master,
-            115_200,
-            &row,
-        );
+        for (&master, seen) in masters.iter().zip(runs) {
+            print_row(setup, master, baud, relayed, &seen);
+        }
     }
     let _ = std::fs::remove_dir_all(dir);
 }
