@@ -2,7 +2,8 @@
 //! a timeout the driver lets the line fall silent for one more timeout, dropping what comes,
 //! before the retry. A DO read and a DI read have answers of the same shape, ASCII counter
 //! answers carry no channel, and a name and a firmware answer are both text, so matching
-//! answers to requests alone cannot tell them apart.
+//! answers to requests alone cannot tell them apart. Answers that come twice or torn end right
+//! or in a clear error, and the line's silence holds after each of them (issue 10).
 
 mod common;
 
@@ -11,6 +12,7 @@ use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions, Protocol};
 use rigscript::link::memory::MemoryByteLink;
 use rigscript::sim::c29u::{C29u as Model, Eeprom};
 use rigscript::sim::c29u_line::{lock, SimulatedC29u};
+use rigscript::sim::ByteDevice;
 use rigscript::time::clock::{Clock, VirtualClock};
 use std::process::Output;
 use std::sync::Arc;
@@ -133,6 +135,100 @@ fn an_answer_late_once_at_any_position_leaves_every_reading_right() {
             let again = readings(&mut dev).unwrap();
             assert_eq!(again, truth, "{protocol:?}, answer {late} late, read again");
             assert!(clock.now() < Duration::from_secs(5));
+        }
+    }
+}
+
+/// The module behind a wrapper that answers the `n`-th request (from 0) twice, or only its
+/// first three bytes, and notes when each request arrived.
+struct Mangled {
+    inner: SimulatedC29u,
+    clock: VirtualClock,
+    twice: u64,
+    torn: u64,
+    heard: Arc<std::sync::Mutex<Vec<(Duration, usize, usize)>>>,
+    n: u64,
+}
+
+impl ByteDevice for Mangled {
+    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+        let mut answer = self.inner.receive(bytes);
+        if self.n == self.twice {
+            answer.extend(answer.clone());
+        }
+        if self.n == self.torn {
+            answer.truncate(3);
+        }
+        self.n += 1;
+        self.heard
+            .lock()
+            .unwrap()
+            .push((self.clock.now(), bytes.len(), answer.len()));
+        answer
+    }
+}
+
+#[test]
+fn answers_twice_or_torn_end_right_or_in_a_clear_error_and_the_silence_holds_after_them() {
+    use rigscript::link::line::wire_time;
+    use rigscript::protocol::c29u_modbus::silence_gap;
+    for (twice, torn) in [
+        (0, u64::MAX),
+        (2, u64::MAX),
+        (u64::MAX, 0),
+        (u64::MAX, 3),
+        (1, 2),
+    ] {
+        let clock = VirtualClock::at_epoch();
+        let shared = Arc::new(clock.clone());
+        let sim = SimulatedC29u::new(Model::new(
+            Protocol::Modbus,
+            shared.clone(),
+            Eeprom::factory(),
+        ));
+        {
+            let model = sim.model();
+            let mut m = lock(&model);
+            m.set_inputs(0x05);
+            m.write_outputs(0x21).unwrap();
+        }
+        let heard = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let device = Mangled {
+            inner: sim,
+            clock: clock.clone(),
+            twice,
+            torn,
+            heard: heard.clone(),
+            n: 0,
+        };
+        let link = MemoryByteLink::new(device, "mangled")
+            .with_clock(shared.clone())
+            .with_line(9600);
+        let options = C29uOptions {
+            timeout: Duration::from_millis(200),
+            retries: 2,
+            ..C29uOptions::default()
+        };
+        let mut dev = C29u::new(share(Box::new(link)), shared, options).unwrap();
+        for _ in 0..3 {
+            match dev.read_io() {
+                Ok(io) => assert_eq!((io.outputs, io.inputs), (0x21, 0x05)),
+                Err(e @ (C29uError::Garbled { .. } | C29uError::Timeout { .. })) => {
+                    panic!("retries should have recovered: {e}")
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        // Every request came after the line's last frame (whatever answered before it) had
+        // ended and t3.5 had passed.
+        let heard = heard.lock().unwrap().clone();
+        for pair in heard.windows(2) {
+            let ((at, request, answer), (next, _, _)) = (pair[0], pair[1]);
+            let frames_end = at + wire_time(request, 9600) + wire_time(answer, 9600);
+            assert!(
+                next >= frames_end + silence_gap(9600),
+                "twice {twice} torn {torn}: {heard:?}"
+            );
         }
     }
 }

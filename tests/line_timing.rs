@@ -153,3 +153,37 @@ fn a_master_that_keeps_no_silence_loses_its_requests() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("DI    0x0A"));
     assert_eq!(early_frames(&mut sim), early);
 }
+
+#[test]
+fn the_silence_holds_after_timeouts_and_garbled_answers() {
+    // Answers dropped (a timeout, then a retry) and corrupted (a bad CRC, then a retry): every
+    // retry is a new frame and keeps the line's silence like any other.
+    let mut sim = SimProcess::start(&[
+        "--strict-timing",
+        "--baud",
+        "115200",
+        "--di",
+        "0x0A",
+        "--drop",
+        "0.1",
+        "--corrupt",
+        "0.2",
+        "--seed",
+        "7",
+    ]);
+    let link = share(Box::new(SerialLink::open(&sim.path, 115_200).unwrap()));
+    let options = C29uOptions {
+        baud: 115_200,
+        timeout: Duration::from_millis(200),
+        retries: 6,
+        ..C29uOptions::default()
+    };
+    let mut io = C29u::new(link, SystemClock::shared(), options).unwrap();
+    for poll in 0..30 {
+        match io.read_inputs() {
+            Ok(di) => assert_eq!(di, 0x0A, "poll {poll}"),
+            Err(e) => panic!("poll {poll}: {e}"),
+        }
+    }
+    assert_eq!(early_frames(&mut sim), 0);
+}
