@@ -111,6 +111,26 @@ fn a_bad_config_is_exit_2_and_a_missing_device_exit_3() {
 }
 
 #[test]
+fn two_entries_for_one_module_are_refused_by_check_and_run() {
+    let d = Dir::new("clash");
+    let s = d.file("s.rhai", "print(1);");
+    let cfg = d.file(
+        "rig.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nsafe_value = 0x05\n\n\
+         [devices.io2]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nsafe_value = 0xFF\n",
+    );
+    for cmd in ["check", "run"] {
+        let o = run(&[cmd, "--config", &cfg, &s]);
+        assert_eq!(o.status.code(), Some(2), "{cmd}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert!(
+            err.contains("rig.toml:6: devices.io2: is the same module as devices.io (line 1)"),
+            "{cmd}: {err}"
+        );
+    }
+}
+
+#[test]
 fn script_errors_are_exit_1_with_file_line_and_column() {
     let d = Dir::new("errors");
     let s = d.file("syntax.rhai", "let x = ;\n");

@@ -6,6 +6,7 @@
 //! `rig.toml:9: devices.io.protocol: "modbsu" is not a protocol; use "modbus" or "ascii"`.
 //! Durations are written as `"20ms"`, `"1.5s"`, `"5m"` or a number of milliseconds.
 
+mod clash;
 mod device;
 mod error;
 mod reader;
@@ -163,14 +164,16 @@ impl RigConfig {
         let devices = match root.get("devices") {
             None => BTreeMap::new(),
             Some(value) => match value.get_ref() {
-                DeValue::Table(table) => device::read_devices(
-                    &mut r,
-                    &TableRef {
+                DeValue::Table(table) => {
+                    let t = TableRef {
                         path: "devices".into(),
                         span: value.span(),
                         table,
-                    },
-                ),
+                    };
+                    let devices = device::read_devices(&mut r, &t);
+                    clash::check(&mut r, &t, &devices);
+                    devices
+                }
                 other => {
                     r.report(
                         &value.span(),

@@ -680,3 +680,54 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn two_entries_for_one_module_name_each_other_with_their_lines() {
+    let text = "[devices.a]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nsafe_value = 0x05\n\n\
+                [devices.b]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nsafe_value = 0xFF\n";
+    assert_eq!(
+        problems(text),
+        vec![
+            "rig.toml:6: devices.b: is the same module as devices.a (line 1): TRP-C29U ID 1 on \
+             /dev/ttyUSB0; two entries would drive one module with two safe values. Give each \
+             module its own ID (`rigscript scan` lists the modules on a line) or remove one entry"
+        ]
+    );
+    // Other IDs on the line, or the same ID on another line, are fine.
+    parse(&text.replace("safe_value = 0xFF", "id = 2")).unwrap();
+    parse(&text.replace(
+        "port = \"/dev/ttyUSB0\"\nsafe_value = 0xFF",
+        "port = \"/dev/ttyUSB1\"",
+    ))
+    .unwrap();
+}
+
+#[test]
+fn modules_on_one_line_at_two_speeds_clash() {
+    let text =
+        "[devices.b]\nkind = \"trp-c29u\"\nport = \"tcp://gw:4001\"\nid = 2\nbaud = 19200\n\n\
+                [devices.a]\nkind = \"trp-c29u\"\nport = \"tcp://gw:4001\"\n";
+    let p = problems(text);
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert!(
+        p[0].starts_with(
+            "rig.toml:7: devices.a: is on the same line as devices.b (line 1): tcp://gw:4001 at \
+             9600 baud, and 19200 baud there"
+        ),
+        "{p:?}"
+    );
+}
+
+#[test]
+fn two_entries_for_one_board_clash() {
+    let text = "[devices.p]\nkind = \"trc1000\"\n\n[devices.q]\nkind = \"trc1000\"\nunit = 0\n";
+    let p = problems(text);
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert!(
+        p[0].starts_with(
+            "rig.toml:4: devices.q: is the same board as devices.p (line 1): TRC1000 unit 0;"
+        ),
+        "{p:?}"
+    );
+    parse(&text.replace("unit = 0", "unit = 1")).unwrap();
+}
