@@ -1,6 +1,6 @@
 //! A TRP-C29U as the runtime holds it: driver, input/counter/latch snapshots, the DO byte the
-//! script wants and the one last written, the host watchdog the runner feeds, and the steps
-//! that put the module under the runner's supervision (at start and when it comes back).
+//! script wants and the one last written, the host watchdog the runner feeds, and what the
+//! module holds in its EEPROM.
 
 use super::{DeviceError, Health, Snapshot};
 use crate::config::C29uConfig;
@@ -43,19 +43,21 @@ pub struct C29uDevice {
     pub watchdog_ours: bool,
     /// When the watchdog was last fed.
     pub last_feed: Duration,
+    /// The runner has taken control of it (its watchdog is fed from then on).
+    pub controlled: bool,
+    /// What the module holds, so that unchanged values are not written again.
+    pub stored: Stored,
 }
 
-/// What taking control of a module found worth telling.
-#[derive(Debug, Default, Clone, PartialEq, Eq)]
-pub struct ControlNotes {
-    /// It was in safe mode; its watchdog was disabled to leave it.
-    pub left_safe_mode: bool,
-    /// Its own watchdog was on without rig.toml asking; the runner feeds it.
-    pub adopted_watchdog: Option<WatchdogTimeout>,
-    /// Its stored safe value was changed to the configured one (from this).
-    pub safe_value_was: Option<u8>,
-    /// Its stored power-on value was changed to the configured one (from this).
-    pub power_on_value_was: Option<u8>,
+/// What the module holds in its EEPROM, as last read or written (`None`: not known).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Stored {
+    /// Its watchdog safe value.
+    pub safe_value: Option<u8>,
+    /// Its power-on value.
+    pub power_on_value: Option<u8>,
+    /// Its host watchdog (`Some(None)`: off).
+    pub watchdog: Option<Option<WatchdogTimeout>>,
 }
 
 impl C29uDevice {
@@ -85,6 +87,8 @@ impl C29uDevice {
             outputs_cause: String::new(),
             watchdog_ours: false,
             last_feed: Duration::ZERO,
+            controlled: false,
+            stored: Stored::default(),
         }
     }
 
@@ -136,81 +140,15 @@ impl C29uDevice {
 
     /// Host OK, if the runner feeds a watchdog and `interval` has passed since the last feed.
     pub fn feed(&mut self, now: Duration, interval: Duration) -> Result<bool, DeviceError> {
-        if self.watchdog.is_none() || now.saturating_sub(self.last_feed) < interval {
+        if !self.controlled
+            || self.watchdog.is_none()
+            || now.saturating_sub(self.last_feed) < interval
+        {
             return Ok(false);
         }
         self.driver.host_ok()?;
         self.last_feed = now;
         Ok(true)
-    }
-
-    /// Puts the module under the runner's supervision: the configured safe and power-on
-    /// values stored (only where they differ, to spare the EEPROM), `outputs` written (leaving
-    /// safe mode first if the module is in it), and the host watchdog on and fed.
-    pub fn take_control(
-        &mut self,
-        outputs: u8,
-        now: Duration,
-    ) -> Result<ControlNotes, DeviceError> {
-        let mut notes = ControlNotes::default();
-        let before = self.driver.watchdog()?;
-        let safe = self.driver.safe_value()?;
-        if safe != self.config.safe_value {
-            let v = self.config.safe_value;
-            self.leaving_safe_mode(&mut notes, |d| d.set_safe_value(v))?;
-            notes.safe_value_was = Some(safe);
-        }
-        if let Some(v) = self.config.power_on_value {
-            let stored = self.driver.power_on_value()?;
-            if stored != v {
-                self.leaving_safe_mode(&mut notes, |d| d.set_power_on_value(v))?;
-                notes.power_on_value_was = Some(stored);
-            }
-        }
-        self.leaving_safe_mode(&mut notes, |d| d.write_outputs(outputs))?;
-        self.outputs_written = Some(outputs);
-        let module_own =
-            WatchdogTimeout::from_tenths(before.timeout_tenths).filter(|_| before.enabled);
-        match (self.watchdog, module_own) {
-            (Some(t), _) => {
-                let same = before.enabled && before.timeout_tenths == t.tenths();
-                if same && !notes.left_safe_mode {
-                    self.driver.host_ok()?;
-                } else {
-                    self.driver.set_watchdog(Some(t.as_duration()))?;
-                }
-                self.watchdog_ours = true;
-            }
-            (None, Some(own)) => {
-                if notes.left_safe_mode {
-                    self.driver.set_watchdog(Some(own.as_duration()))?;
-                } else {
-                    self.driver.host_ok()?;
-                }
-                self.watchdog = Some(own);
-                notes.adopted_watchdog = Some(own);
-            }
-            (None, None) => {}
-        }
-        self.last_feed = now;
-        Ok(notes)
-    }
-
-    /// Runs `op`; if the module refuses because it is in safe mode, disables the watchdog
-    /// (the only way out) and runs it once more.
-    fn leaving_safe_mode(
-        &mut self,
-        notes: &mut ControlNotes,
-        op: impl Fn(&mut C29u) -> Result<(), C29uError>,
-    ) -> Result<(), DeviceError> {
-        match op(&mut self.driver) {
-            Err(C29uError::SafeMode { .. }) if !notes.left_safe_mode => {
-                self.driver.set_watchdog(None)?;
-                notes.left_safe_mode = true;
-                Ok(op(&mut self.driver)?)
-            }
-            other => Ok(other?),
-        }
     }
 
     /// Writes the safe value to the outputs; a module in safe mode already holds it.
@@ -228,6 +166,7 @@ impl C29uDevice {
     pub fn release_watchdog(&mut self) -> Result<(), DeviceError> {
         if self.watchdog_ours && self.watchdog.is_some() {
             self.driver.set_watchdog(None)?;
+            self.stored.watchdog = Some(None);
             self.watchdog_ours = false;
         }
         Ok(())

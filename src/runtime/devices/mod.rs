@@ -5,13 +5,15 @@
 mod c29u;
 mod open;
 mod sim;
+mod takeover;
 mod trc;
 
 pub mod links;
 
-pub use c29u::C29uDevice;
+pub use c29u::{C29uDevice, Stored};
 pub use open::{open_devices, OpenError, Opened};
 pub use sim::{FieldError, SimDevice, SimRig};
+pub use takeover::{ControlNotes, Takeover};
 pub use trc::TrcDevice;
 
 use crate::device::c29u::C29uError;

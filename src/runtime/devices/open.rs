@@ -93,7 +93,7 @@ fn simulated_trc(
     let board = Arc::new(Mutex::new(Trc1000Sim::new()));
     let presence = Presence::new();
     let link = MemoryPacketLink::new(
-        Unpluggable::new(Arc::clone(&board), presence.clone()),
+        Unpluggable::new(Arc::clone(&board), presence.clone()).with_clock(Arc::clone(clock)),
         format!("TRC1000 {name}"),
     )
     .with_clock(Arc::clone(clock));
@@ -178,7 +178,7 @@ fn simulated_c29u(
     let model = module.model();
     let presence = Presence::new();
     let link = MemoryByteLink::new(
-        Unpluggable::new(module, presence.clone()),
+        Unpluggable::new(module, presence.clone()).with_clock(Arc::clone(clock)),
         format!("TRP-C29U {name}"),
     )
     .with_clock(Arc::clone(clock));

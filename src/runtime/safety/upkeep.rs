@@ -6,12 +6,16 @@ use crate::runtime::state::Runtime;
 use std::time::Duration;
 
 impl<H: Clone> Runtime<H> {
-    /// Feeds each host watchdog the runner keeps, at a quarter of its timeout (or every
-    /// tick, if the period is longer than that).
+    /// Feeds each host watchdog the runner keeps, at a quarter of its timeout.
     pub fn feed_watchdogs(&mut self) {
+        self.feed_watchdogs_except(None);
+    }
+
+    /// `feed_watchdogs`, leaving out the device at `skip` (one being taken control of).
+    pub fn feed_watchdogs_except(&mut self, skip: Option<usize>) {
         let now = self.now();
         for idx in 0..self.devices.len() {
-            if !self.online(idx) {
+            if !self.online(idx) || skip == Some(idx) {
                 continue;
             }
             let Some(d) = self.c29u(idx) else { continue };
@@ -33,9 +37,10 @@ impl<H: Clone> Runtime<H> {
                     return Some(h.next_retry);
                 }
                 match d {
-                    Device::C29u(c) => c
+                    Device::C29u(c) if c.controlled => c
                         .watchdog
                         .map(|t| c.last_feed.saturating_add(t.as_duration() / 4)),
+                    Device::C29u(_) => None,
                     Device::Trc(_) => None,
                 }
             })
