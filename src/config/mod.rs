@@ -9,6 +9,7 @@
 mod clash;
 mod device;
 mod error;
+pub mod feeding;
 mod reader;
 #[cfg(test)]
 mod tests;
@@ -172,6 +173,7 @@ impl RigConfig {
                     };
                     let devices = device::read_devices(&mut r, &t);
                     clash::check(&mut r, &t, &devices);
+                    feeding::check(&mut r, &t, &devices);
                     devices
                 }
                 other => {

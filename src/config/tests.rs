@@ -292,7 +292,11 @@ fn ports_serial_and_tcp() {
 
 #[test]
 fn watchdog_times() {
-    let wd = |s: &str| c29u(&format!("watchdog = {s}")).map(|io| io.watchdog.map(|w| w.tenths()));
+    // A quick module, so that even a 0.1 s watchdog can be fed in time.
+    let wd = |s: &str| {
+        c29u(&format!("timeout = \"10ms\"\nretries = 0\nwatchdog = {s}"))
+            .map(|io| io.watchdog.map(|w| w.tenths()))
+    };
     assert_eq!(wd("\"2s\"").unwrap(), Some(20));
     assert_eq!(wd("\"0.1s\"").unwrap(), Some(1));
     assert_eq!(wd("\"100ms\"").unwrap(), Some(1));
@@ -730,4 +734,56 @@ fn two_entries_for_one_board_clash() {
         "{p:?}"
     );
     parse(&text.replace("unit = 0", "unit = 1")).unwrap();
+}
+
+#[test]
+fn a_watchdog_that_cannot_be_fed_in_time_is_refused_with_the_arithmetic() {
+    // Default timing: 100 ms timeout, 2 retries, Modbus at 9600 baud on a serial port. A
+    // silent module costs 3 x (100 ms settling + 16.7 ms request + 100 ms timeout) = 650 ms;
+    // then the feed: 100 ms settling + 8.3 ms request; 20 ms to wake: 778 ms late at worst.
+    let p = c29u_problem("watchdog = \"0.8s\"");
+    assert!(
+        p.starts_with(
+            "rig.toml:4: devices.io.watchdog: \"0.8s\" is too short for this rig: a feed may \
+             reach the module 778."
+        ),
+        "{p}"
+    );
+    for part in [
+        "waiting for the longest exchange 649.",
+        "(io: 3 tries x (100ms silence + 16.",
+        "request + 100ms timeout)), then 100ms silence + 8.",
+        "20ms for the loop to wake), which leaves 21.",
+        "of the 800ms between feeds, less than a tenth; use a watchdog of at least 0.9s, or \
+         shorter timeouts or fewer retries",
+    ] {
+        assert!(p.contains(part), "{part}: {p}");
+    }
+    c29u("watchdog = \"0.9s\"").unwrap();
+    // One slow module on the line makes every watchdog of the rig wait for it.
+    let slow = "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nwatchdog = \"3s\"\n\n\
+                [devices.slow]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB1\"\ntimeout = \"1s\"\n\
+                retries = 1\n";
+    let p = problems(slow);
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert!(
+        p[0].starts_with("rig.toml:4: devices.io.watchdog: \"3s\" is too short"),
+        "{p:?}"
+    );
+    assert!(p[0].contains("(slow: 2 tries x (1s silence + "), "{p:?}");
+    parse(&slow.replace("retries = 1", "retries = 0")).unwrap();
+}
+
+#[test]
+fn feeds_come_at_a_quarter_of_the_timeout_or_sooner_when_exchanges_can_be_long() {
+    let c =
+        parse("[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nwatchdog = \"1s\"\n")
+            .unwrap();
+    let t = feeding::feed_timing(&c.devices, "io").unwrap();
+    assert_eq!(t.late_by().as_millis(), 778);
+    let ms = Duration::from_millis;
+    assert_eq!(t.interval(ms(1000)).map(|i| i.as_millis()), Some(221));
+    assert_eq!(t.interval(ms(4000)), Some(ms(1000)), "a quarter");
+    assert_eq!(t.interval(ms(800)), None, "less than a tenth left");
+    assert!(feeding::feed_timing(&c.devices, "nope").is_none());
 }

@@ -50,9 +50,9 @@ impl<H: Clone> Runtime<H> {
     /// if the device has no such input or was never read.
     fn read_lazily<D, T: Copy>(&mut self, idx: usize, input: &Input<D, T>) -> Option<T> {
         let tick = self.tick;
-        let online = self.online(idx);
         let d = self.devices.get_mut(idx).and_then(input.device)?;
-        if online && !(input.snapshot)(d).fresh(tick) {
+        if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {
+            let d = self.devices.get_mut(idx).and_then(input.device)?;
             if let Err(e) = (input.read)(d, tick) {
                 self.note_failure(idx, &e);
             }

@@ -49,7 +49,7 @@ impl<H: Clone> Runtime<H> {
     /// safe value while held safe), the relay it wants (the safe relay while held safe).
     pub fn flush_outputs(&mut self) {
         for idx in 0..self.devices.len() {
-            if !self.online(idx) {
+            if !self.ready_for_exchange(idx) {
                 continue;
             }
             let held = self.held_safe;

@@ -200,14 +200,34 @@ impl<P: Program> Runner<P> {
     }
 
     /// Sleeps to the next deadline in slices, waking early for the stop flag.
-    fn sleep_to_deadline(&self) {
+    fn sleep_to_deadline(&mut self) {
+        self.wait_until(self.next_deadline, true);
+    }
+
+    /// Waits until `target`, feeding the host watchdogs as their feeds fall due (a feed keeps
+    /// its own deadline whatever the period); with `watch_stop`, in slices that look at the
+    /// stop flag.
+    fn wait_until(&mut self, target: Duration, watch_stop: bool) {
         loop {
             let now = self.clock.now();
-            if now >= self.next_deadline || self.options.stop_flag.load(Ordering::SeqCst) {
+            if now >= target
+                || (watch_stop && self.options.stop_flag.load(Ordering::SeqCst))
+                || self.status().is_some()
+            {
                 return;
             }
-            let until = self.next_deadline.min(now.saturating_add(SLEEP_SLICE));
+            let feed = self.rt.borrow().next_feed();
+            let mut until = target;
+            if watch_stop {
+                until = until.min(now.saturating_add(SLEEP_SLICE));
+            }
+            if let Some(due) = feed {
+                until = until.min(due);
+            }
             self.clock.sleep_until(until);
+            if feed.is_some_and(|due| self.clock.now() >= due) {
+                self.rt.borrow_mut().feed_watchdogs();
+            }
         }
     }
 
@@ -215,16 +235,17 @@ impl<P: Program> Runner<P> {
     pub fn advance(&mut self, by: Duration) {
         let target = self.clock.now().saturating_add(by);
         while self.status().is_none() && self.next_deadline <= target {
-            self.clock.sleep_until(self.next_deadline);
+            self.wait_until(self.next_deadline, false);
             self.tick();
         }
+        self.wait_until(target, false);
         self.clock.sleep_until(target);
     }
 
     /// Waits for the next deadline and runs one tick.
     pub fn step(&mut self) {
         if self.status().is_none() {
-            self.clock.sleep_until(self.next_deadline);
+            self.wait_until(self.next_deadline, false);
             self.tick();
         }
     }
@@ -342,7 +363,12 @@ impl<P: Program> Runner<P> {
     fn run_handlers(&mut self) {
         let calls = self.rt.borrow_mut().collect_calls();
         for call in calls {
-            self.rt.borrow_mut().cause.clone_from(&call.label);
+            {
+                let mut rt = self.rt.borrow_mut();
+                // A handler's own work is not an exchange; feed what fell due meanwhile.
+                rt.feed_watchdogs();
+                rt.cause.clone_from(&call.label);
+            }
             let result = self.program.call(&call);
             if let Err(f) = result {
                 if !self.handle_fault(&f, &call.label) {

@@ -98,14 +98,15 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
-    /// timer, watchdog feed or retry of a lost device. `None` when every tick has work.
+    /// timer or retry of a lost device (watchdogs are fed between ticks). `None` when every
+    /// tick has work.
     pub fn idle_until(&self) -> Option<Duration> {
         if self.handlers.polls_inputs() {
             return None;
         }
         let now = self.now();
         let timer = self.handlers.next_timer(now, self.clock.wall());
-        let upkeep = self.next_upkeep();
+        let upkeep = self.next_retry();
         let next = match (timer, upkeep) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
@@ -136,12 +137,12 @@ mod tests {
     }
 
     #[test]
-    fn idle_until_is_the_earliest_timer_feed_or_retry() {
+    fn idle_until_is_the_earliest_timer_or_retry() {
         let mut r = TestRig::started();
         assert_eq!(
             r.rt.idle_until(),
-            Some(Duration::from_millis(250)),
-            "the feed"
+            Some(Duration::MAX),
+            "nothing to do: watchdogs are fed between ticks"
         );
         r.rt.after(Duration::from_millis(100), "soon");
         assert_eq!(
@@ -150,8 +151,15 @@ mod tests {
             "the timer"
         );
         r.rt.reset_program();
-        r.rt.c29u(IO).unwrap().watchdog = None;
-        assert_eq!(r.rt.idle_until(), Some(Duration::MAX), "nothing to do");
+        r.sim.set_gone("panel", true).unwrap();
+        r.rt.tick += 1;
+        r.rt.switches(PANEL);
+        let lost_at = r.rt.now();
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(lost_at + Duration::from_secs(1)),
+            "the retry"
+        );
     }
 
     #[test]

@@ -7,14 +7,13 @@ use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, SimRig};
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
 use crate::runtime::scan::{RunOptions, Runner};
 use crate::runtime::state::Runtime;
 use crate::time::clock::SharedClock;
-use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
 use std::cell::RefCell;
 use std::path::PathBuf;
@@ -124,7 +123,6 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
     }
     let program = ScriptProgram::new(&rt, ast, file, setup.budget);
     let period = setup.period.unwrap_or(setup.config.period);
-    warn_short_watchdogs(&mut rt.borrow_mut(), period);
     let options = RunOptions {
         period,
         policy: setup.config.on_error,
@@ -138,33 +136,6 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         runner,
         sim: opened.sim,
     })
-}
-
-/// Warns of host watchdogs shorter than two scan periods: the runner feeds them once a tick
-/// at best, so the module could go safe between ticks.
-fn warn_short_watchdogs(rt: &mut Runtime<rhai::FnPtr>, period: Duration) {
-    let short: Vec<String> = rt
-        .devices
-        .iter()
-        .filter_map(|d| match d {
-            Device::C29u(c) => c
-                .watchdog
-                .filter(|t| t.as_duration() < period.saturating_mul(2))
-                .map(|t| {
-                    format!(
-                        "{}: its host watchdog ({}) is shorter than two scan periods ({} each): \
-                         it may fire between ticks; use a longer watchdog or a shorter period",
-                        c.name,
-                        format_duration(t.as_duration()),
-                        format_duration(period)
-                    )
-                }),
-            Device::Trc(_) => None,
-        })
-        .collect();
-    for w in short {
-        rt.log.warn(&w);
-    }
 }
 
 #[cfg(test)]

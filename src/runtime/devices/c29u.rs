@@ -3,6 +3,7 @@
 //! module holds in its EEPROM.
 
 use super::{DeviceError, Health, Snapshot};
+use crate::config::feeding::{FeedTiming, MOST_FEEDS_PER_TIMEOUT};
 use crate::config::C29uConfig;
 use crate::device::c29u::{C29u, C29uError, Latches, SharedLink, WatchdogTimeout};
 use crate::link::{ByteLink, LinkError};
@@ -45,6 +46,9 @@ pub struct C29uDevice {
     pub last_feed: Duration,
     /// The runner has taken control of it (its watchdog is fed from then on).
     pub controlled: bool,
+    /// How late a feed can reach it on this rig (`None`: not worked out, a quarter of the
+    /// timeout is used).
+    pub feed_timing: Option<FeedTiming>,
     /// What the module holds, so that unchanged values are not written again.
     pub stored: Stored,
 }
@@ -88,6 +92,7 @@ impl C29uDevice {
             watchdog_ours: false,
             last_feed: Duration::ZERO,
             controlled: false,
+            feed_timing: None,
             stored: Stored::default(),
         }
     }
@@ -138,12 +143,31 @@ impl C29uDevice {
         Ok(())
     }
 
-    /// Host OK, if the runner feeds a watchdog and `interval` has passed since the last feed.
-    pub fn feed(&mut self, now: Duration, interval: Duration) -> Result<bool, DeviceError> {
-        if !self.controlled
-            || self.watchdog.is_none()
-            || now.saturating_sub(self.last_feed) < interval
-        {
+    /// How often the runner feeds this module's watchdog, if it feeds one: a quarter of the
+    /// timeout, or sooner where an exchange on this rig can take long (`config::feeding`);
+    /// a tenth of it where even that is too late (a module's own watchdog, adopted).
+    pub fn feed_interval(&self) -> Option<Duration> {
+        let timeout = self.watchdog?.as_duration();
+        Some(match &self.feed_timing {
+            Some(t) => t
+                .interval(timeout)
+                .unwrap_or(timeout / MOST_FEEDS_PER_TIMEOUT),
+            None => timeout / 4,
+        })
+    }
+
+    /// When the watchdog is next to be fed, if the runner feeds one.
+    pub fn next_feed(&self) -> Option<Duration> {
+        if !self.controlled || !self.health.online() {
+            return None;
+        }
+        self.feed_interval()
+            .map(|i| self.last_feed.saturating_add(i))
+    }
+
+    /// Host OK, if the runner feeds a watchdog and its feed is due at `now`.
+    pub fn feed(&mut self, now: Duration) -> Result<bool, DeviceError> {
+        if !self.next_feed().is_some_and(|due| now >= due) {
             return Ok(false);
         }
         self.driver.host_ok()?;

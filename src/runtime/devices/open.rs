@@ -6,6 +6,7 @@ use super::links::{Counted, Presence, TransactionCounter, Unpluggable};
 use super::sim::{SimDevice, SimRig};
 use super::trc::{PacketReopener, TrcDevice};
 use super::{Device, DeviceError};
+use crate::config::feeding::{feed_timing, TRC1000_TIMEOUT};
 use crate::config::{C29uConfig, DeviceConfig, Port, RigConfig, Trc1000Address, Trc1000Config};
 use crate::device::c29u::{open_port, share, C29u, C29uOptions, SharedLink};
 use crate::device::trc1000::{Trc1000, Trc1000Error};
@@ -19,11 +20,6 @@ use crate::sim::trc1000::Trc1000Sim;
 use crate::time::clock::SharedClock;
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
-
-/// How long a TRC1000 request waits for its answer in a run (the board answers within a few
-/// milliseconds; a lost board costs this much per retry).
-pub const TRC_TIMEOUT: Duration = Duration::from_millis(250);
 
 /// A device that could not be opened.
 #[derive(Debug, thiserror::Error)]
@@ -56,7 +52,7 @@ pub fn open_devices(
     let mut sim = SimRig::default();
     let mut lines: BTreeMap<String, SharedLink> = BTreeMap::new();
     for (name, device) in &config.devices {
-        let opened = match device {
+        let mut opened = match device {
             DeviceConfig::Trc1000(c) if simulate => {
                 let (d, s) = simulated_trc(name, c, clock, count);
                 sim.insert(name, s);
@@ -72,6 +68,9 @@ pub fn open_devices(
                 Device::C29u(Box::new(real_c29u(name, c, clock, count, &mut lines)?))
             }
         };
+        if let Device::C29u(d) = &mut opened {
+            d.feed_timing = feed_timing(&config.devices, name);
+        }
         devices.push(opened);
     }
     Ok(Opened { devices, sim })
@@ -99,7 +98,7 @@ fn simulated_trc(
     .with_clock(Arc::clone(clock));
     let link: Box<dyn PacketLink> = Box::new(Counted::new(link, Arc::clone(count)));
     let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
-    driver.set_timeout(TRC_TIMEOUT);
+    driver.set_timeout(TRC1000_TIMEOUT);
     (
         TrcDevice::new(name, config.clone(), driver, None),
         SimDevice::Trc { board, presence },
@@ -123,7 +122,7 @@ fn real_trc(
     });
     let link = reopener().map_err(|e| open_error(name, Trc1000Error::Link(e)))?;
     let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
-    driver.set_timeout(TRC_TIMEOUT);
+    driver.set_timeout(TRC1000_TIMEOUT);
     Ok(TrcDevice::new(name, config.clone(), driver, Some(reopener)))
 }
 

@@ -243,10 +243,10 @@ mod tests {
 
     #[test]
     fn the_other_watchdogs_are_fed_while_control_of_a_slow_module_is_taken() {
-        // Two modules on one line; the second answers each request at the last moment, so
-        // taking control of it takes longer than the first one's watchdog.
+        // A second module that answers each request at the last moment, so taking control
+        // of it takes longer than the first one's watchdog.
         let rig = format!(
-            "{RIG}\n[devices.slow]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nid = 2\n\
+            "{RIG}\n[devices.slow]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB1\"\nretries = 0\n\
              timeout = \"300ms\"\nsafe_value = 0x33\npower_on_value = 0x01\nwatchdog = \"2s\"\n"
         );
         let mut r = TestRig::new(&rig);

@@ -19,30 +19,20 @@ impl<H: Clone> Runtime<H> {
                 continue;
             }
             let Some(d) = self.c29u(idx) else { continue };
-            let Some(t) = d.watchdog else { continue };
-            if let Err(e) = d.feed(now, t.as_duration() / 4) {
+            if let Err(e) = d.feed(now) {
                 self.note_failure(idx, &e);
             }
         }
     }
 
-    /// When supervision next has work of its own: the earliest watchdog feed or retry of a
-    /// lost device (`None`: nothing to feed, nothing lost).
-    pub fn next_upkeep(&self) -> Option<Duration> {
+    /// When the next watchdog feed is due (`None`: nothing to feed). The scan loop wakes for
+    /// it between ticks.
+    pub fn next_feed(&self) -> Option<Duration> {
         self.devices
             .iter()
-            .filter_map(|d| {
-                let h = d.health();
-                if !h.online() {
-                    return Some(h.next_retry);
-                }
-                match d {
-                    Device::C29u(c) if c.controlled => c
-                        .watchdog
-                        .map(|t| c.last_feed.saturating_add(t.as_duration() / 4)),
-                    Device::C29u(_) => None,
-                    Device::Trc(_) => None,
-                }
+            .filter_map(|d| match d {
+                Device::C29u(c) => c.next_feed(),
+                Device::Trc(_) => None,
             })
             .min()
     }
@@ -52,7 +42,7 @@ impl<H: Clone> Runtime<H> {
     /// that was unplugged forgets it); run every few seconds.
     pub fn verify_outputs(&mut self) {
         for idx in 0..self.devices.len() {
-            if !self.online(idx) {
+            if !self.ready_for_exchange(idx) {
                 continue;
             }
             let result = match self.devices.get_mut(idx) {
@@ -97,29 +87,54 @@ mod tests {
     const TICK: Duration = Duration::from_millis(20);
 
     #[test]
-    fn host_watchdogs_are_fed_at_a_quarter_of_their_timeout() {
+    fn host_watchdogs_are_fed_at_their_interval() {
         let mut r = TestRig::started();
+        // The rig's 1 s watchdog: a feed may be 778 ms late (config::feeding), so every
+        // 221.7 ms rather than every quarter.
+        let interval = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        assert_eq!(interval.as_micros(), 221_666);
         let before = r.requests();
         for _ in 0..500 {
             r.next_tick(TICK);
             r.rt.feed_watchdogs();
         }
         assert!(!r.sim.safe_mode("io").unwrap(), "10 s fed, never expired");
-        // At the first tick at least 250 ms after the last feed: every 260 ms at 20 ms ticks.
-        assert_eq!(r.requests() - before, 10_000 / 260);
+        // At the first tick at least 221.7 ms after the last feed: every 240 ms at 20 ms ticks.
+        assert_eq!(r.requests() - before, 10_000 / 240);
     }
 
     #[test]
-    fn next_upkeep_is_the_earliest_feed_or_retry() {
+    fn next_feed_and_next_retry() {
         let mut r = TestRig::started();
-        assert_eq!(r.rt.next_upkeep(), Some(Duration::from_millis(250)));
+        let interval = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        assert_eq!(r.rt.next_feed(), Some(interval));
+        assert_eq!(r.rt.next_retry(), None);
         r.sim.set_gone("panel", true).unwrap();
         r.clock.advance(Duration::from_millis(100));
         r.rt.switches(PANEL);
         let lost_at = r.rt.now();
-        assert_eq!(r.rt.next_upkeep(), Some(Duration::from_millis(250)));
-        r.rt.c29u(IO).unwrap().watchdog = None;
-        assert_eq!(r.rt.next_upkeep(), Some(lost_at + Duration::from_secs(1)));
+        assert_eq!(r.rt.next_retry(), Some(lost_at + Duration::from_secs(1)));
+        assert_eq!(r.rt.next_feed(), Some(interval));
+        r.sim.set_gone("io", true).unwrap();
+        r.next_tick(TICK);
+        r.rt.inputs(IO);
+        assert_eq!(r.rt.next_feed(), None, "a lost module is not fed");
+    }
+
+    #[test]
+    fn a_feed_due_before_an_exchange_is_sent_first() {
+        let mut r = TestRig::started();
+        r.clock.advance(Duration::from_millis(900));
+        assert!(!r.sim.safe_mode("io").unwrap());
+        // A slow panel read (any exchange) would let the module's 1 s watchdog fire, but the
+        // feed that fell due goes out before it.
+        r.sim
+            .set_answer_delay("panel", Duration::from_millis(300))
+            .unwrap();
+        r.next_tick(TICK);
+        r.rt.switches(PANEL);
+        assert!(r.rt.now() > Duration::from_millis(1200));
+        assert!(!r.sim.safe_mode("io").unwrap());
     }
 
     #[test]
