@@ -585,17 +585,27 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     );
 }
 
+/// A watchdog timeout from a script's seconds, to the nearest 0.1 s step (2.3 means 23
+/// tenths); anything outside 0.1-25.5 s (and NaN) is refused before any arithmetic on it.
+fn watchdog_timeout(seconds: f64) -> R<WatchdogTimeout> {
+    let tenths = (seconds * 10.0).round();
+    let t = (1.0..=255.0)
+        .contains(&tenths)
+        .then(|| WatchdogTimeout::from_tenths(tenths as u8))
+        .flatten();
+    t.map_or_else(
+        || {
+            fail(format!(
+                "watchdog({seconds}) is not possible: use 0.1 to 25.5 seconds \
+                 (watchdog_off() turns it off)"
+            ))
+        },
+        Ok,
+    )
+}
+
 fn set_watchdog(d: &Io, seconds: f64) -> R<()> {
-    let t = Duration::try_from_secs_f64(seconds)
-        .ok()
-        // 0.1 s steps: round to the nearest tenth so that 2.3 means 23 tenths.
-        .map(|s| Duration::from_millis(((s.as_secs_f64() * 10.0).round() as u64) * 100))
-        .and_then(WatchdogTimeout::from_duration);
-    let Some(t) = t else {
-        return fail(format!(
-            "watchdog({seconds}) is not possible: use 0.1 to 25.5 seconds (watchdog_off() turns it off)"
-        ));
-    };
+    let t = watchdog_timeout(seconds)?;
     let now = d.rt.borrow().now();
     c29u_op(d, |m| {
         m.driver.set_watchdog(Some(t.as_duration()))?;

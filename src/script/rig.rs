@@ -183,4 +183,32 @@ mod tests {
         );
         assert!(clock.now() >= Duration::from_millis(140));
     }
+
+    #[test]
+    fn numbers_out_of_range_from_a_script_are_script_errors_at_their_line() {
+        let clock = VirtualClock::at_epoch();
+        for (script, message) in [
+            (
+                "io.watchdog(1e17);",
+                "watchdog(100000000000000000) is not possible",
+            ),
+            ("io.watchdog(-0.04);", "watchdog(-0.04) is not possible"),
+            ("io.watchdog(0.04);", "watchdog(0.04) is not possible"),
+            ("io.watchdog(25.56);", "watchdog(25.56) is not possible"),
+            ("io.watchdog(1.0 / 0.0);", "watchdog(inf) is not possible"),
+            ("io.watchdog(9223372036854775807);", "is not possible"),
+        ] {
+            let rig = start(&format!("\n{script}"), "t.rhai", setup(&clock)).unwrap();
+            assert_eq!(rig.runner.status(), Some(1), "{script}");
+            let log = rig.runner.runtime().borrow().log.lines().join("\n");
+            assert!(
+                log.contains("t.rhai:2:4: in top level: "),
+                "{script}: {log}"
+            );
+            assert!(log.contains(message), "{script}: {log}");
+        }
+        let rig = start("io.watchdog(25.54);", "t.rhai", setup(&clock)).unwrap();
+        assert_eq!(rig.runner.status(), None, "started");
+        assert_eq!(rig.sim.watchdog("io").unwrap().timeout_tenths, 255);
+    }
 }
