@@ -11,6 +11,7 @@ mod device;
 mod error;
 pub mod feeding;
 mod reader;
+pub mod script_may_change;
 #[cfg(test)]
 mod tests;
 mod wake_latency;
@@ -20,6 +21,7 @@ pub use device::{
     WatchdogTimeout,
 };
 pub use error::{ConfigError, Problem, ProblemKind};
+pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
 use reader::{duration, line_and_column, string, Reader, TableRef};

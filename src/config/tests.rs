@@ -102,6 +102,11 @@ fn the_example_reads_as_written() {
             safe_value: 0,
             power_on_value: Some(0),
             di_active_low: true,
+            script_may_change: ScriptMayChange {
+                safe_value: false,
+                power_on_value: false,
+                watchdog: false,
+            },
         }),
     );
     assert_eq!(
@@ -786,4 +791,37 @@ fn feeds_come_at_a_quarter_of_the_timeout_or_sooner_when_exchanges_can_be_long()
     assert_eq!(t.interval(ms(4000)), Some(ms(1000)), "a quarter");
     assert_eq!(t.interval(ms(800)), None, "less than a tenth left");
     assert!(feeding::feed_timing(&c.devices, "nope").is_none());
+}
+
+#[test]
+fn script_may_change_lists_what_a_script_may_change_of_what_rig_toml_sets() {
+    let io = c29u("").unwrap();
+    assert_eq!(
+        io.script_may_change,
+        ScriptMayChange::ALL,
+        "nothing set here"
+    );
+    let io = c29u("safe_value = 5\nwatchdog = \"2s\"").unwrap();
+    assert_eq!(
+        io.script_may_change,
+        ScriptMayChange {
+            safe_value: false,
+            power_on_value: true,
+            watchdog: false
+        }
+    );
+    let io = c29u("safe_value = 5\nwatchdog = \"2s\"\nscript_may_change = [\"watchdog\"]").unwrap();
+    assert!(io.script_may_change.watchdog && !io.script_may_change.safe_value);
+    for (bad, shown) in [("[\"safe\"]", "\"safe\""), ("[1]", "1")] {
+        assert_eq!(
+            c29u_problem(&format!("safe_value = 5\nscript_may_change = {bad}")),
+            format!(
+                "rig.toml:5: devices.io.script_may_change: {shown} is not a setting a script \
+                 may be allowed to change; use \"safe_value\", \"power_on_value\" or \"watchdog\""
+            )
+        );
+    }
+    assert!(
+        c29u_problem("script_may_change = \"watchdog\"").contains("expected a list of settings")
+    );
 }

@@ -488,35 +488,22 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         Ok(map)
     });
     engine.register_fn("watchdog_off", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| {
-            m.driver.set_watchdog(None)?;
-            m.watchdog = None;
-            m.watchdog_ours = false;
-            Ok(())
-        })
+        let now = d.rt.borrow().now();
+        c29u_op(d, |m| m.change_watchdog(None, now))
     });
     engine.register_get("safe_value", |d: &mut Io| -> R<i64> {
         c29u_op(d, |m| Ok(i64::from(m.driver.safe_value()?)))
     });
     setter(engine, "safe_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("safe value", v)?;
-        c29u_op(d, |m| {
-            m.driver.set_safe_value(v)?;
-            // The runner's safe state follows the module's.
-            m.config.safe_value = v;
-            Ok(())
-        })
+        c29u_op(d, |m| m.change_safe_value(v))
     });
     engine.register_get("power_on_value", |d: &mut Io| -> R<i64> {
         c29u_op(d, |m| Ok(i64::from(m.driver.power_on_value()?)))
     });
     setter(engine, "power_on_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("power-on value", v)?;
-        c29u_op(d, |m| {
-            m.driver.set_power_on_value(v)?;
-            m.config.power_on_value = Some(v);
-            Ok(())
-        })
+        c29u_op(d, |m| m.change_power_on_value(v))
     });
     engine.register_get("name", |d: &mut Io| -> R<String> {
         c29u_op(d, |m| Ok(m.driver.name()?))
@@ -607,13 +594,7 @@ fn watchdog_timeout(seconds: f64) -> R<WatchdogTimeout> {
 fn set_watchdog(d: &Io, seconds: f64) -> R<()> {
     let t = watchdog_timeout(seconds)?;
     let now = d.rt.borrow().now();
-    c29u_op(d, |m| {
-        m.driver.set_watchdog(Some(t.as_duration()))?;
-        m.watchdog = Some(t);
-        m.watchdog_ours = true;
-        m.last_feed = now;
-        Ok(())
-    })
+    c29u_op(d, |m| m.change_watchdog(Some(t), now))
 }
 
 fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {

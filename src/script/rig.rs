@@ -211,4 +211,19 @@ mod tests {
         assert_eq!(rig.runner.status(), None, "started");
         assert_eq!(rig.sim.watchdog("io").unwrap().timeout_tenths, 255);
     }
+
+    #[test]
+    fn a_safe_value_assigned_every_tick_is_written_once() {
+        let clock = VirtualClock::at_epoch();
+        let script = "every(\"20ms\", || { io.safe_value = 0x05; io.watchdog(2); });";
+        let mut rig = start(script, "t.rhai", setup(&clock)).unwrap();
+        rig.runner.advance(Duration::from_millis(100));
+        assert_eq!(rig.sim.safe_value("io").unwrap(), 0x05);
+        let before = rig.runner.runtime().borrow().transaction_count();
+        rig.runner.advance(Duration::from_secs(10));
+        let spent = rig.runner.runtime().borrow().transaction_count() - before;
+        // 500 assignments of each: only the watchdog feeds (every 500 ms) and the output
+        // checks (every 5 s) reach the module.
+        assert!(spent <= 25, "{spent} requests in 10 s");
+    }
 }
