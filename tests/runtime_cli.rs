@@ -291,3 +291,85 @@ fn the_wake_latency_follows_the_period_and_the_option() {
         stderr(&o)
     );
 }
+
+#[test]
+fn run_help_shows_the_exit_statuses() {
+    let o = run(&["run", "--help"]);
+    assert_eq!(o.status.code(), Some(0));
+    let out = stdout(&o);
+    for line in [
+        "Exit status (the first that applies):",
+        "    5  the run ended, but something failed on the way: script errors recovered",
+        "  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)",
+        "Before the run starts: 2 usage or rig.toml error, 3 a device not available.",
+    ] {
+        assert!(out.contains(line), "{line}: {out}");
+    }
+}
+
+/// Starts `run --sim SCRIPT`, waits until it logs `ready`, sends `signal`, and returns the
+/// exit status and the log.
+fn stopped_by(signal: &str, script: &str) -> (Option<i32>, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(rigscript())
+        .args(["run", "--sim", script])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut log = String::new();
+    while !log.contains("script: ready") {
+        let mut line = String::new();
+        if err.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+        log.push_str(&line);
+    }
+    let ok = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    (status.code(), log + &rest)
+}
+
+#[test]
+fn signals_end_the_run_with_128_plus_the_signal_after_the_safe_state() {
+    let d = Dir::new("signals");
+    let s = d.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\nevery(\"50ms\", || ());\nafter(\"100ms\", || log(\"ready\"));\n",
+    );
+    for (signal, status, name) in [("-INT", 130, "SIGINT"), ("-TERM", 143, "SIGTERM")] {
+        let (code, log) = stopped_by(signal, &s);
+        assert_eq!(code, Some(status), "{log}");
+        assert!(log.contains(&format!("stopping: {name} received")), "{log}");
+        assert!(
+            log.contains("safe state (signal): io outputs 0x00"),
+            "{log}"
+        );
+        assert!(log.contains(&format!("exit status {status}")), "{log}");
+    }
+}
+
+#[test]
+fn a_run_with_recovered_errors_does_not_end_0() {
+    let d = Dir::new("skip-status");
+    let cfg = d.file(
+        "rig.toml",
+        "on_error = \"skip\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
+    );
+    let s = d.file("s.rhai", "every(\"100ms\", || io.set_output(9, true));\n");
+    let o = run(&["run", "--sim", "--config", &cfg, "--for", "350ms", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert!(
+        err.contains("3 script error(s) recovered from: exit status 5"),
+        "{err}"
+    );
+}

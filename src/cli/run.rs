@@ -1,10 +1,10 @@
 //! `rigscript run SCRIPT`: runs a script on the rig's devices (or their simulators) in the
 //! supervised scan loop until it ends, is stopped, or fails; logs what it does to stderr.
 //!
-//! Exit status: 0 ok, 1 script or runtime error, 2 usage or config error, 3 a device not
-//! available at start, 4 a measurement out of its limits.
+//! Exit statuses: `runtime::exit` (shown by `run --help`).
 
 use crate::config::{RigConfig, WakeLatency};
+use crate::runtime::exit;
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
@@ -12,12 +12,13 @@ use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
 use clap::Args;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
 /// Options of `rigscript run`.
 #[derive(Debug, Args)]
+#[command(after_help = exit::TABLE)]
 pub struct RunArgs {
     /// The script to run (.rhai).
     pub script: PathBuf,
@@ -71,7 +72,7 @@ pub fn run(args: RunArgs) -> i32 {
             Ok(c) => c,
             Err(e) => {
                 eprintln!("rigscript run: {e}");
-                return 2;
+                return exit::USAGE;
             }
         },
         (None, true) => RigConfig::simulated_default(),
@@ -80,7 +81,7 @@ pub fn run(args: RunArgs) -> i32 {
                 "rigscript run: give --config rig.toml (the devices to drive) or --sim \
                  (simulated devices: panel, a TRC1000, and io, a TRP-C29U)"
             );
-            return 2;
+            return exit::USAGE;
         }
     };
     if let Some(w) = args.wake_latency {
@@ -91,14 +92,16 @@ pub fn run(args: RunArgs) -> i32 {
         Ok(s) => s,
         Err(e) => {
             eprintln!("rigscript run: cannot read {file}: {e}");
-            return 2;
+            return exit::USAGE;
         }
     };
-    let stop_flag = Arc::new(AtomicBool::new(false));
+    let stop_flag = Arc::new(AtomicUsize::new(0));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop_flag)) {
+        // The flag holds the signal's number: the exit status reports which one it was.
+        let number = usize::try_from(signal).unwrap_or(1);
+        if let Err(e) = signal_hook::flag::register_usize(signal, Arc::clone(&stop_flag), number) {
             eprintln!("rigscript run: cannot watch for signal {signal}: {e}");
-            return 1;
+            return exit::ERROR;
         }
     }
     let setup = RigSetup {

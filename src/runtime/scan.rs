@@ -8,15 +8,17 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
+use super::exit;
 use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::Call;
 use super::wake_latency;
 use crate::config::ErrorPolicy;
 use crate::time::clock::SharedClock;
+use signal_hook::consts::{SIGINT, SIGTERM};
 use std::cell::RefCell;
 use std::rc::Rc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -71,8 +73,9 @@ pub struct RunOptions {
     pub policy: ErrorPolicy,
     /// End the run normally after this long (`--for`).
     pub end_after: Option<Duration>,
-    /// Set by SIGINT/SIGTERM (or a scenario test): stop at once, outputs safe.
-    pub stop_flag: Arc<AtomicBool>,
+    /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
+    /// the signal handler or a scenario test: stop at once, outputs safe.
+    pub stop_flag: Arc<AtomicUsize>,
     /// The CPU wake-up latency to hold while `run` runs in real time, if any.
     pub wake_latency: Option<Duration>,
 }
@@ -84,8 +87,8 @@ pub enum EndReason {
     Finished(String),
     /// The script called `stop(code)`.
     Stopped(i64),
-    /// SIGINT or SIGTERM.
-    Signal,
+    /// SIGINT or SIGTERM (the signal's number).
+    Signal(i32),
     /// A script or runtime error (policy `stop`, or at the first start).
     Error(String),
 }
@@ -108,6 +111,8 @@ pub struct Runner<P: Program> {
     last_verify: Duration,
     failures_in_a_row: u32,
     last_start: Duration,
+    /// What went wrong on the way.
+    pub trouble: Trouble,
     /// What the loop measured.
     pub stats: Stats,
 }
@@ -127,6 +132,7 @@ impl<P: Program> Runner<P> {
             last_verify: now,
             failures_in_a_row: 0,
             last_start: now,
+            trouble: Trouble::default(),
             stats: Stats::default(),
         }
     }
@@ -211,7 +217,7 @@ impl<P: Program> Runner<P> {
         loop {
             let now = self.clock.now();
             if now >= target
-                || (watch_stop && self.options.stop_flag.load(Ordering::SeqCst))
+                || (watch_stop && self.stop_signal().is_some())
                 || self.status().is_some()
             {
                 return;
@@ -252,8 +258,18 @@ impl<P: Program> Runner<P> {
 
     /// Stops at once as SIGTERM would (outputs safe, on_stop handlers run).
     pub fn signal_stop(&mut self) {
-        self.options.stop_flag.store(true, Ordering::SeqCst);
-        self.finish(EndReason::Signal);
+        self.options
+            .stop_flag
+            .store(SIGTERM as usize, Ordering::SeqCst);
+        self.finish(EndReason::Signal(SIGTERM));
+    }
+
+    /// The signal that asked the run to stop, if one did.
+    fn stop_signal(&self) -> Option<i32> {
+        match self.options.stop_flag.load(Ordering::SeqCst) {
+            0 => None,
+            n => Some(i32::try_from(n).unwrap_or(SIGTERM)),
+        }
     }
 
     /// One scan tick at the current time.
@@ -271,8 +287,8 @@ impl<P: Program> Runner<P> {
             let mut rt = self.rt.borrow_mut();
             rt.tick = rt.tick.saturating_add(1);
         }
-        if self.options.stop_flag.load(Ordering::SeqCst) {
-            self.finish(EndReason::Signal);
+        if let Some(signal) = self.stop_signal() {
+            self.finish(EndReason::Signal(signal));
             return;
         }
         let uptime = self.rt.borrow().uptime();
@@ -395,6 +411,7 @@ impl<P: Program> Runner<P> {
                 false
             }
             ErrorPolicy::Skip => {
+                self.trouble.recovered_errors = self.trouble.recovered_errors.saturating_add(1);
                 self.rt
                     .borrow_mut()
                     .log
@@ -409,6 +426,7 @@ impl<P: Program> Runner<P> {
     }
 
     fn schedule_restart(&mut self, message: &str) {
+        self.trouble.recovered_errors = self.trouble.recovered_errors.saturating_add(1);
         let now = self.clock.now();
         if now.saturating_sub(self.last_start) >= BACKOFF_RESET {
             self.failures_in_a_row = 0;
@@ -447,18 +465,24 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    /// Ends the run: `on_stop` handlers, safe state, watchdogs released, exit status.
+    /// Ends the run: `on_stop` handlers, safe state, watchdogs released, exit status
+    /// (`runtime::exit`).
     pub fn finish(&mut self, reason: EndReason) {
         if self.status().is_some() {
             return;
         }
         let was_running = self.state == State::Running;
-        self.state = State::Stopped { status: 1 };
+        self.state = State::Stopped {
+            status: exit::ERROR,
+        };
         {
             let mut rt = self.rt.borrow_mut();
             match &reason {
                 EndReason::Error(m) => rt.log.error(m),
-                EndReason::Signal => rt.log.info("stopping: signal received"),
+                EndReason::Signal(n) => {
+                    rt.log
+                        .info(&format!("stopping: {} received", signal_name(*n)));
+                }
                 EndReason::Stopped(code) => {
                     rt.log
                         .info(&format!("stopping: the script called stop({code})"));
@@ -473,34 +497,93 @@ impl<P: Program> Runner<P> {
                 if let Err(f) = self.program.call(&call) {
                     let message = describe(&f, &call.label);
                     self.rt.borrow_mut().log.error(&message);
+                    self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
                 }
             }
         }
         let mut rt = self.rt.borrow_mut();
+        self.trouble.lost_at_end = rt
+            .devices
+            .iter()
+            .filter(|d| !d.health().online())
+            .map(|d| d.name().to_string())
+            .collect();
         let why = match &reason {
             EndReason::Error(_) => "script error",
-            EndReason::Signal => "signal",
+            EndReason::Signal(_) => "signal",
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
         rt.write_safe_state(why);
         rt.release_watchdogs();
         let failed = rt.records.failed();
-        let status = match reason {
-            EndReason::Error(_) => 1,
-            EndReason::Stopped(code) => i32::try_from(code.clamp(0, 255)).unwrap_or(1),
-            EndReason::Signal | EndReason::Finished(_) => 0,
+        let (status, because) = match reason {
+            EndReason::Error(_) => (exit::ERROR, None),
+            EndReason::Stopped(code) if code != 0 => (
+                i32::try_from(code.clamp(1, 255)).unwrap_or(exit::ERROR),
+                None,
+            ),
+            _ if !self.trouble.is_empty() => (exit::TROUBLE, Some(self.trouble.describe())),
+            _ if failed > 0 => (
+                exit::MEASUREMENT_FAILED,
+                Some(format!("{failed} measurement(s) out of limits")),
+            ),
+            EndReason::Signal(n) => (exit::signal(n), None),
+            _ => (exit::OK, None),
         };
-        let status = if status == 0 && failed > 0 {
-            rt.log.warn(&format!(
-                "{failed} measurement(s) out of limits: exit status 4"
-            ));
-            4
-        } else {
-            status
-        };
-        rt.log.info(&format!("stopped; exit status {status}"));
+        match because {
+            Some(why) => rt.log.warn(&format!("{why}: exit status {status}")),
+            None => rt.log.info(&format!("stopped; exit status {status}")),
+        }
         self.state = State::Stopped { status };
+    }
+}
+
+/// What went wrong during a run that still went on to its end (exit status 5).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Trouble {
+    /// Script errors recovered from under policy restart or skip.
+    pub recovered_errors: u64,
+    /// `on_stop` handlers that failed.
+    pub on_stop_failed: u64,
+    /// Devices lost and not back when the run ended.
+    pub lost_at_end: Vec<String>,
+}
+
+impl Trouble {
+    /// Whether nothing went wrong.
+    pub fn is_empty(&self) -> bool {
+        self.recovered_errors == 0 && self.on_stop_failed == 0 && self.lost_at_end.is_empty()
+    }
+
+    /// What went wrong, in words.
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if self.recovered_errors > 0 {
+            parts.push(format!(
+                "{} script error(s) recovered from",
+                self.recovered_errors
+            ));
+        }
+        if self.on_stop_failed > 0 {
+            parts.push(format!("{} on_stop handler(s) failed", self.on_stop_failed));
+        }
+        if !self.lost_at_end.is_empty() {
+            parts.push(format!(
+                "{} lost and not back at the end",
+                self.lost_at_end.join(", ")
+            ));
+        }
+        parts.join("; ")
+    }
+}
+
+/// SIGINT or SIGTERM by name, for the log.
+fn signal_name(n: i32) -> String {
+    match n {
+        SIGINT => "SIGINT".into(),
+        SIGTERM => "SIGTERM".into(),
+        other => format!("signal {other}"),
     }
 }
 

@@ -8,6 +8,7 @@ use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::devices::{open_devices, OpenError, SimRig};
+use crate::runtime::exit;
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
@@ -18,7 +19,7 @@ use crate::time::zone::Zone;
 use std::cell::RefCell;
 use std::path::PathBuf;
 use std::rc::Rc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -46,8 +47,8 @@ pub struct RigSetup {
     pub keep_log: bool,
     /// Operations per handler call.
     pub budget: u64,
-    /// Set on SIGINT/SIGTERM.
-    pub stop_flag: Arc<AtomicBool>,
+    /// The number of the signal that asks the run to stop (0: none).
+    pub stop_flag: Arc<AtomicUsize>,
 }
 
 /// Why a run could not start, with the exit status it calls for.
@@ -71,9 +72,9 @@ impl RigError {
     /// The exit status for this error.
     pub fn status(&self) -> i32 {
         match self {
-            RigError::Script(_) => 1,
-            RigError::Records(_) => 2,
-            RigError::Open(_) | RigError::Unavailable(_) => 3,
+            RigError::Script(_) => exit::ERROR,
+            RigError::Records(_) => exit::USAGE,
+            RigError::Open(_) | RigError::Unavailable(_) => exit::UNAVAILABLE,
         }
     }
 }
