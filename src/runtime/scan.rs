@@ -17,6 +17,7 @@ use crate::config::ErrorPolicy;
 use crate::time::clock::SharedClock;
 use signal_hook::consts::{SIGINT, SIGTERM};
 use std::cell::RefCell;
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -163,6 +164,10 @@ impl<P: Program> Runner<P> {
     /// Runs the script's top level; on failure the run ends with status 1 whatever the
     /// policy (a script that cannot start is not restarted).
     pub fn start(&mut self) {
+        self.guarded(Self::start_program);
+    }
+
+    fn start_program(&mut self) {
         self.rt.borrow_mut().cause = "top level".into();
         self.last_start = self.clock.now();
         if let Err(f) = self.program.start() {
@@ -232,7 +237,7 @@ impl<P: Program> Runner<P> {
             }
             self.clock.sleep_until(until);
             if feed.is_some_and(|due| self.clock.now() >= due) {
-                self.rt.borrow_mut().feed_watchdogs();
+                self.guarded(|r| r.rt.borrow_mut().feed_watchdogs());
             }
         }
     }
@@ -261,7 +266,19 @@ impl<P: Program> Runner<P> {
         self.options
             .stop_flag
             .store(SIGTERM as usize, Ordering::SeqCst);
-        self.finish(EndReason::Signal(SIGTERM));
+        self.guarded(|r| r.finish(EndReason::Signal(SIGTERM)));
+    }
+
+    /// Runs `step` of the run; a panic in it (a bug) still ends the run safe
+    /// (`safe_after_panic`), with exit status 70. Borrows of the runtime held when it
+    /// panicked are released by the unwinding.
+    fn guarded(&mut self, step: impl FnOnce(&mut Self)) {
+        if let Err(payload) = catch_unwind(AssertUnwindSafe(|| step(&mut *self))) {
+            self.state = State::Stopped {
+                status: exit::INTERNAL,
+            };
+            safe_after_panic(&self.rt, &panic_message(payload.as_ref()));
+        }
     }
 
     /// The signal that asked the run to stop, if one did.
@@ -274,6 +291,10 @@ impl<P: Program> Runner<P> {
 
     /// One scan tick at the current time.
     pub fn tick(&mut self) {
+        self.guarded(Self::scan_tick);
+    }
+
+    fn scan_tick(&mut self) {
         if self.status().is_some() {
             return;
         }
@@ -587,6 +608,40 @@ fn signal_name(n: i32) -> String {
     }
 }
 
+/// After a panic (a bug) in the runner: the safe state written through the drivers to every
+/// device that answers, logged with `message`; the host watchdogs are left on, so a module the
+/// write did not reach goes safe by itself. Says so on stderr if even that fails.
+pub fn safe_after_panic<H: Clone>(rt: &Shared<H>, message: &str) {
+    let ended = catch_unwind(AssertUnwindSafe(|| {
+        let Ok(mut rt) = rt.try_borrow_mut() else {
+            return false;
+        };
+        // The writes first: the log is the part most likely to have broken.
+        rt.write_safe_state("internal error");
+        rt.log.error(&format!(
+            "internal error (a bug in rigscript; please report it with this log): {message}; \
+             host watchdogs left on; exit status {}",
+            exit::INTERNAL
+        ));
+        true
+    }));
+    if !matches!(ended, Ok(true)) {
+        eprintln!(
+            "rigscript: internal error ({message}) and the safe state could not be written after \
+             it; the modules' host watchdogs, where on, drive their outputs safe"
+        );
+    }
+}
+
+/// What a panic said.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
+}
+
 /// The first of the deadlines `start + k * period` that is at or after `t`.
 fn boundary_at_or_after(start: Duration, period: Duration, t: Duration) -> Duration {
     if t <= start {
@@ -745,5 +800,94 @@ mod tests {
         assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(100)), ms(100));
         assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(101)), ms(120));
         assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(140)), ms(140));
+    }
+
+    /// A program that sets outputs, then panics in its handler (holding a borrow of the
+    /// runtime, as a binding would) or at its top level.
+    struct Panicker {
+        rt: Shared<&'static str>,
+        at_start: bool,
+    }
+
+    impl Program for Panicker {
+        type Handler = &'static str;
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            rt.set_outputs(crate::runtime::testing::IO, 0xF0);
+            rt.every(Duration::from_millis(100), "boom").unwrap();
+            rt.flush_outputs();
+            assert!(!self.at_start, "a bug at the top level");
+            Ok(())
+        }
+        fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+            let _held = self.rt.borrow_mut();
+            panic!("a bug in a binding");
+        }
+    }
+
+    fn panicking(at_start: bool) -> (Runner<Panicker>, crate::runtime::testing::TestRig) {
+        let mut r = crate::runtime::testing::TestRig::started();
+        let clock: SharedClock = Arc::new(r.clock.clone());
+        let log = Logger::new(Arc::clone(&clock), Zone::utc(), false);
+        let rt = std::mem::replace(
+            &mut r.rt,
+            Runtime::new(
+                clock,
+                Zone::utc(),
+                Vec::new(),
+                Records::in_memory(),
+                log,
+                TransactionCounter::default(),
+                Duration::from_secs(1),
+            ),
+        );
+        let rt = Rc::new(RefCell::new(rt));
+        let program = Panicker {
+            rt: Rc::clone(&rt),
+            at_start,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Restart,
+            end_after: None,
+            stop_flag: Arc::default(),
+            wake_latency: None,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        (runner, r)
+    }
+
+    #[test]
+    fn a_panic_in_a_handler_writes_the_safe_state_and_ends_with_70() {
+        let (mut runner, r) = panicking(false);
+        runner.advance(Duration::from_millis(60));
+        assert_eq!(r.sim.outputs("io").unwrap(), 0xF0, "at work");
+        runner.advance(Duration::from_millis(100));
+        assert_eq!(runner.status(), Some(exit::INTERNAL));
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05, "the safe value");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3, "the safe relay");
+        assert!(
+            r.sim.watchdog("io").unwrap().enabled,
+            "the watchdog is left on"
+        );
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(
+            log.contains("safe state (internal error): io outputs 0x05, panel relay 3"),
+            "{log}"
+        );
+        assert!(
+            log.contains("internal error (a bug in rigscript; please report it with this log): a bug in a binding; host watchdogs left on; exit status 70"),
+            "{log}"
+        );
+    }
+
+    #[test]
+    fn a_panic_at_the_top_level_ends_safe_too() {
+        let (runner, r) = panicking(true);
+        assert_eq!(runner.status(), Some(exit::INTERNAL));
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("io: outputs 0x05 -> 0xf0"), "{log}");
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
     }
 }

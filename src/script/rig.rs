@@ -12,11 +12,12 @@ use crate::runtime::exit;
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
-use crate::runtime::scan::{RunOptions, Runner};
+use crate::runtime::scan::{panic_message, safe_after_panic, RunOptions, Runner};
 use crate::runtime::state::Runtime;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::cell::RefCell;
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::rc::Rc;
 use std::sync::atomic::AtomicUsize;
@@ -66,6 +67,9 @@ pub enum RigError {
     /// A device does not answer (exit 3).
     #[error(transparent)]
     Unavailable(#[from] Unavailable),
+    /// A bug: a panic while taking control of the devices (exit 70).
+    #[error("internal error (a bug in rigscript; please report it): {0}")]
+    Internal(String),
 }
 
 impl RigError {
@@ -75,6 +79,7 @@ impl RigError {
             RigError::Script(_) => exit::ERROR,
             RigError::Records(_) => exit::USAGE,
             RigError::Open(_) | RigError::Unavailable(_) => exit::UNAVAILABLE,
+            RigError::Internal(_) => exit::INTERNAL,
         }
     }
 }
@@ -114,7 +119,15 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         setup.config.grace,
     );
     let rt = Rc::new(RefCell::new(runtime));
-    let started = rt.borrow_mut().start_devices();
+    let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
+    let started = match started {
+        Ok(started) => started,
+        Err(panic) => {
+            let message = panic_message(panic.as_ref());
+            safe_after_panic(&rt, &message);
+            return Err(RigError::Internal(message));
+        }
+    };
     if let Err(e) = started {
         // Leave the devices that did start as a clean end would.
         let mut r = rt.borrow_mut();
