@@ -535,8 +535,7 @@ impl<P: Program> Runner<P> {
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
-        rt.write_safe_state(why);
-        rt.release_watchdogs();
+        rt.end_safe(why, true);
         let failed = rt.records.failed();
         let (status, because) = match reason {
             EndReason::Error(_) => (exit::ERROR, None),
@@ -617,7 +616,7 @@ pub fn safe_after_panic<H: Clone>(rt: &Shared<H>, message: &str) {
             return false;
         };
         // The writes first: the log is the part most likely to have broken.
-        rt.write_safe_state("internal error");
+        rt.end_safe("internal error", false);
         rt.log.error(&format!(
             "internal error (a bug in rigscript; please report it with this log): {message}; \
              host watchdogs left on; exit status {}",

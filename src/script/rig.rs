@@ -131,8 +131,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
     if let Err(e) = started {
         // Leave the devices that did start as a clean end would.
         let mut r = rt.borrow_mut();
-        r.write_safe_state("a device is not available");
-        r.release_watchdogs();
+        r.end_safe("a device is not available", true);
         return Err(e.into());
     }
     let program = ScriptProgram::new(&rt, ast, file, setup.budget);

@@ -175,21 +175,37 @@ impl C29uDevice {
         Ok(true)
     }
 
-    /// Writes the safe value to the outputs; a module in safe mode already holds it.
+    /// Writes the safe value to the outputs with the configured retries; a module in safe
+    /// mode already holds it.
     pub fn write_safe(&mut self) -> Result<(), DeviceError> {
-        match self.driver.write_outputs(self.config.safe_value) {
-            Ok(()) | Err(C29uError::SafeMode { .. }) => {
-                self.outputs_written = Some(self.config.safe_value);
-                Ok(())
-            }
+        let safe = self.config.safe_value;
+        Self::safe_write(&mut self.driver, safe)?;
+        self.outputs_written = Some(safe);
+        Ok(())
+    }
+
+    /// `write_safe` in one try, without retries (the end of a run: each device gets a bounded
+    /// time).
+    pub fn write_safe_once(&mut self) -> Result<(), DeviceError> {
+        let safe = self.config.safe_value;
+        Self::safe_write(&mut self.probe, safe)?;
+        self.outputs_written = Some(safe);
+        Ok(())
+    }
+
+    fn safe_write(driver: &mut C29u, safe: u8) -> Result<(), DeviceError> {
+        match driver.write_outputs(safe) {
+            Ok(()) | Err(C29uError::SafeMode { .. }) => Ok(()),
             Err(e) => Err(e.into()),
         }
     }
 
-    /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe).
+    /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe), in
+    /// one try: if it fails the watchdog stays on and the module goes safe by itself, where
+    /// its outputs already are.
     pub fn release_watchdog(&mut self) -> Result<(), DeviceError> {
         if self.watchdog_ours && self.watchdog.is_some() {
-            self.driver.set_watchdog(None)?;
+            self.probe.set_watchdog(None)?;
             self.stored.watchdog = Some(None);
             self.watchdog_ours = false;
         }
