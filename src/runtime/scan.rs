@@ -281,6 +281,17 @@ impl<P: Program> Runner<P> {
         }
     }
 
+    /// Ends the run if a signal asked it to stop; true if it did.
+    fn ended_by_signal(&mut self) -> bool {
+        match self.stop_signal() {
+            Some(signal) => {
+                self.finish(EndReason::Signal(signal));
+                true
+            }
+            None => false,
+        }
+    }
+
     /// The signal that asked the run to stop, if one did.
     fn stop_signal(&self) -> Option<i32> {
         match self.options.stop_flag.load(Ordering::SeqCst) {
@@ -308,8 +319,7 @@ impl<P: Program> Runner<P> {
             let mut rt = self.rt.borrow_mut();
             rt.tick = rt.tick.saturating_add(1);
         }
-        if let Some(signal) = self.stop_signal() {
-            self.finish(EndReason::Signal(signal));
+        if self.ended_by_signal() {
             return;
         }
         let uptime = self.rt.borrow().uptime();
@@ -323,12 +333,17 @@ impl<P: Program> Runner<P> {
             }
         }
         self.rt.borrow_mut().supervise();
+        if self.ended_by_signal() {
+            return;
+        }
         match self.state {
             State::Restarting { at } if start >= at => self.restart(),
             State::Running => self.run_handlers(),
             _ => {}
         }
-        if self.status().is_some() {
+        // A signal that came during the handlers ends the run before the tick's writes: the
+        // end writes the safe state anyway, and each exchange could be a silent module's.
+        if self.status().is_some() || self.ended_by_signal() {
             return;
         }
         let stop = self.rt.borrow().stop_request;
@@ -412,7 +427,7 @@ impl<P: Program> Runner<P> {
                     return;
                 }
             }
-            if self.rt.borrow().stop_request.is_some() {
+            if self.rt.borrow().stop_request.is_some() || self.stop_signal().is_some() {
                 return;
             }
         }
@@ -888,5 +903,80 @@ mod tests {
         let log = runner.runtime().borrow().log.lines().join("\n");
         assert!(log.contains("io: outputs 0x05 -> 0xf0"), "{log}");
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+    }
+
+    /// A program whose first timer plays a SIGTERM arriving mid-tick and whose others read a
+    /// module's inputs.
+    struct Reader {
+        rt: Shared<&'static str>,
+        flag: Arc<AtomicUsize>,
+    }
+
+    impl Program for Reader {
+        type Handler = &'static str;
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            for h in ["signal", "read", "read"] {
+                rt.every(Duration::from_millis(100), h).unwrap();
+            }
+            Ok(())
+        }
+        fn call(&mut self, call: &Call<&'static str>) -> Result<(), Fault> {
+            if call.handler == "signal" {
+                self.flag.store(SIGTERM as usize, Ordering::SeqCst);
+            } else {
+                self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_sigterm_with_a_silent_module_is_honoured_in_a_bounded_time() {
+        // A module that waits 1 s for each answer and tries 11 times: each exchange with it,
+        // silent, would take 11 s.
+        let rig = crate::runtime::testing::RIG
+            .replace("watchdog = \"1s\"\n", "timeout = \"1s\"\nretries = 10\n");
+        let mut r = crate::runtime::testing::TestRig::new(&rig);
+        r.rt.start_devices().unwrap();
+        let clock: SharedClock = Arc::new(r.clock.clone());
+        let log = Logger::new(Arc::clone(&clock), Zone::utc(), false);
+        let rt = std::mem::replace(
+            &mut r.rt,
+            Runtime::new(
+                clock,
+                Zone::utc(),
+                Vec::new(),
+                Records::in_memory(),
+                log,
+                TransactionCounter::default(),
+                Duration::from_secs(1),
+            ),
+        );
+        let rt = Rc::new(RefCell::new(rt));
+        let flag: Arc<AtomicUsize> = Arc::default();
+        let program = Reader {
+            rt: Rc::clone(&rt),
+            flag: Arc::clone(&flag),
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Stop,
+            end_after: None,
+            stop_flag: flag,
+            wake_latency: None,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        r.sim.set_gone("io", true).unwrap();
+        let signalled = Duration::from_millis(100);
+        runner.advance(signalled);
+        assert_eq!(runner.status(), Some(exit::signal(SIGTERM)));
+        // No exchange after the signal but the end's: two tries of 1 s with the silent module.
+        let took = r.clock.now() - signalled;
+        assert!(took <= Duration::from_millis(2500), "{took:?}");
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("io: the safe state did not reach it"), "{log}");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
     }
 }
