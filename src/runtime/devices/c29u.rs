@@ -156,6 +156,14 @@ impl C29uDevice {
         })
     }
 
+    /// How long it has gone unfed at `now`, if longer than its watchdog's timeout (the
+    /// runner stalled and the watchdog has fired, if the module kept time alike).
+    pub fn stalled(&self, now: Duration) -> Option<Duration> {
+        let timeout = self.watchdog?.as_duration();
+        let unfed = now.saturating_sub(self.last_feed);
+        (self.controlled && self.health.online() && unfed > timeout).then_some(unfed)
+    }
+
     /// When the watchdog is next to be fed, if the runner feeds one.
     pub fn next_feed(&self) -> Option<Duration> {
         if !self.controlled || !self.health.online() {

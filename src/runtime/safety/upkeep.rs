@@ -3,6 +3,7 @@
 
 use crate::runtime::devices::{Device, DeviceError};
 use crate::runtime::state::Runtime;
+use crate::time::duration::format_duration;
 use std::time::Duration;
 
 impl<H: Clone> Runtime<H> {
@@ -11,7 +12,8 @@ impl<H: Clone> Runtime<H> {
         self.feed_watchdogs_except(None);
     }
 
-    /// `feed_watchdogs`, leaving out the device at `skip` (one being taken control of).
+    /// `feed_watchdogs`, leaving out the device at `skip` (one being taken control of; then
+    /// a stalled module is fed as it is, and checked at the next feed).
     pub fn feed_watchdogs_except(&mut self, skip: Option<usize>) {
         let now = self.now();
         for idx in 0..self.devices.len() {
@@ -19,9 +21,42 @@ impl<H: Clone> Runtime<H> {
                 continue;
             }
             let Some(d) = self.c29u(idx) else { continue };
+            if let (Some(stall), None) = (d.stalled(now), skip) {
+                self.after_stall(idx, stall);
+                continue;
+            }
             if let Err(e) = d.feed(now) {
                 self.note_failure(idx, &e);
             }
+        }
+    }
+
+    /// The module at `idx` was not fed for `stall`, longer than its watchdog's timeout (the
+    /// runner stalled: a paused VM, a stopped process, a blocked exchange): its watchdog has
+    /// fired if it kept time as the runner did. Neither protocol reports that reliably, so the
+    /// outputs the runner wants are written: a module in safe mode refuses, and is taken
+    /// control of again at once, with the cause in the log; one that takes them is fed.
+    fn after_stall(&mut self, idx: usize, stall: Duration) {
+        let held = self.held_safe;
+        let now = self.now();
+        let Some(d) = self.c29u(idx) else { return };
+        let target = if held { d.config.safe_value } else { d.outputs };
+        let result = d.write_outputs(target).and_then(|()| d.feed(now));
+        match result {
+            Ok(_) => {}
+            Err(e) if e.is_safe_mode() => {
+                let timeout = d.watchdog.map_or(stall, |t| t.as_duration());
+                let (name, safe) = (d.name.clone(), d.config.safe_value);
+                self.log.warn(&format!(
+                    "{name}: host watchdog fired after a {} stall (not fed for that long, its \
+                     timeout is {}): its outputs went to the safe value {safe:#04x}; taking \
+                     control again",
+                    format_duration(stall),
+                    format_duration(timeout)
+                ));
+                self.take_control(idx);
+            }
+            Err(e) => self.note_failure(idx, &e),
         }
     }
 
@@ -166,5 +201,44 @@ mod tests {
         r.rt.verify_outputs();
         r.rt.flush_outputs();
         assert_eq!(r.sim.relay("panel").unwrap(), 4);
+    }
+
+    #[test]
+    fn after_a_stall_longer_than_the_watchdog_the_module_is_taken_control_of_at_once() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x60);
+        r.rt.flush_outputs();
+        // The runner stalls (a paused VM, a stopped process): nothing is fed for 1.2 s.
+        r.clock.advance(Duration::from_millis(1200));
+        assert!(r.sim.safe_mode("io").unwrap(), "its 1 s watchdog fired");
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        // The first feed opportunity after the stall notices it.
+        r.next_tick(TICK);
+        r.rt.feed_watchdogs();
+        assert!(!r.sim.safe_mode("io").unwrap());
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x60,
+            "the script's outputs at once"
+        );
+        let log = r.log();
+        assert!(
+            log.contains(
+                "io: host watchdog fired after a 1.22s stall (not fed for that long, its \
+                 timeout is 1s): its outputs went to the safe value 0x05; taking control again"
+            ),
+            "{log}"
+        );
+        assert!(!log.contains("power cycled"), "{log}");
+    }
+
+    #[test]
+    fn a_feed_that_is_late_but_in_time_is_just_a_feed() {
+        let mut r = TestRig::started();
+        r.clock.advance(Duration::from_millis(900));
+        let before = r.requests();
+        r.rt.feed_watchdogs();
+        assert_eq!(r.requests() - before, 1, "one host OK, no check");
+        assert!(!r.log().contains("stall"), "{}", r.log());
     }
 }
