@@ -373,3 +373,58 @@ fn a_run_with_recovered_errors_does_not_end_0() {
         "{err}"
     );
 }
+
+#[test]
+fn a_slow_script_at_a_short_period_does_not_hold_the_wake_latency() {
+    let d = Dir::new("wake-slow");
+    // cron_rig's shape: two ticks a second at most, at the default 20 ms period.
+    let s = d.file("slow.rhai", "every(\"500ms\", || ());\n");
+    let child = Command::new(rigscript())
+        .args(["run", "--sim", "--for", "1500ms", "--stats", &s])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let give_up = std::time::Instant::now() + std::time::Duration::from_millis(1200);
+    let mut seen = false;
+    while !seen && std::time::Instant::now() < give_up {
+        seen = holds_wake_latency(child.id());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(!seen, "no request while nothing ticks fast");
+    assert!(
+        stdout(&o).contains("wake latency: not requested\n"),
+        "{}",
+        stdout(&o)
+    );
+}
+
+#[test]
+fn the_wake_latency_is_released_when_the_fast_handler_goes() {
+    let d = Dir::new("wake-release");
+    let s = d.file(
+        "fast_then_slow.rhai",
+        "let fast = every(\"10ms\", || ());\nafter(\"300ms\", || cancel(fast));\nevery(\"1s\", || ());\n",
+    );
+    let o = run(&["run", "--sim", "--for", "600ms", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    if may_hold_wake_latency() {
+        assert!(
+            err.contains("CPU wake-up latency held at 0 µs (ticks every 20ms)"),
+            "{err}"
+        );
+        assert!(
+            err.contains("CPU wake-up latency released: no handler needs ticks of 20 ms or less"),
+            "{err}"
+        );
+    } else {
+        assert_eq!(
+            err.matches("CPU wake-up latency not held").count(),
+            1,
+            "asked once: {err}"
+        );
+    }
+}

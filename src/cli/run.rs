@@ -44,8 +44,8 @@ pub struct RunArgs {
     /// Log only warnings, errors and the script's own messages.
     #[arg(short, long)]
     pub quiet: bool,
-    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs at periods
-    /// up to 20 ms), "off", or a duration ("0us", "50us"). Needs write access to
+    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs while the
+    /// loop ticks every 20 ms or faster), "off", or a duration ("0us", "50us"). Needs write access to
     /// /dev/cpu_dma_latency; idle CPUs poll instead of sleeping while it is held.
     #[arg(long, value_name = "auto|off|DURATION", value_parser = WakeLatency::parse)]
     pub wake_latency: Option<WakeLatency>,

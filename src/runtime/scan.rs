@@ -13,7 +13,7 @@ use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::Call;
 use super::wake_latency;
-use crate::config::ErrorPolicy;
+use crate::config::{ErrorPolicy, WakeLatency};
 use crate::time::clock::SharedClock;
 use signal_hook::consts::{SIGINT, SIGTERM};
 use std::cell::RefCell;
@@ -77,8 +77,10 @@ pub struct RunOptions {
     /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
     /// the signal handler or a scenario test: stop at once, outputs safe.
     pub stop_flag: Arc<AtomicUsize>,
-    /// The CPU wake-up latency to hold while `run` runs in real time, if any.
-    pub wake_latency: Option<Duration>,
+    /// What `run` asks of the CPUs' idle states while it runs in real time (`auto`: a 0 µs
+    /// request while the loop ticks every 20 ms or faster, re-evaluated as handlers come
+    /// and go).
+    pub wake_latency: WakeLatency,
 }
 
 /// Why a run ended.
@@ -114,6 +116,7 @@ pub struct Runner<P: Program> {
     last_start: Duration,
     /// What went wrong on the way.
     pub trouble: Trouble,
+    latency: LatencyRequest,
     /// What the loop measured.
     pub stats: Stats,
 }
@@ -134,6 +137,7 @@ impl<P: Program> Runner<P> {
             failures_in_a_row: 0,
             last_start: now,
             trouble: Trouble::default(),
+            latency: LatencyRequest::default(),
             stats: Stats::default(),
         }
     }
@@ -182,32 +186,69 @@ impl<P: Program> Runner<P> {
         // when other processes keep the CPUs busy; they are hints only, so a refusal (an old
         // kernel, a sandbox) leaves the loop as it was.
         let _ = crate::time::clock::prefer_prompt_wakeups();
-        let _hold = self.hold_wake_latency();
+        self.stats.wake_latency = Some(wake_latency::describe(&None));
         loop {
             if let Some(status) = self.status() {
+                self.latency.hold = None;
                 return status;
             }
+            self.update_wake_latency();
             self.sleep_to_deadline();
             self.tick();
         }
     }
 
-    /// Asks for the configured CPU wake-up latency for the run, logs how that went and notes it
-    /// for `--stats`; a refusal only costs timing, so the run goes on.
-    fn hold_wake_latency(&mut self) -> Option<wake_latency::LatencyHold> {
-        let outcome = self.options.wake_latency.map(wake_latency::hold);
-        let text = wake_latency::describe(&outcome);
+    /// Holds the CPU wake-up latency the setting asks for while the loop ticks as fast as it
+    /// does now, and lets it go when it no longer does (re-evaluated when handlers come or
+    /// go); logs each change and notes what was held for `--stats`. A refusal only costs
+    /// timing: the run goes on, and it is not asked again.
+    fn update_wake_latency(&mut self) {
+        let signature = self.rt.borrow().handlers_signature();
+        if self.latency.seen == Some(signature) {
+            return;
+        }
+        self.latency.seen = Some(signature);
+        let tick = self.rt.borrow().tick_interval(self.options.period);
+        let wanted = self.options.wake_latency.limit_for(tick);
+        let held = self
+            .latency
+            .hold
+            .as_ref()
+            .map(wake_latency::LatencyHold::limit);
+        if wanted == held || (wanted.is_some() && self.latency.refused) {
+            return;
+        }
         let mut rt = self.rt.borrow_mut();
-        match &outcome {
-            None => {}
-            Some(Ok(_)) => rt.log.info(&format!("CPU wake-up latency {text}")),
-            Some(Err(_)) => rt.log.info(&format!(
-                "CPU wake-up latency {text}: ticks may start up to milliseconds late; give \
-                 this user write access to it (README \"Timing\") or set wake_latency = \"off\""
-            )),
+        let Some(limit) = wanted else {
+            self.latency.hold = None;
+            rt.log
+                .info("CPU wake-up latency released: no handler needs ticks of 20 ms or less now");
+            return;
+        };
+        self.latency.hold = None;
+        let outcome = Some(wake_latency::hold(limit));
+        let text = wake_latency::describe(&outcome);
+        let every = tick.map_or(String::new(), |t| {
+            format!(
+                " (ticks every {})",
+                crate::time::duration::format_duration(t)
+            )
+        });
+        match outcome {
+            Some(Ok(h)) => {
+                rt.log.info(&format!("CPU wake-up latency {text}{every}"));
+                self.latency.hold = Some(h);
+            }
+            _ => {
+                self.latency.refused = true;
+                rt.log.info(&format!(
+                    "CPU wake-up latency {text}: ticks may start up to milliseconds late; \
+                     give this user write access to it (README \"Timing\") or set \
+                     wake_latency = \"off\""
+                ));
+            }
         }
         self.stats.wake_latency = Some(text);
-        outcome.and_then(Result::ok)
     }
 
     /// Sleeps to the next deadline in slices, waking early for the stop flag.
@@ -574,6 +615,17 @@ impl<P: Program> Runner<P> {
     }
 }
 
+/// The CPU wake-up latency request of a run, as it stands.
+#[derive(Debug, Default)]
+struct LatencyRequest {
+    /// The request held now.
+    hold: Option<wake_latency::LatencyHold>,
+    /// The OS refused it once: not asked again.
+    refused: bool,
+    /// The handlers it was last worked out for.
+    seen: Option<(usize, Option<u64>)>,
+}
+
 /// What went wrong during a run that still went on to its end (exit status 5).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Trouble {
@@ -749,7 +801,7 @@ mod tests {
             policy,
             end_after: None,
             stop_flag: Arc::default(),
-            wake_latency: None,
+            wake_latency: WakeLatency::Off,
         };
         let mut r = Runner::new(rt, program, options);
         r.start();
@@ -865,7 +917,7 @@ mod tests {
             policy: ErrorPolicy::Restart,
             end_after: None,
             stop_flag: Arc::default(),
-            wake_latency: None,
+            wake_latency: WakeLatency::Off,
         };
         let mut runner = Runner::new(rt, program, options);
         runner.start();
@@ -964,7 +1016,7 @@ mod tests {
             policy: ErrorPolicy::Stop,
             end_after: None,
             stop_flag: flag,
-            wake_latency: None,
+            wake_latency: WakeLatency::Off,
         };
         let mut runner = Runner::new(rt, program, options);
         runner.start();

@@ -9,7 +9,8 @@ use super::devices::links::TransactionCounter;
 use super::devices::Device;
 use super::log::Logger;
 use super::records::Records;
-use super::subscriptions::Subscriptions;
+use super::schedule::TimerKind;
+use super::subscriptions::{Source, Subscriptions};
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::sync::atomic::Ordering;
@@ -114,6 +115,32 @@ impl<H: Clone> Runtime<H> {
         Some(next.unwrap_or(Duration::MAX))
     }
 
+    /// How often the loop ticks while the script's handlers stay as they are: every `period`
+    /// while a handler polls inputs, else at its fastest `every` (no faster than the period);
+    /// `None` when only single timers, cron or upkeep wake it.
+    pub fn tick_interval(&self, period: Duration) -> Option<Duration> {
+        if self.handlers.polls_inputs() {
+            return Some(period);
+        }
+        self.handlers
+            .list()
+            .iter()
+            .filter_map(|s| match s.source {
+                Source::Timer(id) => match self.handlers.timer_kind(id) {
+                    Some(TimerKind::Every(every)) => Some((*every).max(period)),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .min()
+    }
+
+    /// Something that changes when handlers come or go (their count and the newest id).
+    pub fn handlers_signature(&self) -> (usize, Option<u64>) {
+        let list = self.handlers.list();
+        (list.len(), list.last().map(|s| s.id))
+    }
+
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {
@@ -159,6 +186,35 @@ mod tests {
             r.rt.idle_until(),
             Some(lost_at + Duration::from_secs(1)),
             "the retry"
+        );
+    }
+
+    #[test]
+    fn the_tick_interval_follows_input_polls_and_the_fastest_every() {
+        let mut r = TestRig::started();
+        let period = Duration::from_millis(20);
+        assert_eq!(r.rt.tick_interval(period), None, "nothing to do");
+        r.rt.cron("0 0 * * * *", "hourly").unwrap();
+        r.rt.after(Duration::from_millis(5), "once");
+        assert_eq!(r.rt.tick_interval(period), None, "only now and then");
+        let slow = r.rt.every(Duration::from_secs(1), "slow").unwrap();
+        assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
+        let before = r.rt.handlers_signature();
+        let fast = r.rt.every(Duration::from_millis(5), "fast").unwrap();
+        assert_ne!(r.rt.handlers_signature(), before);
+        assert_eq!(
+            r.rt.tick_interval(period),
+            Some(period),
+            "no faster than a period"
+        );
+        r.rt.cancel(fast);
+        assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
+        r.rt.cancel(slow);
+        r.rt.subscribe(Source::Rise { dev: IO, ch: 0 }, "rise", "rise".into());
+        assert_eq!(
+            r.rt.tick_interval(period),
+            Some(period),
+            "inputs polled every tick"
         );
     }
 

@@ -141,7 +141,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         policy: setup.config.on_error,
         end_after: setup.end_after,
         stop_flag: setup.stop_flag,
-        wake_latency: setup.config.wake_latency.limit_for(period),
+        wake_latency: setup.config.wake_latency,
     };
     let mut runner = Runner::new(rt, program, options);
     runner.start();
