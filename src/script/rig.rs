@@ -239,4 +239,17 @@ mod tests {
         // checks (every 5 s) reach the module.
         assert!(spent <= 25, "{spent} requests in 10 s");
     }
+
+    #[test]
+    fn a_watchdog_too_short_to_be_fed_on_this_rig_is_a_script_error() {
+        let clock = VirtualClock::at_epoch();
+        let rig = start("\nio.watchdog(0.5);", "t.rhai", setup(&clock)).unwrap();
+        assert_eq!(rig.runner.status(), Some(1));
+        let log = rig.runner.runtime().borrow().log.lines().join("\n");
+        assert!(
+            log.contains("t.rhai:2:4: in top level: io: a 500ms watchdog on io is too short for this rig: a feed may reach the module 7"),
+            "{log}"
+        );
+        assert!(!rig.sim.watchdog("io").unwrap().enabled, "not set");
+    }
 }
