@@ -893,21 +893,7 @@ mod tests {
 
     fn panicking(at_start: bool) -> (Runner<Panicker>, crate::runtime::testing::TestRig) {
         let mut r = crate::runtime::testing::TestRig::started();
-        let clock: SharedClock = Arc::new(r.clock.clone());
-        let log = Logger::new(Arc::clone(&clock), Zone::utc(), false);
-        let rt = std::mem::replace(
-            &mut r.rt,
-            Runtime::new(
-                clock,
-                Zone::utc(),
-                Vec::new(),
-                Records::in_memory(),
-                log,
-                TransactionCounter::default(),
-                Duration::from_secs(1),
-            ),
-        );
-        let rt = Rc::new(RefCell::new(rt));
+        let rt = r.shared_runtime();
         let program = Panicker {
             rt: Rc::clone(&rt),
             at_start,
@@ -991,21 +977,7 @@ mod tests {
             .replace("watchdog = \"1s\"\n", "timeout = \"1s\"\nretries = 10\n");
         let mut r = crate::runtime::testing::TestRig::new(&rig);
         r.rt.start_devices().unwrap();
-        let clock: SharedClock = Arc::new(r.clock.clone());
-        let log = Logger::new(Arc::clone(&clock), Zone::utc(), false);
-        let rt = std::mem::replace(
-            &mut r.rt,
-            Runtime::new(
-                clock,
-                Zone::utc(),
-                Vec::new(),
-                Records::in_memory(),
-                log,
-                TransactionCounter::default(),
-                Duration::from_secs(1),
-            ),
-        );
-        let rt = Rc::new(RefCell::new(rt));
+        let rt = r.shared_runtime();
         let flag: Arc<AtomicUsize> = Arc::default();
         let program = Reader {
             rt: Rc::clone(&rt),
