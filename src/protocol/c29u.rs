@@ -82,7 +82,7 @@ impl BaudCode {
 }
 
 /// A host watchdog timeout: 0.1 s x N, N = 1..255 (manual 8-19).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct WatchdogTimeout(u8);
 
 impl WatchdogTimeout {
