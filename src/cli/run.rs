@@ -4,8 +4,7 @@
 //! Exit status: 0 ok, 1 script or runtime error, 2 usage or config error, 3 a device not
 //! available at start, 4 a measurement out of its limits.
 
-use crate::config::RigConfig;
-use crate::runtime::wake_latency::WakeLatency;
+use crate::config::{RigConfig, WakeLatency};
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;

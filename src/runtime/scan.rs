@@ -8,8 +8,9 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
-use super::core::{Call, Runtime};
+use super::state::Runtime;
 use super::stats::Stats;
+use super::subscriptions::Call;
 use super::wake_latency;
 use crate::config::ErrorPolicy;
 use crate::time::clock::SharedClock;
