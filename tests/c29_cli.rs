@@ -267,7 +267,11 @@ fn preset_and_watchdog_commands(r: &mut Rig) {
         // ASCII stores only the current outputs: another value needs --drive-outputs.
         let refused = r.c29(&["safe-value", "0x0F"]);
         assert_eq!(refused.status, 2, "{}", refused.stderr);
-        assert!(refused.stderr.contains("--drive-outputs"), "{}", refused.stderr);
+        assert!(
+            refused.stderr.contains("--drive-outputs"),
+            "{}",
+            refused.stderr
+        );
         assert_eq!(r.state()["safe_value"], 0x00);
         // The value the outputs hold is stored as it is.
         r.ok(&["power-on-value", "0x30"]);

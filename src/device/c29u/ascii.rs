@@ -285,6 +285,7 @@ impl Backend for AsciiBackend {
             return Err(C29uError::PresetDrivesOutputs {
                 port: t.port(),
                 id: self.id,
+                checksum: self.checksum,
                 preset,
                 value,
                 outputs: before,

@@ -115,12 +115,14 @@ pub enum C29uError {
     },
     /// Storing a power-on or safe value over ASCII would drive the outputs to it (8-24: the module
     /// only stores its current outputs), and the caller did not allow that.
-    #[error("storing the {} {value:#04x} in TRP-C29U ID {id} on {port} would drive its outputs to {value:#04x} (they are at {outputs:#04x}): over ASCII the module can only store its current outputs (manual 8-24). Store it by hand when the outputs may take that value: `rigscript c29 --port PORT --protocol ascii --id {id} {} {value:#04x} --drive-outputs`", preset_words(*preset), preset_command(*preset))]
+    #[error("storing the {} {value:#04x} in TRP-C29U ID {id} on {port} would drive its outputs to {value:#04x} (they are at {outputs:#04x}): over ASCII the module can only store its current outputs (manual 8-24). Store it by hand when the outputs may take that value: `rigscript c29 --port PORT --protocol ascii --id {id}{} {} {value:#04x} --drive-outputs`", preset_words(*preset), if *checksum { " --checksum" } else { "" }, preset_command(*preset))]
     PresetDrivesOutputs {
         /// The link.
         port: String,
         /// The module's ID.
         id: u8,
+        /// Frames carry checksums (for the command shown).
+        checksum: bool,
         /// Which value.
         preset: Preset,
         /// The value to store.

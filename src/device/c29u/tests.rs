@@ -385,14 +385,29 @@ fn watched_ascii() -> (C29u, SharedModel, Arc<Mutex<Vec<u8>>>) {
 fn ascii_presets_never_pulse_the_outputs_unless_allowed() {
     let (mut driver, model, history) = watched_ascii();
     // A value the outputs do not hold: refused, nothing stored, the outputs untouched.
-    for (preset, value) in [(Preset::PowerOn, 0xFF), (Preset::Safe, 0x05)] {
+    let cases = [
+        (
+            Preset::PowerOn,
+            0xFF,
+            "the power-on value 0xff",
+            "power-on-value 0xff",
+        ),
+        (Preset::Safe, 0x05, "the safe value 0x05", "safe-value 0x05"),
+    ];
+    for (preset, value, what, command) in cases {
         match driver.store_preset(preset, value, PresetWrite::KeepOutputs) {
             Err(e @ C29uError::PresetDrivesOutputs { .. }) => {
                 let text = e.to_string();
                 assert!(
-                    text.contains("8-24") && text.contains("--drive-outputs"),
+                    text.contains(&format!("storing {what} in TRP-C29U ID 1")),
                     "{text}"
                 );
+                assert!(
+                    text.contains("(they are at 0x00)") && text.contains("8-24"),
+                    "{text}"
+                );
+                let hint = format!("--protocol ascii --id 1 {command} --drive-outputs`");
+                assert!(text.contains(&hint), "{text}");
             }
             other => panic!("expected a refusal, got {other:?}"),
         }
