@@ -5,7 +5,7 @@ use crate::cli::{Cli, Command};
 use crate::device::c29u::share;
 use crate::link::memory::MemoryByteLink;
 use crate::link::LinkError;
-use crate::sim::c29u::{C29u as Model, Eeprom};
+use crate::sim::c29u::{C29uModel as Model, Eeprom};
 use crate::sim::c29u_line::{lock, SharedModel, SimulatedC29u};
 use crate::time::clock::VirtualClock;
 use clap::Parser;

@@ -219,16 +219,7 @@ impl fmt::Display for ModuleName {
     }
 }
 
-/// A firmware date read from the end of `$IDF`'s text.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct FirmwareDate {
-    /// Two-digit year, 0-99 (9 = 2009).
-    pub year: u8,
-    /// Month 1-12.
-    pub month: u8,
-    /// Day 1-31.
-    pub day: u8,
-}
+pub use crate::protocol::c29u::FirmwareDate;
 
 /// `$IDF`'s answer (8-15, NOTES): opaque text after the ID, and the YYMMDD date when the text
 /// ends in six digits that make one (`C29M090703` -> model `C29M`, 2009-07-03).

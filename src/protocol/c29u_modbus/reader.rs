@@ -605,6 +605,46 @@ mod tests {
     }
 
     #[test]
+    fn a_flood_leaves_a_bounded_buffer_and_the_next_frame_is_found() {
+        // Issue 8: a peer sending `01 46 77` nonstop (a vendor request of unknown length).
+        let flood = [0x01, 0x46, 0x77].repeat(40_000);
+        let answer = encode_response(1, &Response::Bits(0xDF));
+        let expecting = || {
+            let mut r = FrameReader::for_answers();
+            r.expect_answer(1, &Request::ReadBits(BitArea::Inputs));
+            r
+        };
+        let cases = [
+            (FrameReader::for_requests(), read_do()),
+            (FrameReader::for_answers(), answer.clone()),
+            (expecting(), answer),
+        ];
+        for (mut r, frame) in cases {
+            for piece in [&flood[..], &flood[..7]] {
+                assert!(r.push(piece).is_empty());
+                assert!(r.pending().len() < MAX_FRAME_LEN, "{}", r.pending().len());
+            }
+            assert_eq!(r.push(&frame), vec![frame.clone()]);
+            assert!(r.pending().is_empty());
+            assert_eq!(r.discarded(), flood.len() as u64 + 7);
+        }
+    }
+
+    #[test]
+    fn a_new_expectation_judges_buffered_offsets_again() {
+        // A frame from slave 1 behind a garbage byte: not the answer slave 2 is expected to send,
+        // but the answer once slave 1 is expected.
+        let frame = encode_response(1, &Response::Bits(0xDF));
+        let mut r = FrameReader::for_answers();
+        r.expect_answer(2, &Request::ReadBits(BitArea::Inputs));
+        r.buf = [&[0xAA][..], &frame].concat();
+        r.verdicts = vec![Verdict::Open; r.buf.len()];
+        assert_eq!(r.verdict(1), Verdict::No);
+        r.expect_answer(1, &Request::ReadBits(BitArea::Inputs));
+        assert_eq!(r.verdict(1), Verdict::Yes);
+    }
+
+    #[test]
     fn clear_forgets_the_buffer() {
         let mut r = FrameReader::for_answers();
         r.push(&[1, 3]);

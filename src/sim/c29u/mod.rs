@@ -601,7 +601,3 @@ impl C29uModel {
         }
     }
 }
-
-/// The model's old name, kept only until the runtime's own module (being split elsewhere) is
-/// renamed to [`C29uModel`] too.
-pub type C29u = C29uModel;

@@ -1,7 +1,7 @@
 //! Plain values the TRP-C29U model hands out: firmware, watchdog status, state.
 
 use super::config::Protocol;
-use crate::protocol::c29u_ascii::FirmwareDate;
+use crate::protocol::c29u::FirmwareDate;
 use serde::{Deserialize, Serialize};
 
 /// The firmware the simulated module reports (NOTES 8-15 / 10-5: model `C29M`, 09-07-03).
