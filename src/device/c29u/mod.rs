@@ -201,9 +201,14 @@ pub struct IoState {
     pub inputs_raw: u8,
 }
 
-/// Latched inputs, bit n = DIn (as the module reports them).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+/// Latched inputs, bit n = DIn: logical (the input polarity applied, as for inputs) and as the
+/// module reports them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub struct Latches {
+    /// Channels energized since the last clear.
+    pub energized: u8,
+    /// Channels released since the last clear.
+    pub released: u8,
     /// Channels latched at logic 0 on the wire.
     pub low: u8,
     /// Channels latched at logic 1 on the wire.
@@ -469,7 +474,18 @@ impl C29u {
     /// The latched inputs.
     pub fn read_latches(&mut self) -> Result<Latches, C29uError> {
         let (low, high) = self.backend.read_latches(&mut self.transport)?;
-        Ok(Latches { low, high })
+        // An energized input is wire level 0 on an active-low module (NOTES): it latches low.
+        let (energized, released) = if self.options.di_active_low {
+            (low, high)
+        } else {
+            (high, low)
+        };
+        Ok(Latches {
+            energized,
+            released,
+            low,
+            high,
+        })
     }
 
     /// Clears the latches.

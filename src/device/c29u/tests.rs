@@ -101,6 +101,32 @@ fn counters_clear_and_save_across_reset() {
 }
 
 #[test]
+fn latches_are_logical_like_inputs_and_raw_as_reported() {
+    // DI1 energized then released: wire 0 then 1, so it latched low and high; DI2 energized.
+    for active_low in [true, false] {
+        let mut r = rig_with(Protocol::Modbus, false);
+        r.driver.options.di_active_low = active_low;
+        lock(&r.model).set_inputs(0x02);
+        lock(&r.model).set_inputs(0x04);
+        let l = r.driver.read_latches().unwrap();
+        assert_eq!((l.low, l.high), (0x06, 0x02), "as the module reports them");
+        let logical = if active_low {
+            (0x06, 0x02)
+        } else {
+            (0x02, 0x06)
+        };
+        assert_eq!(
+            (l.energized, l.released),
+            logical,
+            "active_low {active_low}"
+        );
+        // The inputs follow the same polarity.
+        let inputs = r.driver.read_inputs().unwrap();
+        assert_eq!(inputs, if active_low { 0x04 } else { 0xFB });
+    }
+}
+
+#[test]
 fn latches_read_and_clear() {
     for mut r in both() {
         lock(&r.model).set_inputs(0x02);
