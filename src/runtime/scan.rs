@@ -110,6 +110,8 @@ pub struct Runner<P: Program> {
     last_start: Duration,
     /// What the loop measured.
     pub stats: Stats,
+    /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
+    pub service: Option<crate::service::notify::Notifier>,
 }
 
 impl<P: Program> Runner<P> {
@@ -128,6 +130,7 @@ impl<P: Program> Runner<P> {
             failures_in_a_row: 0,
             last_start: now,
             stats: Stats::default(),
+            service: None,
         }
     }
 
@@ -203,6 +206,9 @@ impl<P: Program> Runner<P> {
     fn sleep_to_deadline(&self) {
         loop {
             let now = self.clock.now();
+            if let Some(service) = &self.service {
+                service.loop_alive(now);
+            }
             if now >= self.next_deadline || self.options.stop_flag.load(Ordering::SeqCst) {
                 return;
             }
