@@ -119,6 +119,8 @@ pub struct Runner<P: Program> {
     latency: LatencyRequest,
     /// What the loop measured.
     pub stats: Stats,
+    /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
+    pub service: Option<crate::service::notify::Notifier>,
 }
 
 impl<P: Program> Runner<P> {
@@ -139,6 +141,7 @@ impl<P: Program> Runner<P> {
             trouble: Trouble::default(),
             latency: LatencyRequest::default(),
             stats: Stats::default(),
+            service: None,
         }
     }
 
@@ -262,6 +265,9 @@ impl<P: Program> Runner<P> {
     fn wait_until(&mut self, target: Duration, watch_stop: bool) {
         loop {
             let now = self.clock.now();
+            if let Some(service) = &self.service {
+                service.loop_alive(now);
+            }
             if now >= target
                 || (watch_stop && self.stop_signal().is_some())
                 || self.status().is_some()

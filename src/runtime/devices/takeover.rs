@@ -6,8 +6,22 @@
 
 use super::c29u::C29uDevice;
 use super::DeviceError;
-use crate::device::c29u::{C29uError, WatchdogInfo, WatchdogTimeout};
+use crate::device::c29u::{C29u, C29uError, Preset, PresetWrite, WatchdogInfo, WatchdogTimeout};
 use std::time::Duration;
+
+/// Stores a preset without the outputs taking a value other than the safe one: over ASCII, where
+/// the module stores only its current outputs (8-24), the outputs are driven to `value` first
+/// when it is the safe value; any other value is refused (`PresetDrivesOutputs`, naming the
+/// `c29` command that can store it).
+fn store_at_safe_value(d: &mut C29u, preset: Preset, value: u8, safe: u8) -> Result<(), C29uError> {
+    match d.store_preset(preset, value, PresetWrite::KeepOutputs) {
+        Err(C29uError::PresetDrivesOutputs { .. }) if value == safe => {
+            d.write_outputs(safe)?;
+            d.store_preset(preset, value, PresetWrite::KeepOutputs)
+        }
+        other => other,
+    }
+}
 
 /// What taking control of a module found worth telling.
 #[derive(Debug, Default, Clone, PartialEq, Eq)]
@@ -126,10 +140,11 @@ impl Takeover {
 
     /// One write; a refusal in safe mode (the first time) leads out of it and back here.
     fn write(&mut self, d: &mut C29uDevice, step: Write) -> Result<Stage, DeviceError> {
+        let safe = d.config.safe_value;
         let result = match step {
-            Write::SafeValue => d.driver.set_safe_value(d.config.safe_value),
+            Write::SafeValue => store_at_safe_value(&mut d.driver, Preset::Safe, safe, safe),
             Write::PowerOnValue => match d.config.power_on_value {
-                Some(v) => d.driver.set_power_on_value(v),
+                Some(v) => store_at_safe_value(&mut d.driver, Preset::PowerOn, v, safe),
                 None => Ok(()),
             },
             Write::Outputs => d.driver.write_outputs(self.outputs),
