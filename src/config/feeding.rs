@@ -9,6 +9,11 @@
 //! loop's own wake-up lateness. A feed is therefore sent that much before the watchdog would
 //! fire, and at least every quarter of its timeout; a watchdog so short that this leaves less
 //! than a tenth of its timeout between feeds is refused, with the arithmetic.
+//!
+//! Opening a lost module's link again costs no more than one of its exchanges (a device server
+//! gets the module's timeout to connect, `runtime::devices::open`). A handler's own work
+//! between two exchanges is not an exchange: `WAKE_RESERVE` allows for a little, and the
+//! handlers' wall-time limit bounds the rest.
 
 use super::device::{C29uConfig, DeviceConfig, Port};
 use super::error::ProblemKind;

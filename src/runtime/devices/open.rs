@@ -11,6 +11,7 @@ use crate::config::{C29uConfig, DeviceConfig, Port, RigConfig, Trc1000Address, T
 use crate::device::c29u::{open_port, share, C29u, C29uOptions, SharedLink};
 use crate::device::trc1000::{Trc1000, Trc1000Error};
 use crate::link::memory::{MemoryByteLink, MemoryPacketLink};
+use crate::link::tcp::TcpLink;
 use crate::link::usb::{UsbPacketLink, UsbTarget};
 use crate::link::{ByteLink, PacketLink};
 use crate::protocol::c29u::baud_code;
@@ -200,8 +201,16 @@ fn real_c29u(
     let (baud, timeout) = (c.baud, c.timeout);
     let reopen_count = Arc::clone(count);
     let reopen_port = port.clone();
+    let device_server = matches!(c.port, Port::Tcp { .. });
     let reopener: ByteReopener = Box::new(move || {
-        let link = open_port(&reopen_port, baud, timeout)?;
+        // Tried once a second while the module is lost, with every other module waiting: a
+        // device server gets the module's own timeout to answer (as much as an exchange, which
+        // config::feeding counts), not the longer wait of the first connection.
+        let link: Box<dyn ByteLink> = if device_server {
+            Box::new(TcpLink::connect(&reopen_port, timeout)?)
+        } else {
+            open_port(&reopen_port, baud, timeout)?
+        };
         Ok(Box::new(Counted::new(link, Arc::clone(&reopen_count))) as Box<dyn ByteLink>)
     });
     // Modules on one RS-485 line share one port (and take turns on it).
