@@ -11,9 +11,9 @@
 //! than a tenth of its timeout between feeds is refused, with the arithmetic.
 //!
 //! Opening a lost module's link again costs no more than one of its exchanges (a device server
-//! gets the module's timeout to connect, `runtime::devices::open`). A handler's own work
-//! between two exchanges is not an exchange: `WAKE_RESERVE` allows for a little, and the
-//! handlers' wall-time limit bounds the rest.
+//! gets the module's timeout to connect, `runtime::devices::open`). The loop feeds between
+//! handlers too, but a handler that computes for long between two of its exchanges delays a
+//! feed by that long: `WAKE_RESERVE` allows for a few milliseconds of it, no more.
 
 use super::device::{C29uConfig, DeviceConfig, Port};
 use super::error::ProblemKind;
