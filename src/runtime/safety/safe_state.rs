@@ -6,6 +6,7 @@
 use crate::runtime::devices::{C29uDevice, Device, DeviceError};
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
+use std::time::Duration;
 
 /// At the end, how many tries each device that answers gets (a lost one gets one).
 pub const END_TRIES: u32 = 2;
@@ -79,7 +80,11 @@ impl<H: Clone> Runtime<H> {
                     self.log.error(&format!(
                         "{name}: the safe state did not reach it: {e}; {note}"
                     ));
-                    self.note_failure(idx, &e);
+                    // Lost, without the "trying again" of a run that goes on.
+                    let now = self.now();
+                    if let Some(d) = self.devices.get_mut(idx) {
+                        d.health_mut().lose(now, &e, Duration::ZERO);
+                    }
                     done.push(format!("{name} not reached"));
                 }
             }
