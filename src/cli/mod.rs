@@ -24,7 +24,7 @@ pub struct Cli {
 pub enum Command {
     /// Run a script on the rig's devices (or --sim) in the supervised scan loop
     Run(run::RunArgs),
-    /// Check a script without running it: syntax, device names, handler parameters
+    /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
     Check(check::CheckArgs),
     /// Run scenario tests (*.test.rhai) in virtual time against the simulators
     Test(test::TestArgs),
