@@ -1,6 +1,6 @@
 //! The command line: argument parsing (clap) and one module per subcommand.
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 pub mod c29;
 pub mod check;
@@ -39,6 +39,16 @@ pub enum Command {
         #[command(subcommand)]
         device: sim::SimCommand,
     },
+}
+
+/// A usage error found after parsing (a value valid alone but not with another option),
+/// printed as clap prints its own: `error: invalid value ...`, status 2.
+pub fn usage_error(message: String) -> clap::Error {
+    clap::Error::raw(
+        clap::error::ErrorKind::ValueValidation,
+        format!("{message}\n\nFor more information, try '--help'.\n"),
+    )
+    .with_cmd(&Cli::command())
 }
 
 /// Runs the command line and returns the process exit status.

@@ -137,6 +137,8 @@ impl C29uError {
                 e,
                 LinkError::NotFound { .. }
                     | LinkError::PermissionDenied { .. }
+                    | LinkError::Busy { .. }
+                    | LinkError::NotSerial { .. }
                     | LinkError::Disconnected { .. }
             ),
             Self::Timeout { .. } => true,
