@@ -4,6 +4,8 @@ use clap::{CommandFactory, Parser, Subcommand};
 
 pub mod c29;
 pub mod check;
+pub mod completions;
+pub mod man;
 pub mod output;
 pub mod run;
 pub mod scan;
@@ -39,6 +41,10 @@ pub enum Command {
         #[command(subcommand)]
         device: sim::SimCommand,
     },
+    /// Print the completion script for a shell (bash, zsh, fish, elvish, powershell)
+    Completions(completions::CompletionsArgs),
+    /// Print the manual page, or write every page into a directory (--out)
+    Man(man::ManArgs),
 }
 
 /// A usage error found after parsing (a value valid alone but not with another option),
@@ -68,5 +74,7 @@ pub fn main() -> i32 {
         Command::C29(args) => c29::run(args),
         Command::Trc(args) => trc::run(args),
         Command::Sim { device } => sim::run(device),
+        Command::Completions(args) => completions::run(args),
+        Command::Man(args) => man::run(args),
     }
 }
