@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{require_tool, rigscript};
+use common::{require_tool, rigscript, TempDir};
 use std::path::PathBuf;
 use std::process::{Command, Output, Stdio};
 
@@ -24,33 +24,9 @@ fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
-/// A temporary directory removed at the end of the test.
-struct Dir(PathBuf);
-
-impl Dir {
-    fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!("rigscript-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
-    }
-
-    fn file(&self, name: &str, text: &str) -> String {
-        let p = self.0.join(name);
-        std::fs::write(&p, text).unwrap();
-        p.display().to_string()
-    }
-}
-
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 #[test]
 fn a_duration_without_a_unit_is_refused_with_the_forms_that_work() {
-    let d = Dir::new("durations");
+    let d = TempDir::new("durations");
     let script = d.file("s.rhai", "after(\"50ms\", || stop());\n");
     for (flag, value) in [("--for", "10"), ("--period", "20")] {
         let o = run(&["run", "--sim", flag, value, &script]);
@@ -99,7 +75,7 @@ fn sim_ids_out_of_range_are_usage_errors_alike() {
 
 #[test]
 fn a_config_without_devices_under_sim_says_so() {
-    let d = Dir::new("no-devices");
+    let d = TempDir::new("no-devices");
     let config = d.file("rig.toml", "period = \"20ms\"\n");
     let script = d.file("s.rhai", "io.outputs = 1;\n");
     let o = run(&["run", "--sim", "--config", &config, "--for", "1s", &script]);
@@ -116,7 +92,7 @@ fn a_config_without_devices_under_sim_says_so() {
 #[test]
 fn bash_accepts_the_completion_script_and_it_completes_subcommands() {
     require_tool("bash", "bash");
-    let d = Dir::new("completions");
+    let d = TempDir::new("completions");
     let o = run(&["completions", "bash"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let file = d.file("rigscript.bash", &stdout(&o));
@@ -159,7 +135,7 @@ fn bash_accepts_the_completion_script_and_it_completes_subcommands() {
 #[test]
 fn man_renders_every_page_it_writes() {
     require_tool("man", "man-db");
-    let d = Dir::new("man");
+    let d = TempDir::new("man");
     let out = d.0.join("man1");
     let o = run(&["man", "--out", out.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));

@@ -4,32 +4,10 @@
 
 mod common;
 
-use common::{rigscript, SimProcess};
+use common::{rigscript, SimProcess, TempDir};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
-
-/// A temporary directory removed at the end of the test.
-struct Dir(PathBuf);
-
-impl Dir {
-    fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!("rigscript-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
-    }
-
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 /// `rigscript c29 --port PORT monitor`, holding the port (exclusively, as every rigscript
 /// opener does) from its first printed line until dropped. Its standard output stays open, or
@@ -98,7 +76,7 @@ fn a_port_held_by_another_program_is_busy_for_run_c29_and_scan() {
     );
     assert!(!err.contains("not found"), "{err}");
 
-    let d = Dir::new("busy");
+    let d = TempDir::new("busy");
     let config = d.path("rig.toml");
     std::fs::write(
         &config,
@@ -171,7 +149,7 @@ fn sim_link(at: &Path) -> (Option<i32>, String) {
 
 #[test]
 fn sim_link_refuses_any_existing_path_and_leaves_it_as_it_was() {
-    let d = Dir::new("sim-link");
+    let d = TempDir::new("sim-link");
     let theirs = d.path("c29u");
     let other = SimProcess::start(&["--link", theirs.to_str().unwrap()]);
     let file = d.path("notes.txt");

@@ -8,6 +8,7 @@ pub mod completions;
 pub mod man;
 pub mod output;
 pub mod run;
+pub mod run_outputs;
 pub mod scan;
 pub mod sim;
 pub mod test;

@@ -8,8 +8,9 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
-use super::core::{Call, Runtime};
+use super::state::Runtime;
 use super::stats::Stats;
+use super::subscriptions::Call;
 use super::wake_latency;
 use crate::config::ErrorPolicy;
 use crate::time::clock::SharedClock;
@@ -109,6 +110,8 @@ pub struct Runner<P: Program> {
     last_start: Duration,
     /// What the loop measured.
     pub stats: Stats,
+    /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
+    pub service: Option<crate::service::notify::Notifier>,
 }
 
 impl<P: Program> Runner<P> {
@@ -127,6 +130,7 @@ impl<P: Program> Runner<P> {
             failures_in_a_row: 0,
             last_start: now,
             stats: Stats::default(),
+            service: None,
         }
     }
 
@@ -202,6 +206,9 @@ impl<P: Program> Runner<P> {
     fn sleep_to_deadline(&self) {
         loop {
             let now = self.clock.now();
+            if let Some(service) = &self.service {
+                service.loop_alive(now);
+            }
             if now >= self.next_deadline || self.options.stop_flag.load(Ordering::SeqCst) {
                 return;
             }
