@@ -817,15 +817,10 @@ impl Checker<'_> {
             return;
         }
         let (methods, properties) = self.registry.members(kind);
-        let (other_methods, other_properties) = self.registry.members(kind.other());
         let message = if !counts.is_empty() {
             format!("{var}.{name} takes {}, not {given}", counts_words(&counts))
-        } else if other_methods.contains(name) || other_properties.contains(name) {
-            format!(
-                "{var} is a {}: it has no {name} (that is a {} member)",
-                kind.name(),
-                kind.other().name()
-            )
+        } else if let Some(message) = self.member_of_the_other_kind(kind, var, name) {
+            message
         } else if properties.contains(name) {
             format!("{var}.{name} is a property: write {var}.{name}, without ()")
         } else {
@@ -840,18 +835,25 @@ impl Checker<'_> {
         self.report(pos, message);
     }
 
+    /// The message for `var.member` when `member` belongs to the other kind of device.
+    fn member_of_the_other_kind(&self, kind: Kind, var: &str, member: &str) -> Option<String> {
+        let (methods, properties) = self.registry.members(kind.other());
+        (methods.contains(member) || properties.contains(member)).then(|| {
+            format!(
+                "{var} is a {}: it has no {member} (that is a {} member)",
+                kind.name(),
+                kind.other().name()
+            )
+        })
+    }
+
     fn check_property(&mut self, kind: Kind, var: &str, property: &str, pos: Position) {
         let (methods, properties) = self.registry.members(kind);
         if properties.contains(property) {
             return;
         }
-        let (other_methods, other_properties) = self.registry.members(kind.other());
-        let message = if other_methods.contains(property) || other_properties.contains(property) {
-            format!(
-                "{var} is a {}: it has no {property} (that is a {} member)",
-                kind.name(),
-                kind.other().name()
-            )
+        let message = if let Some(message) = self.member_of_the_other_kind(kind, var, property) {
+            message
         } else if methods.contains(property) {
             let takes_nothing = self
                 .registry
@@ -1251,7 +1253,7 @@ after("1s", || panel.set_output(1, true));
     fn the_shipped_scripts_have_no_problems() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut checked = 0;
-        for dir in ["scripts", "tests/scenarios/scripts"] {
+        for dir in ["scripts", "tests/scenarios/scripts", "packaging/systemd"] {
             for entry in std::fs::read_dir(root.join(dir)).unwrap() {
                 let path = entry.unwrap().path();
                 if path.extension().is_none_or(|e| e != "rhai") {
@@ -1269,6 +1271,6 @@ after("1s", || panel.set_output(1, true));
                 checked += 1;
             }
         }
-        assert!(checked >= 12, "found only {checked} scripts");
+        assert!(checked >= 13, "found only {checked} scripts");
     }
 }
