@@ -2,7 +2,7 @@
 //! control lines on standard input.
 
 use crate::protocol::c29u_modbus::silence_gap;
-use crate::sim::c29u::{C29u, Eeprom, Protocol};
+use crate::sim::c29u::{C29uModel, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::pty::{Faults, PtyServer};
 use crate::time::clock::{SharedClock, SystemClock};
@@ -236,7 +236,7 @@ fn build_model(
     id: Option<u8>,
     clock: &SharedClock,
     several: bool,
-) -> Result<C29u, String> {
+) -> Result<C29uModel, String> {
     let protocol = Protocol::from(args.protocol);
     let mut model = match &args.state {
         Some(path) => {
@@ -244,9 +244,10 @@ fn build_model(
                 (true, Some(id)) => PathBuf::from(format!("{}.{id}", path.display())),
                 _ => path.clone(),
             };
-            C29u::with_state_file(protocol, Arc::clone(clock), path).map_err(|e| e.to_string())?
+            C29uModel::with_state_file(protocol, Arc::clone(clock), path)
+                .map_err(|e| e.to_string())?
         }
-        None => C29u::new(protocol, Arc::clone(clock), Eeprom::factory()),
+        None => C29uModel::new(protocol, Arc::clone(clock), Eeprom::factory()),
     };
     let mut config = model.config();
     if let Some(id) = id {

@@ -10,7 +10,7 @@
 
 use super::error::STOP_MARKER;
 use super::values::to_json;
-use crate::device::c29u::{C29uError, WatchdogTimeout};
+use crate::device::c29u::{C29uError, Latches, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::{Device, DeviceError};
 use crate::runtime::records::Limits;
@@ -442,27 +442,17 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("latched", |d: &mut Io| -> Map {
         let l = d.rt.borrow_mut().latches(d.idx);
-        let active_low =
-            d.rt.borrow_mut()
-                .c29u(d.idx)
-                .map_or(true, |c| c.config.di_active_low);
         // "on": channels energized since the last clear; "off": released since then.
-        let (on, off) = if active_low {
-            (l.low, l.high)
-        } else {
-            (l.high, l.low)
-        };
         let mut m = Map::new();
-        m.insert("on".into(), Dynamic::from(i64::from(on)));
-        m.insert("off".into(), Dynamic::from(i64::from(off)));
+        m.insert("on".into(), Dynamic::from(i64::from(l.energized)));
+        m.insert("off".into(), Dynamic::from(i64::from(l.released)));
         m
     });
     engine.register_fn("clear_latch", |d: &mut Io| -> R<()> {
         c29u_op(d, |m| {
             m.driver.clear_latches()?;
             if let Some(l) = m.latches.current.as_mut() {
-                l.low = 0;
-                l.high = 0;
+                *l = Latches::default();
             }
             Ok(())
         })

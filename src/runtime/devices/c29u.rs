@@ -4,7 +4,9 @@
 
 use super::{DeviceError, Health, Snapshot};
 use crate::config::C29uConfig;
-use crate::device::c29u::{C29u, C29uError, Latches, SharedLink, WatchdogTimeout};
+use crate::device::c29u::{
+    C29u, C29uError, Latches, Preset, PresetWrite, SharedLink, WatchdogTimeout,
+};
 use crate::link::{ByteLink, LinkError};
 use std::time::Duration;
 
@@ -43,6 +45,20 @@ pub struct C29uDevice {
     pub watchdog_ours: bool,
     /// When the watchdog was last fed.
     pub last_feed: Duration,
+}
+
+/// Stores a preset without the outputs taking a value other than the safe one: over ASCII, where
+/// the module stores only its current outputs (8-24), the outputs are driven to `value` first
+/// when it is the safe value; any other value is refused (`PresetDrivesOutputs`, naming the
+/// `c29` command that can store it).
+fn store_at_safe_value(d: &mut C29u, preset: Preset, value: u8, safe: u8) -> Result<(), C29uError> {
+    match d.store_preset(preset, value, PresetWrite::KeepOutputs) {
+        Err(C29uError::PresetDrivesOutputs { .. }) if value == safe => {
+            d.write_outputs(safe)?;
+            d.store_preset(preset, value, PresetWrite::KeepOutputs)
+        }
+        other => other,
+    }
 }
 
 /// What taking control of a module found worth telling.
@@ -154,16 +170,20 @@ impl C29uDevice {
     ) -> Result<ControlNotes, DeviceError> {
         let mut notes = ControlNotes::default();
         let before = self.driver.watchdog()?;
+        let safe_value = self.config.safe_value;
         let safe = self.driver.safe_value()?;
-        if safe != self.config.safe_value {
-            let v = self.config.safe_value;
-            self.leaving_safe_mode(&mut notes, |d| d.set_safe_value(v))?;
+        if safe != safe_value {
+            self.leaving_safe_mode(&mut notes, |d| {
+                store_at_safe_value(d, Preset::Safe, safe_value, safe_value)
+            })?;
             notes.safe_value_was = Some(safe);
         }
         if let Some(v) = self.config.power_on_value {
             let stored = self.driver.power_on_value()?;
             if stored != v {
-                self.leaving_safe_mode(&mut notes, |d| d.set_power_on_value(v))?;
+                self.leaving_safe_mode(&mut notes, |d| {
+                    store_at_safe_value(d, Preset::PowerOn, v, safe_value)
+                })?;
                 notes.power_on_value_was = Some(stored);
             }
         }

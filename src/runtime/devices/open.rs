@@ -13,7 +13,7 @@ use crate::link::memory::{MemoryByteLink, MemoryPacketLink};
 use crate::link::usb::{UsbPacketLink, UsbTarget};
 use crate::link::{ByteLink, PacketLink};
 use crate::protocol::c29u::baud_code;
-use crate::sim::c29u::{C29u as SimModule, Eeprom, ModuleConfig};
+use crate::sim::c29u::{C29uModel, Eeprom, ModuleConfig};
 use crate::sim::c29u_line::SimulatedC29u;
 use crate::sim::trc1000::Trc1000Sim;
 use crate::time::clock::SharedClock;
@@ -174,7 +174,7 @@ fn simulated_c29u(
         },
         ..Eeprom::factory()
     };
-    let module = SimulatedC29u::new(SimModule::new(c.protocol, Arc::clone(clock), eeprom));
+    let module = SimulatedC29u::new(C29uModel::new(c.protocol, Arc::clone(clock), eeprom));
     let model = module.model();
     let presence = Presence::new();
     let link = MemoryByteLink::new(

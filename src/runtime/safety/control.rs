@@ -150,8 +150,70 @@ impl<H: Clone> Runtime<H> {
 
 #[cfg(test)]
 mod tests {
+    use crate::device::exchange::Direction;
+    use crate::protocol::c29u_ascii::{decode_request, Request};
     use crate::runtime::testing::{TestRig, IO, PANEL, RIG};
+    use std::sync::{Arc, Mutex};
     use std::time::Duration;
+
+    /// `RIG`'s module in ASCII (checksums on), with the power-on value `power_on`.
+    fn ascii_rig(power_on: u8) -> TestRig {
+        let toml = RIG.replace(
+            "safe_value = 0x05\npower_on_value = 0x11",
+            &format!(
+                "protocol = \"ascii\"\nchecksum = true\nsafe_value = 0x05\n\
+                 power_on_value = {power_on:#04x}"
+            ),
+        );
+        TestRig::new(&toml)
+    }
+
+    /// Every output byte the runner sends to the ASCII module from now on.
+    fn output_writes(r: &mut TestRig) -> Arc<Mutex<Vec<u8>>> {
+        let writes = Arc::new(Mutex::new(Vec::new()));
+        let seen = Arc::clone(&writes);
+        r.rt.c29u(IO)
+            .unwrap()
+            .driver
+            .set_tracer(Some(Box::new(move |dir, frame| {
+                if let (Direction::Sent, Ok((_, Request::WriteOutputs(v)))) =
+                    (dir, decode_request(frame, true))
+                {
+                    seen.lock().unwrap().push(v);
+                }
+            })));
+        writes
+    }
+
+    #[test]
+    fn over_ascii_the_safe_value_is_stored_while_the_outputs_hold_it() {
+        let mut r = ascii_rig(0x05);
+        let writes = output_writes(&mut r);
+        r.rt.start_devices().unwrap();
+        assert_eq!(r.sim.safe_value("io").unwrap(), 0x05);
+        assert_eq!(r.sim.power_on_value("io").unwrap(), 0x05);
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        let writes = writes.lock().unwrap();
+        assert!(
+            !writes.is_empty() && writes.iter().all(|v| *v == 0x05),
+            "{writes:?}"
+        );
+    }
+
+    #[test]
+    fn over_ascii_a_power_on_value_that_would_pulse_the_outputs_is_refused() {
+        let mut r = ascii_rig(0x11);
+        let writes = output_writes(&mut r);
+        let e = r.rt.start_devices().unwrap_err().to_string();
+        assert!(e.contains("would drive its outputs to 0x11"), "{e}");
+        assert!(
+            e.contains("--protocol ascii --id 1 --checksum power-on-value 0x11 --drive-outputs"),
+            "{e}"
+        );
+        assert_eq!(r.sim.power_on_value("io").unwrap(), 0x00);
+        let writes = writes.lock().unwrap();
+        assert!(writes.iter().all(|v| *v == 0x05), "{writes:?}");
+    }
 
     #[test]
     fn at_start_every_device_gets_its_configured_safe_state_and_watchdog() {
