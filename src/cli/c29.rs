@@ -28,10 +28,11 @@ use std::time::Duration;
 #[command(
     args_override_self = true,
     after_help = "Exit status: 0 done, 1 the module refused or misbehaved, 2 usage error, \
-                        3 the module cannot be reached (no port, no permission, no answer)."
+                        3 the module cannot be reached (no port, port busy, not a serial port, \
+                        no permission, no answer)."
 )]
 pub struct C29Args {
-    /// Serial port (such as /dev/ttyUSB0) or serial device server (tcp://HOST:PORT) [required]
+    /// Serial port (such as /dev/ttyUSB0) or serial device server (tcp://HOST:PORT) (required)
     #[arg(long, global = true, value_name = "PATH")]
     pub port: Option<String>,
     /// Protocol the module's DIP switch selects

@@ -34,10 +34,11 @@ pub struct RunArgs {
     /// `io`, a TRP-C29U at Modbus ID 1).
     #[arg(long)]
     pub sim: bool,
-    /// Scan period, overriding rig.toml ("20ms", "0.1s", or milliseconds).
-    #[arg(long, value_parser = period)]
+    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s").
+    #[arg(long, value_name = "DURATION", value_parser = period)]
     pub period: Option<Duration>,
-    /// End the run normally after this long ("10s", "5m", "24h").
+    /// End the run normally after this long: a number with a unit ("500ms", "10s", "5m",
+    /// "24h", "1h30m"); a bare number is refused.
     #[arg(long = "for", value_name = "DURATION", value_parser = dur)]
     pub run_for: Option<Duration>,
     /// Append records and measurements to this JSON-lines file (overrides rig.toml).

@@ -4,7 +4,7 @@
 //! Every key is optional except a device's `kind` and a TRP-C29U's `port`; unknown keys and
 //! bad values are errors naming the file, the line and the key, all of them at once:
 //! `rig.toml:9: devices.io.protocol: "modbsu" is not a protocol; use "modbus" or "ascii"`.
-//! Durations are written as `"20ms"`, `"1.5s"`, `"5m"` or a number of milliseconds.
+//! Durations are written with a unit: `"20ms"`, `"1.5s"`, `"5m"`; a bare number is an error.
 
 mod clash;
 mod device;

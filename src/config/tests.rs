@@ -162,13 +162,15 @@ fn device_defaults() {
 
 #[test]
 fn top_level_keys() {
-    let c =
-        parse("period = 50\non_error = \"restart\"\ngrace = 0\nrecords = \"out/r.jsonl\"").unwrap();
+    let c = parse(
+        "period = \"50ms\"\non_error = \"restart\"\ngrace = \"0s\"\nrecords = \"out/r.jsonl\"",
+    )
+    .unwrap();
     assert_eq!(c.period, Duration::from_millis(50));
     assert_eq!(c.on_error, ErrorPolicy::Restart);
     assert_eq!(c.grace, Duration::ZERO, "grace 0: safe at once");
     assert_eq!(c.records, Some(PathBuf::from("out/r.jsonl")));
-    let c = parse("period = 2.5\non_error = \"skip\"\ngrace = \"1m\"").unwrap();
+    let c = parse("period = \"2.5ms\"\non_error = \"skip\"\ngrace = \"1m\"").unwrap();
     assert_eq!(c.period, Duration::from_micros(2500));
     assert_eq!(c.on_error, ErrorPolicy::Skip);
     assert_eq!(c.on_error.as_str(), "skip");
@@ -180,8 +182,13 @@ fn top_level_keys() {
     let wake = |t: &str| parse(&format!("wake_latency = {t}")).unwrap().wake_latency;
     assert_eq!(wake("\"off\""), WakeLatency::Off);
     assert_eq!(wake("\"auto\""), WakeLatency::Auto);
-    assert_eq!(wake("0"), WakeLatency::Limit(Duration::ZERO));
     assert_eq!(wake("\"0us\""), WakeLatency::Limit(Duration::ZERO));
+    assert_eq!(
+        problems("wake_latency = 0"),
+        vec![
+            r#"rig.toml:1: wake_latency: 0 is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#
+        ]
+    );
 }
 
 #[test]
@@ -204,7 +211,7 @@ fn trc1000_keys() {
 #[test]
 fn c29u_keys() {
     let io = c29u(
-        "protocol = \"ascii\"\nid = 0\nbaud = 115200\nchecksum = true\ntimeout = 250\n\
+        "protocol = \"ascii\"\nid = 0\nbaud = 115200\nchecksum = true\ntimeout = \"250ms\"\n\
          retries = 0\nwatchdog = \"25.5s\"\nsafe_value = 0b1010_0101\npower_on_value = 0xFF\n\
          di_active_low = false",
     )
@@ -305,10 +312,10 @@ fn watchdog_times() {
     assert_eq!(wd("\"2s\"").unwrap(), Some(20));
     assert_eq!(wd("\"0.1s\"").unwrap(), Some(1));
     assert_eq!(wd("\"100ms\"").unwrap(), Some(1));
-    assert_eq!(wd("1500").unwrap(), Some(15), "milliseconds");
+    assert_eq!(wd("\"1500ms\"").unwrap(), Some(15));
     assert_eq!(wd("\"25.5s\"").unwrap(), Some(255));
     assert_eq!(wd("\"off\"").unwrap(), None);
-    assert_eq!(wd("0").unwrap(), None, "0 disables, as on the module");
+    assert_eq!(wd("\"0s\"").unwrap(), None, "0 disables, as on the module");
     for bad in [
         "\"25.6s\"",
         "\"2.05s\"",
@@ -316,6 +323,8 @@ fn watchdog_times() {
         "\"1m\"",
         "\"on\"",
         "1",
+        "1500",
+        "0",
     ] {
         assert_eq!(
             c29u_problem(&format!("watchdog = {bad}")),
@@ -372,25 +381,82 @@ fn the_briefs_example_error() {
 #[test]
 fn bad_values_name_line_and_key() {
     let cases: &[(&str, &str)] = &[
-        ("period = 0", r#"rig.toml:1: period: 0 is not a period; it must be above zero"#),
-        ("\nperiod = \"0s\"", r#"rig.toml:2: period: "0s" is not a period; it must be above zero"#),
+        (
+            "period = \"0ms\"",
+            r#"rig.toml:1: period: "0ms" is not a period; it must be above zero"#,
+        ),
+        (
+            "period = 20",
+            r#"rig.toml:1: period: 20 has no unit: write "20ms", "20s" or "20m" (a duration is a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m"))"#,
+        ),
+        (
+            "grace = 2.5",
+            r#"rig.toml:1: grace: 2.5 has no unit: write "2.5ms", "2.5s" or "2.5m" (a duration is a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m"))"#,
+        ),
+        (
+            "grace = \"10\"",
+            r#"rig.toml:1: grace: "10" has no unit: write "10ms", "10s" or "10m" (a duration is a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m"))"#,
+        ),
+        (
+            "\nperiod = \"0s\"",
+            r#"rig.toml:2: period: "0s" is not a period; it must be above zero"#,
+        ),
         (
             "period = \"fast\"",
-            r#"rig.toml:1: period: "fast" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m") or a number of milliseconds"#,
+            r#"rig.toml:1: period: "fast" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
         ),
-        ("period = -5", "rig.toml:1: period: -5 is not a duration; milliseconds must be 0 or more"),
-        ("period = nan", "rig.toml:1: period: nan is not a duration; milliseconds must be 0 or more"),
-        ("period = true", r#"rig.toml:1: period: expected a duration ("20ms", "1.5s") or milliseconds, found a boolean"#),
-        ("on_error = \"panic\"", r#"rig.toml:1: on_error: "panic" is not an error policy; use "stop", "restart" or "skip""#),
-        ("on_error = 1", "rig.toml:1: on_error: expected a string, found an integer"),
-        ("records = \"\"", r#"rig.toml:1: records: "" is not a file name"#),
-        ("records = [\"a\"]", "rig.toml:1: records: expected a string, found an array"),
-        ("grace = \"-1s\"", r#"rig.toml:1: grace: "-1s" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m") or a number of milliseconds"#),
-        ("grace = 1979-05-27", "rig.toml:1: grace: expected a duration (\"20ms\", \"1.5s\") or milliseconds, found a date-time"),
-        ("\n\nwake_latency = \"low\"", r#"rig.toml:3: wake_latency: "low" is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#),
-        ("wake_latency = true", r#"rig.toml:1: wake_latency: true is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#),
-        ("devices = 3", "rig.toml:1: devices: expected a table of devices ([devices.NAME]), found an integer"),
-        ("[devices]\nio = 3", "rig.toml:2: devices.io: expected a table ([devices.NAME]), found an integer"),
+        (
+            "period = -5",
+            r#"rig.toml:1: period: -5 is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
+        ),
+        (
+            "period = nan",
+            r#"rig.toml:1: period: nan is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
+        ),
+        (
+            "period = true",
+            r#"rig.toml:1: period: expected a duration ("20ms", "1.5s"), found a boolean"#,
+        ),
+        (
+            "on_error = \"panic\"",
+            r#"rig.toml:1: on_error: "panic" is not an error policy; use "stop", "restart" or "skip""#,
+        ),
+        (
+            "on_error = 1",
+            "rig.toml:1: on_error: expected a string, found an integer",
+        ),
+        (
+            "records = \"\"",
+            r#"rig.toml:1: records: "" is not a file name"#,
+        ),
+        (
+            "records = [\"a\"]",
+            "rig.toml:1: records: expected a string, found an array",
+        ),
+        (
+            "grace = \"-1s\"",
+            r#"rig.toml:1: grace: "-1s" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
+        ),
+        (
+            "grace = 1979-05-27",
+            "rig.toml:1: grace: expected a duration (\"20ms\", \"1.5s\"), found a date-time",
+        ),
+        (
+            "\n\nwake_latency = \"low\"",
+            r#"rig.toml:3: wake_latency: "low" is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#,
+        ),
+        (
+            "wake_latency = true",
+            r#"rig.toml:1: wake_latency: true is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#,
+        ),
+        (
+            "devices = 3",
+            "rig.toml:1: devices: expected a table of devices ([devices.NAME]), found an integer",
+        ),
+        (
+            "[devices]\nio = 3",
+            "rig.toml:2: devices.io: expected a table ([devices.NAME]), found an integer",
+        ),
     ];
     for (text, want) in cases {
         assert_eq!(problems(text), vec![want.to_string()], "{text}");
@@ -436,7 +502,8 @@ fn bad_c29u_values() {
             "rig.toml:4: devices.io.checksum: true is for the ascii protocol only; Modbus RTU frames always carry a CRC",
         ),
         ("checksum = \"no\"", "rig.toml:4: devices.io.checksum: expected true or false, found a string"),
-        ("timeout = 0", "rig.toml:4: devices.io.timeout: 0 is not a timeout; it must be above zero"),
+        ("timeout = \"0ms\"", "rig.toml:4: devices.io.timeout: \"0ms\" is not a timeout; it must be above zero"),
+        ("timeout = 250", "rig.toml:4: devices.io.timeout: 250 has no unit: write \"250ms\""),
         ("retries = 11", "rig.toml:4: devices.io.retries: 11 is not a retry count; use 0-10"),
         ("safe_value = 256", "rig.toml:4: devices.io.safe_value: 256 is not a DO byte; use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"),
         ("power_on_value = -1", "rig.toml:4: devices.io.power_on_value: -1 is not a DO byte"),
@@ -464,7 +531,7 @@ fn bad_c29u_values() {
 #[test]
 fn missing_and_unknown_kinds() {
     assert_eq!(
-        problems("period = 20\n\n[devices.io]\nport = \"/dev/ttyUSB0\"\n"),
+        problems("period = \"20ms\"\n\n[devices.io]\nport = \"/dev/ttyUSB0\"\n"),
         vec![r#"rig.toml:3: devices.io.kind: missing; give kind = "trc1000" or kind = "trp-c29u""#]
     );
     assert_eq!(
@@ -484,7 +551,7 @@ fn missing_and_unknown_kinds() {
 #[test]
 fn unknown_top_level_keys() {
     assert_eq!(
-        problems("period = 20\nperoid = 30\n"),
+        problems("period = \"20ms\"\nperoid = 30\n"),
         vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, wake_latency, devices"]
     );
     assert_eq!(
@@ -750,15 +817,14 @@ fn a_watchdog_that_cannot_be_fed_in_time_is_refused_with_the_arithmetic() {
     assert!(
         p.starts_with(
             "rig.toml:4: devices.io.watchdog: \"0.8s\" is too short for this rig: a feed may \
-             reach the module 778."
+             reach the module 778ms after it is due"
         ),
         "{p}"
     );
     for part in [
-        "waiting for the longest exchange 649.",
-        "(io: 3 tries x (100ms silence + 16.",
-        "request + 100ms timeout)), then 100ms silence + 8.",
-        "20ms for the loop to wake), which leaves 21.",
+        "waiting for the longest exchange 650ms (io: 3 tries x (100ms silence + 16.7ms request \
+         + 100ms timeout)), then 100ms silence + 8.33ms request on its line, 20ms for the loop \
+         to wake), which leaves 21.7ms",
         "of the 800ms between feeds, less than a tenth; use a watchdog of at least 0.9s, or \
          shorter timeouts or fewer retries",
     ] {

@@ -61,9 +61,11 @@ mod tests {
             Ok(WakeLatency::Limit(Duration::from_micros(50)))
         );
         assert_eq!(
-            WakeLatency::parse("0"),
+            WakeLatency::parse("0us"),
             Ok(WakeLatency::Limit(Duration::ZERO))
         );
+        // A bare number has no unit (a duration anywhere on the command line needs one).
+        assert!(WakeLatency::parse("0").is_err());
         let e = WakeLatency::parse("fast").unwrap_err();
         assert!(e.contains("\"fast\" is not a wake latency"), "{e}");
         assert!(e.contains("\"auto\""), "{e}");

@@ -55,6 +55,21 @@ pub struct RigSetup {
 /// Why a run could not start, with the exit status it calls for.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {
+    /// The config names no devices (exit 2).
+    #[error(
+        "the config defines no devices (no [devices.NAME] tables), so there is nothing to {}",
+        if *simulated {
+            "simulate; --sim without --config gives the default rig: panel (a TRC1000) and io \
+             (a TRP-C29U)"
+        } else {
+            "drive; add a [devices.NAME] table for each device (see README), or try the script \
+             with --sim and no --config: the default rig, panel (a TRC1000) and io (a TRP-C29U)"
+        }
+    )]
+    NoDevices {
+        /// Whether the run was to simulate them.
+        simulated: bool,
+    },
     /// The script does not compile (exit 1).
     #[error("{0}")]
     Script(String),
@@ -77,7 +92,7 @@ impl RigError {
     pub fn status(&self) -> i32 {
         match self {
             RigError::Script(_) => exit::ERROR,
-            RigError::Records(_) => exit::USAGE,
+            RigError::NoDevices { .. } | RigError::Records(_) => exit::USAGE,
             RigError::Open(_) | RigError::Unavailable(_) => exit::UNAVAILABLE,
             RigError::Internal(_) => exit::INTERNAL,
         }
@@ -95,6 +110,11 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
+    if setup.config.devices.is_empty() {
+        return Err(RigError::NoDevices {
+            simulated: setup.simulate,
+        });
+    }
     let ast = sandboxed(setup.budget)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, &e)))?;
@@ -251,5 +271,30 @@ mod tests {
             "{log}"
         );
         assert!(!rig.sim.watchdog("io").unwrap().enabled, "not set");
+    }
+
+    #[test]
+    fn a_config_without_devices_says_so_and_points_to_the_default_rig() {
+        let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap());
+        let mut s = setup(&clock);
+        s.config = RigConfig::parse("period = \"20ms\"\n", "rig.toml").unwrap();
+        let Err(e) = start("io.outputs = 1;", "t.rhai", s) else {
+            panic!("a rig without devices started");
+        };
+        assert_eq!(e.status(), 2);
+        assert_eq!(
+            e.to_string(),
+            "the config defines no devices (no [devices.NAME] tables), so there is nothing to \
+             simulate; --sim without --config gives the default rig: panel (a TRC1000) and io \
+             (a TRP-C29U)"
+        );
+        let mut s = setup(&clock);
+        s.config = RigConfig::parse("", "rig.toml").unwrap();
+        s.simulate = false;
+        let text = start("", "t.rhai", s).err().unwrap().to_string();
+        assert!(
+            text.contains("nothing to drive; add a [devices.NAME] table"),
+            "{text}"
+        );
     }
 }

@@ -7,7 +7,8 @@
 //! - 8-1 / NOTES: `%` is answered `!NN` from the new ID, framed with the checksum setting the
 //!   request came with; the following frames use the new settings.
 //! - 8-19: an output write in safe mode is answered `!IDWE`.
-//! - 8-21: `~IDWR` answers as [`WatchdogReading`] reads it (the model stores 0 for "disabled").
+//! - 8-21: `~IDWR` answers as [`WatchdogReading`](crate::protocol::c29u_ascii::WatchdogReading)
+//!   reads it (the model stores 0 for "disabled").
 //! - 8-23: `~ID4V`'s second byte ("DI0~DI7") is the inputs as on the wire now.
 //! - A LF right after a CR (a CR LF line end) is ignored; a frame longer than
 //!   [`AsciiFrontEnd::MAX_FRAME`] is dropped up to the next CR.

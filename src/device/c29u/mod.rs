@@ -182,6 +182,8 @@ impl C29uError {
                 e,
                 LinkError::NotFound { .. }
                     | LinkError::PermissionDenied { .. }
+                    | LinkError::Busy { .. }
+                    | LinkError::NotSerial { .. }
                     | LinkError::Disconnected { .. }
             ),
             Self::Timeout { .. } => true,

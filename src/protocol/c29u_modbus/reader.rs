@@ -89,7 +89,7 @@ enum Step {
 /// The buffer never holds more than the bytes of one frame that may still be arriving (fewer
 /// than [`MAX_FRAME_LEN`]) plus one piece of input, so a flooding peer cannot grow it, and the
 /// work per byte is bounded: whether a complete frame of certain length starts at an offset is
-/// decided once per offset ([`Verdict`]), however many times the search passes over it.
+/// decided once per offset (`Verdict`), however many times the search passes over it.
 #[derive(Debug, Clone)]
 pub struct FrameReader {
     buf: Vec<u8>,
