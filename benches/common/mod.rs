@@ -3,7 +3,7 @@
 
 use rigscript::protocol::c29u::{baud_code, Protocol};
 use rigscript::protocol::c29u_modbus::silence_gap;
-use rigscript::sim::c29u::{C29u as Model, Eeprom, ModuleConfig};
+use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig};
 use rigscript::sim::c29u_line::SimulatedC29u;
 use rigscript::sim::pty::{Faults, PtyServer};
 use rigscript::sim::ByteDevice;

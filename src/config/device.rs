@@ -2,6 +2,7 @@
 
 use super::error::ProblemKind;
 use super::reader::{bad, boolean, duration, integer_in, string, Reader, TableRef};
+use super::script_may_change::{self, ScriptMayChange};
 pub use crate::link::line::FrameGap;
 use crate::link::line::MAX_FRAME_GAP;
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
@@ -86,6 +87,8 @@ pub struct C29uConfig {
     pub di_active_low: bool,
     /// Silence kept on a serial line before each request (default auto: the protocol's rule).
     pub frame_gap: FrameGap,
+    /// Which of the fail-safe settings given here the script may change (`script_may_change`).
+    pub script_may_change: ScriptMayChange,
 }
 
 /// The answer timeouts rig.toml accepts: an answer at 1200 baud with its request takes a
@@ -110,6 +113,7 @@ impl C29uConfig {
             power_on_value: None,
             di_active_low: true,
             frame_gap: FrameGap::Auto,
+            script_may_change: ScriptMayChange::ALL,
         }
     }
 }
@@ -156,6 +160,7 @@ const DEVICE_KEYS_C29U: &[&str] = &[
     "power_on_value",
     "di_active_low",
     "frame_gap",
+    script_may_change::KEY,
 ];
 
 /// Whether `name` can name a device: an identifier of ASCII letters, digits and `_`.
@@ -332,6 +337,8 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
         .read(t, "di_active_low", boolean)
         .unwrap_or(c.di_active_low);
     c.frame_gap = r.read(t, "frame_gap", frame_gap).unwrap_or(c.frame_gap);
+    let listed = r.read(t, script_may_change::KEY, script_may_change::read);
+    c.script_may_change = ScriptMayChange::of(t, &listed.unwrap_or_default());
     port.map(|port| C29uConfig { port, ..c })
 }
 
@@ -386,21 +393,22 @@ fn baud(v: &DeValue<'_>) -> Result<u32, ProblemKind> {
 }
 
 fn frame_gap(v: &DeValue<'_>) -> Result<FrameGap, ProblemKind> {
-    if let DeValue::String(s) = v {
-        if s.as_ref() == "auto" {
-            return Ok(FrameGap::Auto);
-        }
-    }
     let not_a_gap = || {
         bad(
             v,
             r#"is not a frame gap; use "auto" (the protocol's silence) or a duration up to 1s"#,
         )
     };
-    match duration(v) {
-        Ok(d) if d <= MAX_FRAME_GAP => Ok(FrameGap::Fixed(d)),
-        Ok(_) | Err(ProblemKind::BadValue { .. }) => Err(not_a_gap()),
-        Err(other) => Err(other),
+    let d = match v {
+        DeValue::String(s) if s.as_ref() == "auto" => return Ok(FrameGap::Auto),
+        DeValue::String(_) => duration(v).map_err(|_| not_a_gap())?,
+        // A bare number gets the duration reader's advice (write a unit).
+        _ => duration(v)?,
+    };
+    if d <= MAX_FRAME_GAP {
+        Ok(FrameGap::Fixed(d))
+    } else {
+        Err(not_a_gap())
     }
 }
 
@@ -464,18 +472,15 @@ mod tests {
             FrameGap::Fixed(Duration::from_millis(5))
         );
         assert_eq!(
-            io("frame_gap = 0").unwrap().frame_gap,
+            io("frame_gap = \"0s\"").unwrap().frame_gap,
             FrameGap::Fixed(Duration::ZERO)
         );
-        for bad in [
-            "frame_gap = \"2s\"",
-            "frame_gap = \"often\"",
-            "frame_gap = -1",
-        ] {
+        for bad in ["frame_gap = \"2s\"", "frame_gap = \"often\""] {
             let e = io(bad).unwrap_err();
             assert!(e.contains("devices.io.frame_gap"), "{e}");
             assert!(e.contains("\"auto\""), "{e}");
         }
+        assert!(io("frame_gap = 5").unwrap_err().contains("has no unit"));
     }
 
     #[test]
@@ -484,11 +489,14 @@ mod tests {
             io("timeout = \"1s\"").unwrap().timeout,
             Duration::from_secs(1)
         );
-        assert_eq!(io("timeout = 1").unwrap().timeout, Duration::from_millis(1));
+        assert_eq!(
+            io("timeout = \"1ms\"").unwrap().timeout,
+            Duration::from_millis(1)
+        );
         for bad in [
             "timeout = \"1000000h\"",
             "timeout = \"1.001s\"",
-            "timeout = 0",
+            "timeout = \"0s\"",
             "timeout = \"500us\"",
         ] {
             let e = io(bad).unwrap_err();

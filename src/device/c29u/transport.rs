@@ -1,7 +1,7 @@
 //! The shared serial line under a TRP-C29U driver: one request at a time, the silence before
 //! each, per-request timeout, retries, and `--trace` output.
 
-use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer, ADAPTER_LATENCY};
+use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
 use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
 use crate::protocol::c29u::Protocol;
@@ -53,21 +53,6 @@ pub(crate) enum Fault {
     Retry(C29uError),
     /// Give up at once.
     Final(C29uError),
-}
-
-/// The longest one request can hold the line when the module stays silent: every attempt
-/// waits out `timeout` after the request has left (`ADAPTER_LATENCY` and its time on the wire
-/// at `baud` included), and every retry first waits a further `timeout` of silence for a late
-/// answer. What watchdog feeds and a SIGTERM's safe-state write must allow for per request.
-pub fn longest_request(timeout: Duration, retries: u32, baud: u32) -> Duration {
-    let longest_frame = crate::link::line::wire_time(MAX_FRAME_LEN, baud);
-    let attempt = timeout
-        .saturating_add(ADAPTER_LATENCY)
-        .saturating_add(longest_frame);
-    let attempts = retries.saturating_add(1);
-    attempt
-        .saturating_mul(attempts)
-        .saturating_add(timeout.saturating_mul(retries))
 }
 
 /// One driver's view of the line: its link, clock, timing and trace.
@@ -205,8 +190,10 @@ mod tests {
     }
 
     #[test]
-    fn a_silent_module_holds_the_line_no_longer_than_longest_request() {
-        for (retries, baud) in [(0, 9600), (2, 9600), (3, 1200)] {
+    fn a_silent_module_holds_the_line_for_every_try_and_the_settling_before_each_retry() {
+        // What config::feeding counts: tries x (silence + request + timeout), the silence
+        // before a retry being the timeout.
+        for (retries, baud) in [(0u32, 9600), (2, 9600), (3, 1200)] {
             let clock = VirtualClock::at_epoch();
             let link = MemoryByteLink::new(Silent, "silent")
                 .with_clock(Arc::new(clock.clone()))
@@ -223,9 +210,11 @@ mod tests {
                 dev.read_counters(),
                 Err(C29uError::Timeout { .. })
             ));
-            let bound = longest_request(Duration::from_millis(100), retries, baud);
-            assert!(clock.now() <= bound, "{:?} > {bound:?}", clock.now());
-            assert!(clock.now() >= Duration::from_millis(100) * (2 * retries + 1));
+            let request = crate::link::line::wire_time(8, baud);
+            let tries = retries + 1;
+            let expected = (request + Duration::from_millis(100)) * tries
+                + Duration::from_millis(100) * retries;
+            assert_eq!(clock.now(), expected, "{retries} retries at {baud} baud");
         }
     }
 }
