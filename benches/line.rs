@@ -166,8 +166,9 @@ fn measure(
         .arg(child.id().to_string())
         .status();
     let output = child.wait_with_output().expect("the master ends");
+    // `rigscript run` ends on SIGTERM with 128 + 15, the C loop with 0.
     assert!(
-        output.status.success(),
+        matches!(output.status.code(), Some(0 | 143)),
         "{} failed: {}",
         master.name(),
         String::from_utf8_lossy(&output.stderr)
