@@ -639,15 +639,18 @@ mod tests {
         let log2 = log.clone();
         let mut tracer: Option<Tracer> =
             Some(Box::new(move |_, b| log2.lock().unwrap().push(b.len())));
-        match exchange(
-            &mut link,
-            &clock,
-            b"x",
-            true,
-            timing(Some(2)),
-            |_| None,
-            &mut tracer,
-        ) {
+        let mut ask = |tracer: &mut Option<Tracer>| {
+            exchange(
+                &mut link,
+                &clock,
+                b"x",
+                true,
+                timing(Some(2)),
+                |_| None,
+                tracer,
+            )
+        };
+        match ask(&mut tracer) {
             Err(ExchangeError::Overflow { received }) => assert_eq!(received.len(), 64),
             other => panic!("expected an overflow, got {other:?}"),
         }
@@ -657,15 +660,7 @@ mod tests {
             "the trace shows at most the longest answer"
         );
         let before = clock.now();
-        match exchange(
-            &mut link,
-            &clock,
-            b"x",
-            true,
-            timing(Some(2)),
-            |_| None,
-            &mut None,
-        ) {
+        match ask(&mut None) {
             Err(ExchangeError::Busy { heard, within }) => {
                 assert!(heard > 64);
                 assert!(within <= Duration::from_millis(201));
