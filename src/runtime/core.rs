@@ -5,6 +5,7 @@
 
 use super::devices::links::TransactionCounter;
 use super::devices::{C29uDevice, Device, DeviceError, TrcDevice};
+use super::invariants::Invariant;
 use super::log::Logger;
 use super::records::Records;
 use super::schedule::{Schedule, ScheduleError, TimerId, TimerKind};
@@ -122,6 +123,8 @@ pub struct Runtime<H> {
     pub schedule: Schedule<Zone>,
     subs: Vec<Subscription<H>>,
     next_sub: u64,
+    /// What the script states must hold after every tick (`runtime::invariants`).
+    pub invariants: Vec<Invariant<H>>,
     /// Records and measurements.
     pub records: Records,
     /// The log.
@@ -162,6 +165,7 @@ impl<H: Clone> Runtime<H> {
             schedule: Schedule::with_time_zone(zone),
             subs: Vec::new(),
             next_sub: 1,
+            invariants: Vec::new(),
             records,
             log,
             tick: 0,
@@ -646,11 +650,14 @@ impl<H: Clone> Runtime<H> {
         self.subs.iter().any(|s| s.source != Source::Stop)
     }
 
-    /// Whether some handler waits for device inputs (then every tick polls them).
+    /// Whether some handler waits for device inputs, or an invariant is stated (then every
+    /// tick runs: invariants are checked every tick).
     pub fn polls_inputs(&self) -> bool {
-        self.subs
-            .iter()
-            .any(|s| !matches!(s.source, Source::Timer(_) | Source::Stop))
+        !self.invariants.is_empty()
+            || self
+                .subs
+                .iter()
+                .any(|s| !matches!(s.source, Source::Timer(_) | Source::Stop))
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
@@ -703,6 +710,7 @@ impl<H: Clone> Runtime<H> {
     /// before the script is started again.
     pub fn reset_program(&mut self) {
         self.subs.clear();
+        self.invariants.clear();
         self.schedule = Schedule::with_time_zone(self.zone);
         self.stop_request = None;
         for d in &mut self.devices {

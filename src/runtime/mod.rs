@@ -3,6 +3,8 @@
 
 pub mod core;
 pub mod devices;
+pub mod error_log;
+pub mod invariants;
 pub mod log;
 pub mod records;
 pub mod safety;

@@ -9,6 +9,8 @@
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
 use super::core::{Call, Runtime};
+use super::error_log::ErrorLog;
+use super::invariants::{Check, Violation};
 use super::stats::Stats;
 use super::wake_latency;
 use crate::config::ErrorPolicy;
@@ -59,6 +61,8 @@ pub trait Program {
     fn start(&mut self) -> Result<(), Fault>;
     /// Runs one handler.
     fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
+    /// Evaluates an invariant (stated at `at`): whether it holds.
+    fn holds(&mut self, call: &Call<Self::Handler>, at: Option<&str>) -> Result<bool, Fault>;
 }
 
 /// How a run is driven.
@@ -87,6 +91,8 @@ pub enum EndReason {
     Signal,
     /// A script or runtime error (policy `stop`, or at the first start).
     Error(String),
+    /// An invariant was found false (`runtime::invariants`).
+    Violated(String),
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -109,6 +115,9 @@ pub struct Runner<P: Program> {
     last_start: Duration,
     /// What the loop measured.
     pub stats: Stats,
+    /// The script errors so far.
+    pub errors: ErrorLog,
+    violation: Option<Violation>,
 }
 
 impl<P: Program> Runner<P> {
@@ -127,6 +136,8 @@ impl<P: Program> Runner<P> {
             failures_in_a_row: 0,
             last_start: now,
             stats: Stats::default(),
+            errors: ErrorLog::default(),
+            violation: None,
         }
     }
 
@@ -148,6 +159,11 @@ impl<P: Program> Runner<P> {
         }
     }
 
+    /// The invariant found false, if one was (the run then ended).
+    pub fn violation(&self) -> Option<&Violation> {
+        self.violation.as_ref()
+    }
+
     /// When the next tick is due.
     pub fn next_deadline(&self) -> Duration {
         self.next_deadline
@@ -160,6 +176,7 @@ impl<P: Program> Runner<P> {
         self.last_start = self.clock.now();
         if let Err(f) = self.program.start() {
             let message = describe(&f, "top level");
+            self.errors.push(&message, f.over_budget);
             self.finish(EndReason::Error(message));
         }
     }
@@ -269,6 +286,9 @@ impl<P: Program> Runner<P> {
             State::Running => self.run_handlers(),
             _ => {}
         }
+        if self.state == State::Running && !self.check_invariants() {
+            return;
+        }
         if self.status().is_some() {
             return;
         }
@@ -354,9 +374,47 @@ impl<P: Program> Runner<P> {
         }
     }
 
+    /// Checks every invariant after the handlers, before the outputs are written; false if
+    /// the run ended: an invariant found false (the safe state is written instead of this
+    /// tick's outputs, status 1 whatever the policy), or one that could not be evaluated (a
+    /// script error that is never skipped or restarted: it could not vouch for the outputs).
+    fn check_invariants(&mut self) -> bool {
+        let checks = self.rt.borrow().invariant_checks();
+        for Check { call, name, at } in checks {
+            self.rt.borrow_mut().cause.clone_from(&call.label);
+            match self.program.holds(&call, at.as_deref()) {
+                Ok(true) => {}
+                Ok(false) => {
+                    let violation = {
+                        let rt = self.rt.borrow();
+                        Violation {
+                            name,
+                            at,
+                            uptime: rt.uptime(),
+                            devices: rt.readings(),
+                        }
+                    };
+                    self.rt.borrow_mut().report_violation(&violation);
+                    let message = violation.to_string();
+                    self.violation = Some(violation);
+                    self.finish(EndReason::Violated(message));
+                    return false;
+                }
+                Err(f) => {
+                    let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
+                    self.finish(EndReason::Error(message));
+                    return false;
+                }
+            }
+        }
+        true
+    }
+
     /// Applies the error policy to a failed handler; true if the tick goes on.
     fn handle_fault(&mut self, fault: &Fault, label: &str) -> bool {
         let message = describe(fault, label);
+        self.errors.push(&message, fault.over_budget);
         let policy = match (self.options.policy, fault.over_budget) {
             // A runaway handler is never skipped: it would run away again.
             (ErrorPolicy::Skip, true) => ErrorPolicy::Stop,
@@ -416,6 +474,7 @@ impl<P: Program> Runner<P> {
         }
         if let Err(f) = self.program.start() {
             let message = describe(&f, "top level");
+            self.errors.push(&message, f.over_budget);
             self.schedule_restart(&message);
         }
     }
@@ -437,6 +496,8 @@ impl<P: Program> Runner<P> {
                         .info(&format!("stopping: the script called stop({code})"));
                 }
                 EndReason::Finished(why) => rt.log.info(&format!("stopping: {why}")),
+                // Logged with the tick's readings by `report_violation`.
+                EndReason::Violated(_) => {}
             }
         }
         if was_running {
@@ -445,6 +506,7 @@ impl<P: Program> Runner<P> {
                 self.rt.borrow_mut().cause.clone_from(&call.label);
                 if let Err(f) = self.program.call(&call) {
                     let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
                     self.rt.borrow_mut().log.error(&message);
                 }
             }
@@ -452,6 +514,7 @@ impl<P: Program> Runner<P> {
         let mut rt = self.rt.borrow_mut();
         let why = match &reason {
             EndReason::Error(_) => "script error",
+            EndReason::Violated(_) => "invariant false",
             EndReason::Signal => "signal",
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
@@ -460,7 +523,7 @@ impl<P: Program> Runner<P> {
         rt.release_watchdogs();
         let failed = rt.records.failed();
         let status = match reason {
-            EndReason::Error(_) => 1,
+            EndReason::Error(_) | EndReason::Violated(_) => 1,
             EndReason::Stopped(code) => i32::try_from(code.clamp(0, 255)).unwrap_or(1),
             EndReason::Signal | EndReason::Finished(_) => 0,
         };
@@ -525,6 +588,10 @@ mod tests {
         fn start(&mut self) -> Result<(), Fault> {
             self.rt.borrow_mut().every(self.every, ()).unwrap();
             Ok(())
+        }
+        fn holds(&mut self, _call: &Call<()>, _at: Option<&str>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
         }
         fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
             self.calls += 1;

@@ -1,9 +1,9 @@
 //! `rigscript check`: finds what can be found without running a script. It compiles it (so
 //! syntax, `import` and `eval` are reported), then walks its syntax tree for literal
 //! arguments: device names in `device("...")` against the rig, switch and rotary names,
-//! channels, durations and cron expressions, the number of parameters of handlers, and
-//! methods of one kind of device called on the other (for variables bound once to a
-//! `device("...")` literal).
+//! channels, durations and cron expressions, the number of parameters of handlers and of
+//! invariants (closures taking none), and methods of one kind of device called on the other
+//! (for variables bound once to a `device("...")` literal).
 
 use super::api::takes_words;
 use super::engine::{sandboxed, DEFAULT_BUDGET};
@@ -104,6 +104,7 @@ const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("cron", 1, &["missed"]),
     ("after", 1, &[]),
     ("on_stop", 0, &[]),
+    ("invariant", 1, &[]),
 ];
 
 struct Checker<'a> {
@@ -336,6 +337,7 @@ impl Checker<'_> {
                     self.report(*at, e.to_string());
                 }
             }
+            ("invariant", _) if !is_method => self.check_invariant(args, pos),
             _ => {}
         }
         let device_only = matches!(
@@ -360,6 +362,59 @@ impl Checker<'_> {
                     }
                 }
             }
+        }
+    }
+
+    /// `invariant(name, || bool)`: a name, and a closure (not a value computed once).
+    fn check_invariant(&mut self, args: &[Expr], pos: Position) {
+        match args {
+            [name, check] => {
+                if !matches!(name, Expr::StringConstant(..) | Expr::Variable(..)) {
+                    let at = if name.position().is_none() {
+                        pos
+                    } else {
+                        name.position()
+                    };
+                    self.report(
+                        at,
+                        "the first argument of invariant is its name, a string".into(),
+                    );
+                }
+                let literal = matches!(
+                    check,
+                    Expr::BoolConstant(..)
+                        | Expr::IntegerConstant(..)
+                        | Expr::FloatConstant(..)
+                        | Expr::StringConstant(..)
+                        | Expr::CharConstant(..)
+                        | Expr::Unit(..)
+                        | Expr::And(..)
+                        | Expr::Or(..)
+                        | Expr::Dot(..)
+                        | Expr::Index(..)
+                );
+                if literal || matches!(check, Expr::FnCall(c, _) if c.name.as_str() != "Fn") {
+                    let at = if check.position().is_none() {
+                        pos
+                    } else {
+                        check.position()
+                    };
+                    self.report(
+                        at,
+                        "the check of invariant must be a closure taking no parameters, such \
+                         as `|| io.outputs == 0`: a value is computed once, a closure every tick"
+                            .into(),
+                    );
+                }
+            }
+            _ => self.report(
+                pos,
+                format!(
+                    "invariant takes a name and a closure, `invariant(\"what it promises\", || \
+                     ...)`; here it has {} argument(s)",
+                    args.len()
+                ),
+            ),
         }
     }
 
@@ -496,6 +551,38 @@ after("1s", |x| {});
         assert_eq!(p.len(), 2, "{p:?}");
         assert!(p[0].starts_with("1:4: io is a TRP-C29U"), "{p:?}");
         assert!(p[1].starts_with("2:7: panel is a TRC1000"), "{p:?}");
+    }
+
+    #[test]
+    fn invariants_must_be_closures_taking_no_parameters() {
+        let good = problems(
+            "let limit = 3;\ninvariant(\"low\", || io.outputs <= limit);\ninvariant(\"a\", || true);\n",
+        );
+        assert!(good.is_empty(), "{good:?}");
+        let p = problems(
+            "invariant(\"x\", |a| true);\ninvariant(\"y\", io.outputs == 0);\ninvariant(\"z\");\ninvariant(\"w\", true);\n",
+        );
+        assert_eq!(p.len(), 4, "{p:#?}");
+        assert!(
+            p[0].starts_with("1:16: the handler of invariant takes no parameters"),
+            "{}",
+            p[0]
+        );
+        assert!(
+            p[1].starts_with("2:") && p[1].contains("must be a closure"),
+            "{}",
+            p[1]
+        );
+        assert!(
+            p[2].starts_with("3:1: invariant takes a name and a closure"),
+            "{}",
+            p[2]
+        );
+        assert!(
+            p[3].starts_with("4:16: the check of invariant must be a closure"),
+            "{}",
+            p[3]
+        );
     }
 
     #[test]
