@@ -12,3 +12,4 @@ pub mod runtime;
 pub mod script;
 pub mod sim;
 pub mod time;
+pub mod verify;

@@ -225,10 +225,17 @@ impl<H: Clone> Runtime<H> {
             .collect()
     }
 
-    /// What each device shows now: the last inputs read and the outputs the script wants.
+    /// What each device the script uses shows now: the last inputs read and the outputs the
+    /// script wants (a device never read and still at its safe state is left out).
     pub fn readings(&self) -> Vec<DeviceReading> {
         self.devices
             .iter()
+            .filter(|d| match d {
+                Device::C29u(c) => c.inputs.current.is_some() || c.outputs != c.config.safe_value,
+                Device::Trc(t) => {
+                    t.switches.current.is_some() || Some(t.relay) != t.config.safe_relay
+                }
+            })
             .map(|d| match d {
                 Device::C29u(c) => DeviceReading::C29u {
                     name: c.name.clone(),

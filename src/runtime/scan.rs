@@ -61,8 +61,8 @@ pub trait Program {
     fn start(&mut self) -> Result<(), Fault>;
     /// Runs one handler.
     fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
-    /// Evaluates an invariant (stated at `at`): whether it holds.
-    fn holds(&mut self, call: &Call<Self::Handler>, at: Option<&str>) -> Result<bool, Fault>;
+    /// Evaluates an invariant: whether it holds.
+    fn holds(&mut self, check: &Check<Self::Handler>) -> Result<bool, Fault>;
 }
 
 /// How a run is driven.
@@ -380,16 +380,16 @@ impl<P: Program> Runner<P> {
     /// script error that is never skipped or restarted: it could not vouch for the outputs).
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
-        for Check { call, name, at } in checks {
-            self.rt.borrow_mut().cause.clone_from(&call.label);
-            match self.program.holds(&call, at.as_deref()) {
+        for check in checks {
+            self.rt.borrow_mut().cause.clone_from(&check.call.label);
+            match self.program.holds(&check) {
                 Ok(true) => {}
                 Ok(false) => {
                     let violation = {
                         let rt = self.rt.borrow();
                         Violation {
-                            name,
-                            at,
+                            name: check.name,
+                            at: check.at,
                             uptime: rt.uptime(),
                             devices: rt.readings(),
                         }
@@ -401,7 +401,7 @@ impl<P: Program> Runner<P> {
                     return false;
                 }
                 Err(f) => {
-                    let message = describe(&f, &call.label);
+                    let message = describe(&f, &check.call.label);
                     self.errors.push(&message, f.over_budget);
                     self.finish(EndReason::Error(message));
                     return false;
@@ -589,7 +589,7 @@ mod tests {
             self.rt.borrow_mut().every(self.every, ()).unwrap();
             Ok(())
         }
-        fn holds(&mut self, _call: &Call<()>, _at: Option<&str>) -> Result<bool, Fault> {
+        fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
             // This program states no invariants.
             Ok(true)
         }

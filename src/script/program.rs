@@ -6,6 +6,7 @@ use super::engine::sandboxed;
 use super::error::{fault, is_stop};
 use super::reads::{ReadSet, ReadTracker};
 use crate::runtime::core::{Arg, Call};
+use crate::runtime::invariants::Check;
 use crate::runtime::scan::{Fault, Program};
 use rhai::{Dynamic, Engine, FnPtr, Scope, AST};
 use std::collections::BTreeMap;
@@ -130,10 +131,10 @@ impl Program for ScriptProgram {
         }
     }
 
-    fn holds(&mut self, call: &Call<FnPtr>, at: Option<&str>) -> Result<bool, Fault> {
+    fn holds(&mut self, check: &Check<FnPtr>) -> Result<bool, Fault> {
+        let (call, at) = (&check.call, check.at.as_deref());
         let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, ());
-        let name = call.label.strip_prefix("invariant ").unwrap_or(&call.label);
-        self.note_reads(Some(name));
+        self.note_reads(Some(&check.name));
         match result {
             Ok(v) => v.as_bool().map_err(|_| Fault {
                 location: at.map(str::to_string),

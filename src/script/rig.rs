@@ -90,6 +90,17 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
+    start_with(source, file, setup, |_| {})
+}
+
+/// `start`, with `prepare` given the program before its top level runs (`verify` has it keep
+/// count of what the script does from the first line on).
+pub fn start_with(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    prepare: impl FnOnce(&mut ScriptProgram),
+) -> Result<Rig, RigError> {
     let ast = sandboxed(setup.budget)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, &e)))?;
@@ -122,7 +133,8 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         r.release_watchdogs();
         return Err(e.into());
     }
-    let program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    let mut program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    prepare(&mut program);
     let period = setup.period.unwrap_or(setup.config.period);
     warn_short_watchdogs(&mut rt.borrow_mut(), period);
     let options = RunOptions {
