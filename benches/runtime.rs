@@ -15,10 +15,10 @@
 //! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name). CPU while
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
 
-use rigscript::config::RigConfig;
+use rigscript::config::{RigConfig, WakeLatency};
 use rigscript::runtime::devices::SimRig;
 use rigscript::runtime::stats::Histogram;
-use rigscript::runtime::wake_latency::{self, WakeLatency};
+use rigscript::runtime::wake_latency;
 use rigscript::script::engine::DEFAULT_BUDGET;
 use rigscript::script::rig::{start, Rig, RigSetup};
 use rigscript::time::clock::{Clock, SharedClock, SystemClock, VirtualClock};

@@ -6,6 +6,7 @@ pub mod c29;
 pub mod check;
 pub mod output;
 pub mod run;
+pub mod run_outputs;
 pub mod scan;
 pub mod sim;
 pub mod test;

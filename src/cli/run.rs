@@ -3,9 +3,13 @@
 //!
 //! Exit status: 0 ok, 1 script or runtime error, 2 usage or config error, 3 a device not
 //! available at start, 4 a measurement out of its limits.
+//!
+//! Under systemd (`Type=notify`) it sends READY=1 once every device is under control and feeds
+//! the service watchdog from the scan loop (`cli::run_outputs`); `--junit FILE` writes the
+//! measurements as JUnit XML.
 
-use crate::config::RigConfig;
-use crate::runtime::wake_latency::WakeLatency;
+use super::run_outputs::RunOutputs;
+use crate::config::{RigConfig, WakeLatency};
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
@@ -52,6 +56,10 @@ pub struct RunArgs {
     /// Operations each handler call may take before it is stopped as a runaway.
     #[arg(long, default_value_t = DEFAULT_BUDGET)]
     pub budget: u64,
+    /// Also write the measurements as JUnit XML to FILE (Jenkins, GitLab): each `measure` a
+    /// test case with its value and limits, plus one for the run itself.
+    #[arg(long, value_name = "FILE")]
+    pub junit: Option<PathBuf>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -88,6 +96,13 @@ pub fn run(args: RunArgs) -> i32 {
         config.wake_latency = w;
     }
     let file = args.script.display().to_string();
+    let mut outputs = match RunOutputs::new(&file, args.junit) {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("rigscript run: {e}");
+            return 2;
+        }
+    };
     let source = match std::fs::read_to_string(&args.script) {
         Ok(s) => s,
         Err(e) => {
@@ -112,7 +127,7 @@ pub fn run(args: RunArgs) -> i32 {
         records: args.records,
         log_to_stderr: true,
         quiet: args.quiet,
-        keep_log: false,
+        keep_log: outputs.keeps_log(),
         budget: args.budget,
         stop_flag,
     };
@@ -120,10 +135,12 @@ pub fn run(args: RunArgs) -> i32 {
         Ok(r) => r,
         Err(e) => {
             eprintln!("rigscript run: {e}");
-            return e.status();
+            return outputs.not_started(e.status(), &e.to_string());
         }
     };
+    outputs.started(&mut rig);
     let status = rig.runner.run();
+    let status = outputs.finished(&mut rig, status);
     if args.stats {
         println!("{}", rig.runner.stats);
     }

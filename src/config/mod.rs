@@ -11,19 +11,21 @@ mod error;
 mod reader;
 #[cfg(test)]
 mod tests;
+mod wake_latency;
 
 pub use device::{
     is_device_name, C29uConfig, DeviceConfig, Port, Protocol, Trc1000Address, Trc1000Config,
     WatchdogTimeout,
 };
 pub use error::{ConfigError, Problem, ProblemKind};
+pub use wake_latency::WakeLatency;
 
-use crate::runtime::wake_latency::{WakeLatency, ACCEPTED_FORMS as WAKE_FORMS};
 use reader::{duration, line_and_column, string, Reader, TableRef};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use toml::de::{DeTable, DeValue};
+use wake_latency::ACCEPTED_FORMS as WAKE_FORMS;
 
 /// Scan period when rig.toml does not set one: 50 ticks a second.
 pub const DEFAULT_PERIOD: Duration = Duration::from_millis(20);

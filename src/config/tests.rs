@@ -1,7 +1,6 @@
 //! Tests of rig.toml reading: every key, every error with its line, the defaults.
 
 use super::*;
-use crate::runtime::wake_latency::WakeLatency;
 use proptest::prelude::*;
 
 const EXAMPLE: &str = r#"period = "20ms"

@@ -4,8 +4,9 @@
 //! policy says (an interlock that contradicts itself must stop). This module holds them and
 //! describes a violation with the inputs and outputs of the tick it happened in.
 
-use super::core::{Call, Runtime};
 use super::devices::Device;
+use super::state::Runtime;
+use super::subscriptions::Call;
 use serde_json::{json, Value};
 use std::fmt;
 use std::time::Duration;

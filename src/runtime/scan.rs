@@ -8,10 +8,11 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
-use super::core::{Call, Runtime};
 use super::error_log::ErrorLog;
 use super::invariants::{Check, Violation};
+use super::state::Runtime;
 use super::stats::Stats;
+use super::subscriptions::Call;
 use super::wake_latency;
 use crate::config::ErrorPolicy;
 use crate::time::clock::SharedClock;
@@ -118,6 +119,8 @@ pub struct Runner<P: Program> {
     /// The script errors so far.
     pub errors: ErrorLog,
     violation: Option<Violation>,
+    /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
+    pub service: Option<crate::service::notify::Notifier>,
 }
 
 impl<P: Program> Runner<P> {
@@ -138,6 +141,7 @@ impl<P: Program> Runner<P> {
             stats: Stats::default(),
             errors: ErrorLog::default(),
             violation: None,
+            service: None,
         }
     }
 
@@ -219,6 +223,9 @@ impl<P: Program> Runner<P> {
     fn sleep_to_deadline(&self) {
         loop {
             let now = self.clock.now();
+            if let Some(service) = &self.service {
+                service.loop_alive(now);
+            }
             if now >= self.next_deadline || self.options.stop_flag.load(Ordering::SeqCst) {
                 return;
             }

@@ -5,9 +5,9 @@ use super::api::{register, Arities, Rt};
 use super::engine::sandboxed;
 use super::error::{fault, is_stop};
 use super::reads::{ReadSet, ReadTracker};
-use crate::runtime::core::{Arg, Call};
 use crate::runtime::invariants::Check;
 use crate::runtime::scan::{Fault, Program};
+use crate::runtime::subscriptions::{Arg, Call};
 use rhai::{Dynamic, Engine, FnPtr, Scope, AST};
 use std::collections::BTreeMap;
 

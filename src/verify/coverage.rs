@@ -176,7 +176,7 @@ impl Coverage {
     /// Takes in what the program counted and the handlers it has, at the end of the run.
     pub fn finish(&mut self, rig: &Rig) {
         let rt = rig.runner.runtime().borrow();
-        for s in rt.subscriptions() {
+        for s in rt.handlers.list() {
             self.handlers.insert(s.label.clone());
         }
         if let Some(c) = rig.runner.program().coverage() {

@@ -5,9 +5,9 @@
 
 use crate::config::{DeviceConfig, RigConfig};
 use crate::protocol::trc1000::{Rotary, Switch};
-use crate::runtime::core::Source;
 use crate::runtime::devices::Device;
 use crate::runtime::schedule::TimerKind;
+use crate::runtime::subscriptions::Source;
 use crate::script::reads::{Item, ReadSet};
 use crate::script::rig::Rig;
 use std::collections::BTreeSet;
@@ -51,9 +51,9 @@ impl Observed {
     /// Takes in the timers and watchdogs the rig has now.
     pub fn look(&mut self, rig: &Rig) {
         let rt = rig.runner.runtime().borrow();
-        for s in rt.subscriptions() {
+        for s in rt.handlers.list() {
             if let Source::Timer(id) = s.source {
-                match rt.timer_kind(id) {
+                match rt.handlers.timer_kind(id) {
                     Some(TimerKind::Every(d) | TimerKind::After(d)) => {
                         self.timers.insert(*d);
                     }

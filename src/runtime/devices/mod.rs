@@ -185,6 +185,22 @@ impl Device {
         }
     }
 
+    /// The TRC1000, if this is one.
+    pub fn as_trc(&mut self) -> Option<&mut TrcDevice> {
+        match self {
+            Device::Trc(d) => Some(d),
+            Device::C29u(_) => None,
+        }
+    }
+
+    /// The TRP-C29U, if this is one.
+    pub fn as_c29u(&mut self) -> Option<&mut C29uDevice> {
+        match self {
+            Device::C29u(d) => Some(d),
+            Device::Trc(_) => None,
+        }
+    }
+
     /// The device's health.
     pub fn health(&self) -> &Health {
         match self {
