@@ -13,7 +13,7 @@ use crate::time::duration::{format_duration, parse_duration};
 use crate::verify::exec::Target;
 use crate::verify::{report, search, Options, SHRINK_BUDGET};
 use clap::Args;
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -76,6 +76,11 @@ fn command(args: &VerifyArgs, seed: u64) -> String {
     c
 }
 
+/// Prints a line on standard output; a reader that went away (`| head`) is no error.
+fn say(line: &str) {
+    let _ = writeln!(std::io::stdout().lock(), "{line}");
+}
+
 /// Runs `rigscript verify`; returns the exit status.
 pub fn run(args: VerifyArgs) -> i32 {
     let mut config = match &args.config {
@@ -130,14 +135,14 @@ pub fn run(args: VerifyArgs) -> i32 {
         run_for: args.run_for,
     };
     if !args.json {
-        println!(
+        say(&format!(
             "verify {file}: seed {seed}, up to {} runs of {} at {} per tick, faults {}, {jobs} \
              job(s)",
             args.runs,
             format_duration(args.run_for),
             format_duration(target.config.period),
             if args.no_faults { "off" } else { "on" }
-        );
+        ));
     }
     let show_progress = !args.json && std::io::stderr().is_terminal();
     let total = args.runs;
@@ -177,10 +182,10 @@ pub fn run(args: VerifyArgs) -> i32 {
         }
     }
     if args.json {
-        println!("{}", report::to_json(&summary, &opts, test.as_deref()));
+        say(&report::to_json(&summary, &opts, test.as_deref()).to_string());
     } else {
         for line in report::human(&summary, &opts, test.as_deref()) {
-            println!("{line}");
+            say(&line);
         }
     }
     i32::from(summary.counterexample.is_some())

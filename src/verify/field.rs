@@ -300,11 +300,21 @@ impl<'a> Gen<'a> {
         );
     }
 
+    /// A whole DI byte: often all energized (a rig at rest: guards closed, sensors made) or
+    /// none, otherwise any.
+    fn input_byte(&mut self) -> u8 {
+        match self.rng.u8(0..10) {
+            0..=3 => 0xFF,
+            4..=5 => 0x00,
+            _ => self.rng.u8(..),
+        }
+    }
+
     fn input(&mut self, dev: usize, ch: u8) {
         let name = self.name(dev);
         let now = self.inputs.get(&dev).copied().unwrap_or(0);
         if self.rng.f64() < 0.1 {
-            let byte = self.rng.u8(..);
+            let byte = self.input_byte();
             self.inputs.insert(dev, byte);
             self.push(self.t, Action::Inputs { dev: name, byte });
             return;
@@ -367,7 +377,7 @@ impl<'a> Gen<'a> {
             if self.profile.devices.get(idx).map(|d| d.kind) == Some(Kind::C29u)
                 && self.rng.f64() < 0.7
             {
-                let byte = self.rng.u8(..);
+                let byte = self.input_byte();
                 self.inputs.insert(idx, byte);
                 let dev = self.name(idx);
                 self.push(at, Action::Inputs { dev, byte });
