@@ -39,6 +39,14 @@ fn verify_json(args: &[&str], out: &Path) -> (i32, Value) {
     (o.status.code().unwrap_or(-1), doc)
 }
 
+/// Writes `source` as `name` in a fresh directory tagged `tag`; the directory and the path.
+fn script(tag: &str, name: &str, source: &str) -> (std::path::PathBuf, String) {
+    let dir = fresh_dir(tag);
+    let path = dir.join(name);
+    std::fs::write(&path, source).unwrap();
+    (dir, path.to_string_lossy().into_owned())
+}
+
 /// The planted-bug variants: (file, the invariant that catches them, fewest events needed).
 const PLANTED: &[(&str, &str, usize)] = &[
     (
@@ -150,18 +158,15 @@ fn the_same_seed_gives_the_same_counterexample_whatever_the_jobs() {
 
 #[test]
 fn a_pass_reports_coverage_and_warns_of_what_was_never_exercised() {
-    let dir = fresh_dir("verify-coverage");
-    let script = dir.join("idle.rhai");
-    std::fs::write(
-        &script,
+    let (_dir, s) = script(
+        "verify-coverage",
+        "idle.rhai",
         r#"let panel = device("panel");
 after("10m", || panel.relay = 1);
 panel.on_press("S3", || {});
 invariant("the relay stays at 0", || panel.relay == 0);
 "#,
-    )
-    .unwrap();
-    let s = script.to_string_lossy().into_owned();
+    );
     let o = run(&[
         "verify",
         &s,
@@ -195,14 +200,11 @@ invariant("the relay stays at 0", || panel.relay == 0);
 
 #[test]
 fn a_device_fault_the_script_does_not_handle_is_a_finding() {
-    let dir = fresh_dir("verify-fault");
-    let script = dir.join("careless.rhai");
-    std::fs::write(
-        &script,
+    let (dir, s) = script(
+        "verify-fault",
+        "careless.rhai",
         "let io = device(\"io\");\nevery(\"100ms\", || io.clear_counter(0));\n",
-    )
-    .unwrap();
-    let s = script.to_string_lossy().into_owned();
+    );
     let out = dir.join("out");
     let (status, doc) = verify_json(&[&s, "--runs", "40", "--for", "10s", "--seed", "3"], &out);
     assert_eq!(status, 1, "{doc:#}");
@@ -235,14 +237,11 @@ fn a_device_fault_the_script_does_not_handle_is_a_finding() {
 
 #[test]
 fn a_runaway_handler_is_a_finding_of_one_event() {
-    let dir = fresh_dir("verify-budget");
-    let script = dir.join("runaway.rhai");
-    std::fs::write(
-        &script,
+    let (dir, s) = script(
+        "verify-budget",
+        "runaway.rhai",
         "let io = device(\"io\");\nio.on_rise(5, || { loop {} });\n",
-    )
-    .unwrap();
-    let s = script.to_string_lossy().into_owned();
+    );
     let (status, doc) = verify_json(
         &[
             &s, "--runs", "20", "--for", "10s", "--seed", "1", "--budget", "20000",
@@ -257,16 +256,13 @@ fn a_runaway_handler_is_a_finding_of_one_event() {
 
 #[test]
 fn outputs_not_at_the_rigs_safe_value_at_the_end_are_a_finding() {
-    let dir = fresh_dir("verify-end");
-    let script = dir.join("weakens.rhai");
     // The script stores its own safe value, so the end of the run leaves 0xF0 where rig.toml
     // says 0x00.
-    std::fs::write(
-        &script,
+    let (dir, s) = script(
+        "verify-end",
+        "weakens.rhai",
         "let io = device(\"io\");\nio.safe_value = 0xF0;\nevery(\"1s\", || {});\n",
-    )
-    .unwrap();
-    let s = script.to_string_lossy().into_owned();
+    );
     let (status, doc) = verify_json(
         &[
             &s,
@@ -293,10 +289,7 @@ fn outputs_not_at_the_rigs_safe_value_at_the_end_are_a_finding() {
 
 #[test]
 fn a_script_that_cannot_run_or_a_bad_config_is_a_usage_error() {
-    let dir = fresh_dir("verify-usage");
-    let script = dir.join("bad.rhai");
-    std::fs::write(&script, "let x = device(\"nope\");\n").unwrap();
-    let s = script.to_string_lossy().into_owned();
+    let (dir, s) = script("verify-usage", "bad.rhai", "let x = device(\"nope\");\n");
     let o = run(&["verify", &s, "--runs", "1"]);
     assert_eq!(o.status.code(), Some(2));
     let check = run(&["check", &s]);
@@ -319,17 +312,15 @@ fn a_script_that_cannot_run_or_a_bad_config_is_a_usage_error() {
 
 #[test]
 fn in_run_a_false_invariant_ends_the_run_with_1_and_the_safe_state_recorded() {
-    let dir = fresh_dir("verify-run");
-    let script = dir.join("contradicts.rhai");
-    std::fs::write(
-        &script,
+    let (dir, s) = script(
+        "verify-run",
+        "contradicts.rhai",
         "let io = device(\"io\");\nio.outputs = 3;\ninvariant(\"at most one output\", || io.outputs < 2);\nevery(\"1s\", || {});\n",
-    )
-    .unwrap();
+    );
     let records = dir.join("records.jsonl");
     let o = run(&[
         "run",
-        &script.to_string_lossy(),
+        &s,
         "--sim",
         "--for",
         "2s",

@@ -1,34 +1,23 @@
 //! Invariants in a run: checked every tick after the handlers, a false one ends the run with
 //! the safe state instead of the tick's outputs, and a broken one is a script error at its line.
 
+use super::builder::RigBuilder;
 use super::engine::DEFAULT_BUDGET;
-use super::rig::{start, Rig, RigSetup};
+use super::rig::Rig;
 use crate::config::{ErrorPolicy, RigConfig};
-use crate::time::clock::VirtualClock;
-use crate::time::zone::Zone;
 use chrono::{TimeZone, Utc};
-use std::sync::Arc;
 use std::time::Duration;
 
 fn rig(script: &str, policy: ErrorPolicy, budget: u64) -> Rig {
-    let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap());
-    let mut config = RigConfig::simulated_default();
-    config.on_error = policy;
-    let setup = RigSetup {
-        config,
-        simulate: true,
-        clock: Arc::new(clock),
-        zone: Zone::utc(),
-        period: None,
-        end_after: None,
-        records: None,
-        log_to_stderr: false,
-        quiet: false,
-        keep_log: true,
-        budget,
-        stop_flag: Arc::default(),
-    };
-    start(script, "t.rhai", setup).unwrap()
+    RigBuilder::from_config(RigConfig::simulated_default())
+        .on_error(policy)
+        .simulated()
+        .virtual_time_from(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap())
+        .log_to_stderr(false)
+        .keep_log()
+        .budget(budget)
+        .start(script, "t.rhai")
+        .unwrap()
 }
 
 fn log(r: &Rig) -> String {

@@ -9,7 +9,8 @@ use super::profile::Observed;
 use crate::config::RigConfig;
 use crate::runtime::devices::FieldError;
 use crate::runtime::scan::EndReason;
-use crate::script::rig::{start_with, Rig, RigError, RigSetup};
+use crate::script::builder::RigBuilder;
+use crate::script::rig::{start_with, Rig, RigError};
 use crate::sim::answer_faults::AnswerFault;
 use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
@@ -218,20 +219,14 @@ impl Player<'_> {
 pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, ExecError> {
     let zone = zone_of(&plan.start.zone)?;
     let clock = VirtualClock::new(plan.start.wall.with_timezone(&Utc));
-    let setup = RigSetup {
-        config: target.config.clone(),
-        simulate: true,
-        clock: Arc::new(clock.clone()),
-        zone,
-        period: None,
-        end_after: None,
-        records: None,
-        log_to_stderr: false,
-        quiet: true,
-        keep_log: false,
-        budget: target.budget,
-        stop_flag: Arc::default(),
-    };
+    let setup = RigBuilder::from_config(target.config.clone())
+        .simulated()
+        .clock(Arc::new(clock.clone()))
+        .zone(zone)
+        .log_to_stderr(false)
+        .quiet()
+        .budget(target.budget)
+        .setup();
     let rig = start_with(&target.source, &target.file, setup, |p| p.track_coverage())
         .map_err(|e| ExecError::Start(Box::new(e)))?;
     let mut player = Player {
@@ -284,4 +279,126 @@ pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, Exec
     let now = player.clock.now();
     let f = player.watch.after_end(&player.rig, now);
     Ok(player.finish(f, played))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::checks::Check;
+    use super::super::plan::{Event, StartPoint};
+    use super::*;
+    use crate::protocol::trc1000::Switch;
+
+    const SCRIPT: &str = r#"
+let io = device("io");
+let panel = device("panel");
+panel.on_press("S12", || if io.inputs == 0x0F { io.outputs = 1; });
+io.on_fall(3, || {});
+invariant("power only with DI3 closed", || io.outputs == 0 || io.input(3));
+"#;
+
+    fn target() -> Target {
+        Target {
+            source: SCRIPT.into(),
+            file: "t.rhai".into(),
+            config: RigConfig::simulated_default(),
+            budget: 100_000,
+            run_for: Duration::from_secs(2),
+        }
+    }
+
+    fn plan() -> Plan {
+        let io: Arc<str> = Arc::from("io");
+        Plan {
+            start: StartPoint {
+                wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
+                zone: "UTC".into(),
+            },
+            events: vec![
+                Event {
+                    at: Duration::ZERO,
+                    action: Action::Inputs {
+                        dev: io.clone(),
+                        byte: 0x0F,
+                    },
+                },
+                Event {
+                    at: Duration::ZERO,
+                    action: Action::Press {
+                        dev: Arc::from("panel"),
+                        switch: Switch::new(12).unwrap(),
+                    },
+                },
+                Event {
+                    at: Duration::from_millis(25),
+                    action: Action::Input {
+                        dev: io,
+                        ch: 3,
+                        on: false,
+                    },
+                },
+                Event {
+                    at: Duration::from_millis(500),
+                    action: Action::Stop,
+                },
+            ],
+        }
+    }
+
+    #[test]
+    fn a_plan_plays_the_same_every_time_and_stops_at_the_finding() {
+        let keep = Keep {
+            coverage: true,
+            observe: true,
+        };
+        let a = execute(&target(), &plan(), keep).unwrap();
+        let b = execute(&target(), &plan(), keep).unwrap();
+        let f = a.finding.clone().expect("the invariant is found false");
+        assert_eq!(
+            f.check,
+            Check::Invariant("power only with DI3 closed".into())
+        );
+        assert_eq!(f.at, Duration::from_millis(40));
+        assert_eq!(a.played, 3, "the stop after the finding is not played");
+        assert_eq!(a.steps, b.steps);
+        assert_eq!(b.finding, Some(f));
+        // The first tick (the baseline reading) runs before the events at 0 ms, so the test
+        // file must say so, or its first reading would already see S12 held.
+        assert_eq!(a.steps[0], Step::Advance(Duration::ZERO));
+        assert_eq!(
+            a.steps.last(),
+            Some(&Step::Advance(Duration::from_millis(15)))
+        );
+        let c = a.coverage.expect("coverage kept");
+        assert_eq!(c.fired.get("panel.on_press S12"), Some(&1));
+        assert_eq!(c.fired.get("io.on_fall DI3"), Some(&1));
+        assert!(a
+            .observed
+            .reads
+            .contains(0, crate::script::reads::Item::Input(3)));
+    }
+
+    #[test]
+    fn a_counter_carried_to_its_wrap_is_written_as_the_pulses_it_took() {
+        let mut p = plan();
+        p.events = vec![Event {
+            at: Duration::from_millis(10),
+            action: Action::CounterNearWrap {
+                dev: Arc::from("io"),
+                ch: 2,
+                below: 3,
+            },
+        }];
+        let keep = Keep {
+            coverage: false,
+            observe: false,
+        };
+        let o = execute(&target(), &p, keep).unwrap();
+        assert!(o.finding.is_none(), "{:?}", o.finding);
+        assert!(o.steps.contains(&Step::Act(Action::Pulse {
+            dev: Arc::from("io"),
+            ch: 2,
+            n: 65532
+        })));
+        assert_eq!(o.steps.last(), Some(&Step::End));
+    }
 }
