@@ -387,6 +387,7 @@ impl<P: Program> Runner<P> {
     /// script error that is never skipped or restarted: it could not vouch for the outputs).
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
+        let accesses = self.rt.borrow().input_accesses;
         for check in checks {
             self.rt.borrow_mut().cause.clone_from(&check.call.label);
             match self.program.holds(&check) {
@@ -415,6 +416,8 @@ impl<P: Program> Runner<P> {
                 }
             }
         }
+        let mut rt = self.rt.borrow_mut();
+        rt.invariants_read_inputs = rt.input_accesses != accesses;
         true
     }
 

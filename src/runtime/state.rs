@@ -28,6 +28,11 @@ pub struct Runtime<H> {
     pub handlers: Subscriptions<H>,
     /// What the script states must hold after every tick (`invariants`).
     pub invariants: Vec<Invariant<H>>,
+    /// Whether the invariants read device inputs when last evaluated (or have not been yet):
+    /// then every tick runs, so the inputs they read are read every tick.
+    pub invariants_read_inputs: bool,
+    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
+    pub input_accesses: u64,
     /// Records and measurements.
     pub records: Records,
     /// The log.
@@ -67,6 +72,8 @@ impl<H: Clone> Runtime<H> {
             devices,
             handlers: Subscriptions::new(zone),
             invariants: Vec::new(),
+            invariants_read_inputs: true,
+            input_accesses: 0,
             records,
             log,
             tick: 0,
@@ -102,10 +109,13 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
-    /// timer, watchdog feed or retry of a lost device. `None` when every tick has work (a
-    /// handler polls inputs, or an invariant is stated: invariants are checked every tick).
+    /// timer, watchdog feed or retry of a lost device. `None` when every tick has work: a
+    /// handler polls inputs, or an invariant read device inputs when last evaluated (an
+    /// invariant that reads only outputs, script state or time can change only in a tick that
+    /// runs anyway, and is checked in every tick that runs).
     pub fn idle_until(&self) -> Option<Duration> {
-        if self.handlers.polls_inputs() || !self.invariants.is_empty() {
+        let invariants_poll = !self.invariants.is_empty() && self.invariants_read_inputs;
+        if self.handlers.polls_inputs() || invariants_poll {
             return None;
         }
         let now = self.now();
@@ -123,6 +133,7 @@ impl<H: Clone> Runtime<H> {
     pub fn reset_program(&mut self) {
         self.handlers.clear();
         self.invariants.clear();
+        self.invariants_read_inputs = true;
         self.stop_request = None;
         self.reset_outputs();
     }

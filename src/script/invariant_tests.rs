@@ -99,6 +99,25 @@ fn invariants_are_checked_every_tick_even_when_no_handler_polls() {
 }
 
 #[test]
+fn an_invariant_that_reads_no_inputs_leaves_idle_ticks_skipped() {
+    // Only outputs and script state: they change only in ticks that run anyway.
+    let script = r#"
+        let io = device("io");
+        let on = false;
+        invariant("DO0 as the script says", || io.output(0) == on);
+        every("1m", || { on = !on; io.set_output(0, on); });
+    "#;
+    let mut r = rig(script, ErrorPolicy::Stop, DEFAULT_BUDGET);
+    r.runner.advance(Duration::from_secs(3600));
+    assert_eq!(r.runner.status(), None);
+    assert!(
+        r.runner.stats.ticks < 1_000,
+        "{} ticks in an hour at 20 ms",
+        r.runner.stats.ticks
+    );
+}
+
+#[test]
 fn an_invariant_that_throws_is_a_script_error_at_its_line() {
     let script = "let io = device(\"io\");\ninvariant(\"x\", || {\n  io.nope()\n});\nevery(\"1s\", || {});\n";
     let mut r = rig(script, ErrorPolicy::Skip, DEFAULT_BUDGET);

@@ -168,6 +168,7 @@ pub fn to_json(summary: &Summary, opts: &Options, test: Option<&Path>) -> Value 
             "test_file": test.map(|p| p.display().to_string()),
         })
     });
+    let passed = summary.counterexample.is_none();
     json!({
         "seed": summary.seed,
         "runs": summary.runs,
@@ -176,8 +177,10 @@ pub fn to_json(summary: &Summary, opts: &Options, test: Option<&Path>) -> Value 
         "search_s": summary.search_time.as_secs_f64(),
         "result": if counterexample.is_some() { "counterexample" } else { "pass" },
         "counterexample": counterexample,
-        "events": summary.events,
-        "fault_events": summary.faults,
-        "coverage": if summary.counterexample.is_none() { summary.coverage.to_json() } else { Value::Null },
+        // Totals and coverage only after a pass: when a run failed, runs after it may or may
+        // not have finished, so they would differ between invocations.
+        "events": if passed { json!(summary.events) } else { Value::Null },
+        "fault_events": if passed { json!(summary.faults) } else { Value::Null },
+        "coverage": if passed { summary.coverage.to_json() } else { Value::Null },
     })
 }
