@@ -4,6 +4,7 @@
 pub mod devices;
 pub mod error_log;
 mod events;
+pub mod exit;
 mod inputs;
 pub mod invariants;
 pub mod log;

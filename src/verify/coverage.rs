@@ -36,7 +36,13 @@ impl Shown {
             Device::C29u(c) => Shown {
                 inputs: c.inputs.current,
                 counters: c.counters.current,
-                latches: c.latches.current.map(|Latches { low, high }| (low, high)),
+                latches: c.latches.current.map(
+                    |Latches {
+                         energized,
+                         released,
+                         ..
+                     }| (energized, released),
+                ),
                 online: c.health.online(),
                 outputs: c.outputs,
                 ..Shown::default()
