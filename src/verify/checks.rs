@@ -80,6 +80,8 @@ pub struct Finding {
     pub at: Duration,
     /// What was seen.
     pub detail: String,
+    /// The devices not at their safe state (the built-in safety checks).
+    pub devices: Vec<String>,
 }
 
 impl fmt::Display for Finding {
@@ -165,17 +167,37 @@ impl Watch {
             },
             at,
             detail: e.message.clone(),
+            devices: Vec::new(),
         })
     }
 
-    /// The devices that answer but do not show their safe state.
-    fn unsafe_devices(&self, rig: &Rig) -> Vec<String> {
+    /// The devices that answer, and that the runner has under control, but do not show
+    /// their safe state. (A device gone in the simulator shows nothing; one the runner counts
+    /// as lost cannot be written to until it is back.)
+    fn unsafe_devices(&self, rig: &Rig) -> Vec<(String, String)> {
         let rt = rig.runner.runtime().borrow();
         self.safe
             .iter()
             .filter(|(name, _)| rt.device_index(name).is_some_and(|i| rt.online(i)))
-            .filter_map(|(name, safe)| unsafe_device(&rig.sim, name, safe))
+            .filter(|(name, _)| rig.sim.answers(name).unwrap_or(false))
+            .filter_map(|(name, safe)| {
+                unsafe_device(&rig.sim, name, safe).map(|seen| (name.clone(), seen))
+            })
             .collect()
+    }
+
+    /// A safety finding from the devices `unsafe_devices` found.
+    fn safety(check: Check, at: Duration, bad: Vec<(String, String)>) -> Option<Finding> {
+        if bad.is_empty() {
+            return None;
+        }
+        let (devices, seen): (Vec<String>, Vec<String>) = bad.into_iter().unzip();
+        Some(Finding {
+            check,
+            at,
+            detail: seen.join("; "),
+            devices,
+        })
     }
 
     /// What the tick that just ran showed, at `at`.
@@ -185,20 +207,14 @@ impl Watch {
                 check: Check::Invariant(v.name.clone()),
                 at,
                 detail: v.readings(),
+                devices: Vec::new(),
             });
         }
         if let Some(f) = self.errors(rig, at) {
             return Some(f);
         }
         if rig.runner.runtime().borrow().held_safe {
-            let bad = self.unsafe_devices(rig);
-            if !bad.is_empty() {
-                return Some(Finding {
-                    check: Check::HeldSafe,
-                    at,
-                    detail: bad.join("; "),
-                });
-            }
+            return Self::safety(Check::HeldSafe, at, self.unsafe_devices(rig));
         }
         None
     }
@@ -208,12 +224,7 @@ impl Watch {
         if let Some(f) = self.errors(rig, at) {
             return Some(f);
         }
-        let bad = self.unsafe_devices(rig);
-        (!bad.is_empty()).then(|| Finding {
-            check: Check::EndSafe,
-            at,
-            detail: bad.join("; "),
-        })
+        Self::safety(Check::EndSafe, at, self.unsafe_devices(rig))
     }
 }
 

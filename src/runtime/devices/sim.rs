@@ -195,9 +195,13 @@ impl SimRig {
         }
     }
 
-    /// The names of the simulated devices, in order.
-    pub fn names(&self) -> Vec<String> {
-        self.devices.keys().cloned().collect()
+    /// Whether a simulated device answers (is not made gone).
+    pub fn answers(&self, dev: &str) -> Result<bool, FieldError> {
+        match self.get(dev)? {
+            SimDevice::Trc { presence, .. } | SimDevice::C29u { presence, .. } => {
+                Ok(!presence.is_gone())
+            }
+        }
     }
 
     /// Makes a simulated device take `delay` over each request (zero: answer at once).
