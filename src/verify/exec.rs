@@ -93,11 +93,8 @@ struct Player<'a> {
     target: &'a Target,
 }
 
-/// The zone a plan names.
+/// The zone a plan names, read as the test file's `rig_at` reads it.
 pub fn zone_of(name: &str) -> Result<Zone, ExecError> {
-    if name == "UTC" {
-        return Ok(Zone::utc());
-    }
     Zone::parse(name).map_err(|e| ExecError::Zone(e.to_string()))
 }
 

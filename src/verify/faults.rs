@@ -60,10 +60,7 @@ impl Gen<'_> {
     /// A wall-clock step: with cron timers, to just before or just past the next cron time
     /// (or back across the last); otherwise minutes to hours either way.
     fn wall_step(&mut self) {
-        let zone = match self.start.zone.as_str() {
-            "UTC" => Zone::utc(),
-            name => Zone::parse(name).unwrap_or(Zone::utc()),
-        };
+        let zone = super::exec::zone_of(&self.start.zone).unwrap_or(Zone::utc());
         let elapsed = TimeDelta::from_std(self.t).unwrap_or(TimeDelta::zero());
         let wall = self.start.wall.to_utc() + elapsed + TimeDelta::seconds(self.wall_steps);
         let seconds = match next_cron(&self.profile.crons, wall, zone) {
