@@ -158,6 +158,8 @@ fn send_and_collect(
             _ => left,
         };
         let n = link.read(&mut chunk, wait)?;
+        // On a wire the answer has ended when its last byte is in: stamped before parsing.
+        let read_at = clock.now();
         let Some(bytes) = chunk.get(..n).filter(|b| !b.is_empty()) else {
             if timing.gap.is_some() && !received.is_empty() && wait < left {
                 // The line fell silent after an answer the protocol could not end itself:
@@ -171,14 +173,13 @@ fn send_and_collect(
         let room = timing.max_answer.saturating_sub(received.len());
         if bytes.len() > room {
             received.extend_from_slice(bytes.get(..room).unwrap_or_default());
-            line.quiet_since = Some(clock.now());
+            line.quiet_since = Some(read_at);
             trace_received(tracer, &received);
             return Err(ExchangeError::Overflow { received });
         }
         received.extend_from_slice(bytes);
         if let Some(answer) = frame(&received) {
-            // On a wire the answer has ended when its last byte is in.
-            line.quiet_since = Some(clock.now());
+            line.quiet_since = Some(read_at);
             trace_received(tracer, &answer);
             return Ok(answer);
         }
@@ -210,19 +211,24 @@ fn keep_silence(
         }
         let quiet_at = line.quiet_since.map_or(now, |t| t.saturating_add(needed));
         if now < quiet_at {
-            if line.settle.is_some() {
-                // Listen rather than sleep: a late answer's arrival restarts the count.
-                let n = link.read(&mut scratch, quiet_at.saturating_sub(now))?;
-                if n > 0 {
-                    heard = heard.saturating_add(n);
-                    line.quiet_since = Some(clock.now());
-                }
-            } else {
-                clock.sleep_until(quiet_at);
+            // Listen rather than sleep: bytes that arrive restart the count, and a wait that
+            // hears nothing has shown the line silent, so no look is needed after it (one
+            // system call for the silence and the check for stale input).
+            let n = link.read(&mut scratch, quiet_at.saturating_sub(now))?;
+            if n > 0 {
+                heard = heard.saturating_add(n);
+                line.quiet_since = Some(clock.now());
+                continue;
             }
+            if clock.now() >= quiet_at {
+                line.settle = None;
+                return Ok(());
+            }
+            // A link that cannot wait (memory without a clock) came back early.
+            clock.sleep_until(quiet_at);
             continue;
         }
-        // One look at what came meanwhile; usually nothing, and the request goes out.
+        // Already late: one look at what came meanwhile; usually nothing, and the request goes.
         match link.read(&mut scratch, Duration::ZERO)? {
             0 => {
                 line.settle = None;
@@ -670,6 +676,77 @@ mod tests {
         assert!(
             clock.now() - before <= Duration::from_millis(201),
             "given up after a timeout"
+        );
+    }
+
+    /// A link that notes the timeout of every read: each is one wait (or one look) on a port.
+    struct Reads<L> {
+        inner: L,
+        timeouts: Vec<Duration>,
+    }
+    impl<L: ByteLink> ByteLink for Reads<L> {
+        fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+            self.inner.write_all(bytes)
+        }
+        fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+            self.timeouts.push(timeout);
+            self.inner.read(buf, timeout)
+        }
+        fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
+            self.inner.set_baud(baud)
+        }
+        fn describe(&self) -> String {
+            self.inner.describe()
+        }
+        fn line(&mut self) -> Option<&mut LineState> {
+            self.inner.line()
+        }
+    }
+
+    #[test]
+    fn the_silence_is_one_wait_that_also_checks_for_stale_input() {
+        let (clock, heard_at, link) = stamped(b"!01\r");
+        let mut link = Reads {
+            inner: link.with_line(115_200),
+            timeouts: Vec::new(),
+        };
+        ask(&mut link, &clock, true).unwrap();
+        link.timeouts.clear();
+        ask(&mut link, &clock, true).unwrap();
+        // The wait for the silence, then the wait for the answer: no separate look (no
+        // zero-timeout read), no sleep besides.
+        assert_eq!(link.timeouts.len(), 2, "{:?}", link.timeouts);
+        assert_eq!(link.timeouts[0], t35(115_200));
+        assert!(link.timeouts.iter().all(|t| !t.is_zero()));
+        let heard = heard_at.lock().unwrap().clone();
+        let answer_end = crate::link::line::wire_time(8, 115_200);
+        assert_eq!(heard[1], answer_end + t35(115_200));
+    }
+
+    #[test]
+    fn bytes_heard_during_the_silence_restart_it_from_their_arrival() {
+        let (clock, heard_at, link) = stamped(b"!02\r");
+        let mut link = link.with_line(9600);
+        let wire = |n| crate::link::line::wire_time(n, 9600);
+        // Sent without waiting for an answer, which comes anyway while the next request waits
+        // for the silence: its last byte is in at 4 + 4 characters.
+        exchange(
+            &mut link,
+            &clock,
+            b"x\r\r\r",
+            false,
+            timing(None),
+            line_end,
+            &mut None,
+        )
+        .unwrap();
+        let got = ask(&mut link, &clock, true).unwrap();
+        assert_eq!(got, b"!02\r", "the stray answer was dropped");
+        let heard = heard_at.lock().unwrap().clone();
+        assert_eq!(
+            heard[1],
+            wire(4) + wire(4) + t35(9600),
+            "t3.5 from the stray answer's end, not from when the wait would have ended"
         );
     }
 
