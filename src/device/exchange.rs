@@ -31,6 +31,20 @@ pub struct Timing {
     pub auto_gap: fn(u32) -> Duration,
     /// The longest answer the protocol has; more bytes than this are not an answer.
     pub max_answer: usize,
+    /// How long the answer can be, when the protocol tells: on a timed line the rest of it
+    /// cannot be in before its bytes have crossed the wire, so the exchange sleeps until then
+    /// instead of waking for every byte.
+    pub answer_len: Option<AnswerLen>,
+}
+
+/// The lengths an answer to a request can have.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AnswerLen {
+    /// The shortest answer that can come (an exception): until it could be whole, the
+    /// exchange cannot tell which answer is coming.
+    pub shortest: usize,
+    /// The answer the request normally gets.
+    pub normal: usize,
 }
 
 impl Timing {
@@ -183,6 +197,21 @@ fn send_and_collect(
             trace_received(tracer, &answer);
             return Ok(answer);
         }
+        // Two or more characters still to come (one costs a wake-up either way): one sleep for
+        // them, then one look, where waiting for bytes would wake once a character. Until the
+        // shortest answer could be whole, only that much is certain to come; past it (no
+        // shorter answer ended) the normal answer is.
+        if let (Some(len), Some(_)) = (timing.answer_len, line.baud) {
+            let expected = if received.len() < len.shortest {
+                len.shortest
+            } else {
+                len.normal
+            };
+            let rest = expected.saturating_sub(received.len());
+            if rest >= 2 {
+                clock.sleep_until(read_at.saturating_add(line.wire_time(rest)).min(deadline));
+            }
+        }
     }
 }
 
@@ -308,6 +337,7 @@ mod tests {
     use crate::link::memory::MemoryByteLink;
     use crate::sim::ByteDevice;
     use crate::time::clock::VirtualClock;
+    use std::collections::VecDeque;
     use std::sync::{Arc, Mutex};
 
     /// Answers with a fixed reply, recording what it heard.
@@ -335,6 +365,7 @@ mod tests {
             frame_gap: FrameGap::Auto,
             auto_gap: t35,
             max_answer: 64,
+            answer_len: None,
         }
     }
 
@@ -748,6 +779,94 @@ mod tests {
             wire(4) + wire(4) + t35(9600),
             "t3.5 from the stray answer's end, not from when the wait would have ended"
         );
+    }
+
+    /// A wire at `baud` in virtual time: the answer's bytes come one a character time after
+    /// the request has left; every read is noted.
+    struct Trickle {
+        clock: VirtualClock,
+        line: LineState,
+        answer: Vec<u8>,
+        due: VecDeque<(Duration, u8)>,
+        reads: usize,
+    }
+    impl ByteLink for Trickle {
+        fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+            let start = self.clock.now() + self.line.wire_time(bytes.len());
+            let char_time = self.line.wire_time(1);
+            for (k, &b) in (1u32..).zip(&self.answer) {
+                self.due.push_back((start + char_time * k, b));
+            }
+            Ok(())
+        }
+        fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+            self.reads += 1;
+            if let Some(&(at, _)) = self.due.front() {
+                if at > self.clock.now() && !timeout.is_zero() {
+                    let until = at.min(self.clock.now() + timeout);
+                    self.clock.sleep_until(until);
+                }
+            } else {
+                self.clock.advance(timeout);
+            }
+            let mut n = 0;
+            while let Some(&(at, b)) = self.due.front() {
+                if at > self.clock.now() || n == buf.len() {
+                    break;
+                }
+                buf[n] = b;
+                n += 1;
+                self.due.pop_front();
+            }
+            Ok(n)
+        }
+        fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "trickle".into()
+        }
+        fn line(&mut self) -> Option<&mut LineState> {
+            Some(&mut self.line)
+        }
+    }
+
+    #[test]
+    fn an_answer_of_known_length_is_slept_for_not_woken_for_byte_by_byte() {
+        let clock = VirtualClock::at_epoch();
+        let answer = b"abcde\r".to_vec();
+        let mut link = Trickle {
+            clock: clock.clone(),
+            line: LineState::serial(9600),
+            answer: answer.clone(),
+            due: VecDeque::new(),
+            reads: 0,
+        };
+        let mut known = timing(None);
+        known.frame_gap = FrameGap::Fixed(Duration::ZERO);
+        known.answer_len = Some(AnswerLen {
+            shortest: 5,
+            normal: 6,
+        });
+        let got = exchange(&mut link, &clock, b"q\r", true, known, line_end, &mut None).unwrap();
+        assert_eq!(got, answer);
+        let wire = |n| crate::link::line::wire_time(n, 9600);
+        // The bytes come a character apart after the request.
+        let done = wire(2) + wire(1) * 6;
+        assert_eq!(clock.now(), done, "done as the last byte is in");
+        // A look for stale input, the wait for the first byte, a look after sleeping until the
+        // shortest answer could be in, a look after sleeping for the last byte.
+        assert_eq!(link.reads, 4, "one read a byte would be 7");
+        assert_eq!(link.line.quiet_since, Some(done));
+
+        // The shortest answer is whole as soon as it is in.
+        link.answer = b"abcd\r".to_vec();
+        link.reads = 0;
+        let start = clock.now();
+        let got = exchange(&mut link, &clock, b"q\r", true, known, line_end, &mut None).unwrap();
+        assert_eq!(got, b"abcd\r");
+        assert_eq!(clock.now(), start + wire(2) + wire(1) + wire(4));
+        assert_eq!(link.reads, 3);
     }
 
     #[test]
