@@ -1,6 +1,9 @@
 //! TRC1000 driver: relay selection, switch and rotary reads over any packet link, matching each
-//! answer to its request by its first byte and dropping stale packets (NOTES.md, TRC1000).
+//! answer to its request by its first byte and dropping stale packets (NOTES.md, TRC1000). A
+//! `Cancel` cuts a request short: nothing is sent once it is set, and the wait for an answer
+//! looks at it between slices.
 
+use crate::device::cancel::Cancel;
 use crate::link::{LinkError, PacketLink};
 use crate::protocol::trc1000::{
     rotary_delta, Command, InvalidRelay, Relay, Response, Rotary, RotaryValues, SwitchSet,
@@ -41,6 +44,15 @@ pub enum Trc1000Error {
     /// A relay number outside 0-7; nothing was sent.
     #[error(transparent)]
     InvalidRelay(#[from] InvalidRelay),
+    /// The caller's `Cancel` cut the request short (a run stopping): it says nothing of the
+    /// board.
+    #[error("{request} to {board} was cut short: the caller stopped waiting")]
+    Cancelled {
+        /// The board, as its link describes it.
+        board: String,
+        /// The request in words.
+        request: String,
+    },
 }
 
 fn discarded_note(n: usize) -> String {
@@ -72,6 +84,7 @@ pub struct Trc1000<L: PacketLink> {
     clock: SharedClock,
     timeout: Duration,
     discarded: u64,
+    cancel: Cancel,
 }
 
 impl<L: PacketLink> Trc1000<L> {
@@ -87,7 +100,14 @@ impl<L: PacketLink> Trc1000<L> {
             clock,
             timeout: DEFAULT_TIMEOUT,
             discarded: 0,
+            cancel: Cancel::never(),
         }
+    }
+
+    /// Cuts requests short once `cancel` is set (`Trc1000Error::Cancelled`); `Cancel::never()`
+    /// lets each wait its full timeout.
+    pub fn set_cancel(&mut self, cancel: Cancel) {
+        self.cancel = cancel;
     }
 
     /// Sets how long each request waits for its answer.
@@ -122,9 +142,9 @@ impl<L: PacketLink> Trc1000<L> {
 
     /// Selects relay `relay` (0-7); the board does not answer this command.
     pub fn select_relay(&mut self, relay: u8) -> Result<(), Trc1000Error> {
-        let relay = Relay::new(relay)?;
-        self.link
-            .send(&Command::SelectRelay(relay).encode(), self.timeout)?;
+        let command = Command::SelectRelay(Relay::new(relay)?);
+        self.unless_cancelled(command)?;
+        self.link.send(&command.encode(), self.timeout)?;
         Ok(())
     }
 
@@ -149,22 +169,45 @@ impl<L: PacketLink> Trc1000<L> {
         Ok(RotaryValues::from_packets(r0, r1))
     }
 
+    /// `Cancelled` for `command` if the cancel is set.
+    fn unless_cancelled(&self, command: Command) -> Result<(), Trc1000Error> {
+        if self.cancel.is_cancelled() {
+            return Err(Trc1000Error::Cancelled {
+                board: self.link.describe(),
+                request: command.describe(),
+            });
+        }
+        Ok(())
+    }
+
     /// Sends `command` and waits for the first packet `accept` takes, dropping others.
     fn request<T>(
         &mut self,
         command: Command,
         accept: impl Fn(Response) -> Option<T>,
     ) -> Result<T, Trc1000Error> {
+        self.unless_cancelled(command)?;
         self.link.send(&command.encode(), self.timeout)?;
         let deadline = self.clock.now().saturating_add(self.timeout);
         let mut discarded = 0usize;
         let mut wait = self.timeout;
-        while let Some(packet) = self.link.receive(wait)? {
-            if let Some(value) = Response::decode(&packet).ok().and_then(&accept) {
-                return Ok(value);
+        loop {
+            let asked = self.cancel.slice(wait);
+            let before = self.clock.now();
+            match self.link.receive(asked)? {
+                Some(packet) => {
+                    if let Some(value) = Response::decode(&packet).ok().and_then(&accept) {
+                        return Ok(value);
+                    }
+                    discarded = discarded.saturating_add(1);
+                    self.discarded = self.discarded.saturating_add(1);
+                }
+                // Nothing in all the time left (or on a link that does not wait: no time to
+                // slice).
+                None if asked == wait || self.clock.now() == before => break,
+                None => {}
             }
-            discarded = discarded.saturating_add(1);
-            self.discarded = self.discarded.saturating_add(1);
+            self.unless_cancelled(command)?;
             wait = deadline.saturating_sub(self.clock.now());
             if wait.is_zero() || discarded >= MAX_DISCARDED {
                 break;

@@ -14,6 +14,7 @@ use super::stats::Stats;
 use super::subscriptions::Call;
 use super::wake_latency;
 use crate::config::{ErrorPolicy, WakeLatency};
+use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use signal_hook::consts::{SIGINT, SIGTERM};
 use std::cell::RefCell;
@@ -75,7 +76,8 @@ pub struct RunOptions {
     /// End the run normally after this long (`--for`).
     pub end_after: Option<Duration>,
     /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
-    /// the signal handler or a scenario test: stop at once, outputs safe.
+    /// the signal handler or a scenario test: stop at once, outputs safe. It also cuts the
+    /// exchange under way short (`device::cancel`), within a `CANCEL_SLICE`.
     pub stop_flag: Arc<AtomicUsize>,
     /// What `run` asks of the CPUs' idle states while it runs in real time (`auto`: a 0 µs
     /// request while the loop ticks every 20 ms or faster, re-evaluated as handlers come
@@ -124,8 +126,11 @@ pub struct Runner<P: Program> {
 }
 
 impl<P: Program> Runner<P> {
-    /// A runner for `program` over `rt`; the first tick is due at once.
+    /// A runner for `program` over `rt`; the first tick is due at once. From now on the stop
+    /// flag cuts the devices' exchanges short.
     pub fn new(rt: Shared<P::Handler>, program: P, options: RunOptions) -> Self {
+        rt.borrow_mut()
+            .set_cancel(&Cancel::when_set(Arc::clone(&options.stop_flag)));
         let clock = Arc::clone(&rt.borrow().clock);
         let now = clock.now();
         Self {
@@ -575,6 +580,9 @@ impl<P: Program> Runner<P> {
                 EndReason::Finished(why) => rt.log.info(&format!("stopping: {why}")),
             }
         }
+        // What follows comes after the stop and is not cut: `on_stop` handlers as the script
+        // wrote them, the end's writes with their own bounded tries.
+        self.rt.borrow_mut().set_cancel(&Cancel::never());
         if was_running {
             let calls = self.rt.borrow().stop_calls();
             for call in calls {

@@ -87,7 +87,9 @@ impl<H: Clone> Runtime<H> {
                 true
             }
             Err(e) => {
-                if !e.is_comm_failure() {
+                // A communication failure loses the device; a stop leaves it as it is, for
+                // the end to write its safe state.
+                if !e.is_comm_failure() && !e.is_cancelled() {
                     let name = self.device_name(idx);
                     self.log
                         .error(&format!("{name}: taking control failed: {e}"));

@@ -3,6 +3,7 @@
 //! included, each in a bounded time; then the host watchdogs the runner turned on turned off
 //! again where the safe state got through.
 
+use crate::device::cancel::Cancel;
 use crate::runtime::devices::{C29uDevice, Device, DeviceError};
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
@@ -36,6 +37,8 @@ impl<H: Clone> Runtime<H> {
             match result {
                 Ok(Some(s)) => done.push(s),
                 Ok(None) => {}
+                // A stop cut it short: the end writes it.
+                Err(e) if e.is_cancelled() => {}
                 Err(e) => {
                     let name = self.device_name(idx);
                     self.log
@@ -55,7 +58,9 @@ impl<H: Clone> Runtime<H> {
     /// retries (one for a lost device), so a silent module costs a bounded time. With
     /// `release`, the host watchdogs the runner turned on are then turned off where the safe
     /// state got through; where it did not, the watchdog stays on and drives the module safe.
+    /// The stop that ended the run does not cut these writes: they come after it.
     pub fn end_safe(&mut self, why: &str, release: bool) {
+        self.set_cancel(&Cancel::never());
         let mut done = Vec::new();
         for idx in 0..self.devices.len() {
             let was_lost = !self.online(idx);
