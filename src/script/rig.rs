@@ -110,6 +110,17 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
+    start_with(source, file, setup, |_| {})
+}
+
+/// `start`, with `prepare` given the program before its top level runs (`verify` has it keep
+/// count of what the script does from the first line on).
+pub fn start_with(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    prepare: impl FnOnce(&mut ScriptProgram),
+) -> Result<Rig, RigError> {
     if setup.config.devices.is_empty() {
         return Err(RigError::NoDevices {
             simulated: setup.simulate,
@@ -154,7 +165,8 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         r.end_safe("a device is not available", true);
         return Err(e.into());
     }
-    let program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    let mut program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    prepare(&mut program);
     let period = setup.period.unwrap_or(setup.config.period);
     let options = RunOptions {
         period,
