@@ -817,9 +817,11 @@ fn describe(fault: &Fault, label: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::device::cancel::CANCEL_SLICE;
     use crate::runtime::devices::links::TransactionCounter;
     use crate::runtime::log::Logger;
     use crate::runtime::records::Records;
+    use crate::runtime::safety::END_TRIES;
     use crate::time::clock::{Clock, VirtualClock};
     use crate::time::zone::Zone;
 
@@ -1048,67 +1050,64 @@ mod tests {
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
     }
 
-    /// A program whose first timer plays a SIGTERM arriving mid-tick and whose others read a
-    /// module's inputs.
+    /// A program whose timer reads a module's inputs.
     struct Reader {
         rt: Shared<&'static str>,
-        flag: Arc<AtomicUsize>,
     }
 
     impl Program for Reader {
         type Handler = &'static str;
         fn start(&mut self) -> Result<(), Fault> {
-            let mut rt = self.rt.borrow_mut();
-            for h in ["signal", "read", "read"] {
-                rt.every(Duration::from_millis(100), h).unwrap();
-            }
+            self.rt
+                .borrow_mut()
+                .every(Duration::from_millis(100), "read")
+                .unwrap();
             Ok(())
         }
         fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
             // This program states no invariants.
             Ok(true)
         }
-        fn call(&mut self, call: &Call<&'static str>) -> Result<(), Fault> {
-            if call.handler == "signal" {
-                self.flag.store(SIGTERM as usize, Ordering::SeqCst);
-            } else {
-                self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
-            }
+        fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+            self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
             Ok(())
         }
     }
 
     #[test]
-    fn a_sigterm_with_a_silent_module_is_honoured_in_a_bounded_time() {
+    fn a_sigterm_while_a_silent_module_is_waited_for_is_honoured_within_a_slice() {
         // A module that waits 1 s for each answer and tries 11 times: each exchange with it,
-        // silent, would take 11 s.
+        // silent, would take 21 s (every try after the first waits out a settling second).
         let rig = crate::runtime::testing::RIG
             .replace("watchdog = \"1s\"\n", "timeout = \"1s\"\nretries = 10\n");
         let mut r = crate::runtime::testing::TestRig::new(&rig);
         r.rt.start_devices().unwrap();
         let rt = r.shared_runtime();
         let flag: Arc<AtomicUsize> = Arc::default();
-        let program = Reader {
-            rt: Rc::clone(&rt),
-            flag: Arc::clone(&flag),
-        };
+        let program = Reader { rt: Rc::clone(&rt) };
         let options = RunOptions {
             period: Duration::from_millis(20),
             policy: ErrorPolicy::Stop,
             end_after: None,
-            stop_flag: flag,
+            stop_flag: Arc::clone(&flag),
             wake_latency: WakeLatency::Off,
         };
         let mut runner = Runner::new(rt, program, options);
         runner.start();
         r.sim.set_gone("io", true).unwrap();
-        let signalled = Duration::from_millis(100);
-        runner.advance(signalled);
+        // The first read starts at 100 ms; the signal comes 350 ms into its first wait.
+        let signalled = Duration::from_millis(450);
+        r.clock.set_at(signalled, flag, SIGTERM as usize);
+        runner.advance(Duration::from_secs(1));
         assert_eq!(runner.status(), Some(exit::signal(SIGTERM)));
-        // No exchange after the signal but the end's: two tries of 1 s with the silent module,
-        // each after the line has been silent a timeout more (a late answer's chance).
+        // The wait is cut within a slice; then only the end's writes: END_TRIES tries of 1 s
+        // with the silent module, each after the line has been silent a timeout more (the
+        // cut request's answer could still come). The exchange it cut would have gone on for
+        // 20 s more.
         let took = r.clock.now() - signalled;
-        assert!(took <= Duration::from_millis(4500), "{took:?}");
+        let tries = END_TRIES * 2;
+        let bound = CANCEL_SLICE + Duration::from_secs(1) * tries;
+        assert!(took <= bound, "{took:?}, more than {bound:?}");
         let log = runner.runtime().borrow().log.lines().join("\n");
         assert!(log.contains("io: the safe state did not reach it"), "{log}");
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
