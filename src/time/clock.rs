@@ -212,7 +212,7 @@ impl VirtualClock {
             return;
         }
         s.alarms.push((at, flag, value));
-        s.alarms.sort_by(|a, b| b.0.cmp(&a.0));
+        s.alarms.sort_by_key(|a| std::cmp::Reverse(a.0));
     }
 
     /// Steps the wall clock by `by` (forward or back) while monotonic time stays: an NTP step,
