@@ -318,6 +318,38 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_stop_cuts_the_wait_for_a_silent_board_within_a_slice_and_sends_nothing_after() {
+        use crate::device::cancel::CANCEL_SLICE;
+        use crate::time::clock::Clock;
+        use std::sync::atomic::AtomicUsize;
+        let clock = VirtualClock::at_epoch();
+        let link = Injecting {
+            inner: MemoryPacketLink::new(Answers(None), "TRC1000 unit 0")
+                .with_clock(Arc::new(clock.clone())),
+            extra: VecDeque::new(),
+            sent: Vec::new(),
+        };
+        let mut d = Trc1000::with_clock(link, Arc::new(clock.clone()));
+        d.set_timeout(Duration::from_secs(1));
+        let flag = Arc::new(AtomicUsize::new(0));
+        d.set_cancel(Cancel::when_set(Arc::clone(&flag)));
+        let signal = Duration::from_millis(350);
+        clock.set_at(signal, flag, 15);
+        match d.read_switches() {
+            Err(e @ Trc1000Error::Cancelled { .. }) => {
+                assert!(e.to_string().contains("cut short"), "{e}");
+            }
+            other => panic!("expected a cut request, got {other:?}"),
+        }
+        assert!(clock.now() <= signal + CANCEL_SLICE, "{:?}", clock.now());
+        assert!(matches!(
+            d.select_relay(3),
+            Err(Trc1000Error::Cancelled { .. })
+        ));
+        assert_eq!(d.link_mut().sent.len(), 1, "nothing sent after the stop");
+    }
+
     /// A link that streams garbage forever and never advances time.
     struct Garbage;
     impl PacketLink for Garbage {
