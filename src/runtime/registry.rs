@@ -36,6 +36,7 @@ impl<H: Clone> Runtime<H> {
     /// Cuts every device's exchanges short once `cancel` is set (the run's stop flag);
     /// `Cancel::never()` lets them run their course (the end's writes).
     pub fn set_cancel(&mut self, cancel: &Cancel) {
+        self.cancel = cancel.clone();
         for d in &mut self.devices {
             d.set_cancel(cancel);
         }
