@@ -148,6 +148,30 @@ impl<L: PacketLink> Trc1000<L> {
         Ok(())
     }
 
+    /// Selects relay `relay` (0-7) and confirms that a board took it: the selection gets no
+    /// answer, and an OUT transfer can be taken without a board that acts on it (a host
+    /// controller or hub may accept it for a board that hangs; a simulated board that is gone
+    /// takes it silently), so a request input (41) follows and only its answer confirms the
+    /// selection. Returns the switches that answer read.
+    pub fn select_relay_confirmed(&mut self, relay: u8) -> Result<SwitchSet, Trc1000Error> {
+        let selection = Command::SelectRelay(Relay::new(relay)?).describe();
+        self.select_relay(relay)?;
+        self.read_switches().map_err(|e| match e {
+            Trc1000Error::Timeout {
+                board,
+                request,
+                timeout,
+                discarded,
+            } => Trc1000Error::Timeout {
+                board,
+                request: format!("{request} after {selection}, so the selection is unconfirmed"),
+                timeout,
+                discarded,
+            },
+            other => other,
+        })
+    }
+
     /// Reads the 45 switches.
     pub fn read_switches(&mut self) -> Result<SwitchSet, Trc1000Error> {
         self.request(Command::RequestInput, |r| match r {
@@ -315,6 +339,31 @@ mod tests {
     impl PacketDevice for Answers {
         fn receive(&mut self, _: &[u8; 8]) -> Option<[u8; 8]> {
             self.0
+        }
+    }
+
+    #[test]
+    fn a_confirmed_selection_fails_when_no_board_answers_after_it() {
+        let mut d = driver(Trc1000Sim::default());
+        let switches = d.select_relay_confirmed(5).unwrap();
+        assert_eq!(d.link_mut().device().relay().number(), 5);
+        assert_eq!(switches, SwitchSet::default());
+
+        let mut gone = driver(Answers(None));
+        gone.select_relay(5)
+            .expect("an OUT packet is taken, board or not");
+        match gone.select_relay_confirmed(5) {
+            Err(e @ Trc1000Error::Timeout { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains(
+                        "did not answer request input (41) after select relay 5 (05), so the \
+                         selection is unconfirmed"
+                    ),
+                    "{text}"
+                );
+            }
+            other => panic!("expected no confirmation, got {other:?}"),
         }
     }
 

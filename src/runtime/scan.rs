@@ -673,7 +673,7 @@ impl<P: Program> Runner<P> {
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
-        rt.end_safe(why, true);
+        self.trouble.unreached_at_end = rt.end_safe(why, true);
         let failed = rt.records.failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
@@ -717,12 +717,17 @@ pub struct Trouble {
     pub on_stop_failed: u64,
     /// Devices lost and not back when the run ended.
     pub lost_at_end: Vec<String>,
+    /// Devices the end's safe state did not reach (no answer confirmed it).
+    pub unreached_at_end: Vec<String>,
 }
 
 impl Trouble {
     /// Whether nothing went wrong.
     pub fn is_empty(&self) -> bool {
-        self.recovered_errors == 0 && self.on_stop_failed == 0 && self.lost_at_end.is_empty()
+        self.recovered_errors == 0
+            && self.on_stop_failed == 0
+            && self.lost_at_end.is_empty()
+            && self.unreached_at_end.is_empty()
     }
 
     /// What went wrong, in words.
@@ -741,6 +746,12 @@ impl Trouble {
             parts.push(format!(
                 "{} lost and not back at the end",
                 self.lost_at_end.join(", ")
+            ));
+        }
+        if !self.unreached_at_end.is_empty() {
+            parts.push(format!(
+                "the safe state did not reach {}",
+                self.unreached_at_end.join(", ")
             ));
         }
         parts.join("; ")
@@ -1099,7 +1110,8 @@ mod tests {
         let signalled = Duration::from_millis(450);
         r.clock.set_at(signalled, flag, SIGTERM as usize);
         runner.advance(Duration::from_secs(1));
-        assert_eq!(runner.status(), Some(exit::signal(SIGTERM)));
+        // Stopped by the signal, and the safe state did not reach the silent module.
+        assert_eq!(runner.status(), Some(exit::TROUBLE));
         // The wait is cut within a slice; then only the end's writes: END_TRIES tries of 1 s
         // with the silent module, each after the line has been silent a timeout more (the
         // cut request's answer could still come). The exchange it cut would have gone on for
@@ -1109,7 +1121,16 @@ mod tests {
         let bound = CANCEL_SLICE + Duration::from_secs(1) * tries;
         assert!(took <= bound, "{took:?}, more than {bound:?}");
         let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("stopping: SIGTERM received"), "{log}");
         assert!(log.contains("io: the safe state did not reach it"), "{log}");
+        assert!(
+            !log.contains("io: lost"),
+            "a cut exchange is no loss: {log}"
+        );
+        assert!(
+            log.contains("the safe state did not reach io: exit status 5"),
+            "{log}"
+        );
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
     }
 }
