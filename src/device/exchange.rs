@@ -6,8 +6,11 @@
 //! answer, our own request that gets none, stray bytes. After a timeout the line must stay
 //! silent for one more timeout before the next request, so a late answer is heard and dropped
 //! instead of being taken for the answer to the request after it. The waits sleep; a request
-//! already late is sent at once. Every buffer is bounded by the longest valid answer.
+//! already late is sent at once. Every buffer is bounded by the longest valid answer. A
+//! `Cancel` cuts an exchange short: nothing is sent once it is set, and the waits look at it
+//! between slices.
 
+use crate::device::cancel::Cancel;
 use crate::link::line::{FrameGap, LineState};
 use crate::link::{ByteLink, LinkError};
 use crate::time::clock::Clock;
@@ -85,6 +88,9 @@ pub enum ExchangeError {
         /// How long it waited.
         within: Duration,
     },
+    /// The caller's `Cancel` was set: cut short, says nothing of the device.
+    #[error("cut short: the caller stopped waiting")]
+    Cancelled,
 }
 
 /// Which way a traced frame went.
@@ -101,6 +107,8 @@ pub type Tracer = Box<dyn FnMut(Direction, &[u8]) + Send>;
 
 /// Sends `request` and, when `expect_answer`, collects the answer: `frame` looks at everything
 /// received so far and returns the answer once it holds a whole one (leading noise cut off).
+/// Once `cancel` is set it ends in `Cancelled` within a `CANCEL_SLICE`, and sends nothing.
+#[allow(clippy::too_many_arguments)]
 pub fn exchange(
     link: &mut dyn ByteLink,
     clock: &dyn Clock,
@@ -109,6 +117,7 @@ pub fn exchange(
     timing: Timing,
     frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     tracer: &mut Option<Tracer>,
+    cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
     let mut line = link.line().copied().unwrap_or_default();
     let outcome = send_and_collect(
@@ -120,6 +129,7 @@ pub fn exchange(
         &timing,
         frame,
         tracer,
+        cancel,
     );
     if let Some(kept) = link.line() {
         *kept = line;
@@ -137,8 +147,9 @@ fn send_and_collect(
     timing: &Timing,
     mut frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     tracer: &mut Option<Tracer>,
+    cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
-    keep_silence(link, clock, line, timing)?;
+    keep_silence(link, clock, line, timing, cancel)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
     }
@@ -167,9 +178,18 @@ fn send_and_collect(
             trace_received(tracer, &received);
             return Err(ExchangeError::Timeout { received });
         }
+        if cancel.is_cancelled() {
+            // The module may still answer, as after a timeout: the next request (the end's
+            // safe state) waits for the line to settle.
+            line.quiet_since = Some(now);
+            line.settle = Some(timing.timeout);
+            trace_received(tracer, &received);
+            return Err(ExchangeError::Cancelled);
+        }
         let wait = match timing.gap {
+            // At most 29 ms (t3.5 at 1200 baud): shorter than a slice.
             Some(gap) if !received.is_empty() => gap.min(left),
-            _ => left,
+            _ => cancel.slice(left),
         };
         let n = link.read(&mut chunk, wait)?;
         // On a wire the answer has ended when its last byte is in: stamped before parsing.
@@ -223,12 +243,16 @@ fn keep_silence(
     clock: &dyn Clock,
     line: &mut LineState,
     timing: &Timing,
+    cancel: &Cancel,
 ) -> Result<(), ExchangeError> {
     let gap = timing.silence_on(line);
     let started = clock.now();
     let mut heard = 0usize;
     let mut scratch = [0u8; 256];
     loop {
+        if cancel.is_cancelled() {
+            return Err(ExchangeError::Cancelled);
+        }
         let needed = line.settle.map_or(gap, |settle| settle.max(gap));
         let now = clock.now();
         let waited = now.saturating_sub(started);
@@ -243,7 +267,8 @@ fn keep_silence(
             // Listen rather than sleep: bytes that arrive restart the count, and a wait that
             // hears nothing has shown the line silent, so no look is needed after it (one
             // system call for the silence and the check for stale input).
-            let n = link.read(&mut scratch, quiet_at.saturating_sub(now))?;
+            let wait = cancel.slice(quiet_at.saturating_sub(now));
+            let n = link.read(&mut scratch, wait)?;
             if n > 0 {
                 heard = heard.saturating_add(n);
                 line.quiet_since = Some(clock.now());
@@ -253,8 +278,9 @@ fn keep_silence(
                 line.settle = None;
                 return Ok(());
             }
-            // A link that cannot wait (memory without a clock) came back early.
-            clock.sleep_until(quiet_at);
+            // A slice of the wait ended, or a link that cannot wait (memory without a clock)
+            // came back early.
+            clock.sleep_until(now.saturating_add(wait));
             continue;
         }
         // Already late: one look at what came meanwhile; usually nothing, and the request goes.
@@ -419,6 +445,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
     }
 
@@ -441,6 +468,7 @@ mod tests {
             timing(None),
             line_end,
             &mut tracer,
+            &Cancel::never(),
         )
         .unwrap();
         assert_eq!(got, b"!01\r");
@@ -467,6 +495,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap_err();
         match err {
@@ -489,6 +518,7 @@ mod tests {
             timing(Some(2)),
             |_| None,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         assert_eq!(got, vec![1, 0xC6, 0]);
@@ -511,7 +541,8 @@ mod tests {
             false,
             timing(None),
             line_end,
-            &mut None
+            &mut None,
+            &Cancel::never(),
         )
         .unwrap()
         .is_empty());
@@ -562,6 +593,7 @@ mod tests {
             other,
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         assert_eq!(heard_at.lock().unwrap()[1], end + Duration::from_millis(5));
@@ -605,6 +637,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         );
         assert_eq!(second.unwrap(), b"!01\r");
         let heard = heard_at.lock().unwrap().clone();
@@ -685,6 +718,7 @@ mod tests {
                 timing(Some(2)),
                 |_| None,
                 tracer,
+                &Cancel::never(),
             )
         };
         match ask(&mut tracer) {
@@ -769,6 +803,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         let got = ask(&mut link, &clock, true).unwrap();
@@ -848,7 +883,17 @@ mod tests {
             shortest: 5,
             normal: 6,
         });
-        let got = exchange(&mut link, &clock, b"q\r", true, known, line_end, &mut None).unwrap();
+        let got = exchange(
+            &mut link,
+            &clock,
+            b"q\r",
+            true,
+            known,
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+        .unwrap();
         assert_eq!(got, answer);
         let wire = |n| crate::link::line::wire_time(n, 9600);
         // The bytes come a character apart after the request.
@@ -863,7 +908,17 @@ mod tests {
         link.answer = b"abcd\r".to_vec();
         link.reads = 0;
         let start = clock.now();
-        let got = exchange(&mut link, &clock, b"q\r", true, known, line_end, &mut None).unwrap();
+        let got = exchange(
+            &mut link,
+            &clock,
+            b"q\r",
+            true,
+            known,
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+        .unwrap();
         assert_eq!(got, b"abcd\r");
         assert_eq!(clock.now(), start + wire(2) + wire(1) + wire(4));
         assert_eq!(link.reads, 3);
@@ -882,6 +937,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         clock.advance(Duration::from_millis(100));

@@ -12,6 +12,7 @@ use super::log::Logger;
 use super::records::Records;
 use super::schedule::TimerKind;
 use super::subscriptions::{Source, Subscriptions};
+use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::sync::atomic::Ordering;
@@ -53,6 +54,9 @@ pub struct Runtime<H> {
     pub transactions: TransactionCounter,
     /// How long a device may be lost before everything goes safe.
     pub grace: Duration,
+    /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
+    /// runs; supervision also stops trying lost devices once it is set.
+    pub cancel: Cancel,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -84,6 +88,7 @@ impl<H: Clone> Runtime<H> {
             held_safe: false,
             transactions,
             grace,
+            cancel: Cancel::never(),
         }
     }
 

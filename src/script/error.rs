@@ -4,7 +4,8 @@
 use crate::runtime::scan::Fault;
 use rhai::{EvalAltResult, ParseError, Position};
 
-/// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once.
+/// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once (and a device
+/// operation a stop cut short).
 pub const STOP_MARKER: &str = "rigscript: stop()";
 
 /// `file:line:column` of `pos`, or `None` when Rhai has no position.
