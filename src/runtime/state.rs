@@ -143,7 +143,7 @@ mod tests {
             Some(Duration::from_millis(250)),
             "the feed"
         );
-        r.rt.after(Duration::from_millis(100), "soon");
+        r.rt.after(Duration::from_millis(100), "soon").unwrap();
         assert_eq!(
             r.rt.idle_until(),
             Some(Duration::from_millis(100)),
@@ -163,7 +163,7 @@ mod tests {
         r.rt.set_outputs(IO, 0x99);
         r.rt.set_relay(PANEL, 7);
         r.rt.reset_program();
-        assert!(r.rt.handlers.list().is_empty());
+        assert!(r.rt.handlers.is_empty());
         assert!(!r.rt.has_work());
         assert_eq!(r.rt.stop_request, None);
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);

@@ -8,6 +8,7 @@
 //! are done at once. A bad device name, switch name or channel is a script error at the
 //! call's line and column.
 
+use super::engine::Guard;
 use super::error::STOP_MARKER;
 use super::values::to_json;
 use crate::device::c29u::{C29uError, WatchdogTimeout};
@@ -201,9 +202,10 @@ fn c29u_op<T>(
     r.or_else(|e| device_error(&io.name, &e))
 }
 
-/// Registers the whole script API on `engine` over `rt`.
-pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities) {
-    register_device(engine, rt);
+/// Registers the whole script API on `engine` over `rt`; `guard` checks each variable as the
+/// script uses it (`engine::Guard::check_var`).
+pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities, guard: &Rc<Guard>) {
+    register_device(engine, rt, guard);
     register_panel(engine, arities);
     register_io(engine, arities);
     register_flow(engine, rt, arities);
@@ -242,7 +244,7 @@ fn handle(rt: &Rt, idx: usize) -> Option<Dynamic> {
     })
 }
 
-fn register_device(engine: &mut Engine, rt: &Rt) {
+fn register_device(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>) {
     let r = Rc::clone(rt);
     engine.register_fn("device", move |name: &str| -> R<Dynamic> {
         let idx = r.borrow().device_index(name);
@@ -267,17 +269,22 @@ fn register_device(engine: &mut Engine, rt: &Rt) {
             .map(|(i, d)| (d.name().to_string(), i))
             .collect()
     };
+    let guard = Rc::clone(guard);
     // Rhai marks on_var "volatile" (it may change in a later release), not deprecated.
     #[allow(deprecated)]
-    engine.on_var(move |name, _index, ctx| match ctx.scope().get(name) {
-        Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
-            Ok(Some(v.flatten_clone()))
+    engine.on_var(move |name, _index, ctx| {
+        let value = ctx.scope().get(name);
+        guard.check_var(value, &ctx)?;
+        match value {
+            Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
+                Ok(Some(v.flatten_clone()))
+            }
+            Some(_) => Ok(None),
+            None => Ok(names
+                .iter()
+                .find(|(n, _)| n == name)
+                .and_then(|(_, i)| handle(&r, *i))),
         }
-        Some(_) => Ok(None),
-        None => Ok(names
-            .iter()
-            .find(|(n, _)| n == name)
-            .and_then(|(_, i)| handle(&r, *i))),
     });
 }
 
@@ -618,7 +625,8 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
         a.check(&f, "after", &[])?;
-        Ok(id_value(r.borrow_mut().after(d, f)))
+        let id = r.borrow_mut().after(d, f);
+        id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {

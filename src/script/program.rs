@@ -1,12 +1,16 @@
 //! A compiled script as the scan loop's program: its top level adds handlers and timers,
-//! and each handler call gets a fresh operation budget and only the arguments it takes.
+//! and each handler call gets a fresh operation budget and time limit, and only the arguments
+//! it takes. A call over a limit is a fault placed where the limit was hit.
 
 use super::api::{register, Arities, Rt};
-use super::engine::sandboxed;
-use super::error::{fault, is_stop};
+use super::engine::{sandboxed, Guard};
+use super::error::{breach_fault, fault, is_stop};
+use crate::config::ScriptLimits;
 use crate::runtime::scan::{Fault, Program};
 use crate::runtime::subscriptions::{Arg, Call};
-use rhai::{Dynamic, Engine, FnPtr, Scope, AST};
+use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
+use std::rc::Rc;
+use std::sync::Arc;
 
 /// A script bound to a runtime.
 pub struct ScriptProgram {
@@ -14,21 +18,28 @@ pub struct ScriptProgram {
     ast: AST,
     file: String,
     arities: Arities,
+    guard: Rc<Guard>,
 }
 
 impl ScriptProgram {
-    /// Binds compiled `ast` (from the file called `file` in messages) to `rt`, with
-    /// `budget` operations per call.
-    pub fn new(rt: &Rt, ast: AST, file: &str, budget: u64) -> Self {
-        let mut engine = sandboxed(budget);
+    /// Binds compiled `ast` (from the file called `file` in messages) to `rt`, watched by
+    /// `limits` (operations and time per call on the runtime's clock, memory, sizes).
+    pub fn new(rt: &Rt, ast: AST, file: &str, limits: ScriptLimits) -> Self {
+        let mut engine = sandboxed(limits.operations);
+        let (clock, transactions) = {
+            let r = rt.borrow();
+            (Arc::clone(&r.clock), Arc::clone(&r.transactions))
+        };
+        let guard = Guard::install(&mut engine, limits, clock, transactions);
         let arities = Arities::default();
-        register(&mut engine, rt, &arities);
+        register(&mut engine, rt, &arities, &guard);
         arities.learn(&ast);
         Self {
             engine,
             ast,
             file: file.to_string(),
             arities,
+            guard,
         }
     }
 
@@ -41,17 +52,51 @@ impl ScriptProgram {
     pub fn engine(&self) -> &Engine {
         &self.engine
     }
+
+    /// The limits the calls are watched by.
+    pub fn limits(&self) -> &ScriptLimits {
+        self.guard.limits()
+    }
+
+    /// How a call ended: a limit hit (whatever the script did about it), `stop()` (fine),
+    /// or an error; placed at `fallback()` when Rhai gives no place.
+    fn outcome(
+        &self,
+        result: Result<(), Box<EvalAltResult>>,
+        fallback: impl FnOnce() -> Position,
+    ) -> Result<(), Fault> {
+        let breach = self.guard.end_call();
+        match (result, breach) {
+            (result, Some(b)) => Err(breach_fault(
+                &self.file,
+                &b,
+                result.as_ref().map(|_| ()).map_err(|e| &**e),
+                fallback(),
+            )),
+            (Ok(()), None) => Ok(()),
+            (Err(e), None) if is_stop(&e) => Ok(()),
+            (Err(e), None) => Err(fault(&self.file, &e, fallback())),
+        }
+    }
+
+    /// Where the body of `handler` starts when it gets `args` arguments, if it is a function
+    /// of the script (a closure or a named function).
+    fn body_start(&self, handler: &FnPtr, args: usize) -> Position {
+        let params = handler.curry().len() + args;
+        self.ast
+            .iter_fn_def()
+            .find(|f| f.name == handler.fn_name() && f.params.len() == params)
+            .map_or(Position::NONE, |f| f.body.start_position())
+    }
 }
 
 impl Program for ScriptProgram {
     type Handler = FnPtr;
 
     fn start(&mut self) -> Result<(), Fault> {
-        match self.engine.run_ast_with_scope(&mut Scope::new(), &self.ast) {
-            Ok(()) => Ok(()),
-            Err(e) if is_stop(&e) => Ok(()),
-            Err(e) => Err(fault(&self.file, &e)),
-        }
+        self.guard.begin_call();
+        let result = self.engine.run_ast_with_scope(&mut Scope::new(), &self.ast);
+        self.outcome(result, || Position::NONE)
     }
 
     fn call(&mut self, call: &Call<FnPtr>) -> Result<(), Fault> {
@@ -65,10 +110,11 @@ impl Program for ScriptProgram {
                 Arg::Str(s) => Dynamic::from(s.clone()),
             })
             .collect();
-        match call.handler.call::<Dynamic>(&self.engine, &self.ast, args) {
-            Ok(_) => Ok(()),
-            Err(e) if is_stop(&e) => Ok(()),
-            Err(e) => Err(fault(&self.file, &e)),
-        }
+        self.guard.begin_call();
+        let result = call
+            .handler
+            .call::<Dynamic>(&self.engine, &self.ast, args)
+            .map(|_| ());
+        self.outcome(result, || self.body_start(&call.handler, n))
     }
 }

@@ -8,7 +8,7 @@ use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::devices::{open_devices, Device, OpenError, SimRig};
-use crate::runtime::log::Logger;
+use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
 use crate::runtime::scan::{RunOptions, Runner};
@@ -25,7 +25,7 @@ use std::time::Duration;
 
 /// Everything a run needs besides the script.
 pub struct RigSetup {
-    /// The rig (devices, period, policy, grace, records file).
+    /// The rig (devices, period, policy, grace, records file, the script's limits).
     pub config: RigConfig,
     /// Replace every device by its simulator.
     pub simulate: bool,
@@ -43,10 +43,10 @@ pub struct RigSetup {
     pub log_to_stderr: bool,
     /// Leave activity lines out of the log.
     pub quiet: bool,
+    /// Log lines as text or JSON objects.
+    pub log_format: LogFormat,
     /// Keep the log in memory (scenario tests).
     pub keep_log: bool,
-    /// Operations per handler call.
-    pub budget: u64,
     /// Set on SIGINT/SIGTERM.
     pub stop_flag: Arc<AtomicBool>,
 }
@@ -90,7 +90,8 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
-    let ast = sandboxed(setup.budget)
+    let limits = setup.config.limits;
+    let ast = sandboxed(limits.operations)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, &e)))?;
     let records = match setup.records.as_ref().or(setup.config.records.as_ref()) {
@@ -101,10 +102,12 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
     let opened = open_devices(&setup.config, &setup.clock, setup.simulate, &count)?;
     let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
     log.set_quiet(setup.quiet);
+    log.set_format(setup.log_format);
+    log.set_devices(setup.config.devices.keys().cloned());
     if setup.keep_log {
         log.keep_lines();
     }
-    let runtime = Runtime::new(
+    let mut runtime = Runtime::new(
         Arc::clone(&setup.clock),
         setup.zone,
         opened.devices,
@@ -113,6 +116,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         count,
         setup.config.grace,
     );
+    runtime.handlers.set_max_timers(limits.timers);
     let rt = Rc::new(RefCell::new(runtime));
     let started = rt.borrow_mut().start_devices();
     if let Err(e) = started {
@@ -122,7 +126,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         r.release_watchdogs();
         return Err(e.into());
     }
-    let program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    let program = ScriptProgram::new(&rt, ast, file, limits);
     let period = setup.period.unwrap_or(setup.config.period);
     warn_short_watchdogs(&mut rt.borrow_mut(), period);
     let options = RunOptions {
@@ -184,8 +188,8 @@ mod tests {
             records: None,
             log_to_stderr: false,
             quiet: false,
+            log_format: LogFormat::Text,
             keep_log: true,
-            budget: 100_000,
             stop_flag: Arc::default(),
         }
     }
