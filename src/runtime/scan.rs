@@ -664,7 +664,7 @@ mod tests {
         type Handler = ();
         fn start(&mut self) -> Result<(), Fault> {
             let mut rt = self.rt.borrow_mut();
-            rt.handlers.set_max_timers(self.timers);
+            rt.handlers.set_max_timers(self.timers + 1);
             for _ in 0..self.timers {
                 rt.every(Duration::from_secs(1), ()).unwrap();
             }

@@ -327,14 +327,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
         // (how late, id, missed, last): the latest deadline passed is the one that fires first.
         let mut fired: Vec<(Duration, TimerId, u64, bool)> = Vec::new();
         let mut searched = false;
-        let mono_due: Vec<(Duration, TimerId)> = self
-            .by_mono
-            .range(..=(now_mono, TimerId(u64::MAX)))
-            .copied()
-            .collect();
-        for key in mono_due {
-            self.by_mono.remove(&key);
-            let (deadline, id) = key;
+        for (deadline, id) in take_due(&mut self.by_mono, now_mono) {
             let late = now_mono.saturating_sub(deadline);
             let Some(timer) = self.timers.get_mut(&id) else {
                 continue;
@@ -353,14 +346,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
                 Trigger::Cron { .. } => {}
             }
         }
-        let wall_due: Vec<(DateTime<Utc>, TimerId)> = self
-            .by_wall
-            .range(..=(now_wall, TimerId(u64::MAX)))
-            .copied()
-            .collect();
-        for key in wall_due {
-            self.by_wall.remove(&key);
-            let (deadline, id) = key;
+        for (deadline, id) in take_due(&mut self.by_wall, now_wall) {
             let late = (now_wall - deadline).to_std().unwrap_or(Duration::ZERO);
             let Some(timer) = self.timers.get_mut(&id) else {
                 continue;
@@ -478,6 +464,13 @@ impl<Tz: TimeZone> Schedule<Tz> {
             Slot::Wall(at) => self.by_wall.remove(&(at, id)),
         };
     }
+}
+
+/// Takes the entries of `queue` due at or before `now`, earliest first (each is put back by
+/// its timer once re-armed, so a poll fires a timer at most once).
+fn take_due<K: Ord + Copy>(queue: &mut BTreeSet<(K, TimerId)>, now: K) -> Vec<(K, TimerId)> {
+    let later = queue.split_off(&(now, TimerId(u64::MAX)));
+    std::mem::replace(queue, later).into_iter().collect()
 }
 
 /// For an `every` timer due at `next` and polled at `now >= next`: how many further deadlines

@@ -379,6 +379,13 @@ mod tests {
         (e, guard)
     }
 
+    fn budget(operations: u64) -> ScriptLimits {
+        ScriptLimits {
+            operations,
+            ..ScriptLimits::default()
+        }
+    }
+
     fn limit_error(err: &EvalAltResult) -> (String, Position) {
         let (inner, pos) = crate::script::error::innermost(err);
         (inner.to_string(), pos)
@@ -387,11 +394,7 @@ mod tests {
     #[test]
     fn a_loop_over_budget_is_stopped_at_a_variable_with_its_line() {
         let clock = VirtualClock::at_epoch();
-        let limits = ScriptLimits {
-            operations: 10_000,
-            ..ScriptLimits::default()
-        };
-        let (e, guard) = guarded(limits, &clock);
+        let (e, guard) = guarded(budget(10_000), &clock);
         guard.begin_call();
         let err = e.run("let x = 0;\nloop {\n  x += 1;\n}").unwrap_err();
         let (text, pos) = limit_error(&err);
@@ -404,11 +407,7 @@ mod tests {
     #[test]
     fn a_caught_breach_is_cut_off_and_still_reported() {
         let clock = VirtualClock::at_epoch();
-        let limits = ScriptLimits {
-            operations: 10_000,
-            ..ScriptLimits::default()
-        };
-        let (e, guard) = guarded(limits, &clock);
+        let (e, guard) = guarded(budget(10_000), &clock);
         guard.begin_call();
         let err = e
             .run("let x = 0;\nloop { try { x += 1; } catch { } }")
