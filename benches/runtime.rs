@@ -262,7 +262,7 @@ fn bare_loop_jitter(run: Duration) -> String {
     let stolen_before = steal();
     let _ = rigscript::time::clock::prefer_prompt_wakeups();
     let _hold = WakeLatency::Auto
-        .limit_for(PERIOD)
+        .limit_for(Some(PERIOD))
         .and_then(|l| wake_latency::hold(l).ok());
     let clock = SystemClock::new();
     let start = clock.now();
@@ -379,7 +379,11 @@ fn main() {
     );
     println!(
         "  wake latency {}",
-        wake_latency::describe(&WakeLatency::Auto.limit_for(PERIOD).map(wake_latency::hold))
+        wake_latency::describe(
+            &WakeLatency::Auto
+                .limit_for(Some(PERIOD))
+                .map(wake_latency::hold)
+        )
     );
     for case in cases.iter().filter(|c| wanted(c.file)) {
         println!(

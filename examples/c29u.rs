@@ -16,7 +16,7 @@
 use clap::{Parser, ValueEnum};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions, Protocol};
 use rigscript::link::memory::MemoryByteLink;
-use rigscript::sim::c29u::{C29u as Module, Eeprom, ModuleConfig};
+use rigscript::sim::c29u::{C29uModel as Module, Eeprom, ModuleConfig};
 use rigscript::sim::c29u_line::{lock, SharedModel, SimulatedC29u};
 use rigscript::time::clock::SystemClock;
 use std::error::Error;

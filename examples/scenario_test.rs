@@ -109,7 +109,7 @@ fn a_lost_module_trips_and_stays_tripped_when_it_returns() {
 fn a_stop_signal_ends_with_the_outputs_safe() {
     let mut rig = armed();
     rig.runner.signal_stop();
-    assert_eq!(rig.runner.status(), Some(0));
+    assert_eq!(rig.runner.status(), Some(143), "128 + SIGTERM");
     assert_eq!(outputs(&rig), 0x00, "the configured safe value");
 }
 

@@ -16,7 +16,7 @@ use rigscript::{Rig, RigBuilder};
 use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -93,7 +93,7 @@ fn play_field(sim: SimRig) -> std::thread::JoinHandle<()> {
 /// and the rig (records, log) it leaves.
 fn run_script(
     args: &Args,
-    stop: Arc<AtomicBool>,
+    stop: Arc<AtomicUsize>,
     log_to_stderr: bool,
 ) -> Result<(i32, Rig), Box<dyn Error>> {
     let mut rig = rig(args.real, args.port.clone())
@@ -112,9 +112,11 @@ fn run_script(
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let stop = Arc::new(AtomicBool::new(false));
+    let stop = Arc::new(AtomicUsize::new(0));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop)) {
+        // The flag holds the signal's number: the exit status is 128 + it.
+        let number = usize::try_from(signal).unwrap_or(1);
+        if let Err(e) = signal_hook::flag::register_usize(signal, Arc::clone(&stop), number) {
             eprintln!("script_on_rig: cannot watch for signal {signal}: {e}");
             return ExitCode::FAILURE;
         }

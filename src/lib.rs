@@ -24,7 +24,7 @@
 //! ```
 //! use rigscript::device::c29u::{share, C29u, C29uOptions, Protocol};
 //! use rigscript::link::memory::MemoryByteLink;
-//! use rigscript::sim::c29u::{C29u as Module, Eeprom};
+//! use rigscript::sim::c29u::{C29uModel as Module, Eeprom};
 //! use rigscript::sim::c29u_line::{lock, SimulatedC29u};
 //! use rigscript::time::clock::SystemClock;
 //!

@@ -126,6 +126,12 @@ fn the_interlock_unit_restarts_only_where_a_restart_can_help() {
     // 1 would fail again (on_error = "restart" restarts in-process), 2 needs a person, 4 is a
     // result; 3 (a device missing at start) may come back, so it is restarted.
     assert_eq!(prevented, [1, 2, 4]);
+    // SIGINT and SIGTERM end a run with 128 + signal: `systemctl stop` is not a failure.
+    let success: Vec<i32> = value(&u, "Service", "SuccessExitStatus")
+        .split_whitespace()
+        .map(|s| s.parse().unwrap())
+        .collect();
+    assert_eq!(success, [130, 143]);
     assert!(value(&u, "Service", "WatchdogSec").ends_with('s'));
     let check = parse_unit("rigscript-check@.service");
     assert_eq!(value(&check, "Service", "Type"), "oneshot");

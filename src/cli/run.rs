@@ -1,8 +1,7 @@
 //! `rigscript run SCRIPT`: runs a script on the rig's devices (or their simulators) in the
 //! supervised scan loop until it ends, is stopped, or fails; logs what it does to stderr.
 //!
-//! Exit status: 0 ok, 1 script or runtime error, 2 usage or config error, 3 a device not
-//! available at start, 4 a measurement out of its limits.
+//! Exit statuses: `runtime::exit` (shown by `run --help`).
 //!
 //! Under systemd (`Type=notify`) it sends READY=1 once every device is under control and feeds
 //! the service watchdog from the scan loop (`cli::run_outputs`); `--junit FILE` writes the
@@ -10,6 +9,7 @@
 
 use super::run_outputs::RunOutputs;
 use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
+use crate::runtime::exit;
 use crate::runtime::log::LogFormat;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
@@ -17,12 +17,13 @@ use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
 use clap::Args;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
 /// Options of `rigscript run`.
 #[derive(Debug, Args)]
+#[command(after_help = exit::TABLE)]
 pub struct RunArgs {
     /// The script to run (.rhai).
     pub script: PathBuf,
@@ -33,10 +34,11 @@ pub struct RunArgs {
     /// `io`, a TRP-C29U at Modbus ID 1).
     #[arg(long)]
     pub sim: bool,
-    /// Scan period, overriding rig.toml ("20ms", "0.1s", or milliseconds).
-    #[arg(long, value_parser = period)]
+    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s").
+    #[arg(long, value_name = "DURATION", value_parser = period)]
     pub period: Option<Duration>,
-    /// End the run normally after this long ("10s", "5m", "24h").
+    /// End the run normally after this long: a number with a unit ("500ms", "10s", "5m",
+    /// "24h", "1h30m"); a bare number is refused.
     #[arg(long = "for", value_name = "DURATION", value_parser = dur)]
     pub run_for: Option<Duration>,
     /// Append records and measurements to this JSON-lines file (overrides rig.toml).
@@ -48,8 +50,8 @@ pub struct RunArgs {
     /// Log only warnings, errors and the script's own messages.
     #[arg(short, long)]
     pub quiet: bool,
-    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs at periods
-    /// up to 20 ms), "off", or a duration ("0us", "50us"). Needs write access to
+    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs while the
+    /// loop ticks every 20 ms or faster), "off", or a duration ("0us", "50us"). Needs write access to
     /// /dev/cpu_dma_latency; idle CPUs poll instead of sleeping while it is held.
     #[arg(long, value_name = "auto|off|DURATION", value_parser = WakeLatency::parse)]
     pub wake_latency: Option<WakeLatency>,
@@ -108,7 +110,7 @@ pub fn run(args: RunArgs) -> i32 {
             Ok(c) => c,
             Err(e) => {
                 eprintln!("rigscript run: {e}");
-                return 2;
+                return exit::USAGE;
             }
         },
         (None, true) => RigConfig::simulated_default(),
@@ -117,7 +119,7 @@ pub fn run(args: RunArgs) -> i32 {
                 "rigscript run: give --config rig.toml (the devices to drive) or --sim \
                  (simulated devices: panel, a TRC1000, and io, a TRP-C29U)"
             );
-            return 2;
+            return exit::USAGE;
         }
     };
     if let Some(w) = args.wake_latency {
@@ -133,21 +135,23 @@ pub fn run(args: RunArgs) -> i32 {
         Ok(o) => o,
         Err(e) => {
             eprintln!("rigscript run: {e}");
-            return 2;
+            return exit::USAGE;
         }
     };
     let source = match std::fs::read_to_string(&args.script) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("rigscript run: cannot read {file}: {e}");
-            return 2;
+            return exit::USAGE;
         }
     };
-    let stop_flag = Arc::new(AtomicBool::new(false));
+    let stop_flag = Arc::new(AtomicUsize::new(0));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop_flag)) {
+        // The flag holds the signal's number: the exit status reports which one it was.
+        let number = usize::try_from(signal).unwrap_or(1);
+        if let Err(e) = signal_hook::flag::register_usize(signal, Arc::clone(&stop_flag), number) {
             eprintln!("rigscript run: cannot watch for signal {signal}: {e}");
-            return 1;
+            return exit::ERROR;
         }
     }
     let setup = RigSetup {

@@ -4,12 +4,15 @@
 //! Every key is optional except a device's `kind` and a TRP-C29U's `port`; unknown keys and
 //! bad values are errors naming the file, the line and the key, all of them at once:
 //! `rig.toml:9: devices.io.protocol: "modbsu" is not a protocol; use "modbus" or "ascii"`.
-//! Durations are written as `"20ms"`, `"1.5s"`, `"5m"` or a number of milliseconds.
+//! Durations are written with a unit: `"20ms"`, `"1.5s"`, `"5m"`; a bare number is an error.
 
+mod clash;
 mod device;
 mod error;
+pub mod feeding;
 mod limits;
 mod reader;
+pub mod script_may_change;
 #[cfg(test)]
 mod tests;
 mod wake_latency;
@@ -23,6 +26,7 @@ pub use limits::{
     parse_memory_limit, parse_size, ScriptLimits, SizeError, DEFAULT_HANDLER_TIME, DEFAULT_MEMORY,
     DEFAULT_OPERATIONS, DEFAULT_TIMERS, MIN_MEMORY, SIZE_FORMS,
 };
+pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
 use reader::{duration, line_and_column, string, Reader, TableRef};
@@ -196,14 +200,17 @@ impl RigConfig {
         let devices = match root.get("devices") {
             None => BTreeMap::new(),
             Some(value) => match value.get_ref() {
-                DeValue::Table(table) => device::read_devices(
-                    &mut r,
-                    &TableRef {
+                DeValue::Table(table) => {
+                    let t = TableRef {
                         path: "devices".into(),
                         span: value.span(),
                         table,
-                    },
-                ),
+                    };
+                    let devices = device::read_devices(&mut r, &t);
+                    clash::check(&mut r, &t, &devices);
+                    feeding::check(&mut r, &t, &devices);
+                    devices
+                }
                 other => {
                     r.report(
                         &value.span(),

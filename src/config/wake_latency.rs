@@ -4,14 +4,15 @@
 use crate::time::duration::parse_duration;
 use std::time::Duration;
 
-/// Under `auto`, the longest scan period that gets a request: up to here a millisecond late is
-/// at least 5% of a period.
+/// Under `auto`, the longest interval between ticks that gets a request: up to here a
+/// millisecond late is at least 5% of it.
 pub const AUTO_UP_TO: Duration = Duration::from_millis(20);
 
 /// What a run asks of the CPUs' idle states (`wake_latency` in rig.toml, `--wake-latency`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum WakeLatency {
-    /// 0 µs for periods up to `AUTO_UP_TO`, nothing for longer ones (the default).
+    /// 0 µs while the loop ticks every `AUTO_UP_TO` or faster (a handler polls inputs at such a
+    /// period, or a timer is that fast), nothing otherwise (the default).
     #[default]
     Auto,
     /// No request: the CPUs sleep as deep as the OS likes.
@@ -36,11 +37,12 @@ impl WakeLatency {
         }
     }
 
-    /// The latency to ask for at scan period `period`, if any.
-    pub fn limit_for(self, period: Duration) -> Option<Duration> {
+    /// The latency to ask for while the loop ticks every `tick` (`None`: it wakes only now
+    /// and then, for single timers, cron or upkeep), if any.
+    pub fn limit_for(self, tick: Option<Duration>) -> Option<Duration> {
         match self {
-            Self::Auto if period <= AUTO_UP_TO => Some(Duration::ZERO),
-            Self::Auto | Self::Off => None,
+            Self::Auto => tick.filter(|t| *t <= AUTO_UP_TO).map(|_| Duration::ZERO),
+            Self::Off => None,
             Self::Limit(limit) => Some(limit),
         }
     }
@@ -59,22 +61,26 @@ mod tests {
             Ok(WakeLatency::Limit(Duration::from_micros(50)))
         );
         assert_eq!(
-            WakeLatency::parse("0"),
+            WakeLatency::parse("0us"),
             Ok(WakeLatency::Limit(Duration::ZERO))
         );
+        // A bare number has no unit (a duration anywhere on the command line needs one).
+        assert!(WakeLatency::parse("0").is_err());
         let e = WakeLatency::parse("fast").unwrap_err();
         assert!(e.contains("\"fast\" is not a wake latency"), "{e}");
         assert!(e.contains("\"auto\""), "{e}");
     }
 
     #[test]
-    fn auto_asks_for_zero_only_at_short_periods() {
-        let ms = Duration::from_millis;
+    fn auto_asks_for_zero_only_while_the_loop_ticks_fast() {
+        let ms = |n| Some(Duration::from_millis(n));
         assert_eq!(WakeLatency::Auto.limit_for(ms(10)), Some(Duration::ZERO));
         assert_eq!(WakeLatency::Auto.limit_for(ms(20)), Some(Duration::ZERO));
         assert_eq!(WakeLatency::Auto.limit_for(ms(21)), None);
+        assert_eq!(WakeLatency::Auto.limit_for(None), None, "only now and then");
         assert_eq!(WakeLatency::Off.limit_for(ms(1)), None);
         let l = Duration::from_micros(30);
         assert_eq!(WakeLatency::Limit(l).limit_for(ms(500)), Some(l));
+        assert_eq!(WakeLatency::Limit(l).limit_for(None), Some(l));
     }
 }

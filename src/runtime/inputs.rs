@@ -50,9 +50,9 @@ impl<H: Clone> Runtime<H> {
     /// if the device has no such input or was never read.
     fn read_lazily<D, T: Copy>(&mut self, idx: usize, input: &Input<D, T>) -> Option<T> {
         let tick = self.tick;
-        let online = self.online(idx);
         let d = self.devices.get_mut(idx).and_then(input.device)?;
-        if online && !(input.snapshot)(d).fresh(tick) {
+        if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {
+            let d = self.devices.get_mut(idx).and_then(input.device)?;
             if let Err(e) = (input.read)(d, tick) {
                 self.note_failure(idx, &e);
             }
@@ -96,8 +96,7 @@ impl<H: Clone> Runtime<H> {
 
     /// The latches of the TRP-C29U at `idx` (none before the first reading).
     pub fn latches(&mut self, idx: usize) -> Latches {
-        self.read_lazily(idx, &LATCHES)
-            .unwrap_or(Latches { low: 0, high: 0 })
+        self.read_lazily(idx, &LATCHES).unwrap_or_default()
     }
 }
 
@@ -142,7 +141,7 @@ mod tests {
             let s41a = Rotary::from_name("S41A").unwrap();
             assert_eq!(r.rt.rotaries(PANEL).get(s41a), 3);
             assert_eq!(r.rt.counters(IO)[4], 7);
-            assert_ne!(r.rt.latches(IO), Latches { low: 0, high: 0 });
+            assert_ne!(r.rt.latches(IO), Latches::default());
             cost.push(r.requests() - before);
         }
         assert!(cost[0] >= 4, "each read once: {cost:?}");
@@ -196,7 +195,7 @@ mod tests {
         assert_eq!(r.rt.switches(IO), Default::default());
         assert_eq!(r.rt.inputs(PANEL), 0);
         assert_eq!(r.rt.counters(9), [0; 8]);
-        assert_eq!(r.rt.latches(PANEL), Latches { low: 0, high: 0 });
+        assert_eq!(r.rt.latches(PANEL), Latches::default());
         assert_eq!(r.requests(), before);
     }
 }

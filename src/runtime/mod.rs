@@ -3,6 +3,7 @@
 
 pub mod devices;
 mod events;
+pub mod exit;
 mod inputs;
 pub mod log;
 mod outputs;

@@ -37,6 +37,14 @@ impl<H: Clone> Runtime<H> {
         self.devices.get(idx).is_some_and(|d| d.health().online())
     }
 
+    /// Gets ready to talk to the device at `idx`: feeds every watchdog that is due first (a
+    /// feed never waits for more than the exchange under way, `config::feeding`); true if
+    /// the device answers, so the exchange is worth making.
+    pub fn ready_for_exchange(&mut self, idx: usize) -> bool {
+        self.feed_watchdogs();
+        self.online(idx)
+    }
+
     /// Runs an operation the script asked for on the device at `idx`: refused while it is
     /// lost; a communication failure marks it lost.
     pub fn command<T>(
@@ -44,6 +52,7 @@ impl<H: Clone> Runtime<H> {
         idx: usize,
         op: impl FnOnce(&mut Device) -> Result<T, DeviceError>,
     ) -> Result<T, DeviceError> {
+        let ready = self.ready_for_exchange(idx);
         let now = self.now();
         let Some(d) = self.devices.get_mut(idx) else {
             return Err(DeviceError::Offline {
@@ -52,7 +61,7 @@ impl<H: Clone> Runtime<H> {
                 cause: "no such device".into(),
             });
         };
-        if !d.health().online() {
+        if !ready {
             return Err(d.health().offline_error(d.name(), now));
         }
         let result = op(d);

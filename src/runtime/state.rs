@@ -98,19 +98,35 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
-    /// timer, watchdog feed or retry of a lost device. `None` when every tick has work.
+    /// timer or retry of a lost device (watchdogs are fed between ticks). `None` when every
+    /// tick has work.
     pub fn idle_until(&self) -> Option<Duration> {
         if self.handlers.polls_inputs() {
             return None;
         }
         let now = self.now();
         let timer = self.handlers.next_timer(now, self.clock.wall());
-        let upkeep = self.next_upkeep();
+        let upkeep = self.next_retry();
         let next = match (timer, upkeep) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
         };
         Some(next.unwrap_or(Duration::MAX))
+    }
+
+    /// How often the loop ticks while the script's handlers stay as they are: every `period`
+    /// while a handler polls inputs, else at its fastest `every` (no faster than the period);
+    /// `None` when only single timers, cron or upkeep wake it.
+    pub fn tick_interval(&self, period: Duration) -> Option<Duration> {
+        if self.handlers.polls_inputs() {
+            return Some(period);
+        }
+        self.handlers.fastest_every().map(|every| every.max(period))
+    }
+
+    /// Something that changes when handlers come or go (their count and the next id).
+    pub fn handlers_signature(&self) -> (usize, u64) {
+        self.handlers.signature()
     }
 
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
@@ -136,12 +152,12 @@ mod tests {
     }
 
     #[test]
-    fn idle_until_is_the_earliest_timer_feed_or_retry() {
+    fn idle_until_is_the_earliest_timer_or_retry() {
         let mut r = TestRig::started();
         assert_eq!(
             r.rt.idle_until(),
-            Some(Duration::from_millis(250)),
-            "the feed"
+            Some(Duration::MAX),
+            "nothing to do: watchdogs are fed between ticks"
         );
         r.rt.after(Duration::from_millis(100), "soon").unwrap();
         assert_eq!(
@@ -150,8 +166,44 @@ mod tests {
             "the timer"
         );
         r.rt.reset_program();
-        r.rt.c29u(IO).unwrap().watchdog = None;
-        assert_eq!(r.rt.idle_until(), Some(Duration::MAX), "nothing to do");
+        r.sim.set_gone("panel", true).unwrap();
+        r.rt.tick += 1;
+        r.rt.switches(PANEL);
+        let lost_at = r.rt.now();
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(lost_at + Duration::from_secs(1)),
+            "the retry"
+        );
+    }
+
+    #[test]
+    fn the_tick_interval_follows_input_polls_and_the_fastest_every() {
+        let mut r = TestRig::started();
+        let period = Duration::from_millis(20);
+        assert_eq!(r.rt.tick_interval(period), None, "nothing to do");
+        r.rt.cron("0 0 * * * *", "hourly").unwrap();
+        r.rt.after(Duration::from_millis(5), "once").unwrap();
+        assert_eq!(r.rt.tick_interval(period), None, "only now and then");
+        let slow = r.rt.every(Duration::from_secs(1), "slow").unwrap();
+        assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
+        let before = r.rt.handlers_signature();
+        let fast = r.rt.every(Duration::from_millis(5), "fast").unwrap();
+        assert_ne!(r.rt.handlers_signature(), before);
+        assert_eq!(
+            r.rt.tick_interval(period),
+            Some(period),
+            "no faster than a period"
+        );
+        r.rt.cancel(fast);
+        assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
+        r.rt.cancel(slow);
+        r.rt.subscribe(Source::Rise { dev: IO, ch: 0 }, "rise", "rise".into());
+        assert_eq!(
+            r.rt.tick_interval(period),
+            Some(period),
+            "inputs polled every tick"
+        );
     }
 
     #[test]

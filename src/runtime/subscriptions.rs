@@ -11,7 +11,7 @@ use crate::protocol::trc1000::{Rotary, Switch};
 use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
 use chrono::{DateTime, Utc};
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::time::Duration;
 
 /// What a handler is subscribed to.
@@ -140,6 +140,8 @@ pub struct Subscriptions<H> {
     pub(super) timers: HashMap<TimerId, Subscription<H>>,
     /// The timer of each timer handler, by handler id (for `cancel`).
     timer_of: HashMap<u64, TimerId>,
+    /// How many `every` timers there are of each period (the fastest sets the tick).
+    every_periods: BTreeMap<Duration, usize>,
     next_id: u64,
     /// The timers of `Source::Timer` handlers.
     pub(super) schedule: Schedule<Zone>,
@@ -153,6 +155,7 @@ impl<H: Clone> Subscriptions<H> {
             stops: Vec::new(),
             timers: HashMap::new(),
             timer_of: HashMap::new(),
+            every_periods: BTreeMap::new(),
             next_id: 1,
             schedule: Schedule::with_time_zone(zone),
         }
@@ -195,6 +198,7 @@ impl<H: Clone> Subscriptions<H> {
     ) -> Result<u64, ScheduleError> {
         let id = self.schedule.every(period, now)?;
         let label = format!("every {}", format_duration(period));
+        *self.every_periods.entry(period).or_default() += 1;
         Ok(self.add(Source::Timer(id), handler, label))
     }
 
@@ -229,6 +233,15 @@ impl<H: Clone> Subscriptions<H> {
     /// Removes a handler or timer; false if there is none with that id.
     pub fn cancel(&mut self, id: u64) -> bool {
         if let Some(t) = self.timer_of.remove(&id) {
+            if let Some(TimerKind::Every(period)) = self.schedule.kind(t) {
+                let period = *period;
+                if let Some(n) = self.every_periods.get_mut(&period) {
+                    *n -= 1;
+                    if *n == 0 {
+                        self.every_periods.remove(&period);
+                    }
+                }
+            }
             self.timers.remove(&t);
             self.schedule.cancel(t);
             return true;
@@ -256,7 +269,18 @@ impl<H: Clone> Subscriptions<H> {
         self.stops.clear();
         self.timers.clear();
         self.timer_of.clear();
+        self.every_periods.clear();
         self.schedule.clear();
+    }
+
+    /// The period of the fastest `every` timer, if there is one.
+    pub fn fastest_every(&self) -> Option<Duration> {
+        self.every_periods.keys().next().copied()
+    }
+
+    /// Something that changes when handlers come or go: their count and the next id.
+    pub fn signature(&self) -> (usize, u64) {
+        (self.len(), self.next_id)
     }
 
     /// Whether the script still waits for anything (handlers other than `on_stop`, timers).
@@ -519,5 +543,39 @@ mod tests {
         assert!(s.is_empty());
         assert!(!s.has_work());
         assert!(s.schedule.is_empty());
+    }
+
+    #[test]
+    fn the_fastest_every_follows_timers_as_they_come_and_go() {
+        let mut s = store();
+        assert_eq!(s.fastest_every(), None);
+        let sig = s.signature();
+        let slow = s
+            .every(Duration::from_secs(1), Duration::ZERO, "s")
+            .unwrap();
+        let fast = s
+            .every(Duration::from_millis(20), Duration::ZERO, "f")
+            .unwrap();
+        let twin = s
+            .every(Duration::from_millis(20), Duration::ZERO, "t")
+            .unwrap();
+        s.after(Duration::from_millis(1), Duration::ZERO, "a")
+            .unwrap();
+        assert_ne!(s.signature(), sig);
+        assert_eq!(s.fastest_every(), Some(Duration::from_millis(20)));
+        assert!(s.cancel(fast));
+        assert_eq!(
+            s.fastest_every(),
+            Some(Duration::from_millis(20)),
+            "its twin"
+        );
+        assert!(s.cancel(twin));
+        assert_eq!(s.fastest_every(), Some(Duration::from_secs(1)));
+        assert!(s.cancel(slow));
+        assert_eq!(s.fastest_every(), None);
+        s.every(Duration::from_millis(5), Duration::ZERO, "x")
+            .unwrap();
+        s.clear();
+        assert_eq!(s.fastest_every(), None);
     }
 }

@@ -4,10 +4,13 @@ use super::devices::links::TransactionCounter;
 use super::devices::{open_devices, SimRig};
 use super::log::Logger;
 use super::records::Records;
+use super::scan::Shared;
 use super::state::Runtime;
 use crate::config::RigConfig;
 use crate::time::clock::{SharedClock, VirtualClock};
 use crate::time::zone::Zone;
+use std::cell::RefCell;
+use std::rc::Rc;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -74,6 +77,23 @@ impl TestRig {
         let mut r = Self::new(RIG);
         r.rt.start_devices().expect("the simulators answer");
         r
+    }
+
+    /// The runtime, shared as a scan loop holds it (`rt` is left without devices; the
+    /// simulators and the clock stay here).
+    pub fn shared_runtime(&mut self) -> Shared<&'static str> {
+        let clock: SharedClock = Arc::new(self.clock.clone());
+        let log = Logger::new(Arc::clone(&clock), Zone::utc(), false);
+        let empty = Runtime::new(
+            clock,
+            Zone::utc(),
+            Vec::new(),
+            Records::in_memory(),
+            log,
+            TransactionCounter::default(),
+            Duration::from_secs(1),
+        );
+        Rc::new(RefCell::new(std::mem::replace(&mut self.rt, empty)))
     }
 
     /// Moves virtual time on by `by` and starts the next tick (as the scan loop does).

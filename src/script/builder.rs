@@ -26,7 +26,7 @@ use crate::time::zone::Zone;
 use chrono::{DateTime, Utc};
 use serde_json::Value;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -47,7 +47,7 @@ pub struct RigBuilder {
     quiet: bool,
     log_format: LogFormat,
     keep_log: bool,
-    stop_flag: Arc<AtomicBool>,
+    stop_flag: Arc<AtomicUsize>,
 }
 
 impl Default for RigBuilder {
@@ -177,9 +177,10 @@ impl RigBuilder {
         self
     }
 
-    /// A flag that stops the run as SIGTERM would when set (from a signal handler or another
-    /// thread).
-    pub fn stop_flag(mut self, flag: Arc<AtomicBool>) -> Self {
+    /// A flag that stops the run when set (from a signal handler or another thread) to the
+    /// number of the signal that asks it to (`signal_hook::flag::register_usize`; 15 for
+    /// SIGTERM): the exit status is 128 + that number (`runtime::exit`).
+    pub fn stop_flag(mut self, flag: Arc<AtomicUsize>) -> Self {
         self.stop_flag = flag;
         self
     }

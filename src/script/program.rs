@@ -2,7 +2,7 @@
 //! and each handler call gets a fresh operation budget and time limit, and only the arguments
 //! it takes. A call over a limit is a fault placed where the limit was hit.
 
-use super::api::{register, Arities, Rt};
+use super::api::{register, resolve_variables, Arities, Rt};
 use super::engine::{sandboxed, Guard};
 use super::error::{breach_fault, fault, is_stop};
 use crate::config::ScriptLimits;
@@ -32,7 +32,8 @@ impl ScriptProgram {
         };
         let guard = Guard::install(&mut engine, limits, clock, transactions);
         let arities = Arities::default();
-        register(&mut engine, rt, &arities, &guard);
+        register(&mut engine, rt, &arities);
+        resolve_variables(&mut engine, rt, &guard);
         arities.learn(&ast);
         Self {
             engine,

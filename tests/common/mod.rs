@@ -135,6 +135,34 @@ pub fn fresh_dir(tag: &str) -> PathBuf {
     dir
 }
 
+/// A `fresh_dir` that is removed again when dropped.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    /// A new empty directory named after `tag`.
+    pub fn new(tag: &str) -> Self {
+        Self(fresh_dir(tag))
+    }
+
+    /// The path of `name` in it.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+
+    /// Writes `text` to `name` in it and returns the file's path as text.
+    pub fn file(&self, name: &str, text: &str) -> String {
+        let p = self.path(name);
+        std::fs::write(&p, text).unwrap();
+        p.display().to_string()
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 /// One systemd notification as a test's socket received it, and when.
 pub struct Notification {
     /// The datagram's text, such as `READY=1\nSTATUS=...`.

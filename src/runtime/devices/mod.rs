@@ -4,14 +4,18 @@
 
 mod c29u;
 mod open;
+mod settings;
 mod sim;
+mod takeover;
 mod trc;
 
 pub mod links;
 
-pub use c29u::C29uDevice;
+pub use c29u::{C29uDevice, Stored};
 pub use open::{open_devices, OpenError, Opened};
+pub use settings::SettingRefused;
 pub use sim::{FieldError, SimDevice, SimRig};
+pub use takeover::{ControlNotes, Takeover};
 pub use trc::TrcDevice;
 
 use crate::device::c29u::C29uError;
@@ -27,6 +31,9 @@ pub enum DeviceError {
     /// From the TRP-C29U driver.
     #[error(transparent)]
     C29u(#[from] C29uError),
+    /// A script may not change that setting (or not so).
+    #[error(transparent)]
+    Refused(Box<SettingRefused>),
     /// The device is lost; the operation was not tried.
     #[error("{device} is offline (lost {ago:.1?} ago: {cause}); the operation was not done")]
     Offline {
@@ -51,7 +58,7 @@ impl DeviceError {
                 e,
                 C29uError::Link(_) | C29uError::Timeout { .. } | C29uError::Garbled { .. }
             ),
-            DeviceError::Offline { .. } => false,
+            DeviceError::Offline { .. } | DeviceError::Refused(_) => false,
         }
     }
 

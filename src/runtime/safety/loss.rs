@@ -28,19 +28,34 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
+    /// When the next lost device is to be tried again (`None`: none is lost).
+    pub fn next_retry(&self) -> Option<Duration> {
+        self.devices
+            .iter()
+            .map(Device::health)
+            .filter(|h| !h.online())
+            .map(|h| h.next_retry)
+            .min()
+    }
+
     /// Tries lost devices whose retry time has come (one try each, without retries, so a
     /// lost device costs at most one timeout a second), takes control of those that are back,
     /// and holds every output safe while a device has been lost beyond the grace time.
     pub fn supervise(&mut self) {
         for idx in 0..self.devices.len() {
             let now = self.now();
+            let due = self
+                .devices
+                .get(idx)
+                .is_some_and(|d| !d.health().online() && now >= d.health().next_retry);
+            if !due {
+                continue;
+            }
+            self.feed_watchdogs();
             let Some(d) = self.devices.get_mut(idx) else {
                 continue;
             };
             let health = d.health();
-            if health.online() || now < health.next_retry {
-                continue;
-            }
             let reopen = health.link_failed;
             let tried = if reopen { d.reopen() } else { Ok(()) };
             let tried = tried.and_then(|()| match d {
