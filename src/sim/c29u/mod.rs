@@ -25,6 +25,7 @@
 
 mod config;
 mod eeprom;
+mod history;
 mod view;
 
 #[cfg(test)]
@@ -32,6 +33,7 @@ mod tests;
 
 pub use config::{baud_rate, CounterEdge, ModuleConfig, Protocol, DIO_TYPE, MODEL_CODE};
 pub use eeprom::{validate_led_mode, validate_name, Eeprom, DEFAULT_NAME, MAX_NAME_LEN};
+pub use history::{OutputCause, OutputChange, OutputHistory};
 pub use view::{Firmware, SimState, Snapshot, WatchdogState, WatchdogStatus, FIRMWARE};
 
 use crate::time::clock::SharedClock;
@@ -92,6 +94,7 @@ pub struct C29u {
     deadline: Option<Duration>,
     reset_flag: bool,
     snapshot: Option<Snapshot>,
+    history: OutputHistory,
 }
 
 impl std::fmt::Debug for C29u {
@@ -129,8 +132,9 @@ impl C29u {
             deadline: None,
             reset_flag: true,
             snapshot: None,
+            history: OutputHistory::default(),
         };
-        m.boot();
+        m.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
         m
     }
 
@@ -230,7 +234,7 @@ impl C29u {
     /// watchdog starts counting again.
     pub fn power_cycle(&mut self) {
         self.tick();
-        self.boot();
+        self.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
     }
 
     // ---- host side --------------------------------------------------------------------------
@@ -250,7 +254,7 @@ impl C29u {
         if self.eeprom.safe_mode {
             return Err(SimError::SafeMode);
         }
-        self.outputs = value;
+        self.drive(self.clock.now(), value, OutputCause::HostWrite);
         Ok(())
     }
 
@@ -261,11 +265,12 @@ impl C29u {
         if self.eeprom.safe_mode {
             return Err(SimError::SafeMode);
         }
-        if on {
-            self.outputs |= bit;
+        let value = if on {
+            self.outputs | bit
         } else {
-            self.outputs &= !bit;
-        }
+            self.outputs & !bit
+        };
+        self.drive(self.clock.now(), value, OutputCause::HostWrite);
         Ok(())
     }
 
@@ -435,7 +440,8 @@ impl C29u {
 
     /// Software reset (`$IDRS`, `46 09`): the same as a power cycle.
     pub fn reset(&mut self) {
-        self.power_cycle();
+        self.tick();
+        self.boot(|in_safe_mode| OutputCause::Reset { in_safe_mode });
     }
 
     /// LED operating mode, 0 or 1 (8-18, 10-10).
@@ -510,6 +516,18 @@ impl C29u {
         &self.clock
     }
 
+    /// Starts keeping the output history (every DO setting and its cause), up to `capacity`
+    /// entries; what was kept before is dropped.
+    pub fn record_outputs(&mut self, capacity: usize) {
+        self.history = OutputHistory::with_capacity(capacity);
+    }
+
+    /// The output history, as of the last call that brought the model up to date (a
+    /// watchdog due since shows once any host-side call or `state` has been made).
+    pub fn output_history(&self) -> &OutputHistory {
+        &self.history
+    }
+
     /// Writes the EEPROM image to the state file if a best-effort write (the watchdog firing)
     /// failed earlier; a no-op otherwise.
     pub fn flush(&mut self) -> Result<(), SimError> {
@@ -525,18 +543,21 @@ impl C29u {
 
     // ---- internals --------------------------------------------------------------------------
 
-    /// Power-on sequence shared by `new`, `power_cycle` and `reset`.
-    fn boot(&mut self) {
+    /// Power-on sequence shared by `new`, `power_cycle` and `reset`; `cause` names it in the
+    /// output history.
+    fn boot(&mut self, cause: fn(bool) -> OutputCause) {
         self.counters = self.eeprom.saved_counters;
         self.latched_low = 0;
         self.latched_high = 0;
         self.snapshot = None;
         self.reset_flag = true;
-        self.outputs = if self.eeprom.safe_mode {
+        let in_safe_mode = self.eeprom.safe_mode;
+        let value = if in_safe_mode {
             self.eeprom.safe_value
         } else {
             self.eeprom.power_on_value
         };
+        self.drive(self.clock.now(), value, cause(in_safe_mode));
         self.restart_countdown();
     }
 
@@ -558,14 +579,25 @@ impl C29u {
         self.deadline.is_some_and(|d| self.clock.now() >= d)
     }
 
+    /// Sets the DO byte and notes it in the history.
+    fn drive(&mut self, at: Duration, value: u8, cause: OutputCause) {
+        self.history.note(OutputChange {
+            at,
+            before: self.outputs,
+            after: value,
+            cause,
+        });
+        self.outputs = value;
+    }
+
     /// Brings the watchdog up to date: fires it if its deadline has passed.
     fn tick(&mut self) {
-        if !self.fires_now() {
+        let Some(fired_at) = self.deadline.filter(|_| self.fires_now()) else {
             return;
-        }
+        };
         self.deadline = None;
         self.eeprom.safe_mode = true;
-        self.outputs = self.eeprom.safe_value;
+        self.drive(fired_at, self.eeprom.safe_value, OutputCause::WatchdogFired);
         // Best effort: the caller may not be able to report an error; `flush` or the next
         // EEPROM write retries, since each write stores the whole image.
         if let Some(path) = &self.state_file {
