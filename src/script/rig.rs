@@ -8,7 +8,7 @@ use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::core::Runtime;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError, SimRig};
+use crate::runtime::devices::{open_devices, Device, OpenError, Opened, SimRig};
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
@@ -90,6 +90,18 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
+    start_with(source, file, setup, open_devices)
+}
+
+/// As `start`, with the devices opened by `open` instead of `open_devices` (given the same
+/// config, clock, `simulate` flag and request counter): the fault search puts simulators
+/// behind fault-injecting links under the real drivers this way.
+pub fn start_with(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
+) -> Result<Rig, RigError> {
     let ast = sandboxed(setup.budget)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, &e)))?;
@@ -98,7 +110,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         None => Records::in_memory(),
     };
     let count = TransactionCounter::default();
-    let opened = open_devices(&setup.config, &setup.clock, setup.simulate, &count)?;
+    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
     let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
     log.set_quiet(setup.quiet);
     if setup.keep_log {
