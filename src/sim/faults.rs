@@ -107,6 +107,8 @@ struct PlanState {
     schedule: VecDeque<(Duration, LinkFault)>,
     armed: Armed,
     state: LineState,
+    /// The host is gone (killed): nothing it sends arrives, whatever else is planned.
+    cut: bool,
     /// Faults that came due, with their times.
     applied: Vec<(Duration, LinkFault)>,
 }
@@ -138,7 +140,13 @@ impl FaultPlan {
     pub fn state_at(&self, now: Duration) -> LineState {
         let mut p = self.lock();
         p.apply_due(now);
-        p.state
+        p.current()
+    }
+
+    /// From now on nothing the host sends reaches the line and nothing comes back, whatever
+    /// else is planned: the host process was killed, and the devices are on their own.
+    pub fn cut_off(&self) {
+        self.lock().cut = true;
     }
 
     /// The faults that have come due so far, with their times.
@@ -148,6 +156,14 @@ impl FaultPlan {
 }
 
 impl PlanState {
+    /// The state the host sees.
+    fn current(&self) -> LineState {
+        match self.state {
+            LineState::Up if self.cut => LineState::Silent,
+            s => s,
+        }
+    }
+
     fn apply_due(&mut self, now: Duration) {
         while self.schedule.front().is_some_and(|(t, _)| *t <= now) {
             let Some((at, fault)) = self.schedule.pop_front() else {
@@ -210,9 +226,10 @@ impl<D: ByteDevice> FaultyLink<D> {
             p.apply_due(now);
             let stall = std::mem::take(&mut p.armed.stall);
             let panic = std::mem::take(&mut p.armed.panic);
-            (p.state, stall, panic)
+            (p.current(), stall, panic)
         };
-        if panic {
+        // Never while unwinding already: a second panic would abort the process.
+        if panic && !std::thread::panicking() {
             panic!("{INJECTED_PANIC} on {}", self.name);
         }
         if !stall.is_zero() {
@@ -379,6 +396,15 @@ impl EventClock {
         *self.watcher.lock().unwrap_or_else(|e| e.into_inner()) = Some(Box::new(watcher));
     }
 
+    /// Drops the actions not yet run (a test ending its run, before it looks at the aftermath).
+    pub fn clear(&self) {
+        self.events
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .due
+            .clear();
+    }
+
     /// The next action due by `until`, taken off the list.
     fn next_due(&self, until: Duration) -> Option<(Duration, Action)> {
         let mut e = self.events.lock().unwrap_or_else(|e| e.into_inner());
@@ -541,6 +567,13 @@ mod tests {
         );
         assert_eq!(plan.state_at(clock.now()), LineState::Up);
         assert_eq!(ask(&mut link, &clock, b"c").as_deref(), Some(&b"c!"[..]));
+        // A killed host: nothing gets through, and a planned reconnect does not change that.
+        plan.cut_off();
+        plan.add(MS(40), LinkFault::Reconnect);
+        clock.advance(MS(20));
+        assert_eq!(ask(&mut link, &clock, b"d"), None);
+        assert_eq!(plan.state_at(clock.now()), LineState::Silent);
+        assert_eq!(heard.load(Ordering::SeqCst), 1);
     }
 
     #[test]
@@ -581,5 +614,9 @@ mod tests {
             [("a", MS(100)), ("b", MS(100)), ("c", MS(1150))]
         );
         assert_eq!(*watched.lock().unwrap(), [MS(120), MS(1150)]);
+        clock.at(MS(2000), |_| panic!("cleared actions never run"));
+        clock.clear();
+        clock.sleep_until(MS(3000));
+        assert_eq!(clock.now(), MS(3000));
     }
 }
