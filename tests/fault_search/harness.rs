@@ -18,6 +18,7 @@ use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
 use rigscript::time::zone::Zone;
 use std::collections::BTreeMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -33,6 +34,13 @@ pub const HANG_MARKER: &str = "fault search: the run did not end in time";
 
 /// The panic the search raises to end a run whose memory only grows.
 pub const MEMORY_MARKER: &str = "fault search: script memory past the cap";
+
+/// The panic the search raises to end a run whose work only grows.
+pub const WORK_MARKER: &str = "fault search: the runner read the clock past the cap";
+
+/// Clock reads in one case that count as work without bound (a case of normal work reads it a
+/// few hundred thousand times at most): deterministic, unlike a time limit.
+pub const CLOCK_READS_CAP: u64 = 30_000_000;
 
 /// Heap growth (bytes) during one case that counts as unbounded; `FAULT_SEARCH_MEMORY_MB`
 /// overrides it (it must stay above the runner's own default script memory limit).
@@ -89,6 +97,8 @@ pub enum End {
         log: Vec<String>,
         /// The records (`record("ioN", ioN.inputs)`).
         records: Vec<serde_json::Value>,
+        /// Ticks the loop ran.
+        ticks: u64,
     },
     /// A panic left the runner (the messages are in `Run::panics`).
     Panicked,
@@ -108,6 +118,8 @@ pub struct Run {
     pub hang: bool,
     /// The run was ended by the search when its heap grew past the cap (bytes grown).
     pub memory: Option<i64>,
+    /// The run was ended by the search when it read the clock `CLOCK_READS_CAP` times.
+    pub runaway: bool,
     /// Panics raised during the case (the search's own markers included).
     pub panics: Vec<String>,
     /// The simulated modules.
@@ -234,6 +246,9 @@ pub fn run(case: &Case) -> Run {
         &sigterm_at,
         &killed_at,
     );
+    for m in &mut modules {
+        m.inputs.sort_by_key(|(t, _)| *t);
+    }
     let bound = bound(case);
     {
         let hang = Arc::clone(&hang);
@@ -245,10 +260,17 @@ pub fn run(case: &Case) -> Run {
 
     probe::begin_case();
     let base = probe::live_bytes();
+    let runaway = Arc::new(AtomicBool::new(false));
     {
-        let memory = Arc::clone(&memory);
+        let (memory, runaway) = (Arc::clone(&memory), Arc::clone(&runaway));
         let cap = memory_cap();
+        let mut reads = 0u64;
         clock.watch(move |_| {
+            reads += 1;
+            if reads == CLOCK_READS_CAP {
+                runaway.store(true, Ordering::SeqCst);
+                panic!("{WORK_MARKER}");
+            }
             let grown = probe::live_bytes() - base;
             let mut m = memory.lock().unwrap_or_else(|e| e.into_inner());
             if grown > cap && m.is_none() {
@@ -273,32 +295,40 @@ pub fn run(case: &Case) -> Run {
         stop_flag,
     };
     let opener = opener(buses, plans.clone(), &modules);
-    let outcome = catch_unwind(AssertUnwindSafe(|| {
-        match start_with(&source, "case.rhai", setup, opener) {
-            Err(RigError::Script(e)) => Err(e),
-            Err(e) => Ok(End::StartFailed {
-                status: e.status(),
-                message: e.to_string(),
-            }),
-            Ok(mut rig) => {
-                let status = rig.runner.run();
-                let rt = rig.runner.runtime().borrow();
-                Ok(End::Ran {
-                    status,
-                    log: rt.log.lines().to_vec(),
-                    records: rt.records.kept().to_vec(),
-                })
-            }
-        }
+    let started = catch_unwind(AssertUnwindSafe(|| {
+        start_with(&source, "case.rhai", setup, opener).map_err(Box::new)
     }));
-    let panics = probe::end_case();
-    let end = match outcome {
-        Ok(Ok(end)) => end,
-        Ok(Err(e)) => {
+    let end = match started {
+        Ok(Err(e)) if matches!(*e, RigError::Script(_)) => {
             panic!("the fault search wrote a script that does not compile: {e}\n{source}")
+        }
+        Ok(Err(e)) => End::StartFailed {
+            status: e.status(),
+            message: e.to_string(),
+        },
+        Ok(Ok(mut rig)) => {
+            let rt = Rc::clone(rig.runner.runtime());
+            let ran = catch_unwind(AssertUnwindSafe(|| rig.runner.run()));
+            let ticks = rig.runner.stats.ticks;
+            drop(rig);
+            let mut r = rt.borrow_mut();
+            let end = match ran {
+                Ok(status) => End::Ran {
+                    status,
+                    log: r.log.lines().to_vec(),
+                    records: r.records.kept().to_vec(),
+                    ticks,
+                },
+                Err(_) => End::Panicked,
+            };
+            // Handlers hold the script's values, device handles among them, and those hold the
+            // runtime: let them go, or every case would keep its runtime alive to the end.
+            r.reset_program();
+            end
         }
         Err(_) => End::Panicked,
     };
+    let panics = probe::end_case();
     let ended_at = clock.now();
     clock.clear();
 
@@ -328,6 +358,7 @@ pub fn run(case: &Case) -> Run {
         killed_at,
         hang: hang.load(Ordering::SeqCst),
         memory,
+        runaway: runaway.load(Ordering::SeqCst),
         panics,
         modules,
         lines_at_end,
@@ -345,6 +376,7 @@ fn refused(message: String) -> Run {
         killed_at: None,
         hang: false,
         memory: None,
+        runaway: false,
         panics: Vec::new(),
         modules: Vec::new(),
         lines_at_end: BTreeMap::new(),

@@ -11,13 +11,15 @@
 //!   `not-safe-after-end`);
 //! - a module's watchdog fires only when a fault explains it, and after a stall that let it
 //!   fire the script's outputs come back at once (`spurious-watchdog`, `late-restore`);
-//! - the run ends in time and within bounded memory (`hang`, `memory`), its exit status
+//! - the run ends in time, within bounded memory and work (`hang`, `memory`,
+//!   `unbounded-work`), its exit status
 //!   matches why it ended (`exit-status`), and what the script reads of the inputs is what
 //!   the field put on them (`wrong-input`); status 0 after a failure is
-//!   `exit-zero-after-failure`.
+//!   `exit-zero-after-failure`;
+//! - a script error says where in the script it happened (`error-without-location`).
 
 use super::case::{Case, Fault, Stmt};
-use super::harness::{End, Run, MEMORY_MARKER};
+use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
 use super::render;
 use rigscript::sim::c29u::{OutputCause, OutputChange};
 use rigscript::sim::c29u_line::lock;
@@ -80,6 +82,7 @@ pub fn check(case: &Case, run: &Run) -> Vec<Violation> {
     f.end_state();
     f.exit_status();
     f.inputs();
+    f.error_locations();
     f.v
 }
 
@@ -97,7 +100,7 @@ impl Facts<'_> {
 
     /// The run was cut short by the search itself (hang, memory).
     fn cut_short(&self) -> bool {
-        self.run.hang || self.run.memory.is_some()
+        self.run.hang || self.run.memory.is_some() || self.run.runaway
     }
 
     fn names(&self, i: usize) -> String {
@@ -173,6 +176,15 @@ impl Facts<'_> {
                     "the heap grew by {} MiB during the run with no script error: the script's \
                      memory has no bound",
                     grown >> 20
+                ),
+            );
+        }
+        if self.run.runaway {
+            self.push(
+                "unbounded-work",
+                format!(
+                    "the runner read the clock {CLOCK_READS_CAP} times in one run with no \
+                     script error: work that only grows (timers or handlers piling up?)"
                 ),
             );
         }
@@ -338,8 +350,9 @@ impl Facts<'_> {
                 return;
             }
         }
-        let period = ms(self.case.rig.period_ms);
-        let settle = period * 2 + ms(1000) + self.slowest_exchange() * 8;
+        // No other fault is near, so exchanges cost no time: the first tick after the stall
+        // can see the module went safe and take control again.
+        let settle = ms(2 * self.case.rig.period_ms + 200);
         let safes = self.safes(i);
         let history = self.history(i);
         let name = self.names(i);
@@ -542,7 +555,7 @@ impl Facts<'_> {
             .run
             .panics
             .iter()
-            .filter(|p| !p.starts_with(MEMORY_MARKER))
+            .filter(|p| !p.starts_with(MEMORY_MARKER) && !p.starts_with(WORK_MARKER))
             .collect();
         match &self.run.end {
             End::StartFailed { status, message } => {
@@ -550,7 +563,8 @@ impl Facts<'_> {
                     self.case.faults.iter().any(|&(t, f)| {
                         ms(t) <= self.run.ended_at && !matches!(f, Fault::Input { .. })
                     });
-                if *status == 3 && !faulted {
+                let no_answer = message.contains("no answer") || message.contains("garbled");
+                if *status == 3 && no_answer && !faulted {
                     self.push(
                         "exit-status",
                         format!("start failed with no fault to explain it: {message}"),
@@ -632,7 +646,8 @@ impl Facts<'_> {
         }
     }
 
-    /// What the script recorded of the inputs must be what the field put on them by then.
+    /// What the script recorded of the inputs must be what the field put on them by then, and
+    /// no counter may show more edges than the field made on its channel.
     fn inputs(&mut self) {
         let End::Ran { records, .. } = &self.run.end else {
             return;
@@ -644,15 +659,16 @@ impl Facts<'_> {
         for r in records {
             let (Some(name), Some(value), Some(time)) = (
                 r.get("name").and_then(|v| v.as_str()),
-                r.get("value").and_then(serde_json::Value::as_i64),
+                r.get("value"),
                 r.get("time").and_then(|v| v.as_str()),
             ) else {
                 continue;
             };
-            let Some(entry) = name
-                .strip_prefix("io")
-                .and_then(|n| n.parse::<usize>().ok())
-            else {
+            let (dev, counters) = match name.strip_suffix(".counters") {
+                Some(dev) => (dev, true),
+                None => (name, false),
+            };
+            let Some(entry) = dev.strip_prefix("io").and_then(|n| n.parse::<usize>().ok()) else {
                 continue;
             };
             let Some(i) = self.run.module_of(entry) else {
@@ -662,22 +678,63 @@ impl Facts<'_> {
                 continue;
             };
             let t = (t.to_utc() - origin).to_std().unwrap_or_default() + ms(1);
-            let seen = self.run.modules[i]
+            let field: Vec<u8> = self.run.modules[i]
                 .inputs
                 .iter()
-                .any(|&(when, v)| when <= t && i64::from(v) == value);
-            if !seen {
-                wrong.push(format!("{name} inputs read {value:#04x} at {time}"));
+                .filter(|(when, _)| *when <= t)
+                .map(|(_, v)| *v)
+                .collect();
+            if counters {
+                let read: Vec<i64> = value
+                    .as_array()
+                    .map(|a| a.iter().filter_map(serde_json::Value::as_i64).collect())
+                    .unwrap_or_default();
+                for (ch, count) in read.iter().enumerate() {
+                    let edges = edges(&field, ch);
+                    if *count > edges {
+                        wrong.push(format!(
+                            "{name}[{ch}] read {count} at {time}, but the field changed DI{ch} \
+                             only {edges} time(s) by then"
+                        ));
+                    }
+                }
+            } else if let Some(v) = value.as_i64() {
+                if !field.iter().any(|f| i64::from(*f) == v) {
+                    wrong.push(format!(
+                        "{name} inputs read {v:#04x} at {time}, a value the field never put on them"
+                    ));
+                }
             }
         }
         if let Some(first) = wrong.first() {
             self.push(
                 "wrong-input",
-                format!(
-                    "{first}, a value the field never put on them ({} such readings)",
-                    wrong.len()
-                ),
+                format!("{first} ({} such readings)", wrong.len()),
             );
         }
     }
+
+    /// Script errors must say where in the script they happened.
+    fn error_locations(&mut self) {
+        let End::Ran { log, .. } = &self.run.end else {
+            return;
+        };
+        if let Some(line) = log.iter().find(|l| l.contains(" error: in ")) {
+            self.push(
+                "error-without-location",
+                format!("a script error without file:line:column: {line}"),
+            );
+        }
+    }
+}
+
+/// How many times channel `ch` changed in the DI bytes `field` (either edge: an upper bound on
+/// what its counter can have counted, whichever edge it counts).
+fn edges(field: &[u8], ch: usize) -> i64 {
+    let bit = 1u8 << ch;
+    let changes = field
+        .windows(2)
+        .filter(|w| (w[0] ^ w[1]) & bit != 0)
+        .count();
+    i64::try_from(changes).unwrap_or(i64::MAX)
 }

@@ -121,7 +121,10 @@ impl Script<'_> {
                 let d = self.dev(*dev);
                 format!("record(\"{d}\", {d}.inputs);")
             }
-            Stmt::ReadCounters { dev } => format!("let c = {}.counters();", self.dev(*dev)),
+            Stmt::RecordCounters { dev } => {
+                let d = self.dev(*dev);
+                format!("record(\"{d}.counters\", {d}.counters());")
+            }
             Stmt::SafeValue { dev, value } => {
                 format!("{}.safe_value = {value:#04x};", self.dev(*dev))
             }
@@ -145,7 +148,11 @@ impl Script<'_> {
                 if !self.head.iter().any(|h| h == big) {
                     self.head.push(big.to_string());
                 }
-                format!("for i in 0..{timers} {{ let t = big + i; after(\"1h\", || t.len()); }}")
+                // Four strings a timer: each may be as large as a string may be.
+                format!(
+                    "for i in 0..{timers} {{ let a = big + i; let b = big + i; let c = big + i; \
+                     let d = big + i; after(\"1h\", || a.len() + b.len() + c.len() + d.len()); }}"
+                )
             }
             Stmt::BigString => "let s = \"x\"; loop { s += s; }".into(),
             Stmt::Stop { code } => format!("stop({code});"),
