@@ -574,9 +574,19 @@ fn defect_9_no_wait_is_unbounded() {
 #[test]
 fn defect_10_outputs_come_back_at_once_after_a_stall() {
     assert_keeps_promises(&Case {
-        rig: bare(20, 10_000, plain(Proto::Modbus, Some(10), 0x05)),
-        script: vec![every(100, vec![set(0x30)])],
-        faults: vec![(3000, Fault::Freeze { ms: 1500 })],
+        rig: bare(100, 10_801, plain(Proto::Modbus, Some(3), 0x00)),
+        script: vec![Stmt::After {
+            ms: 500,
+            body: vec![
+                set(0x30),
+                Stmt::OnRise {
+                    dev: 0,
+                    ch: 0,
+                    body: vec![],
+                },
+            ],
+        }],
+        faults: vec![(501, Fault::Freeze { ms: 1500 })],
     });
 }
 
@@ -627,20 +637,24 @@ fn defect_11_a_device_lost_to_the_end_is_not_exit_0() {
 #[test]
 fn defect_13_a_late_answer_is_never_taken_for_the_next_one() {
     assert_keeps_promises(&Case {
-        rig: bare(20, 3000, plain(Proto::Ascii, Some(10), 0x05)),
-        script: vec![every(
+        rig: bare(
             100,
-            vec![
-                Stmt::RecordCounters { dev: 0 },
-                Stmt::RecordInputs { dev: 0 },
-            ],
-        )],
-        faults: vec![
-            (500, Fault::Input { dev: 0, value: 1 }),
-            (600, Fault::Input { dev: 0, value: 0 }),
-            (700, Fault::Input { dev: 0, value: 1 }),
-            (1000, Fault::Late { line: 0, ms: 250 }),
+            7401,
+            Module {
+                timeout_ms: 200,
+                retries: 1,
+                ..plain(Proto::Ascii, None, 0x00)
+            },
+        ),
+        script: vec![
+            every(100, vec![Stmt::RecordCounters { dev: 0 }]),
+            Stmt::OnRise {
+                dev: 0,
+                ch: 0,
+                body: vec![],
+            },
         ],
+        faults: vec![(1, Fault::Late { line: 0, ms: 250 })],
     });
 }
 
@@ -661,4 +675,19 @@ fn defect_16_errors_inside_handlers_say_where() {
             faults: vec![],
         });
     }
+}
+
+#[test]
+fn defect_5_an_unchanged_safe_value_is_not_written_again() {
+    assert_keeps_promises(&Case {
+        rig: bare(20, 2000, plain(Proto::Modbus, Some(10), 0x05)),
+        script: vec![every(
+            100,
+            vec![Stmt::SafeValue {
+                dev: 0,
+                value: 0x05,
+            }],
+        )],
+        faults: vec![],
+    });
 }

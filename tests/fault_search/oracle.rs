@@ -16,7 +16,8 @@
 //!   matches why it ended (`exit-status`), and what the script reads of the inputs is what
 //!   the field put on them (`wrong-input`); status 0 after a failure is
 //!   `exit-zero-after-failure`;
-//! - a script error says where in the script it happened (`error-without-location`).
+//! - a script error says where in the script it happened (`error-without-location`);
+//! - nothing is written to a module's EEPROM that it holds already (`eeprom-rewrite`).
 
 use super::case::{Case, Fault, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
@@ -200,6 +201,16 @@ impl Facts<'_> {
             );
         }
         for (i, m) in self.run.modules.iter().enumerate() {
+            let rewrites = lock(&m.model).eeprom_rewrites();
+            if rewrites > 0 {
+                let name = self.names(i);
+                self.push(
+                    "eeprom-rewrite",
+                    format!(
+                        "{name}: {rewrites} EEPROM write(s) stored a value the module already had"
+                    ),
+                );
+            }
             let lost = lock(&m.model).output_history().lost();
             if lost > 0 {
                 let name = self.names(i);

@@ -140,6 +140,9 @@ mod tests {
         m.set_watchdog(0).unwrap();
         m.write_outputs(0x11).unwrap();
         m.reset();
+        assert_eq!(m.eeprom_rewrites(), 0);
+        m.set_watchdog(0).unwrap();
+        assert_eq!(m.eeprom_rewrites(), 1, "the same watchdog setting again");
         let seen: Vec<(u64, u8, u8, OutputCause)> = m
             .output_history()
             .entries()

@@ -95,6 +95,8 @@ pub struct C29u {
     reset_flag: bool,
     snapshot: Option<Snapshot>,
     history: OutputHistory,
+    /// EEPROM writes that stored what was there already.
+    eeprom_rewrites: u64,
 }
 
 impl std::fmt::Debug for C29u {
@@ -133,6 +135,7 @@ impl C29u {
             reset_flag: true,
             snapshot: None,
             history: OutputHistory::default(),
+            eeprom_rewrites: 0,
         };
         m.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
         m
@@ -522,6 +525,12 @@ impl C29u {
         self.history = OutputHistory::with_capacity(capacity);
     }
 
+    /// How many EEPROM writes stored what was there already (each wears the EEPROM for
+    /// nothing; a host should read before it writes).
+    pub fn eeprom_rewrites(&self) -> u64 {
+        self.eeprom_rewrites
+    }
+
     /// The output history, as of the last call that brought the model up to date (a
     /// watchdog due since shows once any host-side call or `state` has been made).
     pub fn output_history(&self) -> &OutputHistory {
@@ -608,6 +617,9 @@ impl C29u {
     /// Makes `next` the EEPROM image, writing the state file first; on a write error nothing
     /// changes.
     fn commit(&mut self, next: Eeprom) -> Result<(), SimError> {
+        if next == self.eeprom {
+            self.eeprom_rewrites = self.eeprom_rewrites.saturating_add(1);
+        }
         if let Some(path) = &self.state_file {
             next.save(path)?;
         }
