@@ -4,7 +4,7 @@
 use rigscript::device::c29u::{share, C29u, C29uOptions, Protocol};
 use rigscript::link::serial::SerialLink;
 use rigscript::protocol::c29u_modbus::silence_gap;
-use rigscript::sim::c29u::{C29u as Model, Eeprom};
+use rigscript::sim::c29u::{C29uModel as Model, Eeprom};
 use rigscript::sim::c29u_line::SimulatedC29u;
 use rigscript::sim::pty::{Faults, PtyServer};
 use rigscript::time::clock::SystemClock;

@@ -15,10 +15,10 @@
 //! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name). CPU while
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
 
-use rigscript::config::RigConfig;
+use rigscript::config::{RigConfig, WakeLatency};
 use rigscript::runtime::devices::SimRig;
 use rigscript::runtime::stats::Histogram;
-use rigscript::runtime::wake_latency::{self, WakeLatency};
+use rigscript::runtime::wake_latency;
 use rigscript::script::engine::DEFAULT_BUDGET;
 use rigscript::script::rig::{start, Rig, RigSetup};
 use rigscript::time::clock::{Clock, SharedClock, SystemClock, VirtualClock};
@@ -223,7 +223,7 @@ fn bare_loop_jitter(run: Duration) -> String {
     let stolen_before = steal();
     let _ = rigscript::time::clock::prefer_prompt_wakeups();
     let _hold = WakeLatency::Auto
-        .limit_for(PERIOD)
+        .limit_for(Some(PERIOD))
         .and_then(|l| wake_latency::hold(l).ok());
     let clock = SystemClock::new();
     let start = clock.now();
@@ -300,7 +300,11 @@ fn main() {
     );
     println!(
         "  wake latency {}",
-        wake_latency::describe(&WakeLatency::Auto.limit_for(PERIOD).map(wake_latency::hold))
+        wake_latency::describe(
+            &WakeLatency::Auto
+                .limit_for(Some(PERIOD))
+                .map(wake_latency::hold)
+        )
     );
     for case in cases.iter().filter(|c| wanted(c.file)) {
         println!(

@@ -263,9 +263,23 @@ fn counter_and_latch_commands(r: &mut Rig) {
 /// Safe and power-on values, reset, host watchdog with host OK, expiry and safe mode.
 fn preset_and_watchdog_commands(r: &mut Rig) {
     r.ok(&["do", "0x30"]);
-    let text = r.ok(&["safe-value", "0x0F"]).stdout;
+    if r.flavor.protocol == "ascii" {
+        // ASCII stores only the current outputs: another value needs --drive-outputs.
+        let refused = r.c29(&["safe-value", "0x0F"]);
+        assert_eq!(refused.status, 2, "{}", refused.stderr);
+        assert!(
+            refused.stderr.contains("--drive-outputs"),
+            "{}",
+            refused.stderr
+        );
+        assert_eq!(r.state()["safe_value"], 0x00);
+        // The value the outputs hold is stored as it is.
+        r.ok(&["power-on-value", "0x30"]);
+        assert_eq!(r.state()["power_on_value"], 0x30);
+    }
+    let text = r.ok(&["safe-value", "0x0F", "--drive-outputs"]).stdout;
     assert!(text.contains("safe  0x0F  00001111"), "{text}");
-    r.ok(&["power-on-value", "0x42"]);
+    r.ok(&["power-on-value", "0x42", "--drive-outputs"]);
     let state = r.state();
     assert_eq!(state["safe_value"], 0x0F);
     assert_eq!(state["power_on_value"], 0x42);
@@ -715,7 +729,7 @@ impl Monitor {
 fn monitor_prints_changes_and_ends_on_ctrl_c() {
     for flavor in [MODBUS, ASCII] {
         let mut r = Rig::start(flavor, &[]);
-        r.ok(&["power-on-value", "0x10"]);
+        r.ok(&["power-on-value", "0x10", "--drive-outputs"]);
         let m = Monitor::start(&r, &[]);
         m.expect("DO    0x00");
         r.control("di 0x04");

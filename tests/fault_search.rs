@@ -10,7 +10,7 @@
 //!
 //! Environment: `FAULT_SEARCH_CASES` (default 24), `FAULT_SEARCH_SEED` (default 8; the search
 //! is deterministic for a given seed and count), `FAULT_SEARCH_SHRINK` (shrink runs per kind,
-//! default 64), `FAULT_SEARCH_ONLY` (kinds to report, comma-separated; the rest are ignored), `FAULT_SEARCH_MEMORY_MB` (heap growth that counts as unbounded, default 512),
+//! default 150), `FAULT_SEARCH_ONLY` (kinds to report, comma-separated; the rest are ignored), `FAULT_SEARCH_MEMORY_MB` (heap growth that counts as unbounded, default 512),
 //! `FAULT_SEARCH_TRACE` (print each case to stderr before it runs).
 //! The soak (README "Fault search"):
 //! `FAULT_SEARCH_CASES=20000 FAULT_SEARCH_SEED=$RANDOM cargo test --release --test fault_search`.
@@ -116,7 +116,7 @@ struct Finding {
 fn the_runner_keeps_its_promises_under_generated_faults() {
     let cases: u32 = env("FAULT_SEARCH_CASES", 24);
     let seed: u64 = env("FAULT_SEARCH_SEED", 8);
-    let steps: u32 = env("FAULT_SEARCH_SHRINK", 64);
+    let steps: u32 = env("FAULT_SEARCH_SHRINK", 150);
     let trace = std::env::var_os("FAULT_SEARCH_TRACE").is_some();
     let only: Option<Vec<String>> = std::env::var("FAULT_SEARCH_ONLY")
         .ok()
@@ -146,7 +146,20 @@ fn the_runner_keeps_its_promises_under_generated_faults() {
         }
         let (kinds, run) = violations(&case);
         if trace {
-            eprintln!("fault search: heap {} MiB", probe::live_bytes() >> 20);
+            if let harness::End::ConfigRefused(why) = &run.end {
+                eprintln!("fault search: rig.toml refused: {why}");
+            }
+            let end = match &run.end {
+                harness::End::Ran { status, ticks, .. } => {
+                    format!("status {status}, {ticks} ticks")
+                }
+                other => format!("{other:?}"),
+            };
+            eprintln!(
+                "fault search: ended at {:?}: {end}; heap {} MiB",
+                run.ended_at,
+                probe::live_bytes() >> 20
+            );
         }
         match &run.end {
             harness::End::ConfigRefused(_) => refused += 1,
@@ -178,9 +191,9 @@ fn the_runner_keeps_its_promises_under_generated_faults() {
         }
     }
     let summary = format!(
-        "fault search: FAULT_SEARCH_SEED={seed} FAULT_SEARCH_CASES={cases}: {ticks} ticks, {:.1} \
-         h of virtual time, {refused} rig.toml refused",
-        virtual_time.as_secs_f64() / 3600.0
+        "fault search: FAULT_SEARCH_SEED={seed} FAULT_SEARCH_CASES={cases}: {ticks} ticks, {:.0} \
+         min of virtual time, {refused} rig.toml refused",
+        virtual_time.as_secs_f64() / 60.0
     );
     println!("{summary}");
     if found.is_empty() {

@@ -111,6 +111,26 @@ fn a_bad_config_is_exit_2_and_a_missing_device_exit_3() {
 }
 
 #[test]
+fn two_entries_for_one_module_are_refused_by_check_and_run() {
+    let d = Dir::new("clash");
+    let s = d.file("s.rhai", "print(1);");
+    let cfg = d.file(
+        "rig.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nsafe_value = 0x05\n\n\
+         [devices.io2]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\nsafe_value = 0xFF\n",
+    );
+    for cmd in ["check", "run"] {
+        let o = run(&[cmd, "--config", &cfg, &s]);
+        assert_eq!(o.status.code(), Some(2), "{cmd}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert!(
+            err.contains("rig.toml:6: devices.io2: is the same module as devices.io (line 1)"),
+            "{cmd}: {err}"
+        );
+    }
+}
+
+#[test]
 fn script_errors_are_exit_1_with_file_line_and_column() {
     let d = Dir::new("errors");
     let s = d.file("syntax.rhai", "let x = ;\n");
@@ -270,4 +290,141 @@ fn the_wake_latency_follows_the_period_and_the_option() {
         "{}",
         stderr(&o)
     );
+}
+
+#[test]
+fn run_help_shows_the_exit_statuses() {
+    let o = run(&["run", "--help"]);
+    assert_eq!(o.status.code(), Some(0));
+    let out = stdout(&o);
+    for line in [
+        "Exit status (the first that applies):",
+        "    5  the run ended, but something failed on the way: script errors recovered",
+        "  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)",
+        "Before the run starts: 2 usage or rig.toml error, 3 a device not available (missing,",
+    ] {
+        assert!(out.contains(line), "{line}: {out}");
+    }
+}
+
+/// Starts `run --sim SCRIPT`, waits until it logs `ready`, sends `signal`, and returns the
+/// exit status and the log.
+fn stopped_by(signal: &str, script: &str) -> (Option<i32>, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(rigscript())
+        .args(["run", "--sim", script])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut log = String::new();
+    while !log.contains("script: ready") {
+        let mut line = String::new();
+        if err.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+        log.push_str(&line);
+    }
+    let ok = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    (status.code(), log + &rest)
+}
+
+#[test]
+fn signals_end_the_run_with_128_plus_the_signal_after_the_safe_state() {
+    let d = Dir::new("signals");
+    let s = d.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\nevery(\"50ms\", || ());\nafter(\"100ms\", || log(\"ready\"));\n",
+    );
+    for (signal, status, name) in [("-INT", 130, "SIGINT"), ("-TERM", 143, "SIGTERM")] {
+        let (code, log) = stopped_by(signal, &s);
+        assert_eq!(code, Some(status), "{log}");
+        assert!(log.contains(&format!("stopping: {name} received")), "{log}");
+        assert!(
+            log.contains("safe state (signal): io outputs 0x00"),
+            "{log}"
+        );
+        assert!(log.contains(&format!("exit status {status}")), "{log}");
+    }
+}
+
+#[test]
+fn a_run_with_recovered_errors_does_not_end_0() {
+    let d = Dir::new("skip-status");
+    let cfg = d.file(
+        "rig.toml",
+        "on_error = \"skip\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
+    );
+    let s = d.file("s.rhai", "every(\"100ms\", || io.set_output(9, true));\n");
+    let o = run(&["run", "--sim", "--config", &cfg, "--for", "350ms", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert!(
+        err.contains("3 script error(s) recovered from: exit status 5"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_slow_script_at_a_short_period_does_not_hold_the_wake_latency() {
+    let d = Dir::new("wake-slow");
+    // cron_rig's shape: two ticks a second at most, at the default 20 ms period.
+    let s = d.file("slow.rhai", "every(\"500ms\", || ());\n");
+    let child = Command::new(rigscript())
+        .args(["run", "--sim", "--for", "1500ms", "--stats", &s])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let give_up = std::time::Instant::now() + std::time::Duration::from_millis(1200);
+    let mut seen = false;
+    while !seen && std::time::Instant::now() < give_up {
+        seen = holds_wake_latency(child.id());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(!seen, "no request while nothing ticks fast");
+    assert!(
+        stdout(&o).contains("wake latency: not requested\n"),
+        "{}",
+        stdout(&o)
+    );
+}
+
+#[test]
+fn the_wake_latency_is_released_when_the_fast_handler_goes() {
+    let d = Dir::new("wake-release");
+    let s = d.file(
+        "fast_then_slow.rhai",
+        "let fast = every(\"10ms\", || ());\nafter(\"300ms\", || cancel(fast));\nevery(\"1s\", || ());\n",
+    );
+    let o = run(&["run", "--sim", "--for", "600ms", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    if may_hold_wake_latency() {
+        assert!(
+            err.contains("CPU wake-up latency held at 0 µs (ticks every 20ms)"),
+            "{err}"
+        );
+        assert!(
+            err.contains("CPU wake-up latency released: no handler needs ticks of 20 ms or less"),
+            "{err}"
+        );
+    } else {
+        assert_eq!(
+            err.matches("CPU wake-up latency not held").count(),
+            1,
+            "asked once: {err}"
+        );
+    }
 }

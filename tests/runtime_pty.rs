@@ -78,7 +78,7 @@ fn sigterm_leaves_the_module_at_its_safe_value() {
     let status = run.wait().unwrap();
     let mut err = String::new();
     std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
-    assert_eq!(status.code(), Some(0), "{err}");
+    assert_eq!(status.code(), Some(143), "128 + SIGTERM: {err}");
     let s = sim.state();
     assert_eq!(s["do"], 0x05, "{s}\n{err}");
     assert_eq!(

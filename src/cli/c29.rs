@@ -9,8 +9,8 @@ use crate::cli::output::{
 };
 use crate::cli::sim::{parse_byte, ProtocolArg};
 use crate::device::c29u::{
-    watchdog_tenths, C29u, C29uError, C29uOptions, ConfigChange, CounterEdge, Protocol,
-    WatchdogInfo,
+    watchdog_tenths, C29u, C29uError, C29uOptions, ConfigChange, CounterEdge, Preset, PresetWrite,
+    Protocol, WatchdogInfo,
 };
 use crate::device::exchange::{format_frame, Direction};
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
@@ -28,10 +28,11 @@ use std::time::Duration;
 #[command(
     args_override_self = true,
     after_help = "Exit status: 0 done, 1 the module refused or misbehaved, 2 usage error, \
-                        3 the module cannot be reached (no port, no permission, no answer)."
+                        3 the module cannot be reached (no port, port busy, not a serial port, \
+                        no permission, no answer)."
 )]
 pub struct C29Args {
-    /// Serial port (such as /dev/ttyUSB0) or serial device server (tcp://HOST:PORT) [required]
+    /// Serial port (such as /dev/ttyUSB0) or serial device server (tcp://HOST:PORT) (required)
     #[arg(long, global = true, value_name = "PATH")]
     pub port: Option<String>,
     /// Protocol the module's DIP switch selects
@@ -100,10 +101,13 @@ pub enum WatchdogArg {
     Timeout(Duration),
 }
 
-/// Why setting a preset in ASCII touches the outputs (shown under `safe-value` and `power-on-value`).
-const PRESET_HELP: &str = "In ASCII the module can only store its current outputs (8-24): \
-                           setting a value briefly writes it to the outputs, stores it, and \
-                           writes the previous outputs back. Modbus stores it directly.";
+/// Why setting a preset in ASCII may touch the outputs (shown under `safe-value` and `power-on-value`).
+const PRESET_HELP: &str = "In ASCII the module can only store its current outputs (8-24): a \
+                           value the outputs hold already is stored as it is; any other value \
+                           is refused unless --drive-outputs is given, which writes the value \
+                           to the outputs, stores it, and writes the previous outputs back (so \
+                           whatever is wired to them sees that value for a moment). Modbus \
+                           stores it directly and ignores the flag.";
 
 /// The `c29` subcommands.
 #[derive(Debug, Clone, Subcommand)]
@@ -159,6 +163,9 @@ pub enum C29Command {
         /// New safe value, bit n = DOn
         #[arg(value_parser = parse_byte)]
         byte: Option<u8>,
+        /// ASCII: drive the outputs to BYTE for a moment to store it (see below)
+        #[arg(long, requires = "byte")]
+        drive_outputs: bool,
     },
     /// Show the power-on value (outputs at power on and after reset), or set it
     #[command(after_help = PRESET_HELP)]
@@ -166,6 +173,9 @@ pub enum C29Command {
         /// New power-on value, bit n = DOn
         #[arg(value_parser = parse_byte)]
         byte: Option<u8>,
+        /// ASCII: drive the outputs to BYTE for a moment to store it (see below)
+        #[arg(long, requires = "byte")]
+        drive_outputs: bool,
     },
     /// Show name, firmware, configuration, reset flag (reading clears it) and watchdog
     Info,
@@ -313,7 +323,11 @@ impl CommandError for CliError {
     fn exit_status(&self) -> i32 {
         match self {
             CliError::Device(e) if e.is_unreachable() => EXIT_UNREACHABLE,
-            CliError::Device(C29uError::InvalidArgument(_)) | CliError::Usage(_) => EXIT_USAGE,
+            // A preset refused for want of --drive-outputs: the command needs the flag.
+            CliError::Device(
+                C29uError::InvalidArgument(_) | C29uError::PresetDrivesOutputs { .. },
+            )
+            | CliError::Usage(_) => EXIT_USAGE,
             _ => EXIT_FAILED,
         }
     }
@@ -399,6 +413,15 @@ fn outputs_report(outputs: u8, done: &str) -> Report {
             byte_table(&[byte_row("DO", outputs, "on", "DO")])
         ),
     )
+}
+
+/// `--drive-outputs` as the driver takes it.
+fn preset_write(drive_outputs: bool) -> PresetWrite {
+    if drive_outputs {
+        PresetWrite::DriveOutputs
+    } else {
+        PresetWrite::KeepOutputs
+    }
 }
 
 fn preset_report(name: &str, key: &str, value: u8, done: &str) -> Report {
@@ -722,18 +745,24 @@ fn execute(command: &C29Command, dev: &mut C29u) -> Result<Report, CliError> {
                 format!("sent host OK to {whom} (it gets no answer)"),
             )
         }
-        C29Command::SafeValue { byte: None } => {
+        C29Command::SafeValue { byte: None, .. } => {
             preset_report("safe", "safe_value", dev.safe_value()?, "")
         }
-        C29Command::SafeValue { byte: Some(v) } => {
-            dev.set_safe_value(*v)?;
+        C29Command::SafeValue {
+            byte: Some(v),
+            drive_outputs,
+        } => {
+            dev.store_preset(Preset::Safe, *v, preset_write(*drive_outputs))?;
             preset_report("safe", "safe_value", *v, "safe value stored\n")
         }
-        C29Command::PowerOnValue { byte: None } => {
+        C29Command::PowerOnValue { byte: None, .. } => {
             preset_report("power", "power_on_value", dev.power_on_value()?, "")
         }
-        C29Command::PowerOnValue { byte: Some(v) } => {
-            dev.set_power_on_value(*v)?;
+        C29Command::PowerOnValue {
+            byte: Some(v),
+            drive_outputs,
+        } => {
+            dev.store_preset(Preset::PowerOn, *v, preset_write(*drive_outputs))?;
             preset_report("power", "power_on_value", *v, "power-on value stored\n")
         }
         C29Command::Info => info_report(dev)?,

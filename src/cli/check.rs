@@ -1,6 +1,8 @@
 //! `rigscript check SCRIPT`: compiles a script and checks what can be checked without
-//! running it (device names against the rig, switch and rotary names, channels, durations,
-//! cron expressions, handler parameters); each problem as `file:line:column: message`.
+//! running it (unknown functions, methods and properties and wrong argument counts, at the top
+//! level and in every handler and function; device names against the rig, switch and rotary
+//! names, channels, durations, cron expressions, handler parameters); each problem as
+//! `file:line:column: message`.
 //! Exit status 0 when there is none, 1 otherwise (2 for an unreadable file or config).
 
 use crate::config::RigConfig;

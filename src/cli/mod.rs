@@ -1,11 +1,14 @@
 //! The command line: argument parsing (clap) and one module per subcommand.
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 pub mod c29;
 pub mod check;
+pub mod completions;
+pub mod man;
 pub mod output;
 pub mod run;
+pub mod run_outputs;
 pub mod scan;
 pub mod sim;
 pub mod test;
@@ -24,7 +27,7 @@ pub struct Cli {
 pub enum Command {
     /// Run a script on the rig's devices (or --sim) in the supervised scan loop
     Run(run::RunArgs),
-    /// Check a script without running it: syntax, device names, handler parameters
+    /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
     Check(check::CheckArgs),
     /// Run scenario tests (*.test.rhai) in virtual time against the simulators
     Test(test::TestArgs),
@@ -39,6 +42,20 @@ pub enum Command {
         #[command(subcommand)]
         device: sim::SimCommand,
     },
+    /// Print the completion script for a shell (bash, zsh, fish, elvish, powershell)
+    Completions(completions::CompletionsArgs),
+    /// Print the manual page, or write every page into a directory (--out)
+    Man(man::ManArgs),
+}
+
+/// A usage error found after parsing (a value valid alone but not with another option),
+/// printed as clap prints its own: `error: invalid value ...`, status 2.
+pub fn usage_error(message: String) -> clap::Error {
+    clap::Error::raw(
+        clap::error::ErrorKind::ValueValidation,
+        format!("{message}\n\nFor more information, try '--help'.\n"),
+    )
+    .with_cmd(&Cli::command())
 }
 
 /// Runs the command line and returns the process exit status.
@@ -58,5 +75,7 @@ pub fn main() -> i32 {
         Command::C29(args) => c29::run(args),
         Command::Trc(args) => trc::run(args),
         Command::Sim { device } => sim::run(device),
+        Command::Completions(args) => completions::run(args),
+        Command::Man(args) => man::run(args),
     }
 }

@@ -1,11 +1,15 @@
 //! `rigscript run SCRIPT`: runs a script on the rig's devices (or their simulators) in the
 //! supervised scan loop until it ends, is stopped, or fails; logs what it does to stderr.
 //!
-//! Exit status: 0 ok, 1 script or runtime error, 2 usage or config error, 3 a device not
-//! available at start, 4 a measurement out of its limits.
+//! Exit statuses: `runtime::exit` (shown by `run --help`).
+//!
+//! Under systemd (`Type=notify`) it sends READY=1 once every device is under control and feeds
+//! the service watchdog from the scan loop (`cli::run_outputs`); `--junit FILE` writes the
+//! measurements as JUnit XML.
 
-use crate::config::RigConfig;
-use crate::runtime::wake_latency::WakeLatency;
+use super::run_outputs::RunOutputs;
+use crate::config::{RigConfig, WakeLatency};
+use crate::runtime::exit;
 use crate::script::engine::DEFAULT_BUDGET;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
@@ -13,12 +17,13 @@ use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
 use clap::Args;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
 /// Options of `rigscript run`.
 #[derive(Debug, Args)]
+#[command(after_help = exit::TABLE)]
 pub struct RunArgs {
     /// The script to run (.rhai).
     pub script: PathBuf,
@@ -29,10 +34,11 @@ pub struct RunArgs {
     /// `io`, a TRP-C29U at Modbus ID 1).
     #[arg(long)]
     pub sim: bool,
-    /// Scan period, overriding rig.toml ("20ms", "0.1s", or milliseconds).
-    #[arg(long, value_parser = period)]
+    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s").
+    #[arg(long, value_name = "DURATION", value_parser = period)]
     pub period: Option<Duration>,
-    /// End the run normally after this long ("10s", "5m", "24h").
+    /// End the run normally after this long: a number with a unit ("500ms", "10s", "5m",
+    /// "24h", "1h30m"); a bare number is refused.
     #[arg(long = "for", value_name = "DURATION", value_parser = dur)]
     pub run_for: Option<Duration>,
     /// Append records and measurements to this JSON-lines file (overrides rig.toml).
@@ -44,14 +50,18 @@ pub struct RunArgs {
     /// Log only warnings, errors and the script's own messages.
     #[arg(short, long)]
     pub quiet: bool,
-    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs at periods
-    /// up to 20 ms), "off", or a duration ("0us", "50us"). Needs write access to
+    /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs while the
+    /// loop ticks every 20 ms or faster), "off", or a duration ("0us", "50us"). Needs write access to
     /// /dev/cpu_dma_latency; idle CPUs poll instead of sleeping while it is held.
     #[arg(long, value_name = "auto|off|DURATION", value_parser = WakeLatency::parse)]
     pub wake_latency: Option<WakeLatency>,
     /// Operations each handler call may take before it is stopped as a runaway.
     #[arg(long, default_value_t = DEFAULT_BUDGET)]
     pub budget: u64,
+    /// Also write the measurements as JUnit XML to FILE (Jenkins, GitLab): each `measure` a
+    /// test case with its value and limits, plus one for the run itself.
+    #[arg(long, value_name = "FILE")]
+    pub junit: Option<PathBuf>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -72,7 +82,7 @@ pub fn run(args: RunArgs) -> i32 {
             Ok(c) => c,
             Err(e) => {
                 eprintln!("rigscript run: {e}");
-                return 2;
+                return exit::USAGE;
             }
         },
         (None, true) => RigConfig::simulated_default(),
@@ -81,25 +91,34 @@ pub fn run(args: RunArgs) -> i32 {
                 "rigscript run: give --config rig.toml (the devices to drive) or --sim \
                  (simulated devices: panel, a TRC1000, and io, a TRP-C29U)"
             );
-            return 2;
+            return exit::USAGE;
         }
     };
     if let Some(w) = args.wake_latency {
         config.wake_latency = w;
     }
     let file = args.script.display().to_string();
+    let mut outputs = match RunOutputs::new(&file, args.junit) {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("rigscript run: {e}");
+            return exit::USAGE;
+        }
+    };
     let source = match std::fs::read_to_string(&args.script) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("rigscript run: cannot read {file}: {e}");
-            return 2;
+            return exit::USAGE;
         }
     };
-    let stop_flag = Arc::new(AtomicBool::new(false));
+    let stop_flag = Arc::new(AtomicUsize::new(0));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop_flag)) {
+        // The flag holds the signal's number: the exit status reports which one it was.
+        let number = usize::try_from(signal).unwrap_or(1);
+        if let Err(e) = signal_hook::flag::register_usize(signal, Arc::clone(&stop_flag), number) {
             eprintln!("rigscript run: cannot watch for signal {signal}: {e}");
-            return 1;
+            return exit::ERROR;
         }
     }
     let setup = RigSetup {
@@ -112,7 +131,7 @@ pub fn run(args: RunArgs) -> i32 {
         records: args.records,
         log_to_stderr: true,
         quiet: args.quiet,
-        keep_log: false,
+        keep_log: outputs.keeps_log(),
         budget: args.budget,
         stop_flag,
     };
@@ -120,10 +139,12 @@ pub fn run(args: RunArgs) -> i32 {
         Ok(r) => r,
         Err(e) => {
             eprintln!("rigscript run: {e}");
-            return e.status();
+            return outputs.not_started(e.status(), &e.to_string());
         }
     };
+    outputs.started(&mut rig);
     let status = rig.runner.run();
+    let status = outputs.finished(&mut rig, status);
     if args.stats {
         println!("{}", rig.runner.stats);
     }

@@ -7,6 +7,7 @@ use crate::cli::sim::{parse_byte, ProtocolArg};
 use crate::cli::trc::board_json;
 use crate::device::c29u::{open_port, share, C29u, C29uError, C29uOptions, Protocol, SharedLink};
 use crate::link::usb::{list_boards, BoardInfo};
+use crate::link::LinkError;
 use crate::protocol::c29u::BAUD_CODES;
 use crate::time::clock::{SharedClock, SystemClock};
 use clap::Args;
@@ -29,7 +30,8 @@ const DEFAULT_IDS: std::ops::RangeInclusive<u8> = 1..=16;
                         factory setting), both protocols, 50 ms a try. ASCII modules are asked \
                         without and then with checksums. Widen with, for example, \
                         `--ids 1-247 --bauds all`. Exit status 3 when a port given with --ports \
-                        cannot be opened; finding nothing is not an error."
+                        cannot be opened (missing, busy, not a serial port, no permission); \
+                        finding nothing is not an error."
 )]
 pub struct ScanArgs {
     /// Probe only these ports (paths, pty symlinks, tcp://HOST:PORT) [default: every serial port found]
@@ -394,6 +396,10 @@ struct Outcome {
     modules: Vec<Found>,
     /// Ports that could not be opened or failed, with why.
     errors: Vec<(String, String)>,
+    /// Ports another program holds (also in `errors`).
+    busy: Vec<String>,
+    /// How many ports were opened and asked.
+    probed: usize,
     warnings: Vec<String>,
 }
 
@@ -476,10 +482,19 @@ fn scan(args: &ScanArgs, out: &mut dyn Write) -> Result<i32, OutputError> {
         writeln!(out, "{}", outcome_json(&outcome))?;
     } else if outcome.modules.is_empty() {
         writeln!(out, "  none found")?;
-        eprintln!(
-            "hint: check the cable, the protocol switch and the baud rate; widen the search \
-             with --ids 0-255 --bauds all (see --help)"
-        );
+        if !outcome.busy.is_empty() {
+            eprintln!(
+                "hint: {} could not be asked while another program holds it: end that program \
+                 (named above) and scan again",
+                outcome.busy.join(", ")
+            );
+        }
+        if outcome.probed > 0 {
+            eprintln!(
+                "hint: check the cable, the protocol switch and the baud rate; widen the search \
+                 with --ids 0-255 --bauds all (see --help)"
+            );
+        }
     } else {
         writeln!(
             out,
@@ -548,14 +563,22 @@ fn probe_port(
     outcome: &mut Outcome,
     out: &mut dyn Write,
 ) -> Result<(), OutputError> {
+    let mut counted = false;
     for baud in args.bauds() {
         let link = match open_port(port, baud, timeout) {
             Ok(link) => share(link),
             Err(e) => {
+                if matches!(e, LinkError::Busy { .. }) {
+                    outcome.busy.push(port.to_string());
+                }
                 outcome.errors.push((port.to_string(), e.to_string()));
                 return Ok(());
             }
         };
+        if !counted {
+            outcome.probed += 1;
+            counted = true;
+        }
         let line = Line {
             port,
             link: &link,

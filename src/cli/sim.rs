@@ -2,7 +2,7 @@
 //! control lines on standard input.
 
 use crate::protocol::c29u_modbus::silence_gap;
-use crate::sim::c29u::{C29u, Eeprom, Protocol};
+use crate::sim::c29u::{C29uModel, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::pty::{Faults, PtyServer};
 use crate::time::clock::{SharedClock, SystemClock};
@@ -44,8 +44,9 @@ pub struct C29uSimArgs {
     /// Protocol the module answers.
     #[arg(long, value_enum, default_value = "modbus")]
     pub protocol: ProtocolArg,
-    /// Module ID; repeat (or give a list) for several modules on one line.
-    #[arg(long, value_delimiter = ',', value_parser = parse_byte)]
+    /// Module ID (Modbus RTU 1-247, ASCII 0-255); repeat (or give a list) for several modules
+    /// on one line.
+    #[arg(long, value_delimiter = ',', value_parser = parse_module_id)]
     pub id: Vec<u8>,
     /// Require checksums on ASCII commands (and add them to answers).
     #[arg(long)]
@@ -84,6 +85,31 @@ pub fn parse_byte(text: &str) -> Result<u8, String> {
         t.parse::<u8>()
     };
     parsed.map_err(|_| format!("`{text}` is not a byte: write 0-255, 0x00-0xFF or 0b00000000"))
+}
+
+/// The IDs each protocol has, for messages.
+const ID_RANGES: &str = "Modbus RTU modules take IDs 1-247, ASCII modules 0-255";
+
+/// Reads a module ID (decimal, `0x..` or `0b..`): 0-255 here, 1-247 checked for Modbus later.
+fn parse_module_id(text: &str) -> Result<u8, String> {
+    parse_byte(text).map_err(|_| format!("`{text}` is not a module ID: {ID_RANGES}"))
+}
+
+impl C29uSimArgs {
+    /// The IDs the protocol cannot have, refused as clap refuses a bad value (status 2).
+    fn check_ids(&self) -> Result<(), clap::Error> {
+        let bad = match self.protocol {
+            ProtocolArg::Modbus => self.id.iter().find(|id| !(1..=247).contains(*id)),
+            ProtocolArg::Ascii => None,
+        };
+        match bad {
+            None => Ok(()),
+            Some(id) => Err(crate::cli::usage_error(format!(
+                "invalid value '{id}' for '--id <ID>': `{id}` is not a Modbus RTU module ID: \
+                 {ID_RANGES}"
+            ))),
+        }
+    }
 }
 
 fn parse_probability(text: &str) -> Result<f64, String> {
@@ -191,6 +217,10 @@ pub fn apply_control(line: &str, modules: &[(u8, SharedModel)]) -> String {
 /// Runs `rigscript sim ...` and returns the exit status.
 pub fn run(command: SimCommand) -> i32 {
     match command {
+        SimCommand::C29u(args) if args.check_ids().is_err() => {
+            let _ = args.check_ids().map_err(|e| e.print());
+            crate::cli::output::EXIT_USAGE
+        }
         SimCommand::C29u(args) => match serve_c29u(args) {
             Ok(()) => 0,
             Err(message) => {
@@ -206,7 +236,7 @@ fn build_model(
     id: Option<u8>,
     clock: &SharedClock,
     several: bool,
-) -> Result<C29u, String> {
+) -> Result<C29uModel, String> {
     let protocol = Protocol::from(args.protocol);
     let mut model = match &args.state {
         Some(path) => {
@@ -214,9 +244,10 @@ fn build_model(
                 (true, Some(id)) => PathBuf::from(format!("{}.{id}", path.display())),
                 _ => path.clone(),
             };
-            C29u::with_state_file(protocol, Arc::clone(clock), path).map_err(|e| e.to_string())?
+            C29uModel::with_state_file(protocol, Arc::clone(clock), path)
+                .map_err(|e| e.to_string())?
         }
-        None => C29u::new(protocol, Arc::clone(clock), Eeprom::factory()),
+        None => C29uModel::new(protocol, Arc::clone(clock), Eeprom::factory()),
     };
     let mut config = model.config();
     if let Some(id) = id {

@@ -1,11 +1,14 @@
 //! `rigscript test [PATH..]`: runs the scenario tests (`*.test.rhai`, default under
 //! `scripts/tests/`) in virtual time against the simulators; one line per test, then
 //! `N passed, N failed`. Exit status 0 when all pass, 1 when any fails, 2 when no test file
-//! is found.
+//! is found or the JUnit report cannot be written. `--junit FILE` also writes the results as
+//! JUnit XML for CI: a suite per test file, a case per test function.
 
+use crate::report::junit::{self, Outcome, TestCase, TestSuite};
 use crate::script::scenario::{run_file, test_files, TestResult};
 use clap::Args;
 use std::path::PathBuf;
+use std::time::Instant;
 
 /// Where scenario tests live unless told otherwise.
 pub const DEFAULT_PATH: &str = "scripts/tests";
@@ -15,10 +18,20 @@ pub const DEFAULT_PATH: &str = "scripts/tests";
 pub struct TestArgs {
     /// Test files or directories of them (default scripts/tests).
     pub paths: Vec<PathBuf>,
+    /// Also write the results as JUnit XML to FILE (Jenkins, GitLab): a suite per test file,
+    /// a case per test, failures with their message.
+    #[arg(long, value_name = "FILE")]
+    pub junit: Option<PathBuf>,
 }
 
 /// Runs `rigscript test`; returns the exit status.
 pub fn run(args: TestArgs) -> i32 {
+    if let Some(path) = &args.junit {
+        if let Err(e) = junit::check_path(path) {
+            eprintln!("rigscript test: {e}");
+            return 2;
+        }
+    }
     let paths = if args.paths.is_empty() {
         vec![PathBuf::from(DEFAULT_PATH)]
     } else {
@@ -46,19 +59,64 @@ pub fn run(args: TestArgs) -> i32 {
         return 2;
     }
     let (mut passed, mut failed) = (0usize, 0usize);
+    let mut suites = Vec::new();
     for file in files {
         let name = file.display().to_string();
-        run_file(&file, &name, |r: &TestResult| match &r.failure {
-            None => {
-                passed += 1;
-                println!("ok   {}", r.name);
+        let started = Instant::now();
+        let mut suite = TestSuite {
+            name: name.clone(),
+            timestamp: junit::timestamp_now(),
+            time: std::time::Duration::ZERO,
+            properties: Vec::new(),
+            cases: Vec::new(),
+            notes: String::new(),
+        };
+        let mut last = Instant::now();
+        run_file(&file, &name, |r: &TestResult| {
+            match &r.failure {
+                None => {
+                    passed += 1;
+                    println!("ok   {}", r.name);
+                }
+                Some(why) => {
+                    failed += 1;
+                    println!("FAIL {}: {why}", r.name);
+                }
             }
-            Some(why) => {
-                failed += 1;
-                println!("FAIL {}: {why}", r.name);
-            }
+            suite.cases.push(test_case(r, &name, last.elapsed()));
+            last = Instant::now();
         });
+        suite.time = started.elapsed();
+        suites.push(suite);
     }
     println!("{passed} passed, {failed} failed");
+    if let Some(path) = &args.junit {
+        if let Err(e) = junit::write(path, &suites) {
+            eprintln!(
+                "rigscript test: cannot write the JUnit report {}: {e}",
+                path.display()
+            );
+            return 2;
+        }
+    }
     i32::from(failed > 0)
+}
+
+/// A scenario test as a JUnit case: named by its function, grouped by its file.
+fn test_case(r: &TestResult, file: &str, time: std::time::Duration) -> TestCase {
+    let name = r
+        .name
+        .strip_prefix(file)
+        .and_then(|n| n.strip_prefix("::"))
+        .unwrap_or(&r.name);
+    let mut case = TestCase::passed(name, file);
+    case.time = time;
+    if let Some(why) = &r.failure {
+        case.outcome = Outcome::Failure {
+            message: why.clone(),
+            kind: "scenario".into(),
+            detail: String::new(),
+        };
+    }
+    case
 }

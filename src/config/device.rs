@@ -2,6 +2,7 @@
 
 use super::error::ProblemKind;
 use super::reader::{bad, boolean, duration, integer_in, string, Reader, TableRef};
+use super::script_may_change::{self, ScriptMayChange};
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
 pub use crate::protocol::c29u::{Protocol, WatchdogTimeout};
 use std::collections::BTreeMap;
@@ -82,6 +83,8 @@ pub struct C29uConfig {
     pub power_on_value: Option<u8>,
     /// Whether an energized input reads as a 0 bit on the wire (default true, per NOTES.md).
     pub di_active_low: bool,
+    /// Which of the fail-safe settings given here the script may change (`script_may_change`).
+    pub script_may_change: ScriptMayChange,
 }
 
 impl C29uConfig {
@@ -99,6 +102,7 @@ impl C29uConfig {
             safe_value: 0x00,
             power_on_value: None,
             di_active_low: true,
+            script_may_change: ScriptMayChange::ALL,
         }
     }
 }
@@ -144,6 +148,7 @@ const DEVICE_KEYS_C29U: &[&str] = &[
     "safe_value",
     "power_on_value",
     "di_active_low",
+    script_may_change::KEY,
 ];
 
 /// Whether `name` can name a device: an identifier of ASCII letters, digits and `_`.
@@ -315,6 +320,8 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
     c.di_active_low = r
         .read(t, "di_active_low", boolean)
         .unwrap_or(c.di_active_low);
+    let listed = r.read(t, script_may_change::KEY, script_may_change::read);
+    c.script_may_change = ScriptMayChange::of(t, &listed.unwrap_or_default());
     port.map(|port| C29uConfig { port, ..c })
 }
 

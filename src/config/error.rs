@@ -111,6 +111,17 @@ pub enum ProblemKind {
         /// The other key.
         other: &'static str,
     },
+    /// Two entries that would reach the same device (or share a line at two speeds).
+    Clash {
+        /// How this entry stands to the other: "is the same module as".
+        relation: &'static str,
+        /// The dotted path of the earlier entry.
+        other: String,
+        /// The earlier entry's line.
+        other_line: usize,
+        /// What they share, and what to do.
+        detail: String,
+    },
 }
 
 impl fmt::Display for ProblemKind {
@@ -127,6 +138,12 @@ impl fmt::Display for ProblemKind {
             ProblemKind::Conflict { other } => {
                 write!(f, "cannot be given together with {other}; use one of them")
             }
+            ProblemKind::Clash {
+                relation,
+                other,
+                other_line,
+                detail,
+            } => write!(f, "{relation} {other} (line {other_line}): {detail}"),
         }
     }
 }

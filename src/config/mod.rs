@@ -4,26 +4,32 @@
 //! Every key is optional except a device's `kind` and a TRP-C29U's `port`; unknown keys and
 //! bad values are errors naming the file, the line and the key, all of them at once:
 //! `rig.toml:9: devices.io.protocol: "modbsu" is not a protocol; use "modbus" or "ascii"`.
-//! Durations are written as `"20ms"`, `"1.5s"`, `"5m"` or a number of milliseconds.
+//! Durations are written with a unit: `"20ms"`, `"1.5s"`, `"5m"`; a bare number is an error.
 
+mod clash;
 mod device;
 mod error;
+pub mod feeding;
 mod reader;
+pub mod script_may_change;
 #[cfg(test)]
 mod tests;
+mod wake_latency;
 
 pub use device::{
     is_device_name, C29uConfig, DeviceConfig, Port, Protocol, Trc1000Address, Trc1000Config,
     WatchdogTimeout,
 };
 pub use error::{ConfigError, Problem, ProblemKind};
+pub use script_may_change::ScriptMayChange;
+pub use wake_latency::WakeLatency;
 
-use crate::runtime::wake_latency::{WakeLatency, ACCEPTED_FORMS as WAKE_FORMS};
 use reader::{duration, line_and_column, string, Reader, TableRef};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use toml::de::{DeTable, DeValue};
+use wake_latency::ACCEPTED_FORMS as WAKE_FORMS;
 
 /// Scan period when rig.toml does not set one: 50 ticks a second.
 pub const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
@@ -161,14 +167,17 @@ impl RigConfig {
         let devices = match root.get("devices") {
             None => BTreeMap::new(),
             Some(value) => match value.get_ref() {
-                DeValue::Table(table) => device::read_devices(
-                    &mut r,
-                    &TableRef {
+                DeValue::Table(table) => {
+                    let t = TableRef {
                         path: "devices".into(),
                         span: value.span(),
                         table,
-                    },
-                ),
+                    };
+                    let devices = device::read_devices(&mut r, &t);
+                    clash::check(&mut r, &t, &devices);
+                    feeding::check(&mut r, &t, &devices);
+                    devices
+                }
                 other => {
                     r.report(
                         &value.span(),

@@ -1,10 +1,7 @@
 //! Reads typed values out of spanned TOML tables, collecting every problem with its line.
 
 use super::error::{Problem, ProblemKind};
-use crate::time::duration::{
-    duration_from_millis_f64, duration_from_millis_i64, parse_duration, DurationError,
-    ACCEPTED_FORMS,
-};
+use crate::time::duration::{no_unit_advice, parse_duration, DurationError, ACCEPTED_FORMS};
 use std::ops::Range;
 use std::time::Duration;
 use toml::de::{DeTable, DeValue};
@@ -205,33 +202,27 @@ pub(super) fn integer_in(
     }
 }
 
-/// A duration: text (`"20ms"`) or a number of milliseconds.
+/// A duration: text with a unit (`"20ms"`); a bare number is refused, showing the forms.
 pub(super) fn duration(v: &DeValue<'_>) -> Result<Duration, ProblemKind> {
     let result = match v {
         DeValue::String(s) => parse_duration(s),
-        DeValue::Integer(i) => i64::from_str_radix(i.as_str(), i.radix())
-            .map_err(|_| DurationError::Overflow {
-                text: i.to_string(),
+        DeValue::Integer(_) | DeValue::Float(_) => {
+            let number = shown(v);
+            // Only a number that would make sense with a unit gets one suggested.
+            let plain = number.bytes().all(|b| b.is_ascii_digit() || b == b'.');
+            Err(if plain {
+                DurationError::NoUnit { text: number }
+            } else {
+                DurationError::Syntax { text: number }
             })
-            .and_then(duration_from_millis_i64),
-        DeValue::Float(x) => match x.as_str().parse::<f64>() {
-            Ok(f) => duration_from_millis_f64(f),
-            Err(_) => Err(DurationError::BadMillis {
-                value: x.as_str().to_string(),
-            }),
-        },
-        other => {
-            return Err(wrong(
-                other,
-                "a duration (\"20ms\", \"1.5s\") or milliseconds",
-            ))
         }
+        other => return Err(wrong(other, "a duration (\"20ms\", \"1.5s\")")),
     };
     result.map_err(|e| match e {
-        DurationError::Syntax { .. } => bad(v, format!("is not a duration; use {ACCEPTED_FORMS}")),
-        DurationError::Overflow { .. } => bad(v, "is too long a duration"),
-        DurationError::BadMillis { .. } => {
-            bad(v, "is not a duration; milliseconds must be 0 or more")
+        DurationError::Syntax { .. } | DurationError::BadMillis { .. } => {
+            bad(v, format!("is not a duration; use {ACCEPTED_FORMS}"))
         }
+        DurationError::NoUnit { text } => bad(v, format!("has no unit: {}", no_unit_advice(&text))),
+        DurationError::Overflow { .. } => bad(v, "is too long a duration"),
     })
 }

@@ -1,7 +1,6 @@
 //! Tests of rig.toml reading: every key, every error with its line, the defaults.
 
 use super::*;
-use crate::runtime::wake_latency::WakeLatency;
 use proptest::prelude::*;
 
 const EXAMPLE: &str = r#"period = "20ms"
@@ -103,6 +102,11 @@ fn the_example_reads_as_written() {
             safe_value: 0,
             power_on_value: Some(0),
             di_active_low: true,
+            script_may_change: ScriptMayChange {
+                safe_value: false,
+                power_on_value: false,
+                watchdog: false,
+            },
         }),
     );
     assert_eq!(
@@ -158,13 +162,15 @@ fn device_defaults() {
 
 #[test]
 fn top_level_keys() {
-    let c =
-        parse("period = 50\non_error = \"restart\"\ngrace = 0\nrecords = \"out/r.jsonl\"").unwrap();
+    let c = parse(
+        "period = \"50ms\"\non_error = \"restart\"\ngrace = \"0s\"\nrecords = \"out/r.jsonl\"",
+    )
+    .unwrap();
     assert_eq!(c.period, Duration::from_millis(50));
     assert_eq!(c.on_error, ErrorPolicy::Restart);
     assert_eq!(c.grace, Duration::ZERO, "grace 0: safe at once");
     assert_eq!(c.records, Some(PathBuf::from("out/r.jsonl")));
-    let c = parse("period = 2.5\non_error = \"skip\"\ngrace = \"1m\"").unwrap();
+    let c = parse("period = \"2.5ms\"\non_error = \"skip\"\ngrace = \"1m\"").unwrap();
     assert_eq!(c.period, Duration::from_micros(2500));
     assert_eq!(c.on_error, ErrorPolicy::Skip);
     assert_eq!(c.on_error.as_str(), "skip");
@@ -176,8 +182,13 @@ fn top_level_keys() {
     let wake = |t: &str| parse(&format!("wake_latency = {t}")).unwrap().wake_latency;
     assert_eq!(wake("\"off\""), WakeLatency::Off);
     assert_eq!(wake("\"auto\""), WakeLatency::Auto);
-    assert_eq!(wake("0"), WakeLatency::Limit(Duration::ZERO));
     assert_eq!(wake("\"0us\""), WakeLatency::Limit(Duration::ZERO));
+    assert_eq!(
+        problems("wake_latency = 0"),
+        vec![
+            r#"rig.toml:1: wake_latency: 0 is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#
+        ]
+    );
 }
 
 #[test]
@@ -200,7 +211,7 @@ fn trc1000_keys() {
 #[test]
 fn c29u_keys() {
     let io = c29u(
-        "protocol = \"ascii\"\nid = 0\nbaud = 115200\nchecksum = true\ntimeout = 250\n\
+        "protocol = \"ascii\"\nid = 0\nbaud = 115200\nchecksum = true\ntimeout = \"250ms\"\n\
          retries = 0\nwatchdog = \"25.5s\"\nsafe_value = 0b1010_0101\npower_on_value = 0xFF\n\
          di_active_low = false",
     )
@@ -293,14 +304,18 @@ fn ports_serial_and_tcp() {
 
 #[test]
 fn watchdog_times() {
-    let wd = |s: &str| c29u(&format!("watchdog = {s}")).map(|io| io.watchdog.map(|w| w.tenths()));
+    // A quick module, so that even a 0.1 s watchdog can be fed in time.
+    let wd = |s: &str| {
+        c29u(&format!("timeout = \"10ms\"\nretries = 0\nwatchdog = {s}"))
+            .map(|io| io.watchdog.map(|w| w.tenths()))
+    };
     assert_eq!(wd("\"2s\"").unwrap(), Some(20));
     assert_eq!(wd("\"0.1s\"").unwrap(), Some(1));
     assert_eq!(wd("\"100ms\"").unwrap(), Some(1));
-    assert_eq!(wd("1500").unwrap(), Some(15), "milliseconds");
+    assert_eq!(wd("\"1500ms\"").unwrap(), Some(15));
     assert_eq!(wd("\"25.5s\"").unwrap(), Some(255));
     assert_eq!(wd("\"off\"").unwrap(), None);
-    assert_eq!(wd("0").unwrap(), None, "0 disables, as on the module");
+    assert_eq!(wd("\"0s\"").unwrap(), None, "0 disables, as on the module");
     for bad in [
         "\"25.6s\"",
         "\"2.05s\"",
@@ -308,6 +323,8 @@ fn watchdog_times() {
         "\"1m\"",
         "\"on\"",
         "1",
+        "1500",
+        "0",
     ] {
         assert_eq!(
             c29u_problem(&format!("watchdog = {bad}")),
@@ -364,25 +381,82 @@ fn the_briefs_example_error() {
 #[test]
 fn bad_values_name_line_and_key() {
     let cases: &[(&str, &str)] = &[
-        ("period = 0", r#"rig.toml:1: period: 0 is not a period; it must be above zero"#),
-        ("\nperiod = \"0s\"", r#"rig.toml:2: period: "0s" is not a period; it must be above zero"#),
+        (
+            "period = \"0ms\"",
+            r#"rig.toml:1: period: "0ms" is not a period; it must be above zero"#,
+        ),
+        (
+            "period = 20",
+            r#"rig.toml:1: period: 20 has no unit: write "20ms", "20s" or "20m" (a duration is a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m"))"#,
+        ),
+        (
+            "grace = 2.5",
+            r#"rig.toml:1: grace: 2.5 has no unit: write "2.5ms", "2.5s" or "2.5m" (a duration is a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m"))"#,
+        ),
+        (
+            "grace = \"10\"",
+            r#"rig.toml:1: grace: "10" has no unit: write "10ms", "10s" or "10m" (a duration is a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m"))"#,
+        ),
+        (
+            "\nperiod = \"0s\"",
+            r#"rig.toml:2: period: "0s" is not a period; it must be above zero"#,
+        ),
         (
             "period = \"fast\"",
-            r#"rig.toml:1: period: "fast" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m") or a number of milliseconds"#,
+            r#"rig.toml:1: period: "fast" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
         ),
-        ("period = -5", "rig.toml:1: period: -5 is not a duration; milliseconds must be 0 or more"),
-        ("period = nan", "rig.toml:1: period: nan is not a duration; milliseconds must be 0 or more"),
-        ("period = true", r#"rig.toml:1: period: expected a duration ("20ms", "1.5s") or milliseconds, found a boolean"#),
-        ("on_error = \"panic\"", r#"rig.toml:1: on_error: "panic" is not an error policy; use "stop", "restart" or "skip""#),
-        ("on_error = 1", "rig.toml:1: on_error: expected a string, found an integer"),
-        ("records = \"\"", r#"rig.toml:1: records: "" is not a file name"#),
-        ("records = [\"a\"]", "rig.toml:1: records: expected a string, found an array"),
-        ("grace = \"-1s\"", r#"rig.toml:1: grace: "-1s" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m") or a number of milliseconds"#),
-        ("grace = 1979-05-27", "rig.toml:1: grace: expected a duration (\"20ms\", \"1.5s\") or milliseconds, found a date-time"),
-        ("\n\nwake_latency = \"low\"", r#"rig.toml:3: wake_latency: "low" is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#),
-        ("wake_latency = true", r#"rig.toml:1: wake_latency: true is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#),
-        ("devices = 3", "rig.toml:1: devices: expected a table of devices ([devices.NAME]), found an integer"),
-        ("[devices]\nio = 3", "rig.toml:2: devices.io: expected a table ([devices.NAME]), found an integer"),
+        (
+            "period = -5",
+            r#"rig.toml:1: period: -5 is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
+        ),
+        (
+            "period = nan",
+            r#"rig.toml:1: period: nan is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
+        ),
+        (
+            "period = true",
+            r#"rig.toml:1: period: expected a duration ("20ms", "1.5s"), found a boolean"#,
+        ),
+        (
+            "on_error = \"panic\"",
+            r#"rig.toml:1: on_error: "panic" is not an error policy; use "stop", "restart" or "skip""#,
+        ),
+        (
+            "on_error = 1",
+            "rig.toml:1: on_error: expected a string, found an integer",
+        ),
+        (
+            "records = \"\"",
+            r#"rig.toml:1: records: "" is not a file name"#,
+        ),
+        (
+            "records = [\"a\"]",
+            "rig.toml:1: records: expected a string, found an array",
+        ),
+        (
+            "grace = \"-1s\"",
+            r#"rig.toml:1: grace: "-1s" is not a duration; use a number with a unit ("250us", "20ms", "1.5s", "5m", "2h", "1h30m")"#,
+        ),
+        (
+            "grace = 1979-05-27",
+            "rig.toml:1: grace: expected a duration (\"20ms\", \"1.5s\"), found a date-time",
+        ),
+        (
+            "\n\nwake_latency = \"low\"",
+            r#"rig.toml:3: wake_latency: "low" is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#,
+        ),
+        (
+            "wake_latency = true",
+            r#"rig.toml:1: wake_latency: true is not a wake latency; use "auto", "off" or the longest wake-up a CPU may take ("0us", "50us")"#,
+        ),
+        (
+            "devices = 3",
+            "rig.toml:1: devices: expected a table of devices ([devices.NAME]), found an integer",
+        ),
+        (
+            "[devices]\nio = 3",
+            "rig.toml:2: devices.io: expected a table ([devices.NAME]), found an integer",
+        ),
     ];
     for (text, want) in cases {
         assert_eq!(problems(text), vec![want.to_string()], "{text}");
@@ -428,7 +502,8 @@ fn bad_c29u_values() {
             "rig.toml:4: devices.io.checksum: true is for the ascii protocol only; Modbus RTU frames always carry a CRC",
         ),
         ("checksum = \"no\"", "rig.toml:4: devices.io.checksum: expected true or false, found a string"),
-        ("timeout = 0", "rig.toml:4: devices.io.timeout: 0 is not a timeout; it must be above zero"),
+        ("timeout = \"0ms\"", "rig.toml:4: devices.io.timeout: \"0ms\" is not a timeout; it must be above zero"),
+        ("timeout = 250", "rig.toml:4: devices.io.timeout: 250 has no unit: write \"250ms\""),
         ("retries = 11", "rig.toml:4: devices.io.retries: 11 is not a retry count; use 0-10"),
         ("safe_value = 256", "rig.toml:4: devices.io.safe_value: 256 is not a DO byte; use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"),
         ("power_on_value = -1", "rig.toml:4: devices.io.power_on_value: -1 is not a DO byte"),
@@ -456,7 +531,7 @@ fn bad_c29u_values() {
 #[test]
 fn missing_and_unknown_kinds() {
     assert_eq!(
-        problems("period = 20\n\n[devices.io]\nport = \"/dev/ttyUSB0\"\n"),
+        problems("period = \"20ms\"\n\n[devices.io]\nport = \"/dev/ttyUSB0\"\n"),
         vec![r#"rig.toml:3: devices.io.kind: missing; give kind = "trc1000" or kind = "trp-c29u""#]
     );
     assert_eq!(
@@ -476,7 +551,7 @@ fn missing_and_unknown_kinds() {
 #[test]
 fn unknown_top_level_keys() {
     assert_eq!(
-        problems("period = 20\nperoid = 30\n"),
+        problems("period = \"20ms\"\nperoid = 30\n"),
         vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, wake_latency, devices"]
     );
     assert_eq!(
@@ -680,4 +755,139 @@ proptest! {
             }
         }
     }
+}
+
+#[test]
+fn two_entries_for_one_module_name_each_other_with_their_lines() {
+    let text = "[devices.a]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nsafe_value = 0x05\n\n\
+                [devices.b]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nsafe_value = 0xFF\n";
+    assert_eq!(
+        problems(text),
+        vec![
+            "rig.toml:6: devices.b: is the same module as devices.a (line 1): TRP-C29U ID 1 on \
+             /dev/ttyUSB0; two entries would drive one module with two safe values. Give each \
+             module its own ID (`rigscript scan` lists the modules on a line) or remove one entry"
+        ]
+    );
+    // Other IDs on the line, or the same ID on another line, are fine.
+    parse(&text.replace("safe_value = 0xFF", "id = 2")).unwrap();
+    parse(&text.replace(
+        "port = \"/dev/ttyUSB0\"\nsafe_value = 0xFF",
+        "port = \"/dev/ttyUSB1\"",
+    ))
+    .unwrap();
+}
+
+#[test]
+fn modules_on_one_line_at_two_speeds_clash() {
+    let text =
+        "[devices.b]\nkind = \"trp-c29u\"\nport = \"tcp://gw:4001\"\nid = 2\nbaud = 19200\n\n\
+                [devices.a]\nkind = \"trp-c29u\"\nport = \"tcp://gw:4001\"\n";
+    let p = problems(text);
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert!(
+        p[0].starts_with(
+            "rig.toml:7: devices.a: is on the same line as devices.b (line 1): tcp://gw:4001 at \
+             9600 baud, and 19200 baud there"
+        ),
+        "{p:?}"
+    );
+}
+
+#[test]
+fn two_entries_for_one_board_clash() {
+    let text = "[devices.p]\nkind = \"trc1000\"\n\n[devices.q]\nkind = \"trc1000\"\nunit = 0\n";
+    let p = problems(text);
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert!(
+        p[0].starts_with(
+            "rig.toml:4: devices.q: is the same board as devices.p (line 1): TRC1000 unit 0;"
+        ),
+        "{p:?}"
+    );
+    parse(&text.replace("unit = 0", "unit = 1")).unwrap();
+}
+
+#[test]
+fn a_watchdog_that_cannot_be_fed_in_time_is_refused_with_the_arithmetic() {
+    // Default timing: 100 ms timeout, 2 retries, Modbus at 9600 baud on a serial port. A
+    // silent module costs 3 x (100 ms settling + 16.7 ms request + 100 ms timeout) = 650 ms;
+    // then the feed: 100 ms settling + 8.3 ms request; 20 ms to wake: 778 ms late at worst.
+    let p = c29u_problem("watchdog = \"0.8s\"");
+    assert!(
+        p.starts_with(
+            "rig.toml:4: devices.io.watchdog: \"0.8s\" is too short for this rig: a feed may \
+             reach the module 778ms after it is due"
+        ),
+        "{p}"
+    );
+    for part in [
+        "waiting for the longest exchange 650ms (io: 3 tries x (100ms silence + 16.7ms request \
+         + 100ms timeout)), then 100ms silence + 8.33ms request on its line, 20ms for the loop \
+         to wake), which leaves 21.7ms",
+        "of the 800ms between feeds, less than a tenth; use a watchdog of at least 0.9s, or \
+         shorter timeouts or fewer retries",
+    ] {
+        assert!(p.contains(part), "{part}: {p}");
+    }
+    c29u("watchdog = \"0.9s\"").unwrap();
+    // One slow module on the line makes every watchdog of the rig wait for it.
+    let slow = "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nwatchdog = \"3s\"\n\n\
+                [devices.slow]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB1\"\ntimeout = \"1s\"\n\
+                retries = 1\n";
+    let p = problems(slow);
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert!(
+        p[0].starts_with("rig.toml:4: devices.io.watchdog: \"3s\" is too short"),
+        "{p:?}"
+    );
+    assert!(p[0].contains("(slow: 2 tries x (1s silence + "), "{p:?}");
+    parse(&slow.replace("retries = 1", "retries = 0")).unwrap();
+}
+
+#[test]
+fn feeds_come_at_a_quarter_of_the_timeout_or_sooner_when_exchanges_can_be_long() {
+    let c =
+        parse("[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nwatchdog = \"1s\"\n")
+            .unwrap();
+    let t = feeding::feed_timing(&c.devices, "io").unwrap();
+    assert_eq!(t.late_by().as_millis(), 778);
+    let ms = Duration::from_millis;
+    assert_eq!(t.interval(ms(1000)).map(|i| i.as_millis()), Some(221));
+    assert_eq!(t.interval(ms(4000)), Some(ms(1000)), "a quarter");
+    assert_eq!(t.interval(ms(800)), None, "less than a tenth left");
+    assert!(feeding::feed_timing(&c.devices, "nope").is_none());
+}
+
+#[test]
+fn script_may_change_lists_what_a_script_may_change_of_what_rig_toml_sets() {
+    let io = c29u("").unwrap();
+    assert_eq!(
+        io.script_may_change,
+        ScriptMayChange::ALL,
+        "nothing set here"
+    );
+    let io = c29u("safe_value = 5\nwatchdog = \"2s\"").unwrap();
+    assert_eq!(
+        io.script_may_change,
+        ScriptMayChange {
+            safe_value: false,
+            power_on_value: true,
+            watchdog: false
+        }
+    );
+    let io = c29u("safe_value = 5\nwatchdog = \"2s\"\nscript_may_change = [\"watchdog\"]").unwrap();
+    assert!(io.script_may_change.watchdog && !io.script_may_change.safe_value);
+    for (bad, shown) in [("[\"safe\"]", "\"safe\""), ("[1]", "1")] {
+        assert_eq!(
+            c29u_problem(&format!("safe_value = 5\nscript_may_change = {bad}")),
+            format!(
+                "rig.toml:5: devices.io.script_may_change: {shown} is not a setting a script \
+                 may be allowed to change; use \"safe_value\", \"power_on_value\" or \"watchdog\""
+            )
+        );
+    }
+    assert!(
+        c29u_problem("script_may_change = \"watchdog\"").contains("expected a list of settings")
+    );
 }

@@ -14,6 +14,22 @@ pub enum LinkError {
     /// The operating system refused access.
     #[error("permission denied opening {what}: {hint}")]
     PermissionDenied { what: String, hint: String },
+    /// Another program holds the port exclusively.
+    #[error(
+        "{what} is busy: another program holds it exclusively ({holders}); end that program or \
+         wait for it to finish, then try again"
+    )]
+    Busy {
+        what: String,
+        holders: Box<holders::Holders>,
+    },
+    /// The path exists but is not a serial port (a file, a directory, a device that is not a
+    /// terminal).
+    #[error(
+        "{path} is not a serial port ({detail}): give a serial device such as /dev/ttyUSB0 \
+         (`rigscript scan` lists them)"
+    )]
+    NotSerial { path: String, detail: String },
     /// The device went away while in use (cable unplugged, server closed the connection).
     #[error("{what} disconnected: {detail}")]
     Disconnected { what: String, detail: String },
@@ -54,6 +70,7 @@ pub trait PacketLink: Send {
     fn describe(&self) -> String;
 }
 
+pub mod holders;
 pub mod memory;
 pub mod serial;
 pub mod tcp;

@@ -78,11 +78,10 @@ fn is_disconnect(e: &io::Error) -> bool {
 fn open_error(path: &str, e: serialport::Error) -> LinkError {
     let what = format!("serial port {path}");
     match e.kind() {
-        serialport::ErrorKind::NoDevice => LinkError::NotFound {
+        // serialport's word for EBUSY at open (TIOCEXCL) and for a refused flock.
+        serialport::ErrorKind::NoDevice => LinkError::Busy {
             what,
-            hint:
-                "check the path (`rigscript scan` lists ports) and that no other program holds it"
-                    .into(),
+            holders: Box::new(super::holders::holders_of(std::path::Path::new(path))),
         },
         serialport::ErrorKind::Io(io::ErrorKind::NotFound) => LinkError::NotFound {
             what,
@@ -93,10 +92,34 @@ fn open_error(path: &str, e: serialport::Error) -> LinkError {
             what,
             hint: "add your user to the `dialout` group (see README) and log in again".into(),
         },
-        _ => LinkError::Io {
-            what,
-            source: io::Error::other(e.description),
+        _ => match not_a_tty(path, &e) {
+            Some(detail) => LinkError::NotSerial {
+                path: path.to_string(),
+                detail,
+            },
+            None => LinkError::Io {
+                what,
+                source: io::Error::other(e.description),
+            },
         },
+    }
+}
+
+/// What `path` is instead of a terminal, when the open failed because it is none (serialport
+/// passes on ENOTTY only as nix's text for it).
+fn not_a_tty(path: &str, e: &serialport::Error) -> Option<String> {
+    use std::os::unix::fs::FileTypeExt;
+    let kind = std::fs::metadata(path).ok()?.file_type();
+    if kind.is_file() {
+        Some("it is an ordinary file".into())
+    } else if kind.is_dir() {
+        Some("it is a directory".into())
+    } else if !kind.is_char_device() {
+        Some("it is not a character device".into())
+    } else if e.description.contains("typewriter") || e.description.contains("ioctl") {
+        Some("it is a device, but not a terminal".into())
+    } else {
+        None
     }
 }
 
@@ -167,6 +190,52 @@ mod tests {
             }
             Err(other) => panic!("expected NotFound, got {other}"),
             Ok(_) => panic!("opened a port that does not exist"),
+        }
+    }
+
+    #[test]
+    fn a_port_another_opener_holds_is_busy_and_names_the_holder() {
+        let (_master, slave) = TTYPort::pair().unwrap();
+        let path = slave.name().unwrap();
+        let first = SerialLink::open(&path, 9600).unwrap();
+        match SerialLink::open(&path, 9600) {
+            Err(e @ LinkError::Busy { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.starts_with(&format!("serial port {path} is busy: another program holds it exclusively (held by this process, pid {}", std::process::id())),
+                    "{text}"
+                );
+                assert!(!text.contains("not found"), "{text}");
+            }
+            Err(other) => panic!("expected Busy, got {other}"),
+            Ok(_) => panic!("opened a port held exclusively"),
+        }
+        drop(first);
+        assert!(
+            SerialLink::open(&path, 9600).is_ok(),
+            "free again once released"
+        );
+    }
+
+    #[test]
+    fn a_file_or_directory_is_not_a_serial_port() {
+        for (path, what) in [
+            ("/etc/passwd", "an ordinary file"),
+            ("/tmp", "a directory"),
+            ("/dev/null", "a device, but not a terminal"),
+        ] {
+            match SerialLink::open(path, 9600) {
+                Err(e @ LinkError::NotSerial { .. }) => {
+                    let text = e.to_string();
+                    assert!(
+                        text.contains(&format!("{path} is not a serial port (it is {what})")),
+                        "{text}"
+                    );
+                    assert!(!text.contains("typewriter"), "{text}");
+                }
+                Err(other) => panic!("{path}: expected NotSerial, got {other}"),
+                Ok(_) => panic!("{path} opened as a serial port"),
+            }
         }
     }
 

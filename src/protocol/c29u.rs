@@ -1,4 +1,5 @@
-//! What both TRP-C29U protocols share: the protocol choice itself and the baud rate codes (8-2).
+//! What both TRP-C29U protocols share: the protocol choice itself, the baud rate codes (8-2),
+//! the watchdog timeout and the firmware date.
 
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
@@ -81,8 +82,20 @@ impl BaudCode {
     }
 }
 
+/// A firmware release date as both protocols give it: `$IDF`'s trailing YYMMDD (8-15, NOTES)
+/// and 46 07's `YY MM DD` bytes (10-5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct FirmwareDate {
+    /// Two-digit year, 0-99 (9 = 2009).
+    pub year: u8,
+    /// Month 1-12.
+    pub month: u8,
+    /// Day 1-31.
+    pub day: u8,
+}
+
 /// A host watchdog timeout: 0.1 s x N, N = 1..255 (manual 8-19).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct WatchdogTimeout(u8);
 
 impl WatchdogTimeout {

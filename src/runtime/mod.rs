@@ -1,12 +1,20 @@
 //! Supervision for everything that runs: timer schedules, the rig's devices, the state scripts
 //! act on, the scan loop and its fail-safe supervision.
 
-pub mod core;
 pub mod devices;
+mod events;
+pub mod exit;
+mod inputs;
 pub mod log;
+mod outputs;
 pub mod records;
+mod registry;
 pub mod safety;
 pub mod scan;
 pub mod schedule;
+pub mod state;
 pub mod stats;
+pub mod subscriptions;
+#[cfg(test)]
+mod testing;
 pub mod wake_latency;

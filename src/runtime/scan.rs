@@ -8,14 +8,18 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
-use super::core::{Call, Runtime};
+use super::exit;
+use super::state::Runtime;
 use super::stats::Stats;
+use super::subscriptions::Call;
 use super::wake_latency;
-use crate::config::ErrorPolicy;
+use crate::config::{ErrorPolicy, WakeLatency};
 use crate::time::clock::SharedClock;
+use signal_hook::consts::{SIGINT, SIGTERM};
 use std::cell::RefCell;
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -70,10 +74,13 @@ pub struct RunOptions {
     pub policy: ErrorPolicy,
     /// End the run normally after this long (`--for`).
     pub end_after: Option<Duration>,
-    /// Set by SIGINT/SIGTERM (or a scenario test): stop at once, outputs safe.
-    pub stop_flag: Arc<AtomicBool>,
-    /// The CPU wake-up latency to hold while `run` runs in real time, if any.
-    pub wake_latency: Option<Duration>,
+    /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
+    /// the signal handler or a scenario test: stop at once, outputs safe.
+    pub stop_flag: Arc<AtomicUsize>,
+    /// What `run` asks of the CPUs' idle states while it runs in real time (`auto`: a 0 µs
+    /// request while the loop ticks every 20 ms or faster, re-evaluated as handlers come
+    /// and go).
+    pub wake_latency: WakeLatency,
 }
 
 /// Why a run ended.
@@ -83,8 +90,8 @@ pub enum EndReason {
     Finished(String),
     /// The script called `stop(code)`.
     Stopped(i64),
-    /// SIGINT or SIGTERM.
-    Signal,
+    /// SIGINT or SIGTERM (the signal's number).
+    Signal(i32),
     /// A script or runtime error (policy `stop`, or at the first start).
     Error(String),
 }
@@ -107,8 +114,13 @@ pub struct Runner<P: Program> {
     last_verify: Duration,
     failures_in_a_row: u32,
     last_start: Duration,
+    /// What went wrong on the way.
+    pub trouble: Trouble,
+    latency: LatencyRequest,
     /// What the loop measured.
     pub stats: Stats,
+    /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
+    pub service: Option<crate::service::notify::Notifier>,
 }
 
 impl<P: Program> Runner<P> {
@@ -126,7 +138,10 @@ impl<P: Program> Runner<P> {
             last_verify: now,
             failures_in_a_row: 0,
             last_start: now,
+            trouble: Trouble::default(),
+            latency: LatencyRequest::default(),
             stats: Stats::default(),
+            service: None,
         }
     }
 
@@ -156,6 +171,10 @@ impl<P: Program> Runner<P> {
     /// Runs the script's top level; on failure the run ends with status 1 whatever the
     /// policy (a script that cannot start is not restarted).
     pub fn start(&mut self) {
+        self.guarded(Self::start_program);
+    }
+
+    fn start_program(&mut self) {
         self.rt.borrow_mut().cause = "top level".into();
         self.last_start = self.clock.now();
         if let Err(f) = self.program.start() {
@@ -170,43 +189,103 @@ impl<P: Program> Runner<P> {
         // when other processes keep the CPUs busy; they are hints only, so a refusal (an old
         // kernel, a sandbox) leaves the loop as it was.
         let _ = crate::time::clock::prefer_prompt_wakeups();
-        let _hold = self.hold_wake_latency();
+        self.stats.wake_latency = Some(wake_latency::describe(&None));
         loop {
             if let Some(status) = self.status() {
+                self.latency.hold = None;
                 return status;
             }
+            self.update_wake_latency();
             self.sleep_to_deadline();
             self.tick();
         }
     }
 
-    /// Asks for the configured CPU wake-up latency for the run, logs how that went and notes it
-    /// for `--stats`; a refusal only costs timing, so the run goes on.
-    fn hold_wake_latency(&mut self) -> Option<wake_latency::LatencyHold> {
-        let outcome = self.options.wake_latency.map(wake_latency::hold);
-        let text = wake_latency::describe(&outcome);
+    /// Holds the CPU wake-up latency the setting asks for while the loop ticks as fast as it
+    /// does now, and lets it go when it no longer does (re-evaluated when handlers come or
+    /// go); logs each change and notes what was held for `--stats`. A refusal only costs
+    /// timing: the run goes on, and it is not asked again.
+    fn update_wake_latency(&mut self) {
+        let signature = self.rt.borrow().handlers_signature();
+        if self.latency.seen == Some(signature) {
+            return;
+        }
+        self.latency.seen = Some(signature);
+        let tick = self.rt.borrow().tick_interval(self.options.period);
+        let wanted = self.options.wake_latency.limit_for(tick);
+        let held = self
+            .latency
+            .hold
+            .as_ref()
+            .map(wake_latency::LatencyHold::limit);
+        if wanted == held || (wanted.is_some() && self.latency.refused) {
+            return;
+        }
         let mut rt = self.rt.borrow_mut();
-        match &outcome {
-            None => {}
-            Some(Ok(_)) => rt.log.info(&format!("CPU wake-up latency {text}")),
-            Some(Err(_)) => rt.log.info(&format!(
-                "CPU wake-up latency {text}: ticks may start up to milliseconds late; give \
-                 this user write access to it (README \"Timing\") or set wake_latency = \"off\""
-            )),
+        let Some(limit) = wanted else {
+            self.latency.hold = None;
+            rt.log
+                .info("CPU wake-up latency released: no handler needs ticks of 20 ms or less now");
+            return;
+        };
+        self.latency.hold = None;
+        let outcome = Some(wake_latency::hold(limit));
+        let text = wake_latency::describe(&outcome);
+        let every = tick.map_or(String::new(), |t| {
+            format!(
+                " (ticks every {})",
+                crate::time::duration::format_duration(t)
+            )
+        });
+        match outcome {
+            Some(Ok(h)) => {
+                rt.log.info(&format!("CPU wake-up latency {text}{every}"));
+                self.latency.hold = Some(h);
+            }
+            _ => {
+                self.latency.refused = true;
+                rt.log.info(&format!(
+                    "CPU wake-up latency {text}: ticks may start up to milliseconds late; \
+                     give this user write access to it (README \"Timing\") or set \
+                     wake_latency = \"off\""
+                ));
+            }
         }
         self.stats.wake_latency = Some(text);
-        outcome.and_then(Result::ok)
     }
 
     /// Sleeps to the next deadline in slices, waking early for the stop flag.
-    fn sleep_to_deadline(&self) {
+    fn sleep_to_deadline(&mut self) {
+        self.wait_until(self.next_deadline, true);
+    }
+
+    /// Waits until `target`, feeding the host watchdogs as their feeds fall due (a feed keeps
+    /// its own deadline whatever the period); with `watch_stop`, in slices that look at the
+    /// stop flag.
+    fn wait_until(&mut self, target: Duration, watch_stop: bool) {
         loop {
             let now = self.clock.now();
-            if now >= self.next_deadline || self.options.stop_flag.load(Ordering::SeqCst) {
+            if let Some(service) = &self.service {
+                service.loop_alive(now);
+            }
+            if now >= target
+                || (watch_stop && self.stop_signal().is_some())
+                || self.status().is_some()
+            {
                 return;
             }
-            let until = self.next_deadline.min(now.saturating_add(SLEEP_SLICE));
+            let feed = self.rt.borrow().next_feed();
+            let mut until = target;
+            if watch_stop {
+                until = until.min(now.saturating_add(SLEEP_SLICE));
+            }
+            if let Some(due) = feed {
+                until = until.min(due);
+            }
             self.clock.sleep_until(until);
+            if feed.is_some_and(|due| self.clock.now() >= due) {
+                self.guarded(|r| r.rt.borrow_mut().feed_watchdogs());
+            }
         }
     }
 
@@ -214,28 +293,66 @@ impl<P: Program> Runner<P> {
     pub fn advance(&mut self, by: Duration) {
         let target = self.clock.now().saturating_add(by);
         while self.status().is_none() && self.next_deadline <= target {
-            self.clock.sleep_until(self.next_deadline);
+            self.wait_until(self.next_deadline, false);
             self.tick();
         }
+        self.wait_until(target, false);
         self.clock.sleep_until(target);
     }
 
     /// Waits for the next deadline and runs one tick.
     pub fn step(&mut self) {
         if self.status().is_none() {
-            self.clock.sleep_until(self.next_deadline);
+            self.wait_until(self.next_deadline, false);
             self.tick();
         }
     }
 
     /// Stops at once as SIGTERM would (outputs safe, on_stop handlers run).
     pub fn signal_stop(&mut self) {
-        self.options.stop_flag.store(true, Ordering::SeqCst);
-        self.finish(EndReason::Signal);
+        self.options
+            .stop_flag
+            .store(SIGTERM as usize, Ordering::SeqCst);
+        self.guarded(|r| r.finish(EndReason::Signal(SIGTERM)));
+    }
+
+    /// Runs `step` of the run; a panic in it (a bug) still ends the run safe
+    /// (`safe_after_panic`), with exit status 70. Borrows of the runtime held when it
+    /// panicked are released by the unwinding.
+    fn guarded(&mut self, step: impl FnOnce(&mut Self)) {
+        if let Err(payload) = catch_unwind(AssertUnwindSafe(|| step(&mut *self))) {
+            self.state = State::Stopped {
+                status: exit::INTERNAL,
+            };
+            safe_after_panic(&self.rt, &panic_message(payload.as_ref()));
+        }
+    }
+
+    /// Ends the run if a signal asked it to stop; true if it did.
+    fn ended_by_signal(&mut self) -> bool {
+        match self.stop_signal() {
+            Some(signal) => {
+                self.finish(EndReason::Signal(signal));
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The signal that asked the run to stop, if one did.
+    fn stop_signal(&self) -> Option<i32> {
+        match self.options.stop_flag.load(Ordering::SeqCst) {
+            0 => None,
+            n => Some(i32::try_from(n).unwrap_or(SIGTERM)),
+        }
     }
 
     /// One scan tick at the current time.
     pub fn tick(&mut self) {
+        self.guarded(Self::scan_tick);
+    }
+
+    fn scan_tick(&mut self) {
         if self.status().is_some() {
             return;
         }
@@ -249,8 +366,7 @@ impl<P: Program> Runner<P> {
             let mut rt = self.rt.borrow_mut();
             rt.tick = rt.tick.saturating_add(1);
         }
-        if self.options.stop_flag.load(Ordering::SeqCst) {
-            self.finish(EndReason::Signal);
+        if self.ended_by_signal() {
             return;
         }
         let uptime = self.rt.borrow().uptime();
@@ -264,12 +380,17 @@ impl<P: Program> Runner<P> {
             }
         }
         self.rt.borrow_mut().supervise();
+        if self.ended_by_signal() {
+            return;
+        }
         match self.state {
             State::Restarting { at } if start >= at => self.restart(),
             State::Running => self.run_handlers(),
             _ => {}
         }
-        if self.status().is_some() {
+        // A signal that came during the handlers ends the run before the tick's writes: the
+        // end writes the safe state anyway, and each exchange could be a silent module's.
+        if self.status().is_some() || self.ended_by_signal() {
             return;
         }
         let stop = self.rt.borrow().stop_request;
@@ -341,14 +462,19 @@ impl<P: Program> Runner<P> {
     fn run_handlers(&mut self) {
         let calls = self.rt.borrow_mut().collect_calls();
         for call in calls {
-            self.rt.borrow_mut().cause.clone_from(&call.label);
+            {
+                let mut rt = self.rt.borrow_mut();
+                // A handler's own work is not an exchange; feed what fell due meanwhile.
+                rt.feed_watchdogs();
+                rt.cause.clone_from(&call.label);
+            }
             let result = self.program.call(&call);
             if let Err(f) = result {
                 if !self.handle_fault(&f, &call.label) {
                     return;
                 }
             }
-            if self.rt.borrow().stop_request.is_some() {
+            if self.rt.borrow().stop_request.is_some() || self.stop_signal().is_some() {
                 return;
             }
         }
@@ -368,6 +494,7 @@ impl<P: Program> Runner<P> {
                 false
             }
             ErrorPolicy::Skip => {
+                self.trouble.recovered_errors = self.trouble.recovered_errors.saturating_add(1);
                 self.rt
                     .borrow_mut()
                     .log
@@ -382,6 +509,7 @@ impl<P: Program> Runner<P> {
     }
 
     fn schedule_restart(&mut self, message: &str) {
+        self.trouble.recovered_errors = self.trouble.recovered_errors.saturating_add(1);
         let now = self.clock.now();
         if now.saturating_sub(self.last_start) >= BACKOFF_RESET {
             self.failures_in_a_row = 0;
@@ -420,18 +548,24 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    /// Ends the run: `on_stop` handlers, safe state, watchdogs released, exit status.
+    /// Ends the run: `on_stop` handlers, safe state, watchdogs released, exit status
+    /// (`runtime::exit`).
     pub fn finish(&mut self, reason: EndReason) {
         if self.status().is_some() {
             return;
         }
         let was_running = self.state == State::Running;
-        self.state = State::Stopped { status: 1 };
+        self.state = State::Stopped {
+            status: exit::ERROR,
+        };
         {
             let mut rt = self.rt.borrow_mut();
             match &reason {
                 EndReason::Error(m) => rt.log.error(m),
-                EndReason::Signal => rt.log.info("stopping: signal received"),
+                EndReason::Signal(n) => {
+                    rt.log
+                        .info(&format!("stopping: {} received", signal_name(*n)));
+                }
                 EndReason::Stopped(code) => {
                     rt.log
                         .info(&format!("stopping: the script called stop({code})"));
@@ -446,35 +580,138 @@ impl<P: Program> Runner<P> {
                 if let Err(f) = self.program.call(&call) {
                     let message = describe(&f, &call.label);
                     self.rt.borrow_mut().log.error(&message);
+                    self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
                 }
             }
         }
         let mut rt = self.rt.borrow_mut();
+        self.trouble.lost_at_end = rt
+            .devices
+            .iter()
+            .filter(|d| !d.health().online())
+            .map(|d| d.name().to_string())
+            .collect();
         let why = match &reason {
             EndReason::Error(_) => "script error",
-            EndReason::Signal => "signal",
+            EndReason::Signal(_) => "signal",
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
-        rt.write_safe_state(why);
-        rt.release_watchdogs();
+        rt.end_safe(why, true);
         let failed = rt.records.failed();
-        let status = match reason {
-            EndReason::Error(_) => 1,
-            EndReason::Stopped(code) => i32::try_from(code.clamp(0, 255)).unwrap_or(1),
-            EndReason::Signal | EndReason::Finished(_) => 0,
+        let (status, because) = match reason {
+            EndReason::Error(_) => (exit::ERROR, None),
+            EndReason::Stopped(code) if code != 0 => (
+                i32::try_from(code.clamp(1, 255)).unwrap_or(exit::ERROR),
+                None,
+            ),
+            _ if !self.trouble.is_empty() => (exit::TROUBLE, Some(self.trouble.describe())),
+            _ if failed > 0 => (
+                exit::MEASUREMENT_FAILED,
+                Some(format!("{failed} measurement(s) out of limits")),
+            ),
+            EndReason::Signal(n) => (exit::signal(n), None),
+            _ => (exit::OK, None),
         };
-        let status = if status == 0 && failed > 0 {
-            rt.log.warn(&format!(
-                "{failed} measurement(s) out of limits: exit status 4"
-            ));
-            4
-        } else {
-            status
-        };
-        rt.log.info(&format!("stopped; exit status {status}"));
+        match because {
+            Some(why) => rt.log.warn(&format!("{why}: exit status {status}")),
+            None => rt.log.info(&format!("stopped; exit status {status}")),
+        }
         self.state = State::Stopped { status };
     }
+}
+
+/// The CPU wake-up latency request of a run, as it stands.
+#[derive(Debug, Default)]
+struct LatencyRequest {
+    /// The request held now.
+    hold: Option<wake_latency::LatencyHold>,
+    /// The OS refused it once: not asked again.
+    refused: bool,
+    /// The handlers it was last worked out for.
+    seen: Option<(usize, Option<u64>)>,
+}
+
+/// What went wrong during a run that still went on to its end (exit status 5).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Trouble {
+    /// Script errors recovered from under policy restart or skip.
+    pub recovered_errors: u64,
+    /// `on_stop` handlers that failed.
+    pub on_stop_failed: u64,
+    /// Devices lost and not back when the run ended.
+    pub lost_at_end: Vec<String>,
+}
+
+impl Trouble {
+    /// Whether nothing went wrong.
+    pub fn is_empty(&self) -> bool {
+        self.recovered_errors == 0 && self.on_stop_failed == 0 && self.lost_at_end.is_empty()
+    }
+
+    /// What went wrong, in words.
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if self.recovered_errors > 0 {
+            parts.push(format!(
+                "{} script error(s) recovered from",
+                self.recovered_errors
+            ));
+        }
+        if self.on_stop_failed > 0 {
+            parts.push(format!("{} on_stop handler(s) failed", self.on_stop_failed));
+        }
+        if !self.lost_at_end.is_empty() {
+            parts.push(format!(
+                "{} lost and not back at the end",
+                self.lost_at_end.join(", ")
+            ));
+        }
+        parts.join("; ")
+    }
+}
+
+/// SIGINT or SIGTERM by name, for the log.
+fn signal_name(n: i32) -> String {
+    match n {
+        SIGINT => "SIGINT".into(),
+        SIGTERM => "SIGTERM".into(),
+        other => format!("signal {other}"),
+    }
+}
+
+/// After a panic (a bug) in the runner: the safe state written through the drivers to every
+/// device that answers, logged with `message`; the host watchdogs are left on, so a module the
+/// write did not reach goes safe by itself. Says so on stderr if even that fails.
+pub fn safe_after_panic<H: Clone>(rt: &Shared<H>, message: &str) {
+    let ended = catch_unwind(AssertUnwindSafe(|| {
+        let Ok(mut rt) = rt.try_borrow_mut() else {
+            return false;
+        };
+        // The writes first: the log is the part most likely to have broken.
+        rt.end_safe("internal error", false);
+        rt.log.error(&format!(
+            "internal error (a bug in rigscript; please report it with this log): {message}; \
+             host watchdogs left on; exit status {}",
+            exit::INTERNAL
+        ));
+        true
+    }));
+    if !matches!(ended, Ok(true)) {
+        eprintln!(
+            "rigscript: internal error ({message}) and the safe state could not be written after \
+             it; the modules' host watchdogs, where on, drive their outputs safe"
+        );
+    }
+}
+
+/// What a panic said.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
 }
 
 /// The first of the deadlines `start + k * period` that is at or after `t`.
@@ -570,7 +807,7 @@ mod tests {
             policy,
             end_after: None,
             stop_flag: Arc::default(),
-            wake_latency: None,
+            wake_latency: WakeLatency::Off,
         };
         let mut r = Runner::new(rt, program, options);
         r.start();
@@ -635,5 +872,141 @@ mod tests {
         assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(100)), ms(100));
         assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(101)), ms(120));
         assert_eq!(boundary_at_or_after(ms(100), ms(20), ms(140)), ms(140));
+    }
+
+    /// A program that sets outputs, then panics in its handler (holding a borrow of the
+    /// runtime, as a binding would) or at its top level.
+    struct Panicker {
+        rt: Shared<&'static str>,
+        at_start: bool,
+    }
+
+    impl Program for Panicker {
+        type Handler = &'static str;
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            rt.set_outputs(crate::runtime::testing::IO, 0xF0);
+            rt.every(Duration::from_millis(100), "boom").unwrap();
+            rt.flush_outputs();
+            assert!(!self.at_start, "a bug at the top level");
+            Ok(())
+        }
+        fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+            let _held = self.rt.borrow_mut();
+            panic!("a bug in a binding");
+        }
+    }
+
+    fn panicking(at_start: bool) -> (Runner<Panicker>, crate::runtime::testing::TestRig) {
+        let mut r = crate::runtime::testing::TestRig::started();
+        let rt = r.shared_runtime();
+        let program = Panicker {
+            rt: Rc::clone(&rt),
+            at_start,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Restart,
+            end_after: None,
+            stop_flag: Arc::default(),
+            wake_latency: WakeLatency::Off,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        (runner, r)
+    }
+
+    #[test]
+    fn a_panic_in_a_handler_writes_the_safe_state_and_ends_with_70() {
+        let (mut runner, r) = panicking(false);
+        runner.advance(Duration::from_millis(60));
+        assert_eq!(r.sim.outputs("io").unwrap(), 0xF0, "at work");
+        runner.advance(Duration::from_millis(100));
+        assert_eq!(runner.status(), Some(exit::INTERNAL));
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05, "the safe value");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3, "the safe relay");
+        assert!(
+            r.sim.watchdog("io").unwrap().enabled,
+            "the watchdog is left on"
+        );
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(
+            log.contains("safe state (internal error): io outputs 0x05, panel relay 3"),
+            "{log}"
+        );
+        assert!(
+            log.contains("internal error (a bug in rigscript; please report it with this log): a bug in a binding; host watchdogs left on; exit status 70"),
+            "{log}"
+        );
+    }
+
+    #[test]
+    fn a_panic_at_the_top_level_ends_safe_too() {
+        let (runner, r) = panicking(true);
+        assert_eq!(runner.status(), Some(exit::INTERNAL));
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("io: outputs 0x05 -> 0xf0"), "{log}");
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+    }
+
+    /// A program whose first timer plays a SIGTERM arriving mid-tick and whose others read a
+    /// module's inputs.
+    struct Reader {
+        rt: Shared<&'static str>,
+        flag: Arc<AtomicUsize>,
+    }
+
+    impl Program for Reader {
+        type Handler = &'static str;
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            for h in ["signal", "read", "read"] {
+                rt.every(Duration::from_millis(100), h).unwrap();
+            }
+            Ok(())
+        }
+        fn call(&mut self, call: &Call<&'static str>) -> Result<(), Fault> {
+            if call.handler == "signal" {
+                self.flag.store(SIGTERM as usize, Ordering::SeqCst);
+            } else {
+                self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_sigterm_with_a_silent_module_is_honoured_in_a_bounded_time() {
+        // A module that waits 1 s for each answer and tries 11 times: each exchange with it,
+        // silent, would take 11 s.
+        let rig = crate::runtime::testing::RIG
+            .replace("watchdog = \"1s\"\n", "timeout = \"1s\"\nretries = 10\n");
+        let mut r = crate::runtime::testing::TestRig::new(&rig);
+        r.rt.start_devices().unwrap();
+        let rt = r.shared_runtime();
+        let flag: Arc<AtomicUsize> = Arc::default();
+        let program = Reader {
+            rt: Rc::clone(&rt),
+            flag: Arc::clone(&flag),
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Stop,
+            end_after: None,
+            stop_flag: flag,
+            wake_latency: WakeLatency::Off,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        r.sim.set_gone("io", true).unwrap();
+        let signalled = Duration::from_millis(100);
+        runner.advance(signalled);
+        assert_eq!(runner.status(), Some(exit::signal(SIGTERM)));
+        // No exchange after the signal but the end's: two tries of 1 s with the silent module.
+        let took = r.clock.now() - signalled;
+        assert!(took <= Duration::from_millis(2500), "{took:?}");
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("io: the safe state did not reach it"), "{log}");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
     }
 }

@@ -6,59 +6,16 @@
 //! physical CPU back to the host, which may run something else first). Measured on a 2-vCPU
 //! Firecracker VM at a 10 ms period: p99 lateness 0.5-3.5 ms without a request, 0.09-0.15 ms
 //! with 0 µs. The cost is power: while the request is held idle CPUs poll instead of sleeping.
-//! The kernel drops the request when the file is closed, however the process ends.
+//! The kernel drops the request when the file is closed, however the process ends. The setting
+//! (auto, off, a limit) is `config::WakeLatency`.
 
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use crate::time::duration::parse_duration;
-
 /// Where Linux takes CPU latency requests.
 pub const PM_QOS_DEVICE: &str = "/dev/cpu_dma_latency";
-
-/// Under `auto`, the longest scan period that gets a request: up to here a millisecond late is
-/// at least 5% of a period.
-pub const AUTO_UP_TO: Duration = Duration::from_millis(20);
-
-/// What a run asks of the CPUs' idle states (`wake_latency` in rig.toml, `--wake-latency`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum WakeLatency {
-    /// 0 µs for periods up to `AUTO_UP_TO`, nothing for longer ones (the default).
-    #[default]
-    Auto,
-    /// No request: the CPUs sleep as deep as the OS likes.
-    Off,
-    /// Idle states that take longer than this to leave are not used.
-    Limit(Duration),
-}
-
-/// The forms a wake latency may take, for error messages.
-pub const ACCEPTED_FORMS: &str =
-    "\"auto\", \"off\" or the longest wake-up a CPU may take (\"0us\", \"50us\")";
-
-impl WakeLatency {
-    /// Reads `auto`, `off` or a duration.
-    pub fn parse(text: &str) -> Result<Self, String> {
-        match text.trim() {
-            "auto" => Ok(Self::Auto),
-            "off" => Ok(Self::Off),
-            other => parse_duration(other)
-                .map(Self::Limit)
-                .map_err(|_| format!("{text:?} is not a wake latency; use {ACCEPTED_FORMS}")),
-        }
-    }
-
-    /// The latency to ask for at scan period `period`, if any.
-    pub fn limit_for(self, period: Duration) -> Option<Duration> {
-        match self {
-            Self::Auto if period <= AUTO_UP_TO => Some(Duration::ZERO),
-            Self::Auto | Self::Off => None,
-            Self::Limit(limit) => Some(limit),
-        }
-    }
-}
 
 /// A latency request could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -123,34 +80,6 @@ mod tests {
         let path = dir.join(name);
         std::fs::write(&path, b"").unwrap();
         path
-    }
-
-    #[test]
-    fn parses_auto_off_and_durations() {
-        assert_eq!(WakeLatency::parse("auto"), Ok(WakeLatency::Auto));
-        assert_eq!(WakeLatency::parse(" off "), Ok(WakeLatency::Off));
-        assert_eq!(
-            WakeLatency::parse("50us"),
-            Ok(WakeLatency::Limit(Duration::from_micros(50)))
-        );
-        assert_eq!(
-            WakeLatency::parse("0"),
-            Ok(WakeLatency::Limit(Duration::ZERO))
-        );
-        let e = WakeLatency::parse("fast").unwrap_err();
-        assert!(e.contains("\"fast\" is not a wake latency"), "{e}");
-        assert!(e.contains("\"auto\""), "{e}");
-    }
-
-    #[test]
-    fn auto_asks_for_zero_only_at_short_periods() {
-        let ms = Duration::from_millis;
-        assert_eq!(WakeLatency::Auto.limit_for(ms(10)), Some(Duration::ZERO));
-        assert_eq!(WakeLatency::Auto.limit_for(ms(20)), Some(Duration::ZERO));
-        assert_eq!(WakeLatency::Auto.limit_for(ms(21)), None);
-        assert_eq!(WakeLatency::Off.limit_for(ms(1)), None);
-        let l = Duration::from_micros(30);
-        assert_eq!(WakeLatency::Limit(l).limit_for(ms(500)), Some(l));
     }
 
     #[test]

@@ -10,12 +10,12 @@
 
 use super::error::STOP_MARKER;
 use super::values::to_json;
-use crate::device::c29u::{C29uError, WatchdogTimeout};
+use crate::device::c29u::{C29uError, Latches, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
-use crate::runtime::core::Source;
 use crate::runtime::devices::{Device, DeviceError};
 use crate::runtime::records::Limits;
 use crate::runtime::scan::Shared;
+use crate::runtime::subscriptions::Source;
 use crate::time::duration::{duration_from_millis_f64, duration_from_millis_i64, parse_duration};
 use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, Position, AST};
 use std::cell::RefCell;
@@ -442,27 +442,17 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("latched", |d: &mut Io| -> Map {
         let l = d.rt.borrow_mut().latches(d.idx);
-        let active_low =
-            d.rt.borrow_mut()
-                .c29u(d.idx)
-                .map_or(true, |c| c.config.di_active_low);
         // "on": channels energized since the last clear; "off": released since then.
-        let (on, off) = if active_low {
-            (l.low, l.high)
-        } else {
-            (l.high, l.low)
-        };
         let mut m = Map::new();
-        m.insert("on".into(), Dynamic::from(i64::from(on)));
-        m.insert("off".into(), Dynamic::from(i64::from(off)));
+        m.insert("on".into(), Dynamic::from(i64::from(l.energized)));
+        m.insert("off".into(), Dynamic::from(i64::from(l.released)));
         m
     });
     engine.register_fn("clear_latch", |d: &mut Io| -> R<()> {
         c29u_op(d, |m| {
             m.driver.clear_latches()?;
             if let Some(l) = m.latches.current.as_mut() {
-                l.low = 0;
-                l.high = 0;
+                *l = Latches::default();
             }
             Ok(())
         })
@@ -488,35 +478,22 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         Ok(map)
     });
     engine.register_fn("watchdog_off", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| {
-            m.driver.set_watchdog(None)?;
-            m.watchdog = None;
-            m.watchdog_ours = false;
-            Ok(())
-        })
+        let now = d.rt.borrow().now();
+        c29u_op(d, |m| m.change_watchdog(None, now))
     });
     engine.register_get("safe_value", |d: &mut Io| -> R<i64> {
         c29u_op(d, |m| Ok(i64::from(m.driver.safe_value()?)))
     });
     setter(engine, "safe_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("safe value", v)?;
-        c29u_op(d, |m| {
-            m.driver.set_safe_value(v)?;
-            // The runner's safe state follows the module's.
-            m.config.safe_value = v;
-            Ok(())
-        })
+        c29u_op(d, |m| m.change_safe_value(v))
     });
     engine.register_get("power_on_value", |d: &mut Io| -> R<i64> {
         c29u_op(d, |m| Ok(i64::from(m.driver.power_on_value()?)))
     });
     setter(engine, "power_on_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("power-on value", v)?;
-        c29u_op(d, |m| {
-            m.driver.set_power_on_value(v)?;
-            m.config.power_on_value = Some(v);
-            Ok(())
-        })
+        c29u_op(d, |m| m.change_power_on_value(v))
     });
     engine.register_get("name", |d: &mut Io| -> R<String> {
         c29u_op(d, |m| Ok(m.driver.name()?))
@@ -585,25 +562,29 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     );
 }
 
+/// A watchdog timeout from a script's seconds, to the nearest 0.1 s step (2.3 means 23
+/// tenths); anything outside 0.1-25.5 s (and NaN) is refused before any arithmetic on it.
+fn watchdog_timeout(seconds: f64) -> R<WatchdogTimeout> {
+    let tenths = (seconds * 10.0).round();
+    let t = (1.0..=255.0)
+        .contains(&tenths)
+        .then(|| WatchdogTimeout::from_tenths(tenths as u8))
+        .flatten();
+    t.map_or_else(
+        || {
+            fail(format!(
+                "watchdog({seconds}) is not possible: use 0.1 to 25.5 seconds \
+                 (watchdog_off() turns it off)"
+            ))
+        },
+        Ok,
+    )
+}
+
 fn set_watchdog(d: &Io, seconds: f64) -> R<()> {
-    let t = Duration::try_from_secs_f64(seconds)
-        .ok()
-        // 0.1 s steps: round to the nearest tenth so that 2.3 means 23 tenths.
-        .map(|s| Duration::from_millis(((s.as_secs_f64() * 10.0).round() as u64) * 100))
-        .and_then(WatchdogTimeout::from_duration);
-    let Some(t) = t else {
-        return fail(format!(
-            "watchdog({seconds}) is not possible: use 0.1 to 25.5 seconds (watchdog_off() turns it off)"
-        ));
-    };
+    let t = watchdog_timeout(seconds)?;
     let now = d.rt.borrow().now();
-    c29u_op(d, |m| {
-        m.driver.set_watchdog(Some(t.as_duration()))?;
-        m.watchdog = Some(t);
-        m.watchdog_ours = true;
-        m.last_feed = now;
-        Ok(())
-    })
+    c29u_op(d, |m| m.change_watchdog(Some(t), now))
 }
 
 fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {

@@ -1,19 +1,38 @@
 //! `rigscript check`: finds what can be found without running a script. It compiles it (so
-//! syntax, `import` and `eval` are reported), then walks its syntax tree for literal
-//! arguments: device names in `device("...")` against the rig, switch and rotary names,
-//! channels, durations and cron expressions, the number of parameters of handlers, and
-//! methods of one kind of device called on the other (for variables bound once to a
-//! `device("...")` literal).
+//! syntax, `import` and `eval` are reported), then walks its syntax tree — the top level, every
+//! script function and every closure (handler) — for:
+//!
+//! - calls of functions and methods that exist neither in the script API (with Rhai's standard
+//!   library, as registered on the engine `run` uses) nor in the script, and calls with a number
+//!   of arguments no overload takes, with "did you mean" suggestions by edit distance;
+//! - literal arguments: device names in `device("...")` against the rig, switch and rotary
+//!   names, channels, durations and cron expressions, the number of parameters of handlers;
+//! - properties and methods called on a variable known to hold a device (bound once to a
+//!   `device("...")` literal, or a device's own name) that its kind does not have.
+//!
+//! A method whose name is also a key of a map in the script is left alone: Rhai calls a
+//! function stored in a map property as a method.
 
-use super::api::takes_words;
+use super::api::{register, takes_words, Arities, Io, Panel};
 use super::engine::{sandboxed, DEFAULT_BUDGET};
 use crate::config::{DeviceConfig, RigConfig};
 use crate::protocol::trc1000::{Rotary, Switch};
+use crate::runtime::devices::links::TransactionCounter;
+use crate::runtime::log::Logger;
+use crate::runtime::records::Records;
 use crate::runtime::schedule::validate_cron;
+use crate::runtime::state::Runtime;
+use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
-use rhai::{ASTNode, Expr, FnCallExpr, FnPtr, Position, Stmt, AST};
-use std::collections::HashMap;
+use crate::time::zone::Zone;
+use rhai::{ASTNode, Dynamic, Engine, Expr, FnCallExpr, FnPtr, Position, Stmt, AST};
+use std::any::TypeId;
+use std::cell::RefCell;
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::fmt;
+use std::rc::Rc;
+use std::sync::Arc;
+use std::time::Duration;
 
 /// One problem found, at a line and column of the script.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -46,51 +65,20 @@ impl Kind {
         }
     }
 
-    fn members(self) -> &'static [&'static str] {
+    fn type_id(self) -> TypeId {
         match self {
-            Kind::Trc => TRC_MEMBERS,
-            Kind::C29u => C29U_MEMBERS,
+            Kind::Trc => TypeId::of::<Panel>(),
+            Kind::C29u => TypeId::of::<Io>(),
+        }
+    }
+
+    fn other(self) -> Kind {
+        match self {
+            Kind::Trc => Kind::C29u,
+            Kind::C29u => Kind::Trc,
         }
     }
 }
-
-const TRC_MEMBERS: &[&str] = &[
-    "relay",
-    "pressed",
-    "rotary",
-    "turned",
-    "online",
-    "on_press",
-    "on_release",
-    "on_turn",
-];
-
-const C29U_MEMBERS: &[&str] = &[
-    "outputs",
-    "output",
-    "set_output",
-    "inputs",
-    "input",
-    "counter",
-    "counters",
-    "clear_counter",
-    "clear_counters",
-    "save_counters",
-    "latched",
-    "clear_latch",
-    "watchdog",
-    "watchdog_off",
-    "safe_value",
-    "power_on_value",
-    "name",
-    "firmware",
-    "reset",
-    "in_safe_mode",
-    "online",
-    "on_rise",
-    "on_fall",
-    "on_counter",
-];
 
 /// Handler-taking calls: (name, index of the handler argument, the parameters it gets).
 const HANDLERS: &[(&str, usize, &[&str])] = &[
@@ -106,11 +94,133 @@ const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("on_stop", 0, &[]),
 ];
 
+/// Functions Rhai's evaluator handles itself, never registered: (name, the argument counts
+/// they take in function-call style; `None` for any number from the first).
+const SYNTACTIC: &[(&str, &[usize], Option<usize>)] = &[
+    ("Fn", &[1], None),
+    ("call", &[], Some(1)),
+    ("curry", &[], Some(1)),
+    ("type_of", &[1], None),
+    ("is_shared", &[1], None),
+    ("is_def_var", &[1], None),
+    ("is_def_fn", &[2, 3], None),
+];
+
+/// What Rhai's anonymous functions (closures) are called: `anon$` and a hash.
+const ANONYMOUS_PREFIX: &str = "anon$";
+
+/// Every function the engine of a run knows, by name: its parameter counts, each with the
+/// type of its first parameter (the receiver of a method call).
+struct Registry {
+    functions: HashMap<String, Vec<(usize, Option<TypeId>)>>,
+}
+
+impl Registry {
+    /// The script API and Rhai's standard library, as `run` registers them (on a runtime with
+    /// no devices: the bindings only need one to exist).
+    fn of_the_api() -> Self {
+        let mut engine = sandboxed(DEFAULT_BUDGET);
+        let clock = SystemClock::shared();
+        let runtime = Runtime::new(
+            Arc::clone(&clock),
+            Zone::utc(),
+            Vec::new(),
+            Records::in_memory(),
+            Logger::new(clock, Zone::utc(), false),
+            TransactionCounter::default(),
+            Duration::ZERO,
+        );
+        register(
+            &mut engine,
+            &Rc::new(RefCell::new(runtime)),
+            &Arities::default(),
+        );
+        Self::of(&engine)
+    }
+
+    fn of(engine: &Engine) -> Self {
+        let mut functions: HashMap<String, Vec<(usize, Option<TypeId>)>> = HashMap::new();
+        let listed = engine.collect_fn_metadata(
+            None,
+            |info| {
+                let m = info.metadata;
+                Some((
+                    m.name.to_string(),
+                    m.num_params,
+                    m.param_types.first().copied(),
+                ))
+            },
+            true,
+        );
+        for (name, params, first) in listed {
+            functions.entry(name).or_default().push((params, first));
+        }
+        Self { functions }
+    }
+
+    /// The members of a device kind: its methods and (as `get$x`/`set$x`) its properties.
+    fn members(&self, kind: Kind) -> (BTreeSet<&str>, BTreeSet<&str>) {
+        let mut methods = BTreeSet::new();
+        let mut properties = BTreeSet::new();
+        for (name, overloads) in &self.functions {
+            if !overloads.iter().any(|(_, t)| *t == Some(kind.type_id())) {
+                continue;
+            }
+            match name
+                .strip_prefix("get$")
+                .or_else(|| name.strip_prefix("set$"))
+            {
+                Some(p) => {
+                    properties.insert(p);
+                }
+                None if is_identifier(name) => {
+                    methods.insert(name.as_str());
+                }
+                None => {}
+            }
+        }
+        // `to_string` and `to_debug` are what printing a handle calls; nobody writes them.
+        methods.retain(|m| !matches!(*m, "to_string" | "to_debug"));
+        (methods, properties)
+    }
+}
+
+/// True for names a script can write as a call (not operators, getters or indexers).
+fn is_identifier(name: &str) -> bool {
+    let mut chars = name.chars();
+    chars
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+/// A function of the script: its parameter names.
+struct ScriptFn {
+    name: String,
+    params: Vec<String>,
+}
+
+/// Where a closure is made: the function it is made in (`None`: the top level) and the
+/// variables it captures (Rhai passes them as its first parameters).
+struct ClosureSite {
+    made_in: Option<String>,
+    captured: Vec<String>,
+}
+
 struct Checker<'a> {
     ast: &'a AST,
+    registry: Registry,
+    script_fns: Vec<ScriptFn>,
+    closures: HashMap<String, ClosureSite>,
     devices: HashMap<String, Kind>,
     device_names: String,
     bound: HashMap<String, Kind>,
+    /// Names of the function being walked that hide a device variable of the same name.
+    shadowed: HashSet<String>,
+    /// Keys of map literals and property names: a method of that name may be a map's function.
+    map_keys: HashSet<String>,
+    /// Names the script binds with `let` or `const`.
+    variables: HashSet<String>,
     problems: Vec<Problem>,
 }
 
@@ -145,21 +255,50 @@ pub fn check(source: &str, config: &RigConfig) -> Vec<Problem> {
         .cloned()
         .collect::<Vec<_>>()
         .join(", ");
+    let script_fns = ast
+        .iter_functions()
+        .map(|f| ScriptFn {
+            name: f.name.to_string(),
+            params: f.params.iter().map(ToString::to_string).collect(),
+        })
+        .collect();
     let mut c = Checker {
         ast: &ast,
+        registry: Registry::of_the_api(),
+        script_fns,
+        closures: HashMap::new(),
         devices,
         device_names,
         bound: HashMap::new(),
+        shadowed: HashSet::new(),
+        map_keys: HashSet::new(),
+        variables: HashSet::new(),
         problems: Vec::new(),
     };
+    c.survey();
     c.bind_variables();
-    ast.walk(&mut |path: &[ASTNode]| {
-        c.visit(path);
-        true
-    });
+    // The top level, then each function on its own, so that its parameters hide the devices
+    // they are named after.
+    c.walk_part(&ast.clone_statements_only(), None);
+    let functions: Vec<(String, usize)> = c
+        .script_fns
+        .iter()
+        .map(|f| (f.name.clone(), f.params.len()))
+        .collect();
+    for (name, params) in functions {
+        c.walk_part(&only_function(&ast, &name, params), Some(&name));
+    }
     c.problems.sort_by_key(|p| (p.line, p.column));
     c.problems.dedup();
     c.problems
+}
+
+/// The function `name` with `params` parameters of `ast`, alone, to walk by itself.
+fn only_function(ast: &AST, name: &str, params: usize) -> AST {
+    // Not `clone_functions_only_filtered`: into an AST without functions it copies them all.
+    let mut part = ast.clone_functions_only();
+    part.retain_functions(|_, _, n, p| n == name && p == params);
+    part
 }
 
 fn line_col(pos: Position) -> (usize, usize) {
@@ -177,6 +316,83 @@ fn device_literal(e: &Expr) -> Option<(&str, Position)> {
     }
 }
 
+/// The anonymous function a `curry(Fn(anon), captured..)` call makes, with what it captures.
+fn closure_made_by(call: &FnCallExpr) -> Option<(String, Vec<String>)> {
+    if call.name.as_str() != "curry" {
+        return None;
+    }
+    let (first, captured) = call.args.split_first()?;
+    let Expr::DynamicConstant(d, _) = first else {
+        return None;
+    };
+    let f = (**d).clone().try_cast::<FnPtr>()?;
+    let names = captured
+        .iter()
+        .filter_map(|e| match e {
+            Expr::Variable(x, ..) => Some(x.1.to_string()),
+            _ => None,
+        })
+        .collect();
+    Some((f.fn_name().to_string(), names))
+}
+
+/// Optimal string alignment distance (Levenshtein with transpositions), for suggestions.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let a: Vec<char> = a.chars().collect();
+    let b: Vec<char> = b.chars().collect();
+    let mut rows = vec![vec![0usize; b.len() + 1]; a.len() + 1];
+    for (i, row) in rows.iter_mut().enumerate() {
+        row[0] = i;
+    }
+    for (j, cell) in rows[0].iter_mut().enumerate() {
+        *cell = j;
+    }
+    for i in 1..=a.len() {
+        for j in 1..=b.len() {
+            let cost = usize::from(a[i - 1] != b[j - 1]);
+            let mut d = (rows[i - 1][j] + 1)
+                .min(rows[i][j - 1] + 1)
+                .min(rows[i - 1][j - 1] + cost);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                d = d.min(rows[i - 2][j - 2] + 1);
+            }
+            rows[i][j] = d;
+        }
+    }
+    rows[a.len()][b.len()]
+}
+
+/// The closest of `candidates` to `name`, if close enough to be a slip of the keyboard.
+fn closest<'c>(name: &str, candidates: impl IntoIterator<Item = &'c str>) -> Option<&'c str> {
+    let allowed = (name.chars().count() / 3).clamp(1, 3);
+    candidates
+        .into_iter()
+        .filter(|c| *c != name)
+        .map(|c| (edit_distance(name, c), c))
+        .filter(|(d, _)| *d <= allowed)
+        .min()
+        .map(|(_, c)| c)
+}
+
+fn suggestion(found: Option<&str>) -> String {
+    found.map_or_else(String::new, |s| format!("; did you mean `{s}`?"))
+}
+
+/// "1 argument", "0 or 1 arguments", "2, 3 or 4 arguments".
+fn counts_words(counts: &BTreeSet<usize>) -> String {
+    let list: Vec<String> = counts.iter().map(ToString::to_string).collect();
+    let text = match list.as_slice() {
+        [] => "no".to_string(),
+        [one] => one.clone(),
+        [init @ .., last] => format!("{} or {last}", init.join(", ")),
+    };
+    if counts.len() == 1 && counts.contains(&1) {
+        format!("{text} argument")
+    } else {
+        format!("{text} arguments")
+    }
+}
+
 impl Checker<'_> {
     fn report(&mut self, pos: Position, message: String) {
         let (line, column) = line_col(pos);
@@ -187,15 +403,117 @@ impl Checker<'_> {
         });
     }
 
+    /// Walks the top level and every function once before checking: where closures are made
+    /// and what they capture, and the names maps use as keys.
+    fn survey(&mut self) {
+        let mut closures = HashMap::new();
+        let mut keys = HashSet::new();
+        let mut variables = HashSet::new();
+        let mut note = |made_in: Option<&str>, path: &[ASTNode]| {
+            let call = match path.last() {
+                Some(ASTNode::Stmt(Stmt::Var(x, ..))) => {
+                    variables.insert(x.0.name.to_string());
+                    None
+                }
+                Some(ASTNode::Expr(Expr::FnCall(call, _))) => Some(&**call),
+                Some(ASTNode::Stmt(Stmt::FnCall(call, _))) => Some(&**call),
+                Some(ASTNode::Expr(Expr::Map(m, _))) => {
+                    keys.extend(m.0.iter().map(|(k, _)| k.name.to_string()));
+                    None
+                }
+                Some(ASTNode::Expr(Expr::Property(p, _))) => {
+                    keys.insert(p.2.to_string());
+                    None
+                }
+                // A map literal of constants is folded into one value.
+                Some(ASTNode::Expr(Expr::DynamicConstant(d, _))) => {
+                    if let Some(map) = d.read_lock::<rhai::Map>() {
+                        keys.extend(map.keys().map(ToString::to_string));
+                    }
+                    None
+                }
+                _ => None,
+            };
+            if let Some((anon, captured)) = call.and_then(closure_made_by) {
+                closures.insert(
+                    anon,
+                    ClosureSite {
+                        made_in: made_in.map(ToString::to_string),
+                        captured,
+                    },
+                );
+            }
+            true
+        };
+        self.ast
+            .clone_statements_only()
+            .walk(&mut |path: &[ASTNode]| note(None, path));
+        for f in &self.script_fns {
+            only_function(self.ast, &f.name, f.params.len())
+                .walk(&mut |path: &[ASTNode]| note(Some(&f.name), path));
+        }
+        self.closures = closures;
+        self.map_keys = keys;
+        self.variables = variables;
+    }
+
+    /// The parameters of the function `name` that hide device variables: all of a named
+    /// function's; a closure's own, and those it captures from a function where they are hidden.
+    fn hidden_in(&self, name: &str, depth: usize) -> HashSet<String> {
+        let Some(f) = self.script_fns.iter().find(|f| f.name == name) else {
+            return HashSet::new();
+        };
+        if !name.starts_with(ANONYMOUS_PREFIX) {
+            return f.params.iter().cloned().collect();
+        }
+        let Some(site) = self.closures.get(name) else {
+            return f.params.iter().cloned().collect();
+        };
+        let mut hidden: HashSet<String> =
+            f.params.iter().skip(site.captured.len()).cloned().collect();
+        if let Some(outer) = &site.made_in {
+            if depth < 64 {
+                let outer_hidden = self.hidden_in(outer, depth + 1);
+                hidden.extend(
+                    site.captured
+                        .iter()
+                        .filter(|c| outer_hidden.contains(*c))
+                        .cloned(),
+                );
+            }
+        }
+        hidden
+    }
+
+    fn walk_part(&mut self, part: &AST, function: Option<&str>) {
+        self.shadowed = function.map_or_else(HashSet::new, |f| self.hidden_in(f, 0));
+        part.walk(&mut |path: &[ASTNode]| {
+            self.visit(path);
+            true
+        });
+    }
+
     /// Variables bound to a `device("...")` literal (only those never bound to anything else).
     fn bind_variables(&mut self) {
         let mut seen: HashMap<String, Option<Kind>> = HashMap::new();
         let devices = &self.devices;
         self.ast.walk(&mut |path: &[ASTNode]| {
-            if let Some(ASTNode::Stmt(Stmt::Var(x, ..))) = path.last() {
-                let (ident, expr, _) = &**x;
-                let kind = device_literal(expr).and_then(|(n, _)| devices.get(n).copied());
-                let name = ident.name.to_string();
+            let bound = match path.last() {
+                Some(ASTNode::Stmt(Stmt::Var(x, ..))) => {
+                    let (ident, expr, _) = &**x;
+                    let kind = device_literal(expr).and_then(|(n, _)| devices.get(n).copied());
+                    Some((ident.name.to_string(), kind))
+                }
+                Some(ASTNode::Stmt(Stmt::For(x, _))) => {
+                    let (var, counter, _) = &**x;
+                    if let Some(c) = counter {
+                        seen.insert(c.name.to_string(), None);
+                    }
+                    Some((var.name.to_string(), None))
+                }
+                _ => None,
+            };
+            if let Some((name, kind)) = bound {
                 let entry = seen.entry(name).or_insert(kind);
                 if *entry != kind {
                     *entry = None;
@@ -218,6 +536,9 @@ impl Checker<'_> {
         match object {
             Expr::Variable(x, _, _) => {
                 let name = x.1.as_str();
+                if self.shadowed.contains(name) {
+                    return None;
+                }
                 self.bound.get(name).map(|k| (*k, name.to_string()))
             }
             e => device_literal(e)
@@ -225,32 +546,59 @@ impl Checker<'_> {
         }
     }
 
+    /// The object a method call or property at the end of `path` is applied to, when the
+    /// chain starts there: `x.m()` (the member right of a dot) or `x.m().n()` (its first link).
+    fn receiver<'p>(path: &'p [ASTNode<'p>]) -> Option<&'p Expr> {
+        let (node, parents) = path.split_last()?;
+        let ASTNode::Expr(me) = node else {
+            return None;
+        };
+        let (parent, grand) = parents.split_last()?;
+        let ASTNode::Expr(parent) = parent else {
+            return None;
+        };
+        let Expr::Dot(bin, ..) = parent else {
+            return None;
+        };
+        if std::ptr::eq(&bin.rhs, *me) {
+            // The member right of the dot: its object is the left side, unless this dot is
+            // itself a later link of a chain.
+            let is_link = matches!(grand.last(), Some(ASTNode::Expr(Expr::Dot(outer, ..)))
+                if std::ptr::eq(&outer.rhs, *parent));
+            return (!is_link).then_some(&bin.lhs);
+        }
+        if std::ptr::eq(&bin.lhs, *me) {
+            // The first link of a chain `x.(me.rest)`: the object is the outer dot's left side.
+            if let Some(ASTNode::Expr(Expr::Dot(outer, ..))) = grand.last() {
+                if std::ptr::eq(&outer.rhs, *parent) {
+                    return Some(&outer.lhs);
+                }
+            }
+        }
+        None
+    }
+
     fn visit(&mut self, path: &[ASTNode]) {
-        let expr = match path.last() {
-            Some(ASTNode::Expr(e)) => *e,
+        match path.last() {
             // A call as a statement is a statement of its own, with the same shape.
             Some(ASTNode::Stmt(Stmt::FnCall(call, pos))) => {
                 self.check_device_name(call);
-                self.check_call(call, *pos, None);
-                return;
+                self.check_call(call, *pos, false);
+                self.check_exists(call, *pos, None);
             }
-            _ => return,
-        };
-        match expr {
-            Expr::FnCall(call, pos) => {
+            Some(ASTNode::Expr(Expr::FnCall(call, pos))) => {
                 self.check_device_name(call);
-                self.check_call(call, *pos, None);
+                self.check_call(call, *pos, false);
+                self.check_exists(call, *pos, None);
             }
-            Expr::Dot(bin, _, _) => {
-                let object = self.kind_of(&bin.lhs);
-                match &bin.rhs {
-                    Expr::MethodCall(call, pos) => self.check_call(call, *pos, object),
-                    Expr::Property(p, pos) => {
-                        if let Some((kind, var)) = object {
-                            self.check_member(kind, &var, p.2.as_str(), *pos);
-                        }
-                    }
-                    _ => {}
+            Some(ASTNode::Expr(Expr::MethodCall(call, pos))) => {
+                let object = Self::receiver(path).and_then(|o| self.kind_of(o));
+                self.check_call(call, *pos, true);
+                self.check_exists(call, *pos, Some(object));
+            }
+            Some(ASTNode::Expr(Expr::Property(p, pos))) => {
+                if let Some((kind, var)) = Self::receiver(path).and_then(|o| self.kind_of(o)) {
+                    self.check_property(kind, &var, p.2.as_str(), *pos);
                 }
             }
             _ => {}
@@ -275,30 +623,261 @@ impl Checker<'_> {
         }
     }
 
-    fn check_member(&mut self, kind: Kind, var: &str, member: &str, pos: Position) {
-        let other = match kind {
-            Kind::Trc => Kind::C29u,
-            Kind::C29u => Kind::Trc,
-        };
-        if !kind.members().contains(&member) && other.members().contains(&member) {
-            self.report(
-                pos,
-                format!(
-                    "{var} is a {}: it has no {member} (that is a {} member)",
-                    kind.name(),
-                    other.name()
-                ),
-            );
+    /// The parameter counts of the script's own functions called `name`.
+    fn script_counts(&self, name: &str) -> BTreeSet<usize> {
+        self.script_fns
+            .iter()
+            .filter(|f| f.name == name)
+            .map(|f| f.params.len())
+            .collect()
+    }
+
+    /// How many arguments a call of `name` may have: in function-call style, or as a method
+    /// (the receiver not counted; a script function called as a method gets it as `this`).
+    /// `None` when any number from the given one on will do.
+    fn allowed(&self, name: &str, method: bool) -> (BTreeSet<usize>, Option<usize>) {
+        let mut counts = self.script_counts(name);
+        let mut from = None;
+        for (params, _) in self.registry.functions.get(name).into_iter().flatten() {
+            if method {
+                if let Some(n) = params.checked_sub(1) {
+                    counts.insert(n);
+                }
+            } else {
+                counts.insert(*params);
+            }
+        }
+        if let Some((_, fixed, any)) = SYNTACTIC.iter().find(|(n, ..)| *n == name) {
+            for n in *fixed {
+                // As a method the receiver is the first argument.
+                counts.insert(if method { n.saturating_sub(1) } else { *n });
+            }
+            from = any.map(|n| if method { 0 } else { n });
+        }
+        (counts, from)
+    }
+
+    /// Every name a script can call, for suggestions.
+    fn callable_names(&self) -> impl Iterator<Item = &str> {
+        self.registry
+            .functions
+            .keys()
+            .map(String::as_str)
+            .filter(|n| is_identifier(n))
+            .chain(
+                self.script_fns
+                    .iter()
+                    .map(|f| f.name.as_str())
+                    .filter(|n| !n.starts_with(ANONYMOUS_PREFIX)),
+            )
+            .chain(SYNTACTIC.iter().map(|(n, ..)| *n))
+    }
+
+    /// The device kinds whose methods are all the overloads of `name`, if it is one.
+    fn device_method_of(&self, name: &str) -> Option<Kind> {
+        let overloads = self.registry.functions.get(name)?;
+        [Kind::C29u, Kind::Trc]
+            .into_iter()
+            .find(|k| overloads.iter().all(|(_, t)| *t == Some(k.type_id())))
+    }
+
+    /// A device of `kind` in the rig, for examples in messages.
+    fn example_device(&self, kind: Kind) -> String {
+        let mut names: Vec<&String> = self
+            .devices
+            .iter()
+            .filter(|(_, k)| **k == kind)
+            .map(|(n, _)| n)
+            .collect();
+        names.sort();
+        names.first().map_or_else(
+            || match kind {
+                Kind::Trc => "panel".to_string(),
+                Kind::C29u => "io".to_string(),
+            },
+            |n| (*n).clone(),
+        )
+    }
+
+    /// Whether the called function or method exists, and takes this many arguments.
+    /// `method`: `None` for a function call, else the device the receiver is known to be.
+    fn check_exists(
+        &mut self,
+        call: &FnCallExpr,
+        pos: Position,
+        method: Option<Option<(Kind, String)>>,
+    ) {
+        let name = call.name.as_str();
+        if call.op_token.is_some() || !is_identifier(name) {
+            return;
+        }
+        let given = call.args.len();
+        match method {
+            None => self.check_function(name, given, pos),
+            Some(None) => self.check_method(name, given, pos),
+            Some(Some((kind, var))) => self.check_device_method(kind, &var, name, given, pos),
         }
     }
 
-    fn check_call(&mut self, call: &FnCallExpr, pos: Position, object: Option<(Kind, String)>) {
+    fn check_function(&mut self, name: &str, given: usize, pos: Position) {
+        let (counts, from) = self.allowed(name, false);
+        if counts.contains(&given) || from.is_some_and(|f| given >= f) {
+            return;
+        }
+        if let Some(kind) = self.device_method_of(name) {
+            let dev = self.example_device(kind);
+            self.report(
+                pos,
+                format!(
+                    "{name} is a method of a {}: call it on the device, as {dev}.{name}(..)",
+                    kind.name()
+                ),
+            );
+        } else if counts.is_empty() && from.is_none() && self.variables.contains(name) {
+            self.report(
+                pos,
+                format!(
+                    "{name} is a variable, not a function: call the function it holds as \
+                     {name}.call(..)"
+                ),
+            );
+        } else if counts.is_empty() && from.is_none() {
+            let near = closest(name, self.callable_names());
+            self.report(
+                pos,
+                format!(
+                    "no function called {name} in the script API or this script{}",
+                    suggestion(near)
+                ),
+            );
+        } else {
+            let mut takes = counts_words(&counts);
+            if let [only] = self
+                .script_fns
+                .iter()
+                .filter(|f| f.name == name)
+                .collect::<Vec<_>>()[..]
+            {
+                if !only.params.is_empty() {
+                    takes.push_str(&format!(" ({})", only.params.join(", ")));
+                }
+            }
+            self.report(pos, format!("{name} takes {takes}, not {given}"));
+        }
+    }
+
+    fn check_method(&mut self, name: &str, given: usize, pos: Position) {
+        // A function stored in a map is called as a method of the map.
+        if self.map_keys.contains(name) {
+            return;
+        }
+        let (counts, from) = self.allowed(name, true);
+        if counts.contains(&given) || from.is_some_and(|f| given >= f) {
+            return;
+        }
+        if counts.is_empty() && from.is_none() {
+            let near = closest(name, self.callable_names());
+            self.report(
+                pos,
+                format!(
+                    "no method called {name} in the script API or this script{}",
+                    suggestion(near)
+                ),
+            );
+        } else {
+            let mut message = format!(".{name}(..) takes {}, not {given}", counts_words(&counts));
+            if !self.script_counts(name).is_empty() {
+                message.push_str(
+                    " (a function of the script called as a method gets its object as `this`)",
+                );
+            }
+            self.report(pos, message);
+        }
+    }
+
+    fn check_device_method(
+        &mut self,
+        kind: Kind,
+        var: &str,
+        name: &str,
+        given: usize,
+        pos: Position,
+    ) {
+        let dynamic = TypeId::of::<Dynamic>();
+        let mut counts = self.script_counts(name);
+        for (params, first) in self.registry.functions.get(name).into_iter().flatten() {
+            if *first == Some(kind.type_id()) || *first == Some(dynamic) {
+                counts.extend(params.checked_sub(1));
+            }
+        }
+        if matches!(name, "type_of" | "is_shared") {
+            counts.insert(0);
+        }
+        if counts.contains(&given) {
+            return;
+        }
+        let (methods, properties) = self.registry.members(kind);
+        let message = if !counts.is_empty() {
+            format!("{var}.{name} takes {}, not {given}", counts_words(&counts))
+        } else if let Some(message) = self.member_of_the_other_kind(kind, var, name) {
+            message
+        } else if properties.contains(name) {
+            format!("{var}.{name} is a property: write {var}.{name}, without ()")
+        } else {
+            let near = closest(name, methods.iter().copied())
+                .or_else(|| closest(name, properties.iter().copied()));
+            format!(
+                "{var} is a {}: it has no method {name}{}",
+                kind.name(),
+                suggestion(near)
+            )
+        };
+        self.report(pos, message);
+    }
+
+    /// The message for `var.member` when `member` belongs to the other kind of device.
+    fn member_of_the_other_kind(&self, kind: Kind, var: &str, member: &str) -> Option<String> {
+        let (methods, properties) = self.registry.members(kind.other());
+        (methods.contains(member) || properties.contains(member)).then(|| {
+            format!(
+                "{var} is a {}: it has no {member} (that is a {} member)",
+                kind.name(),
+                kind.other().name()
+            )
+        })
+    }
+
+    fn check_property(&mut self, kind: Kind, var: &str, property: &str, pos: Position) {
+        let (methods, properties) = self.registry.members(kind);
+        if properties.contains(property) {
+            return;
+        }
+        let message = if let Some(message) = self.member_of_the_other_kind(kind, var, property) {
+            message
+        } else if methods.contains(property) {
+            let takes_nothing = self
+                .registry
+                .functions
+                .get(property)
+                .is_some_and(|o| o.iter().any(|(n, t)| *n == 1 && *t == Some(kind.type_id())));
+            let args = if takes_nothing { "()" } else { "(..)" };
+            format!("{var}.{property} is a method: call it, as {var}.{property}{args}")
+        } else {
+            let near = closest(property, properties.iter().copied())
+                .or_else(|| closest(property, methods.iter().copied()));
+            format!(
+                "{var} is a {}: it has no property {property}{}",
+                kind.name(),
+                suggestion(near)
+            )
+        };
+        self.report(pos, message);
+    }
+
+    /// Checks the literal arguments of a call and the parameters of the handler it is given.
+    fn check_call(&mut self, call: &FnCallExpr, pos: Position, is_method: bool) {
         let name = call.name.as_str();
         let args = call.args.as_slice();
-        if let Some((kind, var)) = &object {
-            self.check_member(*kind, var, name, pos);
-        }
-        let is_method = object.is_some();
         match (name, args.first()) {
             ("pressed" | "on_press" | "on_release", Some(Expr::StringConstant(s, at)))
                 if Switch::from_name(s).is_none() =>
@@ -505,5 +1084,193 @@ after("1s", |x| {});
         assert!(p[0].starts_with("1:9: "), "{p:?}");
         assert!(!problems(r#"import "fs" as fs;"#).is_empty());
         assert!(!problems(r#"eval("1")"#).is_empty());
+    }
+
+    #[test]
+    fn unknown_methods_inside_handlers_are_found_with_a_suggestion() {
+        // The issue's example: `check` said ok, and `run` failed two seconds later.
+        let p = problems("every(\"2s\", || { io.set_outptu(2, true); });\n");
+        assert_eq!(
+            p,
+            vec!["1:21: io is a TRP-C29U: it has no method set_outptu; did you mean `set_output`?"]
+        );
+    }
+
+    #[test]
+    fn calls_are_checked_in_closures_script_functions_and_handlers_alike() {
+        let p = problems(
+            r#"fn helper(n) {
+    io.clear_countr(n);
+    baz();
+}
+panel.on_press("S1", |name| {
+    helper(1, 2);
+    print(name.lenn());
+});
+cron("0 * * * * *", || { io.outputz = 1; });
+io.on_rise(0, || { let f = |x| x + 1; f(2); });
+after("1s", || panel.set_output(1, true));
+"#,
+        );
+        let want = [
+            "2:8: io is a TRP-C29U: it has no method clear_countr; did you mean `clear_counter`?",
+            "3:5: no function called baz in the script API or this script",
+            "6:5: helper takes 1 argument (n), not 2",
+            "7:16: no method called lenn in the script API or this script; did you mean `len`?",
+            "9:29: io is a TRP-C29U: it has no property outputz; did you mean `outputs`?",
+            "10:39: f is a variable, not a function: call the function it holds as f.call(..)",
+            "11:22: panel is a TRC1000: it has no set_output (that is a TRP-C29U member)",
+        ];
+        let p: Vec<&str> = p.iter().map(String::as_str).collect();
+        assert_eq!(p.len(), want.len(), "{p:#?}");
+        for (got, want) in p.iter().zip(want) {
+            assert_eq!(*got, want);
+        }
+    }
+
+    #[test]
+    fn argument_counts_and_members_used_the_wrong_way() {
+        let p = problems(
+            "io.set_output(1);\nio.counters;\nio.outputs();\nset_output(2, true);\nstop(1, 2);\n\
+             fn double(x) { x * 2 }\nprint(3.double());\n",
+        );
+        assert_eq!(
+            p,
+            vec![
+                "1:4: io.set_output takes 2 arguments, not 1",
+                "2:4: io.counters is a method: call it, as io.counters()",
+                "3:4: io.outputs is a property: write io.outputs, without ()",
+                "4:1: set_output is a method of a TRP-C29U: call it on the device, as io.set_output(..)",
+                "5:1: stop takes 0 or 1 arguments, not 2",
+                "7:9: .double(..) takes 1 argument, not 0 (a function of the script called as a \
+                 method gets its object as `this`)",
+            ]
+        );
+    }
+
+    #[test]
+    fn suggestions_come_only_for_near_names() {
+        assert_eq!(
+            closest("set_outptu", ["set_output", "output"]),
+            Some("set_output")
+        );
+        assert_eq!(closest("outputz", ["output", "outputs"]), Some("output"));
+        assert_eq!(closest("zzz", ["set_output", "print"]), None);
+        assert_eq!(closest("prnt", ["print"]), Some("print"));
+        assert_eq!(edit_distance("ab", "ba"), 1, "a transposition is one edit");
+        assert_eq!(edit_distance("", "abc"), 3);
+    }
+
+    /// Valid uses of the standard library, maps of functions, methods of the script, `this`,
+    /// function pointers and parameters named like devices: none may be reported.
+    const VALID: &[&str] = &[
+        "let a = [3, 1, 2]; a.sort(); let b = a.map(|x| x * 2).filter(|x| x > 2); print(b.len());",
+        "let s = \"hello\"; print(s.sub_string(1, 2) + s.to_upper() + s.len());",
+        "let m = #{a: 1}; print(m.keys()); print(\"a\" in m); m.b = 2; print(m.values().len());",
+        "let obj = #{ n: 1, twice: |x| x * 2 }; print(obj.twice(4));",
+        "let k = #{}; k.step = |x| x + 1; print(k.step(1));",
+        "fn inc() { this += 1; } let n = 1; n.inc(); print(n);",
+        "fn double(x) { x * 2 } print(double(2)); let f = Fn(\"double\"); print(f.call(3)); \
+         let g = |x, y| x + y; print(g.call(1, 2)); let h = g.curry(1); print(h.call(2)); \
+         print(call(h, 5)); print(is_def_fn(\"double\", 1));",
+        "print(type_of(1)); print(1.type_of()); for (x, i) in [1, 2] { print(x + i); } \
+         for i in 0..3 { print(i); } print(max(1, 2)); print(abs(-3)); \
+         print(parse_int(\"5\") + 1); print(1.5.floor()); print(to_string(5));",
+        "io.outputs = io.outputs | 1; io.set_output(0, io.output(1)); print(io.counters().len()); \
+         print(panel.pressed()); panel.relay = 2; print(io.watchdog()); io.watchdog(2); \
+         io.watchdog(1.5); io.watchdog_off(); print(io.latched().on); print(io.online);",
+        "let x = 5; print(x.to_string()); print(`${x}`); debug(x); log(\"a\"); warn(\"b\"); \
+         record(\"r\", 1); measure(\"m\", 1.0, #{min: 0, max: 2}); \
+         cancel(every(\"1s\", || {})); on_stop(|| {}); print(now() + uptime());",
+        "let io2 = device(\"io\"); io2.on_rise(1, |ch| io2.set_output(ch, true));",
+        "let x = 1; every(\"1s\", || { x += 1; io.outputs = x; });",
+        "fn show(io) { io.len() } print(show([1]));",
+        "let f = |panel| panel.len(); print(f.call(\"ab\"));",
+        "let io = device(\"io\"); every(\"1s\", || { let g = |panel| panel.len(); print(g.call(\"x\")); io.outputs = 1; });",
+    ];
+
+    /// Each a mistake `run` fails on, on its line, at the top level or in a handler.
+    const MISTAKES: &[&str] = &[
+        "io.set_outptu(2, true);",
+        "every(\"2s\", || { io.set_outptu(2, true); });",
+        "foo(1);",
+        "io.set_output(1);",
+        "io.outputz = 1;",
+        "fn bar(x) { x } bar(1, 2);",
+        "let a = [1]; a.psh(3);",
+        "print(io.counters);",
+        "io.outputs();",
+        "set_output(2, true);",
+        "let f = |x| x + 1; f(2);",
+        "panel.set_output(1, true);",
+        "every(\"1s\", |missed| { print(missed.lenn()); });",
+        "fn helper() { io.clear_countr(1); } helper();",
+        "fn double(x) { x * 2 } print(3.double());",
+    ];
+
+    /// How a run of `source` on the simulated rig ends within three virtual seconds.
+    fn run_status(source: &str) -> (Option<i32>, String) {
+        use crate::script::rig::{start, RigSetup};
+        use crate::time::clock::VirtualClock;
+        use chrono::{TimeZone, Utc};
+        let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap());
+        let setup = RigSetup {
+            config: RigConfig::simulated_default(),
+            simulate: true,
+            clock: Arc::new(clock),
+            zone: Zone::utc(),
+            period: None,
+            end_after: Some(Duration::from_secs(3)),
+            records: None,
+            log_to_stderr: false,
+            quiet: true,
+            keep_log: true,
+            budget: DEFAULT_BUDGET,
+            stop_flag: Arc::default(),
+        };
+        let mut rig = start(source, "t.rhai", setup).expect("the rig starts");
+        rig.runner.advance(Duration::from_millis(3500));
+        let log = rig.runner.runtime().borrow().log.lines().join("\n");
+        (rig.runner.status(), log)
+    }
+
+    #[test]
+    fn what_check_passes_runs_and_what_it_reports_fails() {
+        for source in VALID {
+            assert_eq!(problems(source), Vec::<String>::new(), "{source}");
+            let (status, log) = run_status(source);
+            assert_ne!(status, Some(1), "{source}\n{log}");
+        }
+        for source in MISTAKES {
+            let p = problems(source);
+            assert_eq!(p.len(), 1, "{source}: {p:?}");
+            let (status, log) = run_status(source);
+            assert_eq!(status, Some(1), "{source} should fail when run\n{log}");
+        }
+    }
+
+    #[test]
+    fn the_shipped_scripts_have_no_problems() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut checked = 0;
+        for dir in ["scripts", "tests/scenarios/scripts", "packaging/systemd"] {
+            for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+                let path = entry.unwrap().path();
+                if path.extension().is_none_or(|e| e != "rhai") {
+                    continue;
+                }
+                let source = std::fs::read_to_string(&path).unwrap();
+                let p = problems(&source);
+                // worker.rhai sets channel 9 on purpose, to test how a run ends on a script error.
+                let expected: &[&str] = if path.ends_with("worker.rhai") {
+                    &["6:19: channel 9 does not exist on a TRP-C29U: use 0-7"]
+                } else {
+                    &[]
+                };
+                assert_eq!(p, expected, "{}", path.display());
+                checked += 1;
+            }
+        }
+        assert!(checked >= 13, "found only {checked} scripts");
     }
 }

@@ -3,6 +3,7 @@
 //! (`rigscript test`). Nothing below this layer knows Rhai.
 
 pub mod api;
+pub mod builder;
 pub mod check;
 pub mod engine;
 pub mod error;

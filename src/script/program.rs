@@ -4,8 +4,8 @@
 use super::api::{register, Arities, Rt};
 use super::engine::sandboxed;
 use super::error::{fault, is_stop};
-use crate::runtime::core::{Arg, Call};
 use crate::runtime::scan::{Fault, Program};
+use crate::runtime::subscriptions::{Arg, Call};
 use rhai::{Dynamic, Engine, FnPtr, Scope, AST};
 
 /// A script bound to a runtime.

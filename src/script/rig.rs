@@ -6,20 +6,21 @@ use super::engine::sandboxed;
 use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
-use crate::runtime::core::Runtime;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError, Opened, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
+use crate::runtime::exit;
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
-use crate::runtime::scan::{RunOptions, Runner};
+use crate::runtime::scan::{panic_message, safe_after_panic, RunOptions, Runner};
+use crate::runtime::state::Runtime;
 use crate::time::clock::SharedClock;
-use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
 use std::cell::RefCell;
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::rc::Rc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -47,13 +48,28 @@ pub struct RigSetup {
     pub keep_log: bool,
     /// Operations per handler call.
     pub budget: u64,
-    /// Set on SIGINT/SIGTERM.
-    pub stop_flag: Arc<AtomicBool>,
+    /// The number of the signal that asks the run to stop (0: none).
+    pub stop_flag: Arc<AtomicUsize>,
 }
 
 /// Why a run could not start, with the exit status it calls for.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {
+    /// The config names no devices (exit 2).
+    #[error(
+        "the config defines no devices (no [devices.NAME] tables), so there is nothing to {}",
+        if *simulated {
+            "simulate; --sim without --config gives the default rig: panel (a TRC1000) and io \
+             (a TRP-C29U)"
+        } else {
+            "drive; add a [devices.NAME] table for each device (see README), or try the script \
+             with --sim and no --config: the default rig, panel (a TRC1000) and io (a TRP-C29U)"
+        }
+    )]
+    NoDevices {
+        /// Whether the run was to simulate them.
+        simulated: bool,
+    },
     /// The script does not compile (exit 1).
     #[error("{0}")]
     Script(String),
@@ -66,15 +82,19 @@ pub enum RigError {
     /// A device does not answer (exit 3).
     #[error(transparent)]
     Unavailable(#[from] Unavailable),
+    /// A bug: a panic while taking control of the devices (exit 70).
+    #[error("internal error (a bug in rigscript; please report it): {0}")]
+    Internal(String),
 }
 
 impl RigError {
     /// The exit status for this error.
     pub fn status(&self) -> i32 {
         match self {
-            RigError::Script(_) => 1,
-            RigError::Records(_) => 2,
-            RigError::Open(_) | RigError::Unavailable(_) => 3,
+            RigError::Script(_) => exit::ERROR,
+            RigError::NoDevices { .. } | RigError::Records(_) => exit::USAGE,
+            RigError::Open(_) | RigError::Unavailable(_) => exit::UNAVAILABLE,
+            RigError::Internal(_) => exit::INTERNAL,
         }
     }
 }
@@ -102,6 +122,11 @@ pub fn start_with(
     setup: RigSetup,
     open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
 ) -> Result<Rig, RigError> {
+    if setup.config.devices.is_empty() {
+        return Err(RigError::NoDevices {
+            simulated: setup.simulate,
+        });
+    }
     let ast = sandboxed(setup.budget)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, &e)))?;
@@ -126,23 +151,29 @@ pub fn start_with(
         setup.config.grace,
     );
     let rt = Rc::new(RefCell::new(runtime));
-    let started = rt.borrow_mut().start_devices();
+    let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
+    let started = match started {
+        Ok(started) => started,
+        Err(panic) => {
+            let message = panic_message(panic.as_ref());
+            safe_after_panic(&rt, &message);
+            return Err(RigError::Internal(message));
+        }
+    };
     if let Err(e) = started {
         // Leave the devices that did start as a clean end would.
         let mut r = rt.borrow_mut();
-        r.write_safe_state("a device is not available");
-        r.release_watchdogs();
+        r.end_safe("a device is not available", true);
         return Err(e.into());
     }
     let program = ScriptProgram::new(&rt, ast, file, setup.budget);
     let period = setup.period.unwrap_or(setup.config.period);
-    warn_short_watchdogs(&mut rt.borrow_mut(), period);
     let options = RunOptions {
         period,
         policy: setup.config.on_error,
         end_after: setup.end_after,
         stop_flag: setup.stop_flag,
-        wake_latency: setup.config.wake_latency.limit_for(period),
+        wake_latency: setup.config.wake_latency,
     };
     let mut runner = Runner::new(rt, program, options);
     runner.start();
@@ -150,33 +181,6 @@ pub fn start_with(
         runner,
         sim: opened.sim,
     })
-}
-
-/// Warns of host watchdogs shorter than two scan periods: the runner feeds them once a tick
-/// at best, so the module could go safe between ticks.
-fn warn_short_watchdogs(rt: &mut Runtime<rhai::FnPtr>, period: Duration) {
-    let short: Vec<String> = rt
-        .devices
-        .iter()
-        .filter_map(|d| match d {
-            Device::C29u(c) => c
-                .watchdog
-                .filter(|t| t.as_duration() < period.saturating_mul(2))
-                .map(|t| {
-                    format!(
-                        "{}: its host watchdog ({}) is shorter than two scan periods ({} each): \
-                         it may fire between ticks; use a longer watchdog or a shorter period",
-                        c.name,
-                        format_duration(t.as_duration()),
-                        format_duration(period)
-                    )
-                }),
-            Device::Trc(_) => None,
-        })
-        .collect();
-    for w in short {
-        rt.log.warn(&w);
-    }
 }
 
 #[cfg(test)]
@@ -223,5 +227,86 @@ mod tests {
             "{log}"
         );
         assert!(clock.now() >= Duration::from_millis(140));
+    }
+
+    #[test]
+    fn numbers_out_of_range_from_a_script_are_script_errors_at_their_line() {
+        let clock = VirtualClock::at_epoch();
+        for (script, message) in [
+            (
+                "io.watchdog(1e17);",
+                "watchdog(100000000000000000) is not possible",
+            ),
+            ("io.watchdog(-0.04);", "watchdog(-0.04) is not possible"),
+            ("io.watchdog(0.04);", "watchdog(0.04) is not possible"),
+            ("io.watchdog(25.56);", "watchdog(25.56) is not possible"),
+            ("io.watchdog(1.0 / 0.0);", "watchdog(inf) is not possible"),
+            ("io.watchdog(9223372036854775807);", "is not possible"),
+        ] {
+            let rig = start(&format!("\n{script}"), "t.rhai", setup(&clock)).unwrap();
+            assert_eq!(rig.runner.status(), Some(1), "{script}");
+            let log = rig.runner.runtime().borrow().log.lines().join("\n");
+            assert!(
+                log.contains("t.rhai:2:4: in top level: "),
+                "{script}: {log}"
+            );
+            assert!(log.contains(message), "{script}: {log}");
+        }
+        let rig = start("io.watchdog(25.54);", "t.rhai", setup(&clock)).unwrap();
+        assert_eq!(rig.runner.status(), None, "started");
+        assert_eq!(rig.sim.watchdog("io").unwrap().timeout_tenths, 255);
+    }
+
+    #[test]
+    fn a_safe_value_assigned_every_tick_is_written_once() {
+        let clock = VirtualClock::at_epoch();
+        let script = "every(\"20ms\", || { io.safe_value = 0x05; io.watchdog(2); });";
+        let mut rig = start(script, "t.rhai", setup(&clock)).unwrap();
+        rig.runner.advance(Duration::from_millis(100));
+        assert_eq!(rig.sim.safe_value("io").unwrap(), 0x05);
+        let before = rig.runner.runtime().borrow().transaction_count();
+        rig.runner.advance(Duration::from_secs(10));
+        let spent = rig.runner.runtime().borrow().transaction_count() - before;
+        // 500 assignments of each: only the watchdog feeds (every 500 ms) and the output
+        // checks (every 5 s) reach the module.
+        assert!(spent <= 25, "{spent} requests in 10 s");
+    }
+
+    #[test]
+    fn a_watchdog_too_short_to_be_fed_on_this_rig_is_a_script_error() {
+        let clock = VirtualClock::at_epoch();
+        let rig = start("\nio.watchdog(0.5);", "t.rhai", setup(&clock)).unwrap();
+        assert_eq!(rig.runner.status(), Some(1));
+        let log = rig.runner.runtime().borrow().log.lines().join("\n");
+        assert!(
+            log.contains("t.rhai:2:4: in top level: io: a 500ms watchdog on io is too short for this rig: a feed may reach the module 7"),
+            "{log}"
+        );
+        assert!(!rig.sim.watchdog("io").unwrap().enabled, "not set");
+    }
+
+    #[test]
+    fn a_config_without_devices_says_so_and_points_to_the_default_rig() {
+        let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap());
+        let mut s = setup(&clock);
+        s.config = RigConfig::parse("period = \"20ms\"\n", "rig.toml").unwrap();
+        let Err(e) = start("io.outputs = 1;", "t.rhai", s) else {
+            panic!("a rig without devices started");
+        };
+        assert_eq!(e.status(), 2);
+        assert_eq!(
+            e.to_string(),
+            "the config defines no devices (no [devices.NAME] tables), so there is nothing to \
+             simulate; --sim without --config gives the default rig: panel (a TRC1000) and io \
+             (a TRP-C29U)"
+        );
+        let mut s = setup(&clock);
+        s.config = RigConfig::parse("", "rig.toml").unwrap();
+        s.simulate = false;
+        let text = start("", "t.rhai", s).err().unwrap().to_string();
+        assert!(
+            text.contains("nothing to drive; add a [devices.NAME] table"),
+            "{text}"
+        );
     }
 }

@@ -1,5 +1,5 @@
 //! The simulated TRP-C29U's ASCII front end: reassembles CR-ended frames from a byte stream,
-//! decodes them with `protocol::c29u_ascii`, carries them out on the `C29u` model and answers.
+//! decodes them with `protocol::c29u_ascii`, carries them out on the `C29uModel` and answers.
 //!
 //! Readings (see also `protocol::c29u_ascii`'s list):
 //! - The module is silent on a bad checksum, a frame with no readable ID, another ID, and
@@ -7,20 +7,22 @@
 //! - 8-1 / NOTES: `%` is answered `!NN` from the new ID, framed with the checksum setting the
 //!   request came with; the following frames use the new settings.
 //! - 8-19: an output write in safe mode is answered `!IDWE`.
-//! - 8-21: `~IDWR` answers `WE` only while enabled and not fired; fired reads `WD` + the timeout,
-//!   disabled reads `WD00` (the model stores 0 for "disabled").
+//! - 8-21: `~IDWR` answers as [`WatchdogReading`](crate::protocol::c29u_ascii::WatchdogReading)
+//!   reads it (the model stores 0 for "disabled").
 //! - 8-23: `~ID4V`'s second byte ("DI0~DI7") is the inputs as on the wire now.
 //! - A LF right after a CR (a CR LF line end) is ignored; a frame longer than
 //!   [`AsciiFrontEnd::MAX_FRAME`] is dropped up to the next CR.
 
-use super::c29u::{C29u, ModuleConfig, Protocol, SimError};
+use super::c29u::{
+    C29uModel, C29uModelError, ModuleConfig, Protocol, FIRMWARE_DATE, FIRMWARE_MODEL,
+};
 use crate::protocol::c29u_ascii::{
-    decode_request, encode_answer, encode_refusal, Address, Answer, ConfigReport, FirmwareDate,
-    FirmwareVersion, LatchLevel, ModuleName, Preset, Refusal, Request, CR, MODULE_TYPE,
+    decode_request, encode_answer, encode_refusal, Address, Answer, FirmwareVersion, LatchLevel,
+    ModuleName, Preset, Refusal, Request, CR,
 };
 
 /// One frame (with or without its CR) in, the module's answer out; `None` means silence.
-pub fn answer(model: &mut C29u, frame: &[u8]) -> Option<Vec<u8>> {
+pub fn answer(model: &mut C29uModel, frame: &[u8]) -> Option<Vec<u8>> {
     if model.protocol() != Protocol::Ascii {
         return None;
     }
@@ -39,8 +41,8 @@ pub fn answer(model: &mut C29u, frame: &[u8]) -> Option<Vec<u8>> {
             model.host_ok();
             return None;
         }
-        Request::Snapshot => {
-            model.take_snapshot();
+        Request::Synchronize => {
+            model.synchronize();
             return None;
         }
         _ => {}
@@ -56,17 +58,20 @@ pub fn answer(model: &mut C29u, frame: &[u8]) -> Option<Vec<u8>> {
 }
 
 /// Carries out an addressed request on the model; `cfg` is the configuration it arrived with.
-fn carry_out(model: &mut C29u, request: &Request, cfg: ModuleConfig) -> Result<Answer, Refusal> {
-    let invalid = |_: SimError| Refusal::InvalidCommand;
-    let done = |r: Result<(), SimError>| r.map(|()| Answer::Done).map_err(invalid);
+fn carry_out(
+    model: &mut C29uModel,
+    request: &Request,
+    cfg: ModuleConfig,
+) -> Result<Answer, Refusal> {
+    let invalid = |_: C29uModelError| Refusal::InvalidCommand;
+    let done = |r: Result<(), C29uModelError>| r.map(|()| Answer::Done).map_err(invalid);
     Ok(match request {
         Request::Configure {
             new_id,
             baud,
             format,
         } => {
-            let next = ModuleConfig::from_parts(*new_id, baud.code(), format.to_byte())
-                .map_err(invalid)?;
+            let next = ModuleConfig::from_parts(*new_id, baud.code(), *format).map_err(invalid)?;
             return done(model.set_config(next));
         }
         Request::WriteOutputs(value) => return output_write(model.write_outputs(*value)),
@@ -93,11 +98,7 @@ fn carry_out(model: &mut C29u, request: &Request, cfg: ModuleConfig) -> Result<A
             outputs: model.outputs(),
             inputs: model.inputs_wire(),
         },
-        Request::ReadConfig => Answer::Config(ConfigReport {
-            module_type: MODULE_TYPE,
-            baud_code: cfg.baud_code,
-            format: cfg.reported_format(),
-        }),
+        Request::ReadConfig => Answer::Config(cfg.report()),
         Request::Reset => {
             model.reset();
             Answer::Done
@@ -105,17 +106,10 @@ fn carry_out(model: &mut C29u, request: &Request, cfg: ModuleConfig) -> Result<A
         Request::ReadName => {
             Answer::Name(ModuleName::new(model.name()).ok_or(Refusal::InvalidCommand)?)
         }
-        Request::ReadFirmware => {
-            let fw = model.firmware();
-            let date = FirmwareDate {
-                year: fw.year,
-                month: fw.month,
-                day: fw.day,
-            };
-            Answer::Firmware(
-                FirmwareVersion::from_parts(fw.model, date).ok_or(Refusal::InvalidCommand)?,
-            )
-        }
+        Request::ReadFirmware => Answer::Firmware(
+            FirmwareVersion::from_parts(FIRMWARE_MODEL, FIRMWARE_DATE)
+                .ok_or(Refusal::InvalidCommand)?,
+        ),
         Request::ReadResetStatus => Answer::ResetStatus(model.take_reset_flag()),
         Request::SetName(name) => return done(model.set_name(name.as_str())),
         Request::SetLedMode(on) => {
@@ -124,13 +118,7 @@ fn carry_out(model: &mut C29u, request: &Request, cfg: ModuleConfig) -> Result<A
         }
         Request::EnableWatchdog(tenths) => return done(model.set_watchdog(*tenths)),
         Request::DisableWatchdog => return done(model.set_watchdog(0)),
-        Request::ReadWatchdog => {
-            let status = model.watchdog();
-            Answer::Watchdog {
-                enabled: status.enabled && !status.expired,
-                tenths: status.timeout_tenths,
-            }
-        }
+        Request::ReadWatchdog => Answer::Watchdog(model.watchdog_reading()),
         Request::ReadPreset(preset) => Answer::Preset {
             outputs: match preset {
                 Preset::PowerOn => model.power_on_value(),
@@ -140,24 +128,19 @@ fn carry_out(model: &mut C29u, request: &Request, cfg: ModuleConfig) -> Result<A
         },
         Request::SavePreset(Preset::PowerOn) => return done(model.save_outputs_as_power_on()),
         Request::SavePreset(Preset::Safe) => return done(model.save_outputs_as_safe()),
-        Request::ReadSnapshot => {
-            let snap = model.read_snapshot().map_err(invalid)?;
-            Answer::Snapshot {
-                fresh: snap.fresh,
-                outputs: snap.outputs,
-                inputs: snap.inputs_wire,
-            }
+        Request::ReadSynchronized => {
+            Answer::Synchronized(model.read_synchronized().map_err(invalid)?)
         }
         // Broadcasts are carried out by `answer` and never reach here.
-        Request::HostOk | Request::Snapshot => return Err(Refusal::InvalidCommand),
+        Request::HostOk | Request::Synchronize => return Err(Refusal::InvalidCommand),
     })
 }
 
 /// 8-4 / 8-19: `>` when done, `!IDWE` in safe mode, `!ID` for anything else the model refuses.
-fn output_write(result: Result<(), SimError>) -> Result<Answer, Refusal> {
+fn output_write(result: Result<(), C29uModelError>) -> Result<Answer, Refusal> {
     match result {
         Ok(()) => Ok(Answer::OutputWritten),
-        Err(SimError::SafeMode) => Err(Refusal::SafeMode),
+        Err(C29uModelError::SafeMode) => Err(Refusal::SafeMode),
         Err(_) => Err(Refusal::ParameterError),
     }
 }
@@ -182,7 +165,7 @@ impl AsciiFrontEnd {
     }
 
     /// Takes bytes as they arrive and returns the answers to every frame they complete.
-    pub fn receive(&mut self, model: &mut C29u, bytes: &[u8]) -> Vec<u8> {
+    pub fn receive(&mut self, model: &mut C29uModel, bytes: &[u8]) -> Vec<u8> {
         let mut out = Vec::new();
         for &b in bytes {
             let after_cr = std::mem::replace(&mut self.after_cr, b == CR);
@@ -224,14 +207,14 @@ mod tests {
 
     struct Bench {
         clock: VirtualClock,
-        model: C29u,
+        model: C29uModel,
         front: AsciiFrontEnd,
     }
 
     impl Bench {
         fn new() -> Self {
             let clock = VirtualClock::at_epoch();
-            let model = C29u::new(Protocol::Ascii, Arc::new(clock.clone()), Eeprom::factory());
+            let model = C29uModel::new(Protocol::Ascii, Arc::new(clock.clone()), Eeprom::factory());
             Self {
                 clock,
                 model,
@@ -414,7 +397,7 @@ mod tests {
     }
 
     #[test]
-    fn snapshot_is_fresh_once_8_25_8_26() {
+    fn synchronized_data_is_fresh_once_8_25_8_26() {
         let mut b = Bench::new();
         assert_eq!(b.send("$014"), "?01", "no #** yet");
         assert_eq!(b.send("#010001"), ">");
@@ -471,7 +454,7 @@ mod tests {
     #[test]
     fn a_modbus_module_is_silent_in_ascii() {
         let clock = VirtualClock::at_epoch();
-        let mut model = C29u::new(Protocol::Modbus, Arc::new(clock), Eeprom::factory());
+        let mut model = C29uModel::new(Protocol::Modbus, Arc::new(clock), Eeprom::factory());
         assert_eq!(answer(&mut model, b"$016\r"), None);
     }
 
@@ -532,8 +515,8 @@ mod tests {
             Just(Request::ReadPreset(Preset::Safe)),
             Just(Request::SavePreset(Preset::PowerOn)),
             Just(Request::SavePreset(Preset::Safe)),
-            Just(Request::Snapshot),
-            Just(Request::ReadSnapshot),
+            Just(Request::Synchronize),
+            Just(Request::ReadSynchronized),
         ]
     }
 

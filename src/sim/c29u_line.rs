@@ -1,17 +1,17 @@
 //! Simulated TRP-C29U modules on a serial line: each model behind the front end its DIP switch
 //! selects, several sharing one line as on an RS-485 bus.
 
-use super::c29u::{C29u, Protocol};
+use super::c29u::{C29uModel, Protocol};
 use super::c29u_ascii::AsciiFrontEnd;
 use super::c29u_modbus::ModbusFrontEnd;
 use super::ByteDevice;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 /// A shared handle to a simulated module's model, for the operator side (inputs, resets, state).
-pub type SharedModel = Arc<Mutex<C29u>>;
+pub type SharedModel = Arc<Mutex<C29uModel>>;
 
 /// Locks a shared model; a poisoned lock only means a panicking test thread, the state is whole.
-pub fn lock(model: &SharedModel) -> MutexGuard<'_, C29u> {
+pub fn lock(model: &SharedModel) -> MutexGuard<'_, C29uModel> {
     model.lock().unwrap_or_else(|e| e.into_inner())
 }
 
@@ -28,7 +28,7 @@ pub struct SimulatedC29u {
 
 impl SimulatedC29u {
     /// Puts `model` on a line, speaking the protocol its DIP switch selects.
-    pub fn new(model: C29u) -> Self {
+    pub fn new(model: C29uModel) -> Self {
         let front = match model.protocol() {
             Protocol::Ascii => FrontEnd::Ascii(AsciiFrontEnd::new()),
             Protocol::Modbus => FrontEnd::Modbus(ModbusFrontEnd::new()),
@@ -112,7 +112,7 @@ mod tests {
             },
             ..Eeprom::factory()
         };
-        SimulatedC29u::new(C29u::new(
+        SimulatedC29u::new(C29uModel::new(
             protocol,
             Arc::new(VirtualClock::at_epoch()),
             eeprom,

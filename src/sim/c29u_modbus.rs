@@ -9,21 +9,21 @@
 //! - 46 0C answers EN = 1 while a timeout is set, even once it has fired (the ASCII `~IDWR`
 //!   reports a fired watchdog as "D"; NOTES defines only "EN 1 = enabled").
 //! - 46 00 always answers the model code `0C 29` ("C29"); the settable ASCII name is not used.
+//! - 03/04 read counters from start 00 only (10-18/10-19 give "SS=00"); another start is
+//!   refused with 02 (start channel), by `decode_request`.
 //! - 0F 00 with a start and count other than 0 and 8 writes only those channels (bit 0 of DD =
 //!   channel NN), as standard Modbus does; 0F 03 saves all counters whatever the range.
 
-use super::c29u::{C29u, SimError};
+use super::c29u::{C29uModel, C29uModelError, FIRMWARE_DATE};
 use crate::protocol::c29u_modbus::{
     decode_request, encode_exception, encode_response, encode_vendor_error, BitArea, CoilCommand,
     CoilsTarget, ExceptionCode, FrameReader, Request, Response, VendorRequest, VendorResponse,
+    NAME_CODE,
 };
-
-/// The name code 46 00 answers: hex digits `0C29` read as "C29" (10-1).
-const NAME_CODE: u16 = 0x0C29;
 
 /// How the module answers one complete frame: `None` is silence (another slave ID, broadcast,
 /// bad CRC, host OK).
-pub fn answer(model: &mut C29u, frame: &[u8]) -> Option<Vec<u8>> {
+pub fn answer(model: &mut C29uModel, frame: &[u8]) -> Option<Vec<u8>> {
     let my_id = model.config().id;
     match decode_request(frame) {
         Err(refused) => {
@@ -44,7 +44,7 @@ pub fn answer(model: &mut C29u, frame: &[u8]) -> Option<Vec<u8>> {
 
 /// Applies a request addressed to this module and encodes its answer (from `id`, the ID the
 /// request was sent to, even when the request changes it: NOTES 10-2).
-fn execute(model: &mut C29u, id: u8, request: Request) -> Option<Vec<u8>> {
+fn execute(model: &mut C29uModel, id: u8, request: Request) -> Option<Vec<u8>> {
     let function = request.function();
     let response = match request {
         Request::ReadBits(area) => Ok(Response::Bits(match area {
@@ -53,20 +53,14 @@ fn execute(model: &mut C29u, id: u8, request: Request) -> Option<Vec<u8>> {
             BitArea::LatchedLow => model.latched_low(),
             BitArea::LatchedHigh => model.latched_high(),
         })),
-        Request::ReadCounters {
-            function,
-            start,
-            count,
-        } => {
+        Request::ReadCounters { function, count } => {
             let all = model.counters();
-            let from = usize::from(start);
-            let to = from.saturating_add(usize::from(count));
-            match all.get(from..to) {
+            match all.get(..usize::from(count)) {
                 Some(values) => Ok(Response::Counters {
                     function,
                     values: values.to_vec(),
                 }),
-                None => Err(SimError::BadChannel(start)),
+                None => Err(C29uModelError::BadChannel(count)),
             }
         }
         Request::WriteCoil(cmd) => write_coil(model, cmd).map(|()| Response::CoilWritten(cmd)),
@@ -95,7 +89,7 @@ fn execute(model: &mut C29u, id: u8, request: Request) -> Option<Vec<u8>> {
 }
 
 /// Function 05 (10-16).
-fn write_coil(model: &mut C29u, cmd: CoilCommand) -> Result<(), SimError> {
+fn write_coil(model: &mut C29uModel, cmd: CoilCommand) -> Result<(), C29uModelError> {
     match cmd {
         CoilCommand::Output { channel, on } => model.write_output(channel, on),
         CoilCommand::ClearLatches => {
@@ -108,18 +102,18 @@ fn write_coil(model: &mut C29u, cmd: CoilCommand) -> Result<(), SimError> {
 
 /// Function 0F (10-20).
 fn write_coils(
-    model: &mut C29u,
+    model: &mut C29uModel,
     target: CoilsTarget,
     start: u8,
     count: u8,
     data: u8,
-) -> Result<(), SimError> {
+) -> Result<(), C29uModelError> {
     // Decoding has checked the range; a bad one is still refused rather than trusted.
     let channel = |i: u8| {
         start
             .checked_add(i)
             .filter(|ch| *ch < 8)
-            .ok_or(SimError::BadChannel(start))
+            .ok_or(C29uModelError::BadChannel(start))
     };
     match target {
         CoilsTarget::Outputs => {
@@ -145,7 +139,10 @@ fn write_coils(
 }
 
 /// Vendor function 46 (10-1..10-15); `Ok(None)` means no answer (host OK).
-fn vendor(model: &mut C29u, request: VendorRequest) -> Result<Option<VendorResponse>, SimError> {
+fn vendor(
+    model: &mut C29uModel,
+    request: VendorRequest,
+) -> Result<Option<VendorResponse>, C29uModelError> {
     use VendorResponse as R;
     Ok(Some(match request {
         VendorRequest::ReadName => R::Name(NAME_CODE),
@@ -164,14 +161,11 @@ fn vendor(model: &mut C29u, request: VendorRequest) -> Result<Option<VendorRespo
             model.set_config(cfg)?;
             R::BaudChanged
         }
-        VendorRequest::ReadFirmware => {
-            let fw = model.firmware();
-            R::Firmware {
-                year: fw.year,
-                month: fw.month,
-                day: fw.day,
-            }
-        }
+        VendorRequest::ReadFirmware => R::Firmware {
+            year: FIRMWARE_DATE.year,
+            month: FIRMWARE_DATE.month,
+            day: FIRMWARE_DATE.day,
+        },
         VendorRequest::ReadResetFlag => R::ResetFlag(model.take_reset_flag()),
         VendorRequest::Reset => {
             model.reset();
@@ -210,12 +204,12 @@ fn vendor(model: &mut C29u, request: VendorRequest) -> Result<Option<VendorRespo
 }
 
 /// The exception code a refusal of the model is answered with.
-fn exception_code(e: &SimError) -> ExceptionCode {
+fn exception_code(e: &C29uModelError) -> ExceptionCode {
     match e {
-        SimError::SafeMode => ExceptionCode::SafeMode,
-        SimError::BadChannel(_) => ExceptionCode::StartChannel,
-        SimError::BadValue(_) => ExceptionCode::DataFormat,
-        SimError::NoSnapshot | SimError::Io(_) => ExceptionCode::Syntax,
+        C29uModelError::SafeMode => ExceptionCode::SafeMode,
+        C29uModelError::BadChannel(_) => ExceptionCode::StartChannel,
+        C29uModelError::BadValue(_) => ExceptionCode::DataFormat,
+        C29uModelError::NotSynchronized | C29uModelError::Io(_) => ExceptionCode::Syntax,
     }
 }
 
@@ -240,7 +234,7 @@ impl ModbusFrontEnd {
     }
 
     /// Takes bytes as they arrive and returns the answers to every request they complete.
-    pub fn receive(&mut self, model: &mut C29u, bytes: &[u8]) -> Vec<u8> {
+    pub fn receive(&mut self, model: &mut C29uModel, bytes: &[u8]) -> Vec<u8> {
         let mut out = Vec::new();
         for frame in self.reader.push(bytes) {
             if let Some(a) = answer(model, &frame) {
@@ -253,7 +247,7 @@ impl ModbusFrontEnd {
     /// The line has been silent for 3.5 characters: an incomplete request is dropped.
     /// The line fell silent: an unfinished request is dropped, and one that only the silence
     /// could end (a vendor request shorter than section 10 writes it) is answered.
-    pub fn end_of_silence(&mut self, model: &mut C29u) -> Vec<u8> {
+    pub fn end_of_silence(&mut self, model: &mut C29uModel) -> Vec<u8> {
         self.reader
             .end_of_silence()
             .and_then(|frame| answer(model, &frame))
@@ -287,7 +281,7 @@ mod tests {
 
     /// A factory-fresh Modbus module in virtual time, behind a front end.
     struct Rig {
-        model: C29u,
+        model: C29uModel,
         front: ModbusFrontEnd,
         clock: VirtualClock,
     }
@@ -295,7 +289,8 @@ mod tests {
     impl Rig {
         fn new() -> Self {
             let clock = VirtualClock::at_epoch();
-            let model = C29u::new(Protocol::Modbus, Arc::new(clock.clone()), Eeprom::factory());
+            let model =
+                C29uModel::new(Protocol::Modbus, Arc::new(clock.clone()), Eeprom::factory());
             Self {
                 model,
                 front: ModbusFrontEnd::new(),
@@ -506,7 +501,12 @@ mod tests {
             r.send("01 04 00 00 00 04"),
             "01 04 08 00 28 00 5A 00 53 00 55"
         );
-        assert_eq!(r.send("01 03 00 02 00 02"), "01 03 04 00 53 00 55");
+        assert_eq!(
+            r.send("01 03 00 00 00 04"),
+            "01 03 08 00 28 00 5A 00 53 00 55"
+        );
+        // 10-18: the start channel is always 00; another start is a start channel error.
+        assert_eq!(r.send("01 03 00 02 00 02"), "01 83 02");
         // Edges from the field count too (rising by default).
         r.model.set_inputs(0x80);
         r.model.set_inputs(0x00);
@@ -516,13 +516,12 @@ mod tests {
                 1,
                 Request::ReadCounters {
                     function: CounterFunction::Holding,
-                    start: 7,
-                    count: 1
+                    count: 8
                 }
             ),
             Ok(Response::Counters {
                 function: CounterFunction::Holding,
-                values: vec![2]
+                values: vec![0x28, 0x5A, 0x53, 0x55, 0, 0, 0, 2]
             })
         );
         assert_eq!(r.send("01 04 00 00 00 09"), "01 84 03");
@@ -579,7 +578,8 @@ mod tests {
         let path = dir.0.join("c29u.json");
         let clock = VirtualClock::at_epoch();
         let mut model =
-            C29u::with_state_file(Protocol::Modbus, Arc::new(clock.clone()), path.clone()).unwrap();
+            C29uModel::with_state_file(Protocol::Modbus, Arc::new(clock.clone()), path.clone())
+                .unwrap();
         let mut front = ModbusFrontEnd::new();
         model.pulse(2, 187).unwrap();
         let save = Request::save_counters();
@@ -588,24 +588,25 @@ mod tests {
         assert_eq!(model.counter(2).unwrap(), 197);
         // Unsaved counts are lost on power loss; the saved ones come back.
         model.power_cycle();
-        let read = Request::read_counters(2, 1);
+        let read = Request::read_counters(3);
         let out = front.receive(&mut model, &read.encode(1));
         assert_eq!(
             parse_response(&read, 1, &out),
             Ok(Response::Counters {
                 function: CounterFunction::Input,
-                values: vec![187]
+                values: vec![0, 0, 187]
             })
         );
         // A new simulator process on the same state file.
         drop(model);
-        let mut model = C29u::with_state_file(Protocol::Modbus, Arc::new(clock), path).unwrap();
+        let mut model =
+            C29uModel::with_state_file(Protocol::Modbus, Arc::new(clock), path).unwrap();
         let out = ModbusFrontEnd::new().receive(&mut model, &read.encode(1));
         assert_eq!(
             parse_response(&read, 1, &out),
             Ok(Response::Counters {
                 function: CounterFunction::Input,
-                values: vec![187]
+                values: vec![0, 0, 187]
             })
         );
     }

@@ -49,7 +49,9 @@ pub struct PtyServer {
 }
 
 impl PtyServer {
-    /// Creates the pty and, when `link` is given, a symlink to it (removed on drop).
+    /// Creates the pty and, when `link` is given, a symlink to it (removed on drop). Anything
+    /// already at `link` is refused, a symlink as much as a file: it may be another
+    /// simulator's, still serving.
     pub fn open(link: Option<&Path>) -> Result<Self, PtyError> {
         let (master, slave) = TTYPort::pair().map_err(|e| PtyError::Open(e.description))?;
         let path = slave
@@ -57,10 +59,7 @@ impl PtyServer {
             .ok_or_else(|| PtyError::Open("the pty has no name".into()))?;
         let link = match link {
             Some(at) => {
-                if at.is_symlink() {
-                    // A leftover from a killed run: ours to replace, unlike a real file.
-                    let _ = std::fs::remove_file(at);
-                }
+                // symlink(2) fails with EEXIST on any existing path, dangling links included.
                 std::os::unix::fs::symlink(&path, at).map_err(|source| PtyError::Link {
                     path: at.to_path_buf(),
                     source,
@@ -159,8 +158,11 @@ impl PtyServer {
 
 impl Drop for PtyServer {
     fn drop(&mut self) {
+        // Only the link this server made: if something else has been put there since, it stays.
         if let Some(link) = &self.link {
-            let _ = std::fs::remove_file(link);
+            if std::fs::read_link(link).is_ok_and(|to| to == Path::new(&self.path)) {
+                let _ = std::fs::remove_file(link);
+            }
         }
     }
 }
@@ -297,5 +299,51 @@ mod tests {
         assert_eq!(differing, 1);
         stop.store(true, Ordering::Relaxed);
         handle.join().unwrap();
+    }
+
+    #[test]
+    fn an_existing_path_is_never_replaced_and_only_its_own_link_is_removed() {
+        let dir = std::env::temp_dir().join(format!("rigscript-pty-link-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("file");
+        std::fs::write(&file, "keep").unwrap();
+        let to_file = dir.join("to-file");
+        std::os::unix::fs::symlink(&file, &to_file).unwrap();
+        let other = PtyServer::open(Some(&dir.join("other"))).unwrap();
+        let dangling = dir.join("dangling");
+        std::os::unix::fs::symlink("/dev/pts/rigscript-gone", &dangling).unwrap();
+        for (at, was) in [
+            (&file, None),
+            (&to_file, Some(file.clone())),
+            (&dir.join("other"), Some(PathBuf::from(other.path()))),
+            (&dangling, Some(PathBuf::from("/dev/pts/rigscript-gone"))),
+        ] {
+            let err = PtyServer::open(Some(at)).err().expect("refused");
+            assert!(matches!(err, PtyError::Link { .. }), "{err}");
+            let text = err.to_string();
+            assert!(
+                text.contains("File exists") && text.contains("pick another path"),
+                "{text}"
+            );
+            assert_eq!(
+                std::fs::read_link(at).ok(),
+                was,
+                "{} untouched",
+                at.display()
+            );
+        }
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep");
+
+        // A link replaced behind the server's back is not the server's to remove.
+        let mine = dir.join("mine");
+        let server = PtyServer::open(Some(&mine)).unwrap();
+        std::fs::remove_file(&mine).unwrap();
+        std::os::unix::fs::symlink(&file, &mine).unwrap();
+        drop(server);
+        assert_eq!(std::fs::read_link(&mine).unwrap(), file);
+        drop(other);
+        assert!(!dir.join("other").is_symlink(), "its own link is removed");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -7,7 +7,7 @@ use crate::protocol::trc1000::{
 
 /// A name that is not a switch or rotary of the board.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum SimError {
+pub enum Trc1000SimError {
     /// Not one of S1..S45.
     #[error("no switch called {0:?} on the TRC1000 (S1..S45)")]
     UnknownSwitch(String),
@@ -32,14 +32,14 @@ impl Trc1000Sim {
     }
 
     /// Presses the switch called `name` (held until released).
-    pub fn press(&mut self, name: &str) -> Result<(), SimError> {
+    pub fn press(&mut self, name: &str) -> Result<(), Trc1000SimError> {
         let s = switch(name)?;
         self.switches.set(s, true);
         Ok(())
     }
 
     /// Releases the switch called `name`.
-    pub fn release(&mut self, name: &str) -> Result<(), SimError> {
+    pub fn release(&mut self, name: &str) -> Result<(), Trc1000SimError> {
         let s = switch(name)?;
         self.switches.set(s, false);
         Ok(())
@@ -52,8 +52,9 @@ impl Trc1000Sim {
 
     /// Turns the rotary called `name` by `half_turns` (negative = the other way); its 8-bit
     /// counter wraps at 256 like the board's.
-    pub fn turn(&mut self, name: &str, half_turns: i32) -> Result<(), SimError> {
-        let r = Rotary::from_name(name).ok_or_else(|| SimError::UnknownRotary(name.into()))?;
+    pub fn turn(&mut self, name: &str, half_turns: i32) -> Result<(), Trc1000SimError> {
+        let r =
+            Rotary::from_name(name).ok_or_else(|| Trc1000SimError::UnknownRotary(name.into()))?;
         self.turn_rotary(r, half_turns);
         Ok(())
     }
@@ -87,14 +88,15 @@ impl Trc1000Sim {
     }
 
     /// The counter of the rotary called `name`.
-    pub fn rotary(&self, name: &str) -> Result<u8, SimError> {
-        let r = Rotary::from_name(name).ok_or_else(|| SimError::UnknownRotary(name.into()))?;
+    pub fn rotary(&self, name: &str) -> Result<u8, Trc1000SimError> {
+        let r =
+            Rotary::from_name(name).ok_or_else(|| Trc1000SimError::UnknownRotary(name.into()))?;
         Ok(self.rotaries.get(r))
     }
 }
 
-fn switch(name: &str) -> Result<Switch, SimError> {
-    Switch::from_name(name).ok_or_else(|| SimError::UnknownSwitch(name.into()))
+fn switch(name: &str) -> Result<Switch, Trc1000SimError> {
+    Switch::from_name(name).ok_or_else(|| Trc1000SimError::UnknownSwitch(name.into()))
 }
 
 impl PacketDevice for Trc1000Sim {
@@ -143,10 +145,13 @@ mod tests {
     #[test]
     fn unknown_names_are_errors_and_change_nothing() {
         let mut sim = Trc1000Sim::new();
-        assert_eq!(sim.press("S46"), Err(SimError::UnknownSwitch("S46".into())));
+        assert_eq!(
+            sim.press("S46"),
+            Err(Trc1000SimError::UnknownSwitch("S46".into()))
+        );
         assert_eq!(
             sim.turn("S41", 2),
-            Err(SimError::UnknownRotary("S41".into()))
+            Err(Trc1000SimError::UnknownRotary("S41".into()))
         );
         assert_eq!(sim.switches(), SwitchSet::new());
         assert_eq!(sim.rotaries(), RotaryValues::default());

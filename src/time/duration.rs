@@ -1,15 +1,18 @@
-//! Durations as people write them (`"20ms"`, `"1.5s"`, `"1h30m"`, or bare milliseconds) and back.
+//! Durations as people write them (`"20ms"`, `"1.5s"`, `"1h30m"`) and back.
 //!
-//! One grammar for `rig.toml`, the command line and scripts: one or more `<number><unit>` parts
-//! (units `ns`, `us`/`µs`, `ms`, `s`, `m`, `h`; the number decimal, with an optional fraction;
-//! no sign, no exponent), or a bare number, which counts milliseconds. Fractions are exact
-//! decimals, not floats (`"0.1s"` is exactly 100 ms); digits finer than a nanosecond are dropped.
+//! One grammar for `rig.toml`, the command line and duration strings in scripts: one or more
+//! `<number><unit>` parts (units `ns`, `us`/`µs`, `ms`, `s`, `m`, `h`; the number decimal, with
+//! an optional fraction; no sign, no exponent). A bare number is an error that shows the forms:
+//! `--for 10` reads as ten seconds to some and ten milliseconds to others. Scripts may still pass
+//! a *number* of milliseconds (`after(500, ..)`: `duration_from_millis_*`), which is the script
+//! API. Fractions are exact decimals, not floats (`"0.1s"` is exactly 100 ms); digits finer than
+//! a nanosecond are dropped.
 
 use std::time::Duration;
 
 /// The forms a duration may take, for error messages.
 pub const ACCEPTED_FORMS: &str =
-    "a number with a unit (\"250us\", \"20ms\", \"1.5s\", \"5m\", \"2h\", \"1h30m\") or a number of milliseconds";
+    "a number with a unit (\"250us\", \"20ms\", \"1.5s\", \"5m\", \"2h\", \"1h30m\")";
 
 const NANOS_PER_SEC: u128 = 1_000_000_000;
 
@@ -20,6 +23,12 @@ pub enum DurationError {
     #[error("{text:?} is not a duration; use {ACCEPTED_FORMS}")]
     Syntax {
         /// The offending text.
+        text: String,
+    },
+    /// A number without a unit: ambiguous, so refused.
+    #[error("{text:?} has no unit: {}", no_unit_advice(text))]
+    NoUnit {
+        /// The number as written.
         text: String,
     },
     /// The text is well formed but longer than a `Duration` can hold.
@@ -34,6 +43,11 @@ pub enum DurationError {
         /// The offending number, as text.
         value: String,
     },
+}
+
+/// What to write instead of the bare `number`: `write "10ms", "10s" or "10m" (a duration is ..)`.
+pub fn no_unit_advice(number: &str) -> String {
+    format!("write \"{number}ms\", \"{number}s\" or \"{number}m\" (a duration is {ACCEPTED_FORMS})")
 }
 
 /// Reads a duration written as text (see the module doc for the grammar).
@@ -56,8 +70,11 @@ pub fn parse_duration(text: &str) -> Result<Duration, DurationError> {
         let after_space = after_number.trim_start();
         let (unit_nanos, after_unit) = match split_unit(after_space) {
             Some(found) => found,
-            // A bare number is milliseconds, but only as the whole text.
-            None if parts == 0 && after_space.is_empty() => (1_000_000, ""),
+            None if parts == 0 && after_space.is_empty() => {
+                return Err(DurationError::NoUnit {
+                    text: s.to_string(),
+                })
+            }
             None => return Err(syntax()),
         };
         let nanos = number.nanos(unit_nanos).ok_or_else(overflow)?;
@@ -88,11 +105,33 @@ pub fn duration_from_millis_f64(ms: f64) -> Result<Duration, DurationError> {
     Duration::try_from_secs_f64(ms / 1000.0).map_err(|_| bad())
 }
 
-/// Writes a duration for people, in a form `parse_duration` reads back exactly.
+/// Writes a duration for people: three significant digits below a minute (`"3.04s"`,
+/// `"1.23ms"`, `"250us"`), whole seconds from a minute on (`"1h30m"`, `"2m5s"`). What it writes
+/// reads back with `parse_duration` as the rounded value; `format_duration_exact` where a program
+/// reads the text back and needs every nanosecond.
+pub fn format_duration(d: Duration) -> String {
+    format_duration_exact(round_for_people(d))
+}
+
+/// `d` rounded (half up) to three significant digits below a minute, to the second from then on.
+fn round_for_people(d: Duration) -> Duration {
+    let nanos = d.as_nanos();
+    let step: u128 = if nanos >= 60 * NANOS_PER_SEC {
+        NANOS_PER_SEC
+    } else {
+        // Three significant digits: a step of 10^(digits - 3) nanoseconds.
+        let digits = nanos.checked_ilog10().map_or(0, |l| l + 1);
+        10u128.pow(digits.saturating_sub(3))
+    };
+    let rounded = (nanos + step / 2) / step * step;
+    nanos_to_duration(rounded).unwrap_or(d)
+}
+
+/// Writes a duration in a form `parse_duration` reads back exactly.
 ///
 /// Below a second the largest fitting unit with a fraction (`"250us"`, `"1.5ms"`); from a
 /// second on, hours, minutes and seconds with zero parts left out (`"1h30m"`, `"1m0.5s"`).
-pub fn format_duration(d: Duration) -> String {
+pub fn format_duration_exact(d: Duration) -> String {
     let nanos = d.as_nanos();
     if nanos == 0 {
         return "0s".to_string();
@@ -220,10 +259,29 @@ mod tests {
         assert_eq!(parse_duration("250us"), Ok(Duration::from_micros(250)));
         assert_eq!(parse_duration("250µs"), Ok(Duration::from_micros(250)));
         assert_eq!(parse_duration("750ns"), Ok(Duration::from_nanos(750)));
-        assert_eq!(parse_duration("20"), Ok(ms(20)));
-        assert_eq!(parse_duration("2.5"), Ok(Duration::from_micros(2500)));
-        assert_eq!(parse_duration("0"), Ok(Duration::ZERO));
         assert_eq!(parse_duration("0s"), Ok(Duration::ZERO));
+    }
+
+    #[test]
+    fn a_bare_number_is_refused_with_the_forms_that_work() {
+        for bare in ["10", "2.5", "0", " 20 "] {
+            let err = parse_duration(bare).unwrap_err();
+            assert_eq!(
+                err,
+                DurationError::NoUnit {
+                    text: bare.trim().to_string()
+                }
+            );
+            let shown = err.to_string();
+            let n = bare.trim();
+            assert!(shown.contains(&format!("\"{n}ms\", \"{n}s\"")), "{shown}");
+            assert!(shown.contains("\"1h30m\""), "{shown}");
+        }
+        assert_eq!(
+            parse_duration("10").unwrap_err().to_string(),
+            "\"10\" has no unit: write \"10ms\", \"10s\" or \"10m\" (a duration is a number \
+             with a unit (\"250us\", \"20ms\", \"1.5s\", \"5m\", \"2h\", \"1h30m\"))"
+        );
     }
 
     #[test]
@@ -305,19 +363,45 @@ mod tests {
     }
 
     #[test]
-    fn formats_for_people() {
+    fn formats_exactly_for_programs() {
+        assert_eq!(format_duration_exact(Duration::ZERO), "0s");
+        assert_eq!(format_duration_exact(Duration::from_nanos(750)), "750ns");
+        assert_eq!(format_duration_exact(Duration::from_micros(250)), "250us");
+        assert_eq!(format_duration_exact(Duration::from_nanos(1_500)), "1.5us");
+        assert_eq!(format_duration_exact(ms(20)), "20ms");
+        assert_eq!(format_duration_exact(Duration::from_micros(1500)), "1.5ms");
+        assert_eq!(format_duration_exact(ms(1500)), "1.5s");
+        assert_eq!(format_duration_exact(Duration::from_secs(300)), "5m");
+        assert_eq!(format_duration_exact(Duration::from_secs(5400)), "1h30m");
+        assert_eq!(format_duration_exact(ms(60_500)), "1m0.5s");
+        assert_eq!(format_duration_exact(Duration::from_secs(7201)), "2h1s");
+        assert_eq!(
+            format_duration_exact(Duration::new(3, 39_957_204)),
+            "3.039957204s"
+        );
+    }
+
+    #[test]
+    fn formats_for_people_rounded() {
+        // What a device's return after a loss printed before: `back after 3.039957204s`.
+        assert_eq!(format_duration(Duration::new(3, 39_957_204)), "3.04s");
+        assert_eq!(format_duration(Duration::new(1, 1)), "1s");
         assert_eq!(format_duration(Duration::ZERO), "0s");
         assert_eq!(format_duration(Duration::from_nanos(750)), "750ns");
+        assert_eq!(format_duration(Duration::from_nanos(1_234_567)), "1.23ms");
+        assert_eq!(format_duration(Duration::from_nanos(1_235_000)), "1.24ms");
         assert_eq!(format_duration(Duration::from_micros(250)), "250us");
-        assert_eq!(format_duration(Duration::from_nanos(1_500)), "1.5us");
         assert_eq!(format_duration(ms(20)), "20ms");
-        assert_eq!(format_duration(Duration::from_micros(1500)), "1.5ms");
-        assert_eq!(format_duration(ms(1500)), "1.5s");
-        assert_eq!(format_duration(Duration::from_secs(300)), "5m");
+        assert_eq!(format_duration(Duration::from_micros(999_600)), "1s");
+        assert_eq!(format_duration(ms(25_550)), "25.6s");
+        assert_eq!(format_duration(ms(59_960)), "1m");
+        assert_eq!(format_duration(ms(60_500)), "1m1s");
+        assert_eq!(format_duration(ms(125_400)), "2m5s");
         assert_eq!(format_duration(Duration::from_secs(5400)), "1h30m");
-        assert_eq!(format_duration(ms(60_500)), "1m0.5s");
-        assert_eq!(format_duration(Duration::from_secs(7201)), "2h1s");
-        assert_eq!(format_duration(Duration::new(1, 1)), "1.000000001s");
+        assert_eq!(
+            format_duration(Duration::MAX),
+            format_duration_exact(Duration::MAX)
+        );
     }
 
     proptest! {
@@ -334,13 +418,24 @@ mod tests {
         #[test]
         fn format_then_parse_is_the_identity(secs in any::<u64>(), nanos in 0u32..1_000_000_000) {
             let d = Duration::new(secs, nanos);
-            prop_assert_eq!(parse_duration(&format_duration(d)), Ok(d));
+            prop_assert_eq!(parse_duration(&format_duration_exact(d)), Ok(d));
         }
 
         #[test]
         fn small_durations_round_trip(nanos in 0u64..10_000_000_000) {
             let d = Duration::from_nanos(nanos);
-            prop_assert_eq!(parse_duration(&format_duration(d)), Ok(d));
+            prop_assert_eq!(parse_duration(&format_duration_exact(d)), Ok(d));
+        }
+
+        #[test]
+        fn people_see_at_most_three_digits_within_half_a_step(nanos in 0u64..60_000_000_000) {
+            let d = Duration::from_nanos(nanos);
+            let shown = format_duration(d);
+            let back = parse_duration(&shown).unwrap();
+            let digits = shown.bytes().filter(u8::is_ascii_digit).count();
+            prop_assert!(digits <= 3, "{}", shown);
+            let diff = back.abs_diff(d).as_nanos();
+            prop_assert!(diff * 1000 <= d.as_nanos() * 5 + 500, "{:?} shown {}", d, shown);
         }
 
         #[test]

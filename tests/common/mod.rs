@@ -4,8 +4,10 @@
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixDatagram;
+use std::path::PathBuf;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Output, Stdio};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Path of the rigscript binary under test.
 pub fn rigscript() -> &'static str {
@@ -123,4 +125,76 @@ pub fn run(program: &str, args: &[&str]) -> Output {
         .args(args)
         .output()
         .unwrap_or_else(|e| panic!("cannot run {program}: {e}"))
+}
+
+/// An empty directory for one test, named after it and this process.
+pub fn fresh_dir(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("rigscript-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A `fresh_dir` that is removed again when dropped.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    /// A new empty directory named after `tag`.
+    pub fn new(tag: &str) -> Self {
+        Self(fresh_dir(tag))
+    }
+
+    /// The path of `name` in it.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+
+    /// Writes `text` to `name` in it and returns the file's path as text.
+    pub fn file(&self, name: &str, text: &str) -> String {
+        let p = self.path(name);
+        std::fs::write(&p, text).unwrap();
+        p.display().to_string()
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// One systemd notification as a test's socket received it, and when.
+pub struct Notification {
+    /// The datagram's text, such as `READY=1\nSTATUS=...`.
+    pub text: String,
+    /// When it arrived.
+    pub at: Instant,
+}
+
+/// Receives notifications on `socket` (bound as systemd binds its notify socket) until one
+/// for which `last` holds, or 30 s pass.
+pub fn receive_notifications(
+    socket: &UnixDatagram,
+    last: impl Fn(&str) -> bool,
+) -> Vec<Notification> {
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut got = Vec::new();
+    let mut buf = [0u8; 4096];
+    while Instant::now() < deadline {
+        if let Ok(n) = socket.recv(&mut buf) {
+            let text = String::from_utf8_lossy(&buf[..n]).into_owned();
+            let done = last(&text);
+            got.push(Notification {
+                text,
+                at: Instant::now(),
+            });
+            if done {
+                break;
+            }
+        }
+    }
+    got
 }

@@ -217,14 +217,20 @@ impl Case {
 
 fn module() -> impl Strategy<Value = Module> {
     let timeout = prop_oneof![
-        8 => select(vec![100u64, 50, 200, 500]),
+        16 => select(vec![100u64, 50, 200, 500]),
         1 => Just(HUGE_TIMEOUT_MS),
     ];
-    let watchdog = prop_oneof![Just(None), select(vec![10u8, 3, 20, 50]).prop_map(Some),];
+    // Mostly watchdogs long enough for the exchanges a rig may make (a runner refuses shorter
+    // ones), some shorter to see them refused or fed on time.
+    let watchdog = prop_oneof![
+        3 => Just(None),
+        4 => select(vec![50u8, 100, 255]).prop_map(Some),
+        1 => select(vec![10u8, 3, 20]).prop_map(Some),
+    ];
     (
         prop_oneof![Just(Proto::Modbus), Just(Proto::Ascii)],
         0..2u8,
-        1..3u8,
+        1..4u8,
         timeout,
         0..3u8,
         watchdog,
@@ -260,7 +266,10 @@ fn rig() -> impl Strategy<Value = Rig> {
         select(vec![1000u64, 500, 3000]),
         2_000..30_000u64,
         select(vec![200_000u64, 20_000]),
-        prop::collection::vec(module(), 1..=2),
+        prop_oneof![
+            2 => prop::collection::vec(module(), 1..=1),
+            1 => prop::collection::vec(module(), 2..=2),
+        ],
     )
         .prop_map(
             |(period_ms, policy, grace_ms, run_for_ms, budget, mut modules)| {
@@ -325,7 +334,7 @@ fn statement() -> impl Strategy<Value = Stmt> {
 
 fn fault() -> impl Strategy<Value = Fault> {
     let line = 0..2u8;
-    let long = select(vec![1500u64, 400, 3000, 8000]);
+    let long = select(vec![1500u64, 400, 3000, 8000, 12_000]);
     prop_oneof![
         4 => (0..2u8, select(INPUT_POOL.to_vec())).prop_map(|(dev, value)| Fault::Input { dev, value }),
         1 => Just(Fault::Sigterm),

@@ -11,7 +11,7 @@ use rigscript::device::c29u::{share, C29u, C29uOptions, SharedLink};
 use rigscript::runtime::devices::links::{Counted, Presence, TransactionCounter};
 use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevice, SimRig};
 use rigscript::script::rig::{start_with, RigError, RigSetup};
-use rigscript::sim::c29u::{C29u as Model, Eeprom, ModuleConfig, Protocol, WatchdogStatus};
+use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig, Protocol, WatchdogStatus};
 use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use rigscript::sim::faults::{EventClock, FaultPlan, FaultyLink, LineState, LinkFault};
 use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
@@ -19,9 +19,12 @@ use rigscript::time::zone::Zone;
 use std::collections::BTreeMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+/// The signal number SIGTERM and kill -9 leave in the stop flag (SIGTERM).
+const SIGTERM: usize = 15;
 
 /// Entries kept in each module's output history (a case has far fewer).
 pub const HISTORY_CAPACITY: usize = 200_000;
@@ -232,7 +235,7 @@ pub fn run(case: &Case) -> Run {
         buses.entry(m.line).or_default().attach(Box::new(sim));
     }
 
-    let stop_flag = Arc::new(AtomicBool::new(false));
+    let stop_flag = Arc::new(AtomicUsize::new(0));
     let sigterm_at = Arc::new(Mutex::new(None));
     let killed_at = Arc::new(Mutex::new(None));
     let hang = Arc::new(AtomicBool::new(false));
@@ -408,7 +411,7 @@ fn schedule(
     clock: &EventClock,
     plans: &BTreeMap<u8, FaultPlan>,
     modules: &mut [ModuleView],
-    stop_flag: &Arc<AtomicBool>,
+    stop_flag: &Arc<AtomicUsize>,
     sigterm_at: &Arc<Mutex<Option<Duration>>>,
     killed_at: &Arc<Mutex<Option<Duration>>>,
 ) {
@@ -432,7 +435,7 @@ fn schedule(
                 clock.at(t, move |c| {
                     let mut w = when.lock().unwrap_or_else(|e| e.into_inner());
                     w.get_or_insert(c.now());
-                    flag.store(true, Ordering::SeqCst);
+                    flag.store(SIGTERM, Ordering::SeqCst);
                 });
             }
             Fault::Kill => {
@@ -445,7 +448,7 @@ fn schedule(
                         p.cut_off();
                     }
                     // What is left of the runner is stopped; nothing it does arrives.
-                    flag.store(true, Ordering::SeqCst);
+                    flag.store(SIGTERM, Ordering::SeqCst);
                 });
             }
             Fault::Drop { line, answers } => plan(line).add(t, LinkFault::Drop { answers }),

@@ -14,18 +14,22 @@
 //! - the run ends in time, within bounded memory and work (`hang`, `memory`,
 //!   `unbounded-work`), its exit status
 //!   matches why it ended (`exit-status`), and what the script reads of the inputs is what
-//!   the field put on them (`wrong-input`); status 0 after a failure is
-//!   `exit-zero-after-failure`;
+//!   the field put on them (`wrong-input`); a clean status after a failure is
+//!   `exit-hides-failure` (the statuses are `runtime::exit`'s);
 //! - a script error says where in the script it happened (`error-without-location`);
 //! - nothing is written to a module's EEPROM that it holds already (`eeprom-rewrite`).
 
 use super::case::{Case, Fault, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
 use super::render;
+use rigscript::runtime::exit;
 use rigscript::sim::c29u::{OutputCause, OutputChange};
 use rigscript::sim::c29u_line::lock;
 use rigscript::sim::faults::LineState;
 use std::collections::BTreeSet;
+
+/// The signal the search sends (SIGTERM).
+pub const SIGTERM: i32 = 15;
 use std::fmt;
 use std::time::Duration;
 
@@ -584,15 +588,21 @@ impl Facts<'_> {
             }
             End::Ran { status, log, .. } => {
                 let status = *status;
-                if !real_panics.is_empty() && status == 0 {
-                    self.push(
-                        "exit-zero-after-failure",
-                        format!("exit status 0 after a panic: {}", real_panics[0]),
-                    );
+                if let Some(p) = real_panics.first() {
+                    if status != exit::INTERNAL {
+                        self.push(
+                            "exit-status",
+                            format!(
+                                "exit status {status} after a panic ({p}); a bug is {}",
+                                exit::INTERNAL
+                            ),
+                        );
+                    }
+                    return;
                 }
                 let stopping = log.iter().rposition(|l| l.contains(" stopping: "));
                 let Some(si) = stopping else {
-                    if status != 1 {
+                    if status != exit::ERROR {
                         self.push(
                             "exit-status",
                             format!("the run ended on an error but its exit status is {status}"),
@@ -618,15 +628,21 @@ impl Facts<'_> {
                     }
                     return;
                 }
-                if line.contains("signal received") && self.run.sigterm_at.is_none() {
+                let signal = line.contains(" received");
+                if signal && self.run.sigterm_at.is_none() {
                     self.push(
                         "exit-status",
                         "the run says it got a signal, but none was sent".into(),
                     );
                 }
-                let mut failures: Vec<String> = log[si..]
+                let script_error =
+                    |l: &&String| l.contains(" error: in ") || l.contains(" error: case.rhai:");
+                // Script errors the run went on after (skip, restart), and anything that failed
+                // once it was stopping (on_stop, the safe state).
+                let mut failures: Vec<String> = log[..si]
                     .iter()
-                    .filter(|l| l.contains(" error: "))
+                    .filter(script_error)
+                    .chain(log[si..].iter().filter(|l| l.contains(" error: ")))
                     .cloned()
                     .collect();
                 let grace = ms(self.case.rig.grace_ms);
@@ -640,16 +656,29 @@ impl Facts<'_> {
                         }
                     }
                 }
-                if failures.is_empty() && status != 0 {
+                let clean = if signal {
+                    exit::signal(SIGTERM)
+                } else {
+                    exit::OK
+                };
+                // A device the runner saw lost may count as trouble even if it answered the end.
+                let saw_loss = log.iter().any(|l| l.contains(": lost: "));
+                let accepted = status == clean || (saw_loss && status == exit::TROUBLE);
+                if failures.is_empty() && !accepted {
                     self.push(
                         "exit-status",
-                        format!("exit status {status} after a clean end ({line})"),
+                        format!(
+                            "exit status {status} after a clean end ({line}); expected {clean}"
+                        ),
                     );
                 }
-                if !failures.is_empty() && status == 0 {
+                if !failures.is_empty() && (status == exit::OK || status == clean) {
                     self.push(
-                        "exit-zero-after-failure",
-                        format!("exit status 0 after a failure: {}", failures.join("; ")),
+                        "exit-hides-failure",
+                        format!(
+                            "exit status {status} after a failure: {}",
+                            failures.join("; ")
+                        ),
                     );
                 }
             }

@@ -5,7 +5,7 @@ use crate::cli::{Cli, Command};
 use crate::device::c29u::share;
 use crate::link::memory::MemoryByteLink;
 use crate::link::LinkError;
-use crate::sim::c29u::{C29u as Model, Eeprom};
+use crate::sim::c29u::{C29uModel as Model, Eeprom};
 use crate::sim::c29u_line::{lock, SharedModel, SimulatedC29u};
 use crate::time::clock::VirtualClock;
 use clap::Parser;
@@ -278,7 +278,18 @@ fn writes_reach_the_module() {
         .unwrap();
         assert_eq!(lock(&model).outputs(), 0x80);
         assert_eq!(r.json["do"], 0x80);
-        execute(&C29Command::PowerOnValue { byte: Some(0x42) }, &mut dev).unwrap();
+        let store = |drive_outputs| C29Command::PowerOnValue {
+            byte: Some(0x42),
+            drive_outputs,
+        };
+        if protocol == Protocol::Ascii {
+            // Without the flag, ASCII refuses a value the outputs do not hold, and says how.
+            let e = execute(&store(false), &mut dev).unwrap_err();
+            assert_eq!(e.exit_status(), EXIT_USAGE);
+            assert!(e.to_string().contains("--drive-outputs"), "{e}");
+            assert_eq!(lock(&model).power_on_value(), 0x00);
+        }
+        execute(&store(true), &mut dev).unwrap();
         assert_eq!(lock(&model).power_on_value(), 0x42);
         assert_eq!(
             lock(&model).outputs(),
@@ -286,6 +297,19 @@ fn writes_reach_the_module() {
             "outputs restored after an ASCII preset"
         );
     }
+}
+
+#[test]
+fn drive_outputs_is_a_flag_of_setting_a_preset() {
+    let a = parse(&["--port", "p", "safe-value", "0x05", "--drive-outputs"]).unwrap();
+    assert!(matches!(
+        a.command,
+        C29Command::SafeValue {
+            byte: Some(5),
+            drive_outputs: true
+        }
+    ));
+    assert!(parse(&["--port", "p", "power-on-value", "--drive-outputs"]).is_err());
 }
 
 #[test]

@@ -2,12 +2,12 @@
 
 use super::transport::{Fault, Transport};
 use super::{
-    exchange_fault, Backend, C29uError, ConfigChange, CounterEdge, Firmware, Latches, Preset,
-    Settings, Snapshot, WatchdogInfo,
+    exchange_fault, Backend, C29uError, ConfigChange, CounterEdge, Firmware, Preset, PresetWrite,
+    Settings, SynchronizedIo, WatchdogInfo,
 };
 use crate::protocol::c29u_ascii::{
     checksum, parse_answer, Answer, AsciiError, BaudCode, Channel, DataFormat, LatchLevel,
-    ModuleName, Request, CR,
+    ModuleName, Request, WatchdogReading, CR,
 };
 
 /// Cuts an answer at its CR (8: every answer ends with one).
@@ -28,6 +28,17 @@ impl AsciiBackend {
     }
 
     fn call(&mut self, t: &mut Transport, request: &Request) -> Result<Answer, C29uError> {
+        self.call_noting(t, request, &mut None)
+    }
+
+    /// As `call`, keeping in `refusal` the module's answer to the last attempt when it could not
+    /// be taken (for the safe-mode rule, which needs it as the module said it).
+    fn call_noting(
+        &mut self,
+        t: &mut Transport,
+        request: &Request,
+        refusal: &mut Option<AsciiError>,
+    ) -> Result<Answer, C29uError> {
         let frame = request.encode(self.id, self.checksum);
         let name = format!(
             "`{}`",
@@ -37,6 +48,7 @@ impl AsciiBackend {
         let (id, with_checksum) = (self.id, self.checksum);
         let expects = request.expects_answer();
         t.with_retries(|t| {
+            *refusal = None;
             let timeout = t.timeout;
             let answer = t
                 .exchange(&frame, expects, None, line_frame)
@@ -44,8 +56,11 @@ impl AsciiBackend {
             if !expects {
                 return Ok(Answer::Done);
             }
-            parse_answer(request, &answer, with_checksum, id)
-                .map_err(|e| classify(e, &port, id, &name))
+            parse_answer(request, &answer, with_checksum, id).map_err(|e| {
+                let fault = classify(&e, &port, id, &name);
+                *refusal = Some(e);
+                fault
+            })
         })
     }
 
@@ -65,17 +80,37 @@ impl AsciiBackend {
         }
     }
 
-    /// An output write; a refusal while the watchdog reads "disabled or fired" is safe mode
-    /// (NOTES: any non-`>` answer to an output write while the watchdog has fired).
+    /// An output write; a refusal is safe mode by the rule of [`AsciiError::means_safe_mode`]
+    /// (the watchdog is read after a refusal that does not say so itself).
     fn write(&mut self, t: &mut Transport, request: &Request) -> Result<(), C29uError> {
-        match self.expect_done(t, request) {
-            Err(C29uError::Refused { .. }) if matches!(self.watchdog(t), Ok(w) if !w.enabled) => {
-                Err(C29uError::SafeMode {
-                    port: t.port(),
-                    id: self.id,
-                })
-            }
-            other => other,
+        let mut refusal = None;
+        let error = match self.call_noting(t, request, &mut refusal) {
+            Ok(Answer::Done | Answer::OutputWritten) => return Ok(()),
+            Ok(other) => return Err(self.unexpected(t, request, &other)),
+            Err(e) => e,
+        };
+        let Some(refusal) = refusal.filter(AsciiError::is_output_refusal) else {
+            return Err(error);
+        };
+        let watchdog = if refusal == AsciiError::SafeMode {
+            None
+        } else {
+            self.watchdog_reading(t).ok()
+        };
+        if refusal.means_safe_mode(watchdog) {
+            Err(C29uError::SafeMode {
+                port: t.port(),
+                id: self.id,
+            })
+        } else {
+            Err(error)
+        }
+    }
+
+    fn watchdog_reading(&mut self, t: &mut Transport) -> Result<WatchdogReading, C29uError> {
+        match self.call(t, &Request::ReadWatchdog)? {
+            Answer::Watchdog(reading) => Ok(reading),
+            other => Err(self.unexpected(t, &Request::ReadWatchdog, &other)),
         }
     }
 
@@ -93,7 +128,7 @@ impl AsciiBackend {
     }
 }
 
-fn classify(e: AsciiError, port: &str, id: u8, request: &str) -> Fault {
+fn classify(e: &AsciiError, port: &str, id: u8, request: &str) -> Fault {
     let refused = |reason: &str| {
         Fault::Final(C29uError::Refused {
             port: port.to_string(),
@@ -190,7 +225,7 @@ impl Backend for AsciiBackend {
         self.expect_done(t, &Request::SaveCounters)
     }
 
-    fn read_latches(&mut self, t: &mut Transport) -> Result<Latches, C29uError> {
+    fn read_latches(&mut self, t: &mut Transport) -> Result<(u8, u8), C29uError> {
         let mut read = |level| {
             let request = Request::ReadLatch(level);
             match self.call(t, &request)? {
@@ -198,10 +233,7 @@ impl Backend for AsciiBackend {
                 other => Err(self.unexpected(t, &request, &other)),
             }
         };
-        Ok(Latches {
-            low: read(LatchLevel::Low)?,
-            high: read(LatchLevel::High)?,
-        })
+        Ok((read(LatchLevel::Low)?, read(LatchLevel::High)?))
     }
 
     fn clear_latches(&mut self, t: &mut Transport) -> Result<(), C29uError> {
@@ -217,19 +249,12 @@ impl Backend for AsciiBackend {
     }
 
     fn watchdog(&mut self, t: &mut Transport) -> Result<WatchdogInfo, C29uError> {
-        match self.call(t, &Request::ReadWatchdog)? {
-            // 8-21: `D` means "disabled or in safe mode"; with a timeout still set it cannot say which.
-            Answer::Watchdog { enabled, tenths } => Ok(WatchdogInfo {
-                enabled,
-                timeout_tenths: tenths,
-                expired: if enabled || tenths == 0 {
-                    Some(false)
-                } else {
-                    None
-                },
-            }),
-            other => Err(self.unexpected(t, &Request::ReadWatchdog, &other)),
-        }
+        let reading = self.watchdog_reading(t)?;
+        Ok(WatchdogInfo {
+            enabled: reading.timeout().is_some(),
+            timeout_tenths: reading.timeout().map_or(0, |t| t.tenths()),
+            expired: Some(reading.fired()),
+        })
     }
 
     fn host_ok(&mut self, t: &mut Transport) -> Result<(), C29uError> {
@@ -249,16 +274,26 @@ impl Backend for AsciiBackend {
         t: &mut Transport,
         preset: Preset,
         value: u8,
+        how: PresetWrite,
     ) -> Result<(), C29uError> {
-        // ASCII can only store the current outputs (8-24): show the value, store it, restore.
+        // 8-24 stores the current outputs: a value they hold already is stored without a pulse.
         let before = self.read_outputs(t)?;
-        if before != value {
-            self.write_outputs(t, value)?;
+        if before == value {
+            return self.expect_done(t, &Request::SavePreset(preset));
         }
+        if how == PresetWrite::KeepOutputs {
+            return Err(C29uError::PresetDrivesOutputs {
+                port: t.port(),
+                id: self.id,
+                checksum: self.checksum,
+                preset,
+                value,
+                outputs: before,
+            });
+        }
+        self.write_outputs(t, value)?;
         let stored = self.expect_done(t, &Request::SavePreset(preset));
-        if before != value {
-            self.write_outputs(t, before)?;
-        }
+        self.write_outputs(t, before)?;
         stored
     }
 
@@ -370,22 +405,18 @@ impl Backend for AsciiBackend {
         }
     }
 
-    fn take_snapshot(&mut self, t: &mut Transport) -> Result<(), C29uError> {
-        self.expect_done(t, &Request::Snapshot)
+    fn synchronize(&mut self, t: &mut Transport) -> Result<(), C29uError> {
+        self.expect_done(t, &Request::Synchronize)
     }
 
-    fn read_snapshot(&mut self, t: &mut Transport) -> Result<Snapshot, C29uError> {
-        match self.call(t, &Request::ReadSnapshot)? {
-            Answer::Snapshot {
-                fresh,
-                outputs,
-                inputs,
-            } => Ok(Snapshot {
-                fresh,
-                outputs,
-                inputs,
+    fn read_synchronized(&mut self, t: &mut Transport) -> Result<SynchronizedIo, C29uError> {
+        match self.call(t, &Request::ReadSynchronized)? {
+            Answer::Synchronized(data) => Ok(SynchronizedIo {
+                fresh: data.fresh,
+                outputs: data.outputs,
+                inputs: data.inputs_wire,
             }),
-            other => Err(self.unexpected(t, &Request::ReadSnapshot, &other)),
+            other => Err(self.unexpected(t, &Request::ReadSynchronized, &other)),
         }
     }
 

@@ -11,6 +11,7 @@ pub use transport::{share, SharedLink};
 
 use crate::device::exchange::{format_frame, ExchangeError, Tracer};
 use crate::link::{serial::SerialLink, tcp::TcpLink, LinkError};
+use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::time::clock::SharedClock;
 use std::time::Duration;
 use transport::{Fault, Transport};
@@ -112,9 +113,53 @@ pub enum C29uError {
         /// What to do instead.
         hint: &'static str,
     },
+    /// Storing a power-on or safe value over ASCII would drive the outputs to it (8-24: the module
+    /// only stores its current outputs), and the caller did not allow that.
+    #[error("storing the {} {value:#04x} in TRP-C29U ID {id} on {port} would drive its outputs to {value:#04x} (they are at {outputs:#04x}): over ASCII the module can only store its current outputs (manual 8-24). Store it by hand when the outputs may take that value: `rigscript c29 --port PORT --protocol ascii --id {id}{} {} {value:#04x} --drive-outputs`", preset_words(*preset), if *checksum { " --checksum" } else { "" }, preset_command(*preset))]
+    PresetDrivesOutputs {
+        /// The link.
+        port: String,
+        /// The module's ID.
+        id: u8,
+        /// Frames carry checksums (for the command shown).
+        checksum: bool,
+        /// Which value.
+        preset: Preset,
+        /// The value to store.
+        value: u8,
+        /// The outputs now.
+        outputs: u8,
+    },
     /// A caller's argument is out of range.
     #[error("{0}")]
     InvalidArgument(String),
+}
+
+/// A preset in words, for messages.
+fn preset_words(preset: Preset) -> &'static str {
+    match preset {
+        Preset::PowerOn => "power-on value",
+        Preset::Safe => "safe value",
+    }
+}
+
+/// The `c29` command that stores a preset.
+fn preset_command(preset: Preset) -> &'static str {
+    match preset {
+        Preset::PowerOn => "power-on-value",
+        Preset::Safe => "safe-value",
+    }
+}
+
+/// Whether storing a power-on or safe value may drive the outputs to it: over ASCII the module
+/// can only store its current outputs (8-24). Modbus stores a value directly either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PresetWrite {
+    /// Store it only when the outputs already hold it (or over Modbus); otherwise refuse with
+    /// [`C29uError::PresetDrivesOutputs`]. Outputs never take another value.
+    KeepOutputs,
+    /// Drive the outputs to the value, store it, and drive them back (`c29 --drive-outputs`).
+    DriveOutputs,
 }
 
 fn received_note(received: &[u8], text: bool) -> String {
@@ -137,6 +182,8 @@ impl C29uError {
                 e,
                 LinkError::NotFound { .. }
                     | LinkError::PermissionDenied { .. }
+                    | LinkError::Busy { .. }
+                    | LinkError::NotSerial { .. }
                     | LinkError::Disconnected { .. }
             ),
             Self::Timeout { .. } => true,
@@ -156,9 +203,14 @@ pub struct IoState {
     pub inputs_raw: u8,
 }
 
-/// Latched inputs, bit n = DIn (as the module reports them).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+/// Latched inputs, bit n = DIn: logical (the input polarity applied, as for inputs) and as the
+/// module reports them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub struct Latches {
+    /// Channels energized since the last clear.
+    pub energized: u8,
+    /// Channels released since the last clear.
+    pub released: u8,
     /// Channels latched at logic 0 on the wire.
     pub low: u8,
     /// Channels latched at logic 1 on the wire.
@@ -168,7 +220,7 @@ pub struct Latches {
 /// The host watchdog as the module reports it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct WatchdogInfo {
-    /// Counting down (or fired, where the protocol cannot tell the two apart).
+    /// A timeout is set: counting down, or fired.
     pub enabled: bool,
     /// Timeout in 0.1 s steps (0 when disabled).
     pub timeout_tenths: u8,
@@ -215,10 +267,10 @@ pub struct ConfigChange {
     pub hex_counters: Option<bool>,
 }
 
-/// The `#**` snapshot read back with `$ID4`.
+/// What `#**` made the module remember, read back with `$ID4` (8-25, 8-26).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-pub struct Snapshot {
-    /// First read since the snapshot was taken.
+pub struct SynchronizedIo {
+    /// First read since the `#**`.
     pub fresh: bool,
     /// DO byte then.
     pub outputs: u8,
@@ -239,14 +291,20 @@ pub(crate) trait Backend: Send {
     fn clear_counter(&mut self, t: &mut Transport, channel: u8) -> Result<(), C29uError>;
     fn clear_counters(&mut self, t: &mut Transport) -> Result<(), C29uError>;
     fn save_counters(&mut self, t: &mut Transport) -> Result<(), C29uError>;
-    fn read_latches(&mut self, t: &mut Transport) -> Result<Latches, C29uError>;
+    /// Latched low and latched high, as the module reports them.
+    fn read_latches(&mut self, t: &mut Transport) -> Result<(u8, u8), C29uError>;
     fn clear_latches(&mut self, t: &mut Transport) -> Result<(), C29uError>;
     fn set_watchdog(&mut self, t: &mut Transport, tenths: u8) -> Result<(), C29uError>;
     fn watchdog(&mut self, t: &mut Transport) -> Result<WatchdogInfo, C29uError>;
     fn host_ok(&mut self, t: &mut Transport) -> Result<(), C29uError>;
     fn read_preset(&mut self, t: &mut Transport, preset: Preset) -> Result<u8, C29uError>;
-    fn set_preset(&mut self, t: &mut Transport, preset: Preset, value: u8)
-        -> Result<(), C29uError>;
+    fn set_preset(
+        &mut self,
+        t: &mut Transport,
+        preset: Preset,
+        value: u8,
+        how: PresetWrite,
+    ) -> Result<(), C29uError>;
     fn save_outputs_as(&mut self, t: &mut Transport, preset: Preset) -> Result<(), C29uError>;
     fn name(&mut self, t: &mut Transport) -> Result<String, C29uError>;
     fn set_name(&mut self, t: &mut Transport, name: &str) -> Result<(), C29uError>;
@@ -256,8 +314,8 @@ pub(crate) trait Backend: Send {
     fn reset(&mut self, t: &mut Transport) -> Result<(), C29uError>;
     fn take_reset_flag(&mut self, t: &mut Transport) -> Result<bool, C29uError>;
     fn set_led_mode(&mut self, t: &mut Transport, on: bool) -> Result<(), C29uError>;
-    fn take_snapshot(&mut self, t: &mut Transport) -> Result<(), C29uError>;
-    fn read_snapshot(&mut self, t: &mut Transport) -> Result<Snapshot, C29uError>;
+    fn synchronize(&mut self, t: &mut Transport) -> Result<(), C29uError>;
+    fn read_synchronized(&mut self, t: &mut Transport) -> Result<SynchronizedIo, C29uError>;
     fn raw(&mut self, t: &mut Transport, body: &[u8]) -> Result<Vec<u8>, C29uError>;
 }
 
@@ -299,7 +357,7 @@ impl C29u {
         let backend: Box<dyn Backend> = match options.protocol {
             Protocol::Ascii => Box::new(ascii::AsciiBackend::new(options.id, options.checksum)),
             Protocol::Modbus => {
-                if !(1..=247).contains(&options.id) {
+                if !SLAVE_IDS.contains(&options.id) {
                     return Err(C29uError::InvalidArgument(format!(
                         "Modbus ID {} is not possible: use 1-247",
                         options.id
@@ -417,7 +475,19 @@ impl C29u {
 
     /// The latched inputs.
     pub fn read_latches(&mut self) -> Result<Latches, C29uError> {
-        self.backend.read_latches(&mut self.transport)
+        let (low, high) = self.backend.read_latches(&mut self.transport)?;
+        // An energized input is wire level 0 on an active-low module (NOTES): it latches low.
+        let (energized, released) = if self.options.di_active_low {
+            (low, high)
+        } else {
+            (high, low)
+        };
+        Ok(Latches {
+            energized,
+            released,
+            low,
+            high,
+        })
     }
 
     /// Clears the latches.
@@ -449,10 +519,10 @@ impl C29u {
         self.backend.read_preset(&mut self.transport, Preset::Safe)
     }
 
-    /// Stores the safe value (in ASCII, by briefly writing it to the outputs: see the CLI help).
+    /// Stores the safe value without the outputs taking another value: over ASCII only when
+    /// they hold it already (see [`PresetWrite::KeepOutputs`]).
     pub fn set_safe_value(&mut self, value: u8) -> Result<(), C29uError> {
-        self.backend
-            .set_preset(&mut self.transport, Preset::Safe, value)
+        self.store_preset(Preset::Safe, value, PresetWrite::KeepOutputs)
     }
 
     /// The stored power-on value.
@@ -461,10 +531,21 @@ impl C29u {
             .read_preset(&mut self.transport, Preset::PowerOn)
     }
 
-    /// Stores the power-on value (in ASCII, by briefly writing it to the outputs).
+    /// Stores the power-on value without the outputs taking another value: over ASCII only
+    /// when they hold it already (see [`PresetWrite::KeepOutputs`]).
     pub fn set_power_on_value(&mut self, value: u8) -> Result<(), C29uError> {
+        self.store_preset(Preset::PowerOn, value, PresetWrite::KeepOutputs)
+    }
+
+    /// Stores the safe or power-on value; `how` says whether the outputs may be driven to it.
+    pub fn store_preset(
+        &mut self,
+        preset: Preset,
+        value: u8,
+        how: PresetWrite,
+    ) -> Result<(), C29uError> {
         self.backend
-            .set_preset(&mut self.transport, Preset::PowerOn, value)
+            .set_preset(&mut self.transport, preset, value, how)
     }
 
     /// Stores the current outputs as the safe or power-on value.
@@ -523,13 +604,13 @@ impl C29u {
     }
 
     /// Broadcasts `#**`: every module on the line remembers its outputs and inputs (ASCII only).
-    pub fn take_snapshot(&mut self) -> Result<(), C29uError> {
-        self.backend.take_snapshot(&mut self.transport)
+    pub fn synchronize(&mut self) -> Result<(), C29uError> {
+        self.backend.synchronize(&mut self.transport)
     }
 
-    /// Reads this module's `#**` snapshot (ASCII only).
-    pub fn read_snapshot(&mut self) -> Result<Snapshot, C29uError> {
-        let mut s = self.backend.read_snapshot(&mut self.transport)?;
+    /// Reads what `#**` made this module remember (ASCII only).
+    pub fn read_synchronized(&mut self) -> Result<SynchronizedIo, C29uError> {
+        let mut s = self.backend.read_synchronized(&mut self.transport)?;
         s.inputs = self.logical(s.inputs);
         Ok(s)
     }

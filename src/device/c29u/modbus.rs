@@ -2,13 +2,13 @@
 
 use super::transport::{Fault, Transport};
 use super::{
-    exchange_fault, Backend, C29uError, ConfigChange, Firmware, Latches, Preset, Protocol,
-    Settings, Snapshot, WatchdogInfo,
+    exchange_fault, Backend, C29uError, ConfigChange, Firmware, Preset, PresetWrite, Protocol,
+    Settings, SynchronizedIo, WatchdogInfo,
 };
 use crate::protocol::c29u::{baud_code, baud_rate};
 use crate::protocol::c29u_modbus::{
     model_name, parse_response, seal, silence_gap, BitArea, CoilCommand, FrameReader, ModbusError,
-    Request, Response, VendorRequest, VendorResponse,
+    Request, Response, VendorRequest, VendorResponse, SLAVE_IDS,
 };
 use std::time::Duration;
 
@@ -91,8 +91,9 @@ impl ModbusBackend {
         }
     }
 
-    fn counters(&mut self, t: &mut Transport, start: u8, count: u8) -> Result<Vec<u16>, C29uError> {
-        let request = Request::read_counters(start, count);
+    /// Counters 0..`count` (10-18/10-19: reads always start at channel 00).
+    fn counters(&mut self, t: &mut Transport, count: u8) -> Result<Vec<u16>, C29uError> {
+        let request = Request::read_counters(count);
         match self.call(t, &request)? {
             Response::Counters { values, .. } if values.len() == usize::from(count) => Ok(values),
             other => Err(unexpected(t, self.id, &request, &other)),
@@ -177,12 +178,12 @@ impl Backend for ModbusBackend {
     }
 
     fn read_counter(&mut self, t: &mut Transport, channel: u8) -> Result<u16, C29uError> {
-        let values = self.counters(t, channel, 1)?;
-        Ok(values.first().copied().unwrap_or_default())
+        let values = self.counters(t, channel.saturating_add(1))?;
+        Ok(values.last().copied().unwrap_or_default())
     }
 
     fn read_counters(&mut self, t: &mut Transport) -> Result<[u16; 8], C29uError> {
-        let values = self.counters(t, 0, 8)?;
+        let values = self.counters(t, 8)?;
         let mut counters = [0u16; 8];
         counters
             .iter_mut()
@@ -203,11 +204,11 @@ impl Backend for ModbusBackend {
         self.write(t, Request::save_counters())
     }
 
-    fn read_latches(&mut self, t: &mut Transport) -> Result<Latches, C29uError> {
-        Ok(Latches {
-            low: self.bits(t, BitArea::LatchedLow)?,
-            high: self.bits(t, BitArea::LatchedHigh)?,
-        })
+    fn read_latches(&mut self, t: &mut Transport) -> Result<(u8, u8), C29uError> {
+        Ok((
+            self.bits(t, BitArea::LatchedLow)?,
+            self.bits(t, BitArea::LatchedHigh)?,
+        ))
     }
 
     fn clear_latches(&mut self, t: &mut Transport) -> Result<(), C29uError> {
@@ -261,7 +262,9 @@ impl Backend for ModbusBackend {
         t: &mut Transport,
         preset: Preset,
         value: u8,
+        _how: PresetWrite,
     ) -> Result<(), C29uError> {
+        // 10-11, 10-13: stored directly; the outputs are not touched either way.
         let request = match preset {
             Preset::PowerOn => VendorRequest::SetPowerOnValue(value),
             Preset::Safe => VendorRequest::SetSafeValue(value),
@@ -271,7 +274,7 @@ impl Backend for ModbusBackend {
 
     fn save_outputs_as(&mut self, t: &mut Transport, preset: Preset) -> Result<(), C29uError> {
         let outputs = self.read_outputs(t)?;
-        self.set_preset(t, preset, outputs)
+        self.set_preset(t, preset, outputs, PresetWrite::KeepOutputs)
     }
 
     fn name(&mut self, t: &mut Transport) -> Result<String, C29uError> {
@@ -345,7 +348,7 @@ impl Backend for ModbusBackend {
             None => None,
         };
         if let Some(new_id) = change.id {
-            if !(1..=247).contains(&new_id) {
+            if !SLAVE_IDS.contains(&new_id) {
                 return Err(C29uError::InvalidArgument(format!(
                     "Modbus ID {new_id} is not possible: use 1-247"
                 )));
@@ -383,16 +386,16 @@ impl Backend for ModbusBackend {
             .map(|_| ())
     }
 
-    fn take_snapshot(&mut self, _t: &mut Transport) -> Result<(), C29uError> {
+    fn synchronize(&mut self, _t: &mut Transport) -> Result<(), C29uError> {
         Err(unsupported(
-            "the #** snapshot",
+            "the #** synchronized read",
             "read inputs and outputs directly, or use ASCII",
         ))
     }
 
-    fn read_snapshot(&mut self, _t: &mut Transport) -> Result<Snapshot, C29uError> {
+    fn read_synchronized(&mut self, _t: &mut Transport) -> Result<SynchronizedIo, C29uError> {
         Err(unsupported(
-            "the #** snapshot",
+            "the #** synchronized read",
             "read inputs and outputs directly, or use ASCII",
         ))
     }

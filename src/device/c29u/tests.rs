@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::link::memory::MemoryByteLink;
-use crate::sim::c29u::{C29u as Model, Eeprom, ModuleConfig};
+use crate::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::ByteDevice;
 use crate::time::clock::{Clock, VirtualClock};
@@ -101,6 +101,32 @@ fn counters_clear_and_save_across_reset() {
 }
 
 #[test]
+fn latches_are_logical_like_inputs_and_raw_as_reported() {
+    // DI1 energized then released: wire 0 then 1, so it latched low and high; DI2 energized.
+    for active_low in [true, false] {
+        let mut r = rig_with(Protocol::Modbus, false);
+        r.driver.options.di_active_low = active_low;
+        lock(&r.model).set_inputs(0x02);
+        lock(&r.model).set_inputs(0x04);
+        let l = r.driver.read_latches().unwrap();
+        assert_eq!((l.low, l.high), (0x06, 0x02), "as the module reports them");
+        let logical = if active_low {
+            (0x06, 0x02)
+        } else {
+            (0x02, 0x06)
+        };
+        assert_eq!(
+            (l.energized, l.released),
+            logical,
+            "active_low {active_low}"
+        );
+        // The inputs follow the same polarity.
+        let inputs = r.driver.read_inputs().unwrap();
+        assert_eq!(inputs, if active_low { 0x04 } else { 0xFB });
+    }
+}
+
+#[test]
 fn latches_read_and_clear() {
     for mut r in both() {
         lock(&r.model).set_inputs(0x02);
@@ -116,7 +142,9 @@ fn latches_read_and_clear() {
 #[test]
 fn watchdog_fires_to_safe_value_refuses_writes_and_host_ok_keeps_it_alive() {
     for mut r in both() {
-        r.driver.set_safe_value(0x14).unwrap();
+        r.driver
+            .store_preset(Preset::Safe, 0x14, PresetWrite::DriveOutputs)
+            .unwrap();
         assert_eq!(r.driver.safe_value().unwrap(), 0x14);
         r.driver.write_outputs(0x01).unwrap();
         r.driver
@@ -149,7 +177,9 @@ fn watchdog_fires_to_safe_value_refuses_writes_and_host_ok_keeps_it_alive() {
 #[test]
 fn power_on_value_after_reset_and_reset_flag() {
     for mut r in both() {
-        r.driver.set_power_on_value(0x13).unwrap();
+        r.driver
+            .store_preset(Preset::PowerOn, 0x13, PresetWrite::DriveOutputs)
+            .unwrap();
         assert_eq!(r.driver.power_on_value().unwrap(), 0x13);
         assert_eq!(
             lock(&r.model).outputs(),
@@ -238,17 +268,17 @@ fn ascii_configure_edge_checksum_and_hex_mode() {
 }
 
 #[test]
-fn snapshot_in_ascii_only() {
+fn synchronized_read_in_ascii_only() {
     let mut r = rig_with(Protocol::Ascii, false);
     lock(&r.model).set_inputs(0x0E);
     r.driver.write_outputs(0x01).unwrap();
-    r.driver.take_snapshot().unwrap();
-    let s = r.driver.read_snapshot().unwrap();
+    r.driver.synchronize().unwrap();
+    let s = r.driver.read_synchronized().unwrap();
     assert_eq!((s.fresh, s.outputs, s.inputs), (true, 0x01, 0x0E));
-    assert!(!r.driver.read_snapshot().unwrap().fresh);
+    assert!(!r.driver.read_synchronized().unwrap().fresh);
     let mut m = rig_with(Protocol::Modbus, false);
     assert!(matches!(
-        m.driver.take_snapshot(),
+        m.driver.synchronize(),
         Err(C29uError::Unsupported { .. })
     ));
 }
@@ -336,4 +366,246 @@ fn a_dead_id_times_out_alone_and_garbled_answers_are_retried() {
             "retries exhausted"
         );
     }
+}
+
+/// A simulated module on a line that records every value its outputs take, frame by frame.
+struct OutputWatch {
+    inner: SimulatedC29u,
+    model: SharedModel,
+    history: Arc<Mutex<Vec<u8>>>,
+}
+
+impl ByteDevice for OutputWatch {
+    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+        let answer = self.inner.receive(bytes);
+        let now = lock(&self.model).outputs();
+        let mut history = self.history.lock().unwrap();
+        if history.last() != Some(&now) {
+            history.push(now);
+        }
+        answer
+    }
+}
+
+/// An ASCII driver whose module's output history is recorded.
+fn watched_ascii() -> (C29u, SharedModel, Arc<Mutex<Vec<u8>>>) {
+    let clock = VirtualClock::at_epoch();
+    let sim = model(Protocol::Ascii, &clock, 1, false);
+    let shared = sim.model();
+    let history = Arc::new(Mutex::new(vec![0x00]));
+    let watch = OutputWatch {
+        inner: sim,
+        model: shared.clone(),
+        history: history.clone(),
+    };
+    let link = MemoryByteLink::new(watch, "C29U").with_clock(Arc::new(clock.clone()));
+    let options = C29uOptions {
+        protocol: Protocol::Ascii,
+        ..C29uOptions::default()
+    };
+    let driver = C29u::new(share(Box::new(link)), Arc::new(clock), options).unwrap();
+    (driver, shared, history)
+}
+
+#[test]
+fn ascii_presets_never_pulse_the_outputs_unless_allowed() {
+    let (mut driver, model, history) = watched_ascii();
+    // A value the outputs do not hold: refused, nothing stored, the outputs untouched.
+    let cases = [
+        (
+            Preset::PowerOn,
+            0xFF,
+            "the power-on value 0xff",
+            "power-on-value 0xff",
+        ),
+        (Preset::Safe, 0x05, "the safe value 0x05", "safe-value 0x05"),
+    ];
+    for (preset, value, what, command) in cases {
+        match driver.store_preset(preset, value, PresetWrite::KeepOutputs) {
+            Err(e @ C29uError::PresetDrivesOutputs { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains(&format!("storing {what} in TRP-C29U ID 1")),
+                    "{text}"
+                );
+                assert!(
+                    text.contains("(they are at 0x00)") && text.contains("8-24"),
+                    "{text}"
+                );
+                let hint = format!("--protocol ascii --id 1 {command} --drive-outputs`");
+                assert!(text.contains(&hint), "{text}");
+            }
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+    assert!(matches!(
+        driver.set_power_on_value(0xFF),
+        Err(C29uError::PresetDrivesOutputs {
+            value: 0xFF,
+            outputs: 0x00,
+            ..
+        })
+    ));
+    assert_eq!(
+        *history.lock().unwrap(),
+        vec![0x00],
+        "the outputs never moved"
+    );
+    assert_eq!(lock(&model).power_on_value(), 0x00);
+
+    // A value the outputs hold: stored as it is (`~ID5V` alone), no pulse.
+    driver.write_outputs(0x05).unwrap();
+    driver.set_safe_value(0x05).unwrap();
+    driver.set_power_on_value(0x05).unwrap();
+    assert_eq!(lock(&model).safe_value(), 0x05);
+    assert_eq!(lock(&model).power_on_value(), 0x05);
+    assert_eq!(*history.lock().unwrap(), vec![0x00, 0x05]);
+
+    // Only when the caller allows it do the outputs take the value for a moment.
+    driver
+        .store_preset(Preset::PowerOn, 0x42, PresetWrite::DriveOutputs)
+        .unwrap();
+    assert_eq!(lock(&model).power_on_value(), 0x42);
+    assert_eq!(*history.lock().unwrap(), vec![0x00, 0x05, 0x42, 0x05]);
+}
+
+#[test]
+fn modbus_presets_are_stored_without_touching_the_outputs() {
+    let mut r = rig_with(Protocol::Modbus, false);
+    r.driver.write_outputs(0x81).unwrap();
+    r.driver.set_safe_value(0x05).unwrap();
+    r.driver.set_power_on_value(0x42).unwrap();
+    let m = lock(&r.model);
+    assert_eq!(
+        (m.safe_value(), m.power_on_value(), m.outputs()),
+        (0x05, 0x42, 0x81)
+    );
+}
+
+/// Rewrites the module's answers: each (from, to) pair replaces an exact answer frame.
+struct Rewrite {
+    inner: SimulatedC29u,
+    rules: Vec<(Vec<u8>, Vec<u8>)>,
+    requests: Arc<Mutex<Vec<Vec<u8>>>>,
+}
+
+impl ByteDevice for Rewrite {
+    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+        self.requests.lock().unwrap().push(bytes.to_vec());
+        let answer = self.inner.receive(bytes);
+        match self.rules.iter().find(|(from, _)| *from == answer) {
+            Some((_, to)) => to.clone(),
+            None => answer,
+        }
+    }
+}
+
+/// A driver to a simulated module whose answers pass through `rules`, and the requests it got.
+fn rewritten(
+    protocol: Protocol,
+    rules: Vec<(Vec<u8>, Vec<u8>)>,
+) -> (Rig, Arc<Mutex<Vec<Vec<u8>>>>) {
+    let clock = VirtualClock::at_epoch();
+    let sim = model(protocol, &clock, 1, false);
+    let shared = sim.model();
+    let requests = Arc::new(Mutex::new(Vec::new()));
+    let device = Rewrite {
+        inner: sim,
+        rules,
+        requests: requests.clone(),
+    };
+    let link = MemoryByteLink::new(device, "C29U").with_clock(Arc::new(clock.clone()));
+    let options = C29uOptions {
+        protocol,
+        ..C29uOptions::default()
+    };
+    let driver = C29u::new(share(Box::new(link)), Arc::new(clock.clone()), options).unwrap();
+    let rig = Rig {
+        clock,
+        model: shared,
+        driver,
+    };
+    (rig, requests)
+}
+
+#[test]
+fn ascii_refusal_with_the_watchdog_merely_off_is_not_safe_mode() {
+    // The module answers `?01` to output writes (a `>` turned into `?01`); its watchdog reads
+    // `WD00`: off, not fired, so this is a refused command, not safe mode.
+    let (mut r, _) = rewritten(Protocol::Ascii, vec![(b">\r".to_vec(), b"?01\r".to_vec())]);
+    match r.driver.write_outputs(0x01) {
+        Err(C29uError::Refused { .. }) => {}
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    // Once its watchdog has fired, the same answer is safe mode.
+    r.driver
+        .set_watchdog(Some(Duration::from_millis(100)))
+        .unwrap();
+    r.clock.advance(Duration::from_millis(100));
+    assert!(matches!(
+        r.driver.write_outputs(0x01),
+        Err(C29uError::SafeMode { .. })
+    ));
+    let w = r.driver.watchdog().unwrap();
+    assert_eq!(
+        (w.enabled, w.timeout_tenths, w.expired),
+        (true, 1, Some(true))
+    );
+    r.driver.set_watchdog(None).unwrap();
+    let w = r.driver.watchdog().unwrap();
+    assert_eq!(
+        (w.enabled, w.timeout_tenths, w.expired),
+        (false, 0, Some(false))
+    );
+}
+
+#[test]
+fn ascii_bare_answer_to_read_watchdog_is_off() {
+    // 8-21 lists a bare `!ID` as an answer to `~IDWR`.
+    let (mut r, _) = rewritten(
+        Protocol::Ascii,
+        vec![(b"!01WD00\r".to_vec(), b"!01\r".to_vec())],
+    );
+    let w = r.driver.watchdog().unwrap();
+    assert_eq!(
+        (w.enabled, w.timeout_tenths, w.expired),
+        (false, 0, Some(false))
+    );
+}
+
+#[test]
+fn modbus_8f_ff_to_a_single_output_write_is_safe_mode_at_once() {
+    // 10-16: "you will get the response ID 8F FF" to a 05 write in safe mode.
+    let seal = crate::protocol::c29u_modbus::seal;
+    let (mut r, requests) = rewritten(
+        Protocol::Modbus,
+        vec![(seal(&[1, 0x85, 0xFF]), seal(&[1, 0x8F, 0xFF]))],
+    );
+    r.driver
+        .set_watchdog(Some(Duration::from_millis(100)))
+        .unwrap();
+    r.clock.advance(Duration::from_millis(100));
+    requests.lock().unwrap().clear();
+    let before = r.clock.now();
+    assert!(matches!(
+        r.driver.write_output(3, true),
+        Err(C29uError::SafeMode { .. })
+    ));
+    assert_eq!(requests.lock().unwrap().len(), 1, "not retried");
+    assert_eq!(r.clock.now(), before, "no timeout waited");
+}
+
+#[test]
+fn modbus_counters_are_read_from_channel_00() {
+    // 10-18/10-19 give the start channel as 00 only: channel 3 is the last of four.
+    let (mut r, requests) = rewritten(Protocol::Modbus, Vec::new());
+    lock(&r.model).pulse(3, 7).unwrap();
+    assert_eq!(r.driver.read_counter(3).unwrap(), 7);
+    assert_eq!(r.driver.read_counter(0).unwrap(), 0);
+    let seal = crate::protocol::c29u_modbus::seal;
+    let sent = requests.lock().unwrap().clone();
+    assert_eq!(
+        sent,
+        vec![seal(&[1, 0x04, 0, 0, 0, 4]), seal(&[1, 0x04, 0, 0, 0, 1])]
+    );
 }

@@ -2,7 +2,8 @@
 
 use super::frame::{self, decimal_u16, hex_byte, hex_pair, hex_u16, push_hex};
 use super::request::{Refusal, Request};
-use super::types::{ConfigReport, FirmwareVersion, ModuleName};
+use super::types::{ConfigReport, FirmwareVersion, ModuleName, SynchronizedData};
+use super::watchdog::WatchdogReading;
 
 /// What a module answers when it carries out a request.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
@@ -37,13 +38,8 @@ pub enum Answer {
     ResetStatus(bool),
     /// 8-18 `~IDLEDA`: `!IDON` (true) or `!IDOFF`.
     Led(bool),
-    /// 8-21 `~IDWR`: `!IDWE` + NN (enabled) or `!IDWD` + NN (disabled or in safe mode).
-    Watchdog {
-        /// E.
-        enabled: bool,
-        /// NN, in 0.1 s.
-        tenths: u8,
-    },
+    /// 8-21 `~IDWR`: `!IDWE` + NN, `!IDWD` + NN or a bare `!ID`, as [`WatchdogReading`] reads them.
+    Watchdog(WatchdogReading),
     /// 8-23 `~ID4V`: `!IDABCD`, AB the stored DO value; CD is documented as DI0..DI7.
     Preset {
         /// AB: the stored power-on or safe DO value.
@@ -52,14 +48,7 @@ pub enum Answer {
         inputs: u8,
     },
     /// 8-26 `$ID4`: `!` + A + DO + DI + `00`, with or without the ID (NOTES).
-    Snapshot {
-        /// A = 1: first read since `#**`.
-        fresh: bool,
-        /// DO byte when `#**` arrived.
-        outputs: u8,
-        /// DI byte (raw) when `#**` arrived.
-        inputs: u8,
-    },
+    Synchronized(SynchronizedData),
 }
 
 /// Why an answer could not be taken as the answer to its request.
@@ -106,8 +95,7 @@ pub enum AsciiError {
 
 impl AsciiError {
     /// True when the module did answer an output write, but not with `>`: NOTES says that while
-    /// the host watchdog has fired any such answer means "module in safe mode", which only the
-    /// driver (knowing the watchdog state) can decide.
+    /// the host watchdog has fired any such answer means "module in safe mode".
     pub fn is_output_refusal(&self) -> bool {
         matches!(
             self,
@@ -116,6 +104,14 @@ impl AsciiError {
                 | AsciiError::SafeMode
                 | AsciiError::Malformed { .. }
         )
+    }
+
+    /// The safe-mode rule (8-19, NOTES): an output write refused this way means the module is in
+    /// safe mode when it says so (`!IDWE`) or when its watchdog, read after the refusal, has
+    /// fired. A watchdog that is merely off (`WD00`) does not make a `?ID` safe mode.
+    pub fn means_safe_mode(&self, watchdog: Option<WatchdogReading>) -> bool {
+        *self == AsciiError::SafeMode
+            || (self.is_output_refusal() && watchdog.is_some_and(WatchdogReading::fired))
     }
 }
 
@@ -154,7 +150,7 @@ pub fn parse_answer(
             Err(AsciiError::InvalidCommand)
         }
         [b'>'] if request.is_output_write() => Ok(Answer::OutputWritten),
-        [b'!', rest @ ..] if *request == Request::ReadSnapshot => {
+        [b'!', rest @ ..] if *request == Request::ReadSynchronized => {
             // NOTES: 8-26's example `!1010E00` carries no ID; accept both forms.
             let data = match rest {
                 [_, _, _, _, _, _, _] => rest,
@@ -167,7 +163,9 @@ pub fn parse_answer(
                 }
                 _ => return Err(malformed("$ID4: expected A + 6 hex digits")),
             };
-            parse_snapshot(data).ok_or_else(|| malformed("$ID4: expected A + 6 hex digits"))
+            parse_synchronized(data)
+                .map(Answer::Synchronized)
+                .ok_or_else(|| malformed("$ID4: expected A + 6 hex digits"))
         }
         [b'!', hi, lo, data @ ..] => {
             let got = hex_pair(*hi, *lo).ok_or_else(|| malformed("no hex ID"))?;
@@ -258,6 +256,8 @@ fn parse_data(request: &Request, data: &[u8]) -> Result<Answer, DataFault> {
             _ => Err(Shape("LED: expected ON or OFF")),
         },
         Request::ReadWatchdog => match data {
+            // 8-21 lists a bare `!ID` beside `!IDWANN`: no timeout set.
+            [] => Some(Answer::Watchdog(WatchdogReading::Off)),
             [b'W', state, nn @ ..] => {
                 let enabled = match state {
                     b'E' => Some(true),
@@ -266,18 +266,20 @@ fn parse_data(request: &Request, data: &[u8]) -> Result<Answer, DataFault> {
                 };
                 enabled
                     .zip(hex_byte(nn))
-                    .map(|(enabled, tenths)| Answer::Watchdog { enabled, tenths })
+                    .map(|(e, nn)| Answer::Watchdog(WatchdogReading::from_wire(e, nn)))
             }
             _ => None,
         }
-        .ok_or(Shape("watchdog: expected WE or WD + 2 hex digits")),
-        Request::ReadSnapshot | Request::HostOk | Request::Snapshot => {
+        .ok_or(Shape(
+            "watchdog: expected WE or WD + 2 hex digits, or nothing",
+        )),
+        Request::ReadSynchronized | Request::HostOk | Request::Synchronize => {
             Err(Shape("no ID-form answer for this request"))
         }
     }
 }
 
-fn parse_snapshot(data: &[u8]) -> Option<Answer> {
+fn parse_synchronized(data: &[u8]) -> Option<SynchronizedData> {
     match data {
         [a, o1, o2, i1, i2, z1, z2] => {
             let fresh = match a {
@@ -287,17 +289,17 @@ fn parse_snapshot(data: &[u8]) -> Option<Answer> {
             };
             // The trailing pair is always 00 in the manual; any hex is tolerated and ignored.
             hex_pair(*z1, *z2)?;
-            Some(Answer::Snapshot {
+            Some(SynchronizedData {
                 fresh,
                 outputs: hex_pair(*o1, *o2)?,
-                inputs: hex_pair(*i1, *i2)?,
+                inputs_wire: hex_pair(*i1, *i2)?,
             })
         }
         _ => None,
     }
 }
 
-/// The frame a module with ID `id` sends for `answer` (after `%`, pass the new ID). The snapshot
+/// The frame a module with ID `id` sends for `answer` (after `%`, pass the new ID). The `$ID4`
 /// answer carries no ID, like 8-26's example.
 pub fn encode_answer(answer: &Answer, id: u8, checksum: bool) -> Vec<u8> {
     let mut out = Vec::with_capacity(16);
@@ -307,15 +309,11 @@ pub fn encode_answer(answer: &Answer, id: u8, checksum: bool) -> Vec<u8> {
     };
     match answer {
         Answer::OutputWritten => out.push(b'>'),
-        Answer::Snapshot {
-            fresh,
-            outputs,
-            inputs,
-        } => {
+        Answer::Synchronized(s) => {
             out.push(b'!');
-            out.push(if *fresh { b'1' } else { b'0' });
-            push_hex(&mut out, *outputs);
-            push_hex(&mut out, *inputs);
+            out.push(if s.fresh { b'1' } else { b'0' });
+            push_hex(&mut out, s.outputs);
+            push_hex(&mut out, s.inputs_wire);
             out.extend_from_slice(b"00");
         }
         Answer::Done => bang(&mut out),
@@ -361,10 +359,11 @@ pub fn encode_answer(answer: &Answer, id: u8, checksum: bool) -> Vec<u8> {
             bang(&mut out);
             out.extend_from_slice(if *on { b"ON" } else { b"OFF" });
         }
-        Answer::Watchdog { enabled, tenths } => {
+        Answer::Watchdog(reading) => {
+            let (enabled, tenths) = reading.to_wire();
             bang(&mut out);
-            out.extend_from_slice(if *enabled { b"WE" } else { b"WD" });
-            push_hex(&mut out, *tenths);
+            out.extend_from_slice(if enabled { b"WE" } else { b"WD" });
+            push_hex(&mut out, tenths);
         }
     }
     frame::close(out, checksum)

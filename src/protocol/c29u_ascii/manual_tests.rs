@@ -3,6 +3,7 @@
 
 use super::frame::close;
 use super::*;
+use crate::protocol::c29u::WatchdogTimeout;
 
 fn ch(n: u8) -> Channel {
     Channel::new(n).unwrap()
@@ -533,47 +534,79 @@ fn s8_19_to_8_21_watchdog() {
     request("~01WD", Address::Id(1), &Request::DisableWatchdog);
     answer(&Request::DisableWatchdog, 1, "!01", 1, &Answer::Done);
 
-    // 8-21: 0F x 0.1 s is 1.5 s (the manual says 1.6).
+    // 8-21: 0F x 0.1 s is 1.5 s (the manual says 1.6). `D` with a timeout still set is a fired
+    // watchdog ("disable or safe mode": disabling clears the timeout).
+    let t = |n| WatchdogTimeout::from_tenths(n).unwrap();
     request("~01WR", Address::Id(1), &Request::ReadWatchdog);
     answer(
         &Request::ReadWatchdog,
         1,
         "!01WD0F",
         1,
-        &Answer::Watchdog {
-            enabled: false,
-            tenths: 0x0F,
-        },
+        &Answer::Watchdog(WatchdogReading::Fired(t(0x0F))),
+    );
+    assert_eq!(
+        t(0x0F).as_duration(),
+        std::time::Duration::from_millis(1500)
     );
     answer(
         &Request::ReadWatchdog,
         1,
         "!01WEFF",
         1,
-        &Answer::Watchdog {
-            enabled: true,
-            tenths: 0xFF,
-        },
+        &Answer::Watchdog(WatchdogReading::Counting(t(0xFF))),
     );
     parses(
         &Request::ReadWatchdog,
         1,
         "!01WD0f",
-        &Answer::Watchdog {
-            enabled: false,
-            tenths: 15,
-        },
+        &Answer::Watchdog(WatchdogReading::Fired(t(15))),
     );
+    answer(
+        &Request::ReadWatchdog,
+        1,
+        "!01WD00",
+        1,
+        &Answer::Watchdog(WatchdogReading::Off),
+    );
+    // 8-21's second answer form, a bare `!ID`: no timeout set.
+    parses(
+        &Request::ReadWatchdog,
+        1,
+        "!01",
+        &Answer::Watchdog(WatchdogReading::Off),
+    );
+}
+
+#[test]
+fn s8_19_safe_mode_rule_for_refused_output_writes() {
+    let t = WatchdogTimeout::from_tenths(5).unwrap();
+    // `!IDWE` says so itself.
+    assert!(AsciiError::SafeMode.means_safe_mode(None));
+    // Any other refusal is safe mode only while the watchdog reads as fired (NOTES) ...
+    for refusal in [AsciiError::InvalidCommand, AsciiError::ParameterError] {
+        assert!(refusal.means_safe_mode(Some(WatchdogReading::Fired(t))));
+        // ... not when it is merely off (`WD00`) or counting.
+        assert!(!refusal.means_safe_mode(Some(WatchdogReading::Off)));
+        assert!(!refusal.means_safe_mode(Some(WatchdogReading::Counting(t))));
+        assert!(!refusal.means_safe_mode(None));
+    }
+    // An answer from another module is no refusal at all.
+    let wrong = AsciiError::WrongId {
+        expected: 1,
+        got: 2,
+    };
+    assert!(!wrong.means_safe_mode(Some(WatchdogReading::Fired(t))));
 }
 
 #[test]
 fn s8_22_and_8_25_broadcasts_have_no_id_and_no_answer() {
     request("~**", Address::Broadcast, &Request::HostOk);
-    request("#**", Address::Broadcast, &Request::Snapshot);
+    request("#**", Address::Broadcast, &Request::Synchronize);
     assert_eq!(Request::HostOk.encode(7, false), b"~**\r");
     assert!(!Request::HostOk.expects_answer());
-    assert!(!Request::Snapshot.expects_answer());
-    assert!(Request::ReadSnapshot.expects_answer());
+    assert!(!Request::Synchronize.expects_answer());
+    assert!(Request::ReadSynchronized.expects_answer());
     assert_eq!(
         parse_answer(&Request::HostOk, b"!01\r", false, 1),
         Err(AsciiError::NoAnswerExpected)
@@ -638,31 +671,37 @@ fn s8_23_and_8_24_power_on_and_safe_values() {
 }
 
 #[test]
-fn s8_26_snapshot_with_or_without_id() {
-    // The manual writes "###"; NOTES and 8-25 say "#**".
-    assert!(matches!(decode_err("###"), RequestError::Malformed { .. }));
-    request("$014", Address::Id(1), &Request::ReadSnapshot);
-    let fresh = Answer::Snapshot {
+fn s8_26_synchronized_data_with_or_without_id() {
+    // The manual's "###" is the "#**" broadcast of 8-25; "#**" is what the driver sends.
+    decodes("###", Address::Broadcast, &Request::Synchronize);
+    assert_eq!(Request::Synchronize.encode(1, false), b"#**\r");
+    assert_eq!(
+        decode_err("###X").refusal(1),
+        None,
+        "a broadcast draws no refusal"
+    );
+    request("$014", Address::Id(1), &Request::ReadSynchronized);
+    let fresh = Answer::Synchronized(SynchronizedData {
         fresh: true,
         outputs: 0x01,
-        inputs: 0x0E,
-    };
-    answer(&Request::ReadSnapshot, 1, "!1010E00", 1, &fresh);
-    parses(&Request::ReadSnapshot, 1, "!011010E00", &fresh);
-    parses(&Request::ReadSnapshot, 1, "!1010e00", &fresh);
+        inputs_wire: 0x0E,
+    });
+    answer(&Request::ReadSynchronized, 1, "!1010E00", 1, &fresh);
+    parses(&Request::ReadSynchronized, 1, "!011010E00", &fresh);
+    parses(&Request::ReadSynchronized, 1, "!1010e00", &fresh);
     answer(
-        &Request::ReadSnapshot,
+        &Request::ReadSynchronized,
         1,
         "!0010E00",
         1,
-        &Answer::Snapshot {
+        &Answer::Synchronized(SynchronizedData {
             fresh: false,
             outputs: 0x01,
-            inputs: 0x0E,
-        },
+            inputs_wire: 0x0E,
+        }),
     );
     refused(
-        &Request::ReadSnapshot,
+        &Request::ReadSynchronized,
         1,
         "!021010E00",
         &AsciiError::WrongId {
@@ -672,12 +711,12 @@ fn s8_26_snapshot_with_or_without_id() {
     );
     // Before any "#**": "?ID".
     refused(
-        &Request::ReadSnapshot,
+        &Request::ReadSynchronized,
         1,
         "?01",
         &AsciiError::InvalidCommand,
     );
-    malformed(&Request::ReadSnapshot, 1, "!2010E00");
+    malformed(&Request::ReadSynchronized, 1, "!2010E00");
 }
 
 #[test]

@@ -5,8 +5,11 @@
 //! - 8-9: `$IDL1` ("no use") is read as "latched high", the counterpart of Modbus 10-17's 60.
 //! - 8-4: a single-channel write accepts DD `00`/`01` only; any 4-character `#ID` body is an
 //!   output write, so a bad PP or DD gets `!ID`. Bad parameters of other commands get `?ID`.
-//! - 8-19: in safe mode an output write is answered `!IDWE` ([`Refusal::SafeMode`]).
-//! - 8-21: `D` means "disabled or in safe mode", so a fired watchdog reads back as `!IDWD` + NN.
+//! - 8-19: in safe mode an output write is answered `!IDWE` ([`Refusal::SafeMode`]); any other
+//!   refusal means safe mode only when the watchdog reads as fired ([`AsciiError::means_safe_mode`]).
+//! - 8-21: `WD` + NN with NN > 0 is a fired watchdog, `WD00` and a bare `!ID` an off one
+//!   ([`WatchdogReading`]).
+//! - 8-26: its `###` is the `#**` broadcast of 8-25; both are accepted, `#**` is sent.
 //! - 8-1/8-3: the `%` answer `!NN` is framed with the checksum setting the request came with;
 //!   reserved format bits 5..1 and a PP other than 40 are refused with `?ID`.
 //! - Checksum and ID hex digits are accepted in either case, in requests and answers alike.
@@ -15,6 +18,7 @@ mod answer;
 mod frame;
 mod request;
 mod types;
+mod watchdog;
 
 #[cfg(test)]
 mod manual_tests;
@@ -26,5 +30,6 @@ pub use frame::{checksum, CR};
 pub use request::{decode_request, Refusal, Request, RequestError, MODULE_TYPE};
 pub use types::{
     Address, BaudCode, Channel, ConfigReport, DataFormat, FirmwareDate, FirmwareVersion,
-    LatchLevel, ModuleName, Preset,
+    LatchLevel, ModuleName, Preset, SynchronizedData,
 };
+pub use watchdog::WatchdogReading;

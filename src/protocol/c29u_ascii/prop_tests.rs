@@ -59,8 +59,8 @@ fn request() -> impl Strategy<Value = Request> {
         Just(Request::HostOk),
         preset().prop_map(Request::ReadPreset),
         preset().prop_map(Request::SavePreset),
-        Just(Request::Snapshot),
-        Just(Request::ReadSnapshot),
+        Just(Request::Synchronize),
+        Just(Request::ReadSynchronized),
     ]
 }
 
@@ -109,21 +109,21 @@ fn exchange() -> impl Strategy<Value = (Request, Answer)> {
         )),
         any::<bool>().prop_map(|b| (Request::ReadResetStatus, Answer::ResetStatus(b))),
         any::<bool>().prop_map(|b| (Request::SetLedMode(b), Answer::Led(b))),
-        any::<(bool, u8)>().prop_map(|(enabled, tenths)| (
+        any::<(u8, bool)>().prop_map(|(tenths, fired)| (
             Request::ReadWatchdog,
-            Answer::Watchdog { enabled, tenths }
+            Answer::Watchdog(WatchdogReading::of(tenths, fired))
         )),
         (preset(), any::<(u8, u8)>()).prop_map(|(p, (outputs, inputs))| (
             Request::ReadPreset(p),
             Answer::Preset { outputs, inputs }
         )),
-        any::<(bool, u8, u8)>().prop_map(|(fresh, outputs, inputs)| (
-            Request::ReadSnapshot,
-            Answer::Snapshot {
+        any::<(bool, u8, u8)>().prop_map(|(fresh, outputs, inputs_wire)| (
+            Request::ReadSynchronized,
+            Answer::Synchronized(SynchronizedData {
                 fresh,
                 outputs,
-                inputs
-            }
+                inputs_wire
+            })
         )),
     ]
 }
@@ -169,7 +169,7 @@ proptest! {
 
     #[test]
     fn other_ids_are_told_apart(req in request(), id in any::<u8>(), other in any::<u8>()) {
-        prop_assume!(id != other && req.expects_answer() && req != Request::ReadSnapshot);
+        prop_assume!(id != other && req.expects_answer() && req != Request::ReadSynchronized);
         prop_assume!(!matches!(req, Request::Configure { .. }));
         let frame = encode_refusal(Refusal::InvalidCommand, other, false);
         prop_assert_eq!(

@@ -67,10 +67,11 @@ pub enum Request {
     ReadPreset(Preset),
     /// 8-24 `~ID5P` / `~ID5S`: store the current outputs as the power-on or safe value.
     SavePreset(Preset),
-    /// 8-25 `#**`: every module remembers its outputs and inputs; nobody answers.
-    Snapshot,
-    /// 8-26 `$ID4`: read the snapshot taken by `#**`.
-    ReadSnapshot,
+    /// 8-25 `#**` (8-26 writes `###`): every module remembers its outputs and inputs; nobody
+    /// answers.
+    Synchronize,
+    /// 8-26 `$ID4`: read the synchronized data `#**` made the module remember.
+    ReadSynchronized,
 }
 
 impl Request {
@@ -132,7 +133,7 @@ impl Request {
             Request::ReadName => simple(&mut out, id, b'$', b"M"),
             Request::ReadFirmware => simple(&mut out, id, b'$', b"F"),
             Request::ReadResetStatus => simple(&mut out, id, b'$', b"5"),
-            Request::ReadSnapshot => simple(&mut out, id, b'$', b"4"),
+            Request::ReadSynchronized => simple(&mut out, id, b'$', b"4"),
             Request::SetName(name) => {
                 simple(&mut out, id, b'~', b"O");
                 out.extend_from_slice(name.as_str().as_bytes());
@@ -149,7 +150,7 @@ impl Request {
             Request::ReadPreset(p) => simple(&mut out, id, b'~', &[b'4', p.letter()]),
             Request::SavePreset(p) => simple(&mut out, id, b'~', &[b'5', p.letter()]),
             Request::HostOk => out.extend_from_slice(b"~**"),
-            Request::Snapshot => out.extend_from_slice(b"#**"),
+            Request::Synchronize => out.extend_from_slice(b"#**"),
         }
         frame::close(out, checksum)
     }
@@ -161,7 +162,7 @@ impl Request {
 
     /// True for `~**` and `#**`, which carry no ID.
     pub fn is_broadcast(&self) -> bool {
-        matches!(self, Request::HostOk | Request::Snapshot)
+        matches!(self, Request::HostOk | Request::Synchronize)
     }
 
     /// True for 8-4's output writes, answered by `>` when done.
@@ -260,7 +261,8 @@ pub fn decode_request(frame: &[u8], checksum: bool) -> Result<(Address, Request)
     };
     match (lead, rest) {
         (b'~', b"**") => return Ok((Address::Broadcast, Request::HostOk)),
-        (b'#', b"**") => return Ok((Address::Broadcast, Request::Snapshot)),
+        // 8-25 writes `#**`, 8-26's example `###`: both are the same broadcast.
+        (b'#', b"**" | b"##") => return Ok((Address::Broadcast, Request::Synchronize)),
         _ => {}
     }
     let (id, cmd) = match rest {
@@ -373,7 +375,7 @@ fn decode_dollar(cmd: &[u8]) -> Result<Request, Fault> {
         b"M" => Ok(Request::ReadName),
         b"F" => Ok(Request::ReadFirmware),
         b"5" => Ok(Request::ReadResetStatus),
-        b"4" => Ok(Request::ReadSnapshot),
+        b"4" => Ok(Request::ReadSynchronized),
         _ => Err(Fault::Unknown),
     }
 }

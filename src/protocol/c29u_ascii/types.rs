@@ -1,6 +1,7 @@
 //! Checked values that requests and answers carry: channels, baud codes, formats, names.
 
 use super::frame::is_printable;
+use super::request::MODULE_TYPE;
 use std::fmt;
 
 /// Where a request goes: one module by its ID, or every module on the line (`~**`, `#**`).
@@ -67,20 +68,28 @@ pub struct DataFormat {
     pub hex_counters: bool,
 }
 
+/// Data format bit 7: counters count falling edges (8-3).
+const FORMAT_FALLING: u8 = 0x80;
+/// Data format bit 6: frames carry a checksum (8-3).
+const FORMAT_CHECKSUM: u8 = 0x40;
+/// Data format bit 0: counters answered in hex, "engineer mode" (8-3).
+const FORMAT_HEX: u8 = 0x01;
+
 impl DataFormat {
     /// The byte as sent in `%IDNNPPBBDD`.
     pub fn to_byte(self) -> u8 {
-        (u8::from(self.falling_edge) << 7)
-            | (u8::from(self.checksum) << 6)
-            | u8::from(self.hex_counters)
+        let bit = |on: bool, bit: u8| if on { bit } else { 0 };
+        bit(self.falling_edge, FORMAT_FALLING)
+            | bit(self.checksum, FORMAT_CHECKSUM)
+            | bit(self.hex_counters, FORMAT_HEX)
     }
 
     /// Reads the byte; `None` when a reserved bit (5..1) is set.
     pub fn from_byte(b: u8) -> Option<Self> {
-        (b & 0x3E == 0).then_some(Self {
-            falling_edge: b & 0x80 != 0,
-            checksum: b & 0x40 != 0,
-            hex_counters: b & 0x01 != 0,
+        (b & !(FORMAT_FALLING | FORMAT_CHECKSUM | FORMAT_HEX) == 0).then_some(Self {
+            falling_edge: b & FORMAT_FALLING != 0,
+            checksum: b & FORMAT_CHECKSUM != 0,
+            hex_counters: b & FORMAT_HEX != 0,
         })
     }
 }
@@ -101,14 +110,25 @@ impl ConfigReport {
     /// The model number in bits 2..0 for a TRP-C29U.
     pub const MODEL_C29U: u8 = 3;
 
+    /// What a TRP-C29U with baud code `baud_code` and data format `format` reports: DD keeps the
+    /// edge and checksum bits and carries the model in bits 2..0, so the hex-counter bit of 8-3
+    /// is not reported (NOTES 8-12: factory settings read `!01400603`).
+    pub fn of_c29u(baud_code: u8, format: DataFormat) -> Self {
+        Self {
+            module_type: MODULE_TYPE,
+            baud_code,
+            format: (format.to_byte() & (FORMAT_FALLING | FORMAT_CHECKSUM)) | Self::MODEL_C29U,
+        }
+    }
+
     /// Counters count falling edges (bit 7).
     pub fn falling_edge(&self) -> bool {
-        self.format & 0x80 != 0
+        self.format & FORMAT_FALLING != 0
     }
 
     /// Frames carry a checksum (bit 6).
     pub fn checksum(&self) -> bool {
-        self.format & 0x40 != 0
+        self.format & FORMAT_CHECKSUM != 0
     }
 
     /// Bits 2..0: 0 C28, 1 C24, 2 C26, 3 C29U.
@@ -158,6 +178,17 @@ impl Preset {
     }
 }
 
+/// What `#**` made a module remember and `$ID4` reads back (8-25, 8-26).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub struct SynchronizedData {
+    /// A = 1: the first read since the `#**`.
+    pub fresh: bool,
+    /// The DO byte when the `#**` arrived.
+    pub outputs: u8,
+    /// The DI byte when the `#**` arrived, as on the wire (energized = 0 bit, NOTES).
+    pub inputs_wire: u8,
+}
+
 /// A module name (8-14, 8-17): 1 to 6 printable ASCII characters.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct ModuleName(String);
@@ -188,16 +219,7 @@ impl fmt::Display for ModuleName {
     }
 }
 
-/// A firmware date read from the end of `$IDF`'s text.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct FirmwareDate {
-    /// Two-digit year, 0-99 (9 = 2009).
-    pub year: u8,
-    /// Month 1-12.
-    pub month: u8,
-    /// Day 1-31.
-    pub day: u8,
-}
+pub use crate::protocol::c29u::FirmwareDate;
 
 /// `$IDF`'s answer (8-15, NOTES): opaque text after the ID, and the YYMMDD date when the text
 /// ends in six digits that make one (`C29M090703` -> model `C29M`, 2009-07-03).
@@ -318,6 +340,14 @@ mod tests {
         assert_eq!(r.model(), ConfigReport::MODEL_C29U);
         assert!(r.checksum() && !r.falling_edge());
         assert_eq!(r.baud().map(BaudCode::baud), Some(9600));
+        // The module reports edge and checksum, and the model where the hex bit would be.
+        let all = DataFormat::from_byte(0xC1).unwrap();
+        assert_eq!(ConfigReport::of_c29u(0x06, all).format, 0xC3);
+        assert_eq!(
+            ConfigReport::of_c29u(0x06, DataFormat::default()).format,
+            0x03
+        );
+        assert_eq!(ConfigReport::of_c29u(0x06, all).module_type, MODULE_TYPE);
     }
 
     #[test]

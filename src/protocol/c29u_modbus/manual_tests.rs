@@ -328,6 +328,18 @@ fn ex_10_16_safe_mode_and_error_answers() {
         parse_response(&req, 1, &seal(&hex("01 85 FF"))),
         Err(ModbusError::SafeMode { function: 0x05 })
     );
+    // 10-16's note: "you will get the response ID 8F FF" to a 05 output write in safe mode.
+    assert_eq!(
+        parse_response(&req, 1, &seal(&hex("01 8F FF"))),
+        Err(ModbusError::SafeMode { function: 0x05 })
+    );
+    let mut reader = FrameReader::for_answers();
+    reader.expect_answer(1, &req);
+    assert_eq!(
+        reader.push(&seal(&hex("01 8F FF"))),
+        vec![seal(&hex("01 8F FF"))],
+        "the reader takes 8F FF as the answer to a 05 request"
+    );
     assert_eq!(
         parse_response(&req, 1, &seal(&hex("01 85 02"))),
         Err(ModbusError::Exception {
@@ -370,7 +382,6 @@ fn ex_10_18_holding_counters() {
         "01 03 00 00 00 02",
         Request::ReadCounters {
             function: CounterFunction::Holding,
-            start: 0,
             count: 2,
         },
         "01 03 04 00 28 00 5A",
@@ -385,12 +396,33 @@ fn ex_10_18_holding_counters() {
 fn ex_10_19_input_counters() {
     exchange(
         "01 04 00 00 00 04",
-        Request::read_counters(0, 4),
+        Request::read_counters(4),
         "01 04 08 00 28 00 5A 00 53 00 55",
         Response::Counters {
             function: CounterFunction::Input,
             values: vec![0x28, 0x5A, 0x53, 0x55],
         },
+    );
+}
+
+#[test]
+fn ex_10_18_10_19_the_start_channel_is_always_00() {
+    // "Start channel number SS=00": the only start the manual gives; any other is refused with
+    // the start channel error of 10-18/10-19's answer table.
+    for function in [0x03, 0x04] {
+        assert_eq!(
+            decode_request(&seal(&[1, function, 0x00, 0x02, 0x00, 0x02])),
+            Err(RequestError::Exception {
+                id: 1,
+                function,
+                code: ExceptionCode::StartChannel
+            })
+        );
+    }
+    // So channel 3 alone is read as the last of four.
+    assert_eq!(
+        Request::read_counters(4).encode(1),
+        seal(&hex("01 04 00 00 00 04"))
     );
 }
 

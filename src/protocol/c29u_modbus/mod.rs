@@ -42,3 +42,9 @@ pub const FC_WRITE_COILS: u8 = 0x0F;
 pub const FC_VENDOR: u8 = 0x46;
 /// Bit set in the function code of an exception answer (`ID FC|80 CODE`).
 pub const EXCEPTION_FLAG: u8 = 0x80;
+
+/// The slave IDs a module can have (9-1, 10-1: "Address of setting module 1~247").
+pub const SLAVE_IDS: std::ops::RangeInclusive<u8> = 1..=247;
+
+/// The name code 46 00 answers: the hex digits `0C 29`, read as "C29" by [`model_name`] (10-1).
+pub const NAME_CODE: u16 = 0x0C29;

@@ -58,13 +58,8 @@ fn vendor_request() -> impl Strategy<Value = VendorRequest> {
 fn request() -> impl Strategy<Value = Request> {
     prop_oneof![
         proptest::sample::select(BitArea::ALL.to_vec()).prop_map(Request::ReadBits),
-        (counter_function(), range()).prop_map(|(function, (start, count))| {
-            Request::ReadCounters {
-                function,
-                start,
-                count,
-            }
-        }),
+        (counter_function(), 1u8..=8)
+            .prop_map(|(function, count)| Request::ReadCounters { function, count }),
         coil_command().prop_map(Request::WriteCoil),
         (coils_target(), range(), any::<u8>()).prop_map(|(target, (start, count), data)| {
             Request::WriteCoils {
@@ -113,11 +108,11 @@ fn exchange() -> impl Strategy<Value = (Request, Option<Response>)> {
     request().prop_flat_map(|req| {
         let answer: BoxedStrategy<Option<Response>> = match req {
             Request::ReadBits(_) => any::<u8>().prop_map(|b| Some(Response::Bits(b))).boxed(),
-            Request::ReadCounters {
-                function, count, ..
-            } => proptest::collection::vec(any::<u16>(), usize::from(count))
-                .prop_map(move |values| Some(Response::Counters { function, values }))
-                .boxed(),
+            Request::ReadCounters { function, count } => {
+                proptest::collection::vec(any::<u16>(), usize::from(count))
+                    .prop_map(move |values| Some(Response::Counters { function, values }))
+                    .boxed()
+            }
             Request::WriteCoil(cmd) => Just(Some(Response::CoilWritten(cmd))).boxed(),
             Request::WriteCoils {
                 target,

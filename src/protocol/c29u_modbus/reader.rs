@@ -10,6 +10,7 @@
 
 use super::frame::{crc_ok, MAX_FRAME_LEN, MIN_FRAME_LEN, MODBUS_CRC};
 use super::request::{vendor_answer_len, vendor_request_len, Request};
+use super::response::{is_output_write, is_safe_mode_function};
 use super::{EXCEPTION_FLAG, FC_VENDOR};
 
 /// What the master knows about the answer it waits for: only frames that could be that answer
@@ -84,11 +85,37 @@ enum Step {
 }
 
 /// Splits a byte stream into Modbus RTU frames; one mechanism for both directions.
+///
+/// The buffer never holds more than the bytes of one frame that may still be arriving (fewer
+/// than [`MAX_FRAME_LEN`]) plus one piece of input, so a flooding peer cannot grow it, and the
+/// work per byte is bounded: whether a complete frame of certain length starts at an offset is
+/// decided once per offset (`Verdict`), however many times the search passes over it.
 #[derive(Debug, Clone)]
 pub struct FrameReader {
     buf: Vec<u8>,
+    /// One entry per byte of `buf`: what is known about a frame of certain length starting there.
+    verdicts: Vec<Verdict>,
     side: Side,
     discarded: u64,
+}
+
+/// Whether a complete frame of certain length (and valid CRC) starts at an offset of the buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Verdict {
+    /// Not known yet: the frame there is not complete.
+    Open,
+    /// No such frame starts there, whatever bytes follow.
+    No,
+    /// One does.
+    Yes,
+}
+
+/// The search for the next later frame during one pass over an unchanged buffer: offsets before
+/// `next` have been looked at in this pass, and `found` is the first hit among them.
+#[derive(Debug, Default)]
+struct Search {
+    next: usize,
+    found: Option<usize>,
 }
 
 impl FrameReader {
@@ -105,6 +132,7 @@ impl FrameReader {
     fn new(side: Side) -> Self {
         Self {
             buf: Vec::new(),
+            verdicts: Vec::new(),
             side,
             discarded: 0,
         }
@@ -115,6 +143,7 @@ impl FrameReader {
     pub fn expect_answer(&mut self, id: u8, request: &Request) {
         if let Side::Answers(e) = &mut self.side {
             *e = Some(Expectation::answer_to(id, request));
+            self.forget_verdicts();
         }
     }
 
@@ -122,33 +151,42 @@ impl FrameReader {
     pub fn clear_expectation(&mut self) {
         if let Side::Answers(e) = &mut self.side {
             *e = None;
+            self.forget_verdicts();
         }
     }
 
     /// Takes bytes as they arrive and returns the frames they complete, in order, CRC included.
     pub fn push(&mut self, bytes: &[u8]) -> Vec<Vec<u8>> {
-        self.buf.extend_from_slice(bytes);
         let mut frames = Vec::new();
+        // A piece at a time, so the buffer stays bounded however much arrives at once.
+        for piece in bytes.chunks(MAX_FRAME_LEN) {
+            self.buf.extend_from_slice(piece);
+            self.verdicts.resize(self.buf.len(), Verdict::Open);
+            self.parse(&mut frames);
+        }
+        frames
+    }
+
+    /// Cuts every frame it can out of the buffer, then drops what was used or skipped.
+    fn parse(&mut self, frames: &mut Vec<Vec<u8>>) {
         let mut start = 0;
-        while let Some(rest) = self.buf.get(start..) {
-            if rest.is_empty() {
-                break;
-            }
-            match self.step(rest) {
+        let mut search = Search::default();
+        while start < self.buf.len() {
+            match self.step(start, &mut search) {
                 Step::Emit(len) => {
-                    frames.extend(rest.get(..len).map(<[u8]>::to_vec));
-                    start = start.saturating_add(len);
+                    frames.extend(self.buf.get(start..start + len).map(<[u8]>::to_vec));
+                    start += len;
                 }
                 Step::Skip(n) => {
-                    let n = n.clamp(1, rest.len());
+                    let n = n.clamp(1, self.buf.len() - start);
                     self.discarded = self.discarded.saturating_add(n as u64);
-                    start = start.saturating_add(n);
+                    start += n;
                 }
                 Step::Wait => break,
             }
         }
-        self.buf.drain(..start.min(self.buf.len()));
-        frames
+        self.buf.drain(..start);
+        self.verdicts.drain(..start.min(self.verdicts.len()));
     }
 
     /// The line has been silent for 3.5 characters: whatever is buffered is the end of a frame.
@@ -156,6 +194,7 @@ impl FrameReader {
     /// discards it otherwise. The buffer is empty afterwards.
     pub fn end_of_silence(&mut self) -> Option<Vec<u8>> {
         let buf = std::mem::take(&mut self.buf);
+        self.verdicts.clear();
         if buf.len() >= MIN_FRAME_LEN && buf.len() <= MAX_FRAME_LEN && crc_ok(&buf) {
             return Some(buf);
         }
@@ -167,6 +206,7 @@ impl FrameReader {
     pub fn clear(&mut self) {
         self.discarded = self.discarded.saturating_add(self.buf.len() as u64);
         self.buf.clear();
+        self.verdicts.clear();
     }
 
     /// The bytes received but not yet part of a frame.
@@ -179,8 +219,16 @@ impl FrameReader {
         self.discarded
     }
 
-    /// Decides what to do with the frame that may start at `buf[0]`.
-    fn step(&self, buf: &[u8]) -> Step {
+    /// A new expectation changes which frames are certain: judge every offset again.
+    fn forget_verdicts(&mut self) {
+        self.verdicts.fill(Verdict::Open);
+    }
+
+    /// Decides what to do with the frame that may start at `buf[start]`.
+    fn step(&mut self, start: usize, search: &mut Search) -> Step {
+        let Some(buf) = self.buf.get(start..) else {
+            return Step::Wait;
+        };
         match self.shape(buf) {
             Shape::NeedMore => Step::Wait,
             Shape::Impossible => Step::Skip(1),
@@ -191,43 +239,76 @@ impl FrameReader {
             },
             Shape::Expected(len) => match buf.get(..len) {
                 Some(frame) if crc_ok(frame) => Step::Emit(len),
-                Some(_) => self.uncertain(buf),
+                Some(_) => self.uncertain(start, search),
                 // The expected length has not arrived yet; shorter CRC matches are not
                 // trusted before then (they are taken at silence, see end_of_silence).
-                None => self.later_frame(buf).map_or(Step::Wait, Step::Skip),
+                None => self
+                    .later_frame(start, search)
+                    .map_or(Step::Wait, |at| Step::Skip(at - start)),
             },
-            Shape::Unknown => self.uncertain(buf),
+            Shape::Unknown => self.uncertain(start, search),
         }
     }
 
     /// A frame whose length is uncertain: the shortest CRC-valid prefix ends it; failing that,
     /// a complete frame of certain shape further on means the start was garbage.
-    fn uncertain(&self, buf: &[u8]) -> Step {
-        if let Some(len) = first_valid_prefix(buf) {
+    fn uncertain(&mut self, start: usize, search: &mut Search) -> Step {
+        let rest = self.buf.get(start..).unwrap_or_default();
+        if let Some(len) = first_valid_prefix(rest) {
             return Step::Emit(len);
         }
-        if let Some(offset) = self.later_frame(buf) {
-            return Step::Skip(offset);
+        let long_enough = rest.len() >= MAX_FRAME_LEN;
+        if let Some(at) = self.later_frame(start, search) {
+            return Step::Skip(at - start);
         }
-        if buf.len() >= MAX_FRAME_LEN {
+        if long_enough {
             Step::Skip(1)
         } else {
             Step::Wait
         }
     }
 
-    /// The offset of the first later frame whose length the reader is sure of, complete and
-    /// with a valid CRC.
-    fn later_frame(&self, buf: &[u8]) -> Option<usize> {
-        (1..buf.len()).find(|&offset| {
-            let Some(rest) = buf.get(offset..) else {
-                return false;
-            };
-            match self.shape(rest) {
-                Shape::Exact(len) | Shape::Expected(len) => rest.get(..len).is_some_and(crc_ok),
-                _ => false,
+    /// The offset (in `buf`) of the first frame after `start` whose length the reader is sure
+    /// of, complete and with a valid CRC. Each offset is judged once while its verdict is final,
+    /// and looked at once per pass while it is open, so a pass stays linear.
+    fn later_frame(&mut self, start: usize, search: &mut Search) -> Option<usize> {
+        if let Some(found) = search.found.filter(|&f| f > start) {
+            return Some(found);
+        }
+        let mut at = search.next.max(start + 1);
+        while at < self.buf.len() {
+            if self.verdict(at) == Verdict::Yes {
+                search.next = at + 1;
+                search.found = Some(at);
+                return Some(at);
             }
-        })
+            at += 1;
+        }
+        search.next = at;
+        search.found = None;
+        None
+    }
+
+    /// Whether a complete frame of certain length starts at `at`; remembered once final.
+    fn verdict(&mut self, at: usize) -> Verdict {
+        let known = self.verdicts.get(at).copied().unwrap_or(Verdict::Open);
+        if known != Verdict::Open {
+            return known;
+        }
+        let rest = self.buf.get(at..).unwrap_or_default();
+        let verdict = match self.shape(rest) {
+            Shape::Exact(len) | Shape::Expected(len) => match rest.get(..len) {
+                Some(frame) if crc_ok(frame) => Verdict::Yes,
+                Some(_) => Verdict::No,
+                None => Verdict::Open,
+            },
+            Shape::NeedMore => Verdict::Open,
+            Shape::Impossible | Shape::Unknown => Verdict::No,
+        };
+        if let Some(slot) = self.verdicts.get_mut(at) {
+            *slot = verdict;
+        }
+        verdict
     }
 
     fn shape(&self, buf: &[u8]) -> Shape {
@@ -313,6 +394,10 @@ fn expected_answer_shape(buf: &[u8], e: Expectation) -> Shape {
         } else {
             Shape::Exact(5)
         };
+    }
+    if is_output_write(e.function) && is_safe_mode_function(function) {
+        // 10-16: the safe-mode refusal of a 05 write may come as `ID 8F FF`.
+        return Shape::Exact(5);
     }
     if function != e.function {
         return Shape::Impossible;
@@ -420,7 +505,7 @@ mod tests {
         assert_eq!(r.end_of_silence(), None);
         assert_eq!(r.discarded(), 5);
         // The rest of the old frame after the gap is garbage; the next frame still gets through.
-        let next = Request::read_counters(0, 8).encode(1);
+        let next = Request::read_counters(8).encode(1);
         assert_eq!(r.push(&[&f[5..], &next[..]].concat()), vec![next]);
     }
 
@@ -517,6 +602,46 @@ mod tests {
         let garbage = [0x01, 0x0F, 0, 0, 0, 8, 0xFF];
         let f = read_do();
         assert_eq!(r.push(&[&garbage[..], &f[..]].concat()), vec![f]);
+    }
+
+    #[test]
+    fn a_flood_leaves_a_bounded_buffer_and_the_next_frame_is_found() {
+        // Issue 8: a peer sending `01 46 77` nonstop (a vendor request of unknown length).
+        let flood = [0x01, 0x46, 0x77].repeat(40_000);
+        let answer = encode_response(1, &Response::Bits(0xDF));
+        let expecting = || {
+            let mut r = FrameReader::for_answers();
+            r.expect_answer(1, &Request::ReadBits(BitArea::Inputs));
+            r
+        };
+        let cases = [
+            (FrameReader::for_requests(), read_do()),
+            (FrameReader::for_answers(), answer.clone()),
+            (expecting(), answer),
+        ];
+        for (mut r, frame) in cases {
+            for piece in [&flood[..], &flood[..7]] {
+                assert!(r.push(piece).is_empty());
+                assert!(r.pending().len() < MAX_FRAME_LEN, "{}", r.pending().len());
+            }
+            assert_eq!(r.push(&frame), vec![frame.clone()]);
+            assert!(r.pending().is_empty());
+            assert_eq!(r.discarded(), flood.len() as u64 + 7);
+        }
+    }
+
+    #[test]
+    fn a_new_expectation_judges_buffered_offsets_again() {
+        // A frame from slave 1 behind a garbage byte: not the answer slave 2 is expected to send,
+        // but the answer once slave 1 is expected.
+        let frame = encode_response(1, &Response::Bits(0xDF));
+        let mut r = FrameReader::for_answers();
+        r.expect_answer(2, &Request::ReadBits(BitArea::Inputs));
+        r.buf = [&[0xAA][..], &frame].concat();
+        r.verdicts = vec![Verdict::Open; r.buf.len()];
+        assert_eq!(r.verdict(1), Verdict::No);
+        r.expect_answer(1, &Request::ReadBits(BitArea::Inputs));
+        assert_eq!(r.verdict(1), Verdict::Yes);
     }
 
     #[test]

@@ -265,13 +265,12 @@ pub(crate) fn vendor_answer_len(sub: u8) -> Option<usize> {
 pub enum Request {
     /// 01: read 8 bits of one area, `ID 01 00 SS 00 08` (10-17).
     ReadBits(BitArea),
-    /// 03/04: read `count` counters from channel `start`, `ID FC 00 SS 00 NN` (10-18, 10-19).
+    /// 03/04: read counters 0..`count`, `ID FC 00 00 00 NN` (10-18, 10-19: the start channel
+    /// SS is always 00, so channel N is the last of N + 1 counters).
     ReadCounters {
         /// 03 or 04.
         function: CounterFunction,
-        /// First DI channel, 0-7.
-        start: u8,
-        /// How many, 1-8 (start + count <= 8).
+        /// How many, 1-8, from channel 0.
         count: u8,
     },
     /// 05: one coil write, `ID 05 SS NN VV 00` (10-16).
@@ -322,11 +321,10 @@ impl Request {
         }
     }
 
-    /// 04: read counters `start..start+count`.
-    pub fn read_counters(start: u8, count: u8) -> Self {
+    /// 04: read counters `0..count` (10-19).
+    pub fn read_counters(count: u8) -> Self {
         Self::ReadCounters {
             function: CounterFunction::Input,
-            start,
             count,
         }
     }
@@ -371,9 +369,7 @@ impl Request {
         let mut body = vec![id, self.function()];
         match *self {
             Self::ReadBits(area) => body.extend_from_slice(&[0x00, area.address(), 0x00, 0x08]),
-            Self::ReadCounters { start, count, .. } => {
-                body.extend_from_slice(&[0x00, start, 0x00, count])
-            }
+            Self::ReadCounters { count, .. } => body.extend_from_slice(&[0x00, 0x00, 0x00, count]),
             Self::WriteCoil(cmd) => body.extend_from_slice(&cmd.fields()),
             Self::WriteCoils {
                 target,
@@ -417,10 +413,11 @@ pub fn decode_request(frame: &[u8]) -> Result<(u8, Request), RequestError> {
             let [sh, sl, nh, nl] = rest else {
                 return Err(refuse(ExceptionCode::Syntax));
             };
-            if *sh != 0 || *sl > 7 {
+            // 10-18, 10-19: "Start channel number SS=00" is the only start the manual gives.
+            if (*sh, *sl) != (0, 0) {
                 return Err(refuse(ExceptionCode::StartChannel));
             }
-            if *nh != 0 || *nl == 0 || u16::from(*sl) + u16::from(*nl) > 8 {
+            if *nh != 0 || *nl == 0 || *nl > 8 {
                 return Err(refuse(ExceptionCode::Range));
             }
             let function = if function == FC_READ_HOLDING {
@@ -430,7 +427,6 @@ pub fn decode_request(frame: &[u8]) -> Result<(u8, Request), RequestError> {
             };
             Request::ReadCounters {
                 function,
-                start: *sl,
                 count: *nl,
             }
         }
@@ -556,8 +552,9 @@ mod tests {
             ExceptionCode::Range
         );
         assert_eq!(
-            refused(&[1, 0x03, 0x00, 0x04, 0x00, 0x05]),
-            ExceptionCode::Range
+            refused(&[1, 0x03, 0x00, 0x04, 0x00, 0x04]),
+            ExceptionCode::StartChannel,
+            "10-18: the start is always 00"
         );
         assert_eq!(
             refused(&[1, 0x05, 0x00, 0x08, 0xFF, 0x00]),

@@ -219,6 +219,11 @@ pub fn parse_response(
         return Err(ModbusError::NoAnswerExpected);
     }
     let expected_fc = request.function();
+    if is_safe_mode_refusal(expected_fc, *function, data) {
+        return Err(ModbusError::SafeMode {
+            function: expected_fc,
+        });
+    }
     if *function == expected_fc | EXCEPTION_FLAG {
         if expected_fc == FC_VENDOR {
             return Err(ModbusError::VendorError);
@@ -247,9 +252,7 @@ pub fn parse_response(
             [0x01, bits] => Ok(Response::Bits(*bits)),
             _ => Err(malformed("read bits answer is not 01 DD")),
         },
-        Request::ReadCounters {
-            function, count, ..
-        } => {
+        Request::ReadCounters { function, count } => {
             let [bc, values @ ..] = data else {
                 return Err(malformed("counter answer without byte count"));
             };
@@ -296,6 +299,23 @@ pub fn parse_response(
             .map(Response::Vendor)
             .map_err(malformed),
     }
+}
+
+/// 10-16 and 10-20: a module in safe mode answers any output write (05 or 0F) with code FF, and
+/// 10-16's note writes that answer `ID 8F FF` even for a 05 request: either exception function
+/// of an output write with code FF is the safe-mode refusal.
+pub(crate) fn is_safe_mode_refusal(request_fc: u8, answer_fc: u8, data: &[u8]) -> bool {
+    is_output_write(request_fc) && is_safe_mode_function(answer_fc) && data == [0xFF]
+}
+
+/// 05 and 0F, the functions that write outputs (10-16, 10-20).
+pub(crate) fn is_output_write(function: u8) -> bool {
+    function == FC_WRITE_COIL || function == FC_WRITE_COILS
+}
+
+/// The exception functions a safe-mode refusal comes with: `85` or `8F` (10-16, 10-20).
+pub(crate) fn is_safe_mode_function(function: u8) -> bool {
+    function == FC_WRITE_COIL | EXCEPTION_FLAG || function == FC_WRITE_COILS | EXCEPTION_FLAG
 }
 
 /// Reads the bytes after the function code of a 46 answer to `request`.
@@ -399,7 +419,7 @@ mod tests {
                 "{v:?}"
             );
         }
-        let r = Request::read_counters(2, 3);
+        let r = Request::read_counters(3);
         let a = encode_response(
             1,
             &Response::Counters {
@@ -476,6 +496,30 @@ mod tests {
         assert_eq!(
             parse_response(&req, 1, &seal(&[1, 0x8F, 0xFF])),
             Err(ModbusError::SafeMode { function: 0x0F })
+        );
+        assert_eq!(
+            parse_response(&req, 1, &seal(&[1, 0x85, 0xFF])),
+            Err(ModbusError::SafeMode { function: 0x0F })
+        );
+        // Another code from the other output function is no answer to this request.
+        assert_eq!(
+            parse_response(&req, 1, &seal(&[1, 0x85, 0x02])),
+            Err(ModbusError::UnexpectedFunction {
+                expected: 0x0F,
+                got: 0x85
+            })
+        );
+        // A read is never refused for safe mode with another function's code.
+        assert_eq!(
+            parse_response(
+                &Request::ReadBits(BitArea::Outputs),
+                1,
+                &seal(&[1, 0x8F, 0xFF])
+            ),
+            Err(ModbusError::UnexpectedFunction {
+                expected: 0x01,
+                got: 0x8F
+            })
         );
     }
 

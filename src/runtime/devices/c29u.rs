@@ -1,8 +1,9 @@
 //! A TRP-C29U as the runtime holds it: driver, input/counter/latch snapshots, the DO byte the
-//! script wants and the one last written, the host watchdog the runner feeds, and the steps
-//! that put the module under the runner's supervision (at start and when it comes back).
+//! script wants and the one last written, the host watchdog the runner feeds, and what the
+//! module holds in its EEPROM.
 
 use super::{DeviceError, Health, Snapshot};
+use crate::config::feeding::{FeedTiming, MOST_FEEDS_PER_TIMEOUT};
 use crate::config::C29uConfig;
 use crate::device::c29u::{C29u, C29uError, Latches, SharedLink, WatchdogTimeout};
 use crate::link::{ByteLink, LinkError};
@@ -43,19 +44,24 @@ pub struct C29uDevice {
     pub watchdog_ours: bool,
     /// When the watchdog was last fed.
     pub last_feed: Duration,
+    /// The runner has taken control of it (its watchdog is fed from then on).
+    pub controlled: bool,
+    /// How late a feed can reach it on this rig (`None`: not worked out, a quarter of the
+    /// timeout is used).
+    pub feed_timing: Option<FeedTiming>,
+    /// What the module holds, so that unchanged values are not written again.
+    pub stored: Stored,
 }
 
-/// What taking control of a module found worth telling.
-#[derive(Debug, Default, Clone, PartialEq, Eq)]
-pub struct ControlNotes {
-    /// It was in safe mode; its watchdog was disabled to leave it.
-    pub left_safe_mode: bool,
-    /// Its own watchdog was on without rig.toml asking; the runner feeds it.
-    pub adopted_watchdog: Option<WatchdogTimeout>,
-    /// Its stored safe value was changed to the configured one (from this).
-    pub safe_value_was: Option<u8>,
-    /// Its stored power-on value was changed to the configured one (from this).
-    pub power_on_value_was: Option<u8>,
+/// What the module holds in its EEPROM, as last read or written (`None`: not known).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Stored {
+    /// Its watchdog safe value.
+    pub safe_value: Option<u8>,
+    /// Its power-on value.
+    pub power_on_value: Option<u8>,
+    /// Its host watchdog (`Some(None)`: off).
+    pub watchdog: Option<Option<WatchdogTimeout>>,
 }
 
 impl C29uDevice {
@@ -85,6 +91,9 @@ impl C29uDevice {
             outputs_cause: String::new(),
             watchdog_ours: false,
             last_feed: Duration::ZERO,
+            controlled: false,
+            feed_timing: None,
+            stored: Stored::default(),
         }
     }
 
@@ -134,9 +143,39 @@ impl C29uDevice {
         Ok(())
     }
 
-    /// Host OK, if the runner feeds a watchdog and `interval` has passed since the last feed.
-    pub fn feed(&mut self, now: Duration, interval: Duration) -> Result<bool, DeviceError> {
-        if self.watchdog.is_none() || now.saturating_sub(self.last_feed) < interval {
+    /// How often the runner feeds this module's watchdog, if it feeds one: a quarter of the
+    /// timeout, or sooner where an exchange on this rig can take long (`config::feeding`);
+    /// a tenth of it where even that is too late (a module's own watchdog, adopted).
+    pub fn feed_interval(&self) -> Option<Duration> {
+        let timeout = self.watchdog?.as_duration();
+        Some(match &self.feed_timing {
+            Some(t) => t
+                .interval(timeout)
+                .unwrap_or(timeout / MOST_FEEDS_PER_TIMEOUT),
+            None => timeout / 4,
+        })
+    }
+
+    /// How long it has gone unfed at `now`, if longer than its watchdog's timeout (the
+    /// runner stalled and the watchdog has fired, if the module kept time alike).
+    pub fn stalled(&self, now: Duration) -> Option<Duration> {
+        let timeout = self.watchdog?.as_duration();
+        let unfed = now.saturating_sub(self.last_feed);
+        (self.controlled && self.health.online() && unfed > timeout).then_some(unfed)
+    }
+
+    /// When the watchdog is next to be fed, if the runner feeds one.
+    pub fn next_feed(&self) -> Option<Duration> {
+        if !self.controlled || !self.health.online() {
+            return None;
+        }
+        self.feed_interval()
+            .map(|i| self.last_feed.saturating_add(i))
+    }
+
+    /// Host OK, if the runner feeds a watchdog and its feed is due at `now`.
+    pub fn feed(&mut self, now: Duration) -> Result<bool, DeviceError> {
+        if !self.next_feed().is_some_and(|due| now >= due) {
             return Ok(false);
         }
         self.driver.host_ok()?;
@@ -144,90 +183,38 @@ impl C29uDevice {
         Ok(true)
     }
 
-    /// Puts the module under the runner's supervision: the configured safe and power-on
-    /// values stored (only where they differ, to spare the EEPROM), `outputs` written (leaving
-    /// safe mode first if the module is in it), and the host watchdog on and fed.
-    pub fn take_control(
-        &mut self,
-        outputs: u8,
-        now: Duration,
-    ) -> Result<ControlNotes, DeviceError> {
-        let mut notes = ControlNotes::default();
-        let before = self.driver.watchdog()?;
-        let safe = self.driver.safe_value()?;
-        if safe != self.config.safe_value {
-            let v = self.config.safe_value;
-            self.leaving_safe_mode(&mut notes, |d| d.set_safe_value(v))?;
-            notes.safe_value_was = Some(safe);
-        }
-        if let Some(v) = self.config.power_on_value {
-            let stored = self.driver.power_on_value()?;
-            if stored != v {
-                self.leaving_safe_mode(&mut notes, |d| d.set_power_on_value(v))?;
-                notes.power_on_value_was = Some(stored);
-            }
-        }
-        self.leaving_safe_mode(&mut notes, |d| d.write_outputs(outputs))?;
-        self.outputs_written = Some(outputs);
-        let module_own =
-            WatchdogTimeout::from_tenths(before.timeout_tenths).filter(|_| before.enabled);
-        match (self.watchdog, module_own) {
-            (Some(t), _) => {
-                let same = before.enabled && before.timeout_tenths == t.tenths();
-                if same && !notes.left_safe_mode {
-                    self.driver.host_ok()?;
-                } else {
-                    self.driver.set_watchdog(Some(t.as_duration()))?;
-                }
-                self.watchdog_ours = true;
-            }
-            (None, Some(own)) => {
-                if notes.left_safe_mode {
-                    self.driver.set_watchdog(Some(own.as_duration()))?;
-                } else {
-                    self.driver.host_ok()?;
-                }
-                self.watchdog = Some(own);
-                notes.adopted_watchdog = Some(own);
-            }
-            (None, None) => {}
-        }
-        self.last_feed = now;
-        Ok(notes)
-    }
-
-    /// Runs `op`; if the module refuses because it is in safe mode, disables the watchdog
-    /// (the only way out) and runs it once more.
-    fn leaving_safe_mode(
-        &mut self,
-        notes: &mut ControlNotes,
-        op: impl Fn(&mut C29u) -> Result<(), C29uError>,
-    ) -> Result<(), DeviceError> {
-        match op(&mut self.driver) {
-            Err(C29uError::SafeMode { .. }) if !notes.left_safe_mode => {
-                self.driver.set_watchdog(None)?;
-                notes.left_safe_mode = true;
-                Ok(op(&mut self.driver)?)
-            }
-            other => Ok(other?),
-        }
-    }
-
-    /// Writes the safe value to the outputs; a module in safe mode already holds it.
+    /// Writes the safe value to the outputs with the configured retries; a module in safe
+    /// mode already holds it.
     pub fn write_safe(&mut self) -> Result<(), DeviceError> {
-        match self.driver.write_outputs(self.config.safe_value) {
-            Ok(()) | Err(C29uError::SafeMode { .. }) => {
-                self.outputs_written = Some(self.config.safe_value);
-                Ok(())
-            }
+        let safe = self.config.safe_value;
+        Self::safe_write(&mut self.driver, safe)?;
+        self.outputs_written = Some(safe);
+        Ok(())
+    }
+
+    /// `write_safe` in one try, without retries (the end of a run: each device gets a bounded
+    /// time).
+    pub fn write_safe_once(&mut self) -> Result<(), DeviceError> {
+        let safe = self.config.safe_value;
+        Self::safe_write(&mut self.probe, safe)?;
+        self.outputs_written = Some(safe);
+        Ok(())
+    }
+
+    fn safe_write(driver: &mut C29u, safe: u8) -> Result<(), DeviceError> {
+        match driver.write_outputs(safe) {
+            Ok(()) | Err(C29uError::SafeMode { .. }) => Ok(()),
             Err(e) => Err(e.into()),
         }
     }
 
-    /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe).
+    /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe), in
+    /// one try: if it fails the watchdog stays on and the module goes safe by itself, where
+    /// its outputs already are.
     pub fn release_watchdog(&mut self) -> Result<(), DeviceError> {
         if self.watchdog_ours && self.watchdog.is_some() {
-            self.driver.set_watchdog(None)?;
+            self.probe.set_watchdog(None)?;
+            self.stored.watchdog = Some(None);
             self.watchdog_ours = false;
         }
         Ok(())

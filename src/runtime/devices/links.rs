@@ -1,9 +1,10 @@
 //! Link and simulator wrappers the runtime puts around devices: a count of the requests sent
 //! (transactions per tick for `--stats`), and a simulated device that can be made to stop
-//! answering (a lost device in scenario tests).
+//! answering (a lost device in scenario tests) or to answer slowly.
 
 use crate::link::{ByteLink, LinkError, PacketLink};
 use crate::sim::{ByteDevice, PacketDevice};
+use crate::time::clock::SharedClock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -66,47 +67,85 @@ impl<L: PacketLink> PacketLink for Counted<L> {
     }
 }
 
-/// Whether a simulated device answers; shared between the device and the test that plays
-/// the field side.
+/// Whether a simulated device answers, and how long it takes to; shared between the device
+/// and the test that plays the field side.
 #[derive(Debug, Clone, Default)]
-pub struct Presence(Arc<AtomicBool>);
+pub struct Presence {
+    gone: Arc<AtomicBool>,
+    delay_nanos: Arc<AtomicU64>,
+}
 
 impl Presence {
-    /// A device that answers.
+    /// A device that answers at once.
     pub fn new() -> Self {
-        Self(Arc::new(AtomicBool::new(false)))
+        Self::default()
     }
 
     /// Makes the device stop answering (cable pulled) or answer again.
     pub fn set_gone(&self, gone: bool) {
-        self.0.store(gone, Ordering::SeqCst);
+        self.gone.store(gone, Ordering::SeqCst);
     }
 
     /// Whether the device has stopped answering.
     pub fn is_gone(&self) -> bool {
-        self.0.load(Ordering::SeqCst)
+        self.gone.load(Ordering::SeqCst)
+    }
+
+    /// Makes the device take `delay` over each request (a slow module, a busy gateway).
+    pub fn set_delay(&self, delay: Duration) {
+        let nanos = u64::try_from(delay.as_nanos()).unwrap_or(u64::MAX);
+        self.delay_nanos.store(nanos, Ordering::SeqCst);
+    }
+
+    /// How long the device takes over each request.
+    pub fn delay(&self) -> Duration {
+        Duration::from_nanos(self.delay_nanos.load(Ordering::SeqCst))
     }
 }
 
-/// A simulated device that hears nothing and says nothing while its `Presence` says gone.
+/// A simulated device that hears nothing and says nothing while its `Presence` says gone,
+/// and takes its `Presence`'s delay (on the clock it is given) over each request.
 pub struct Unpluggable<D> {
     inner: D,
     presence: Presence,
+    clock: Option<SharedClock>,
 }
 
 impl<D> Unpluggable<D> {
     /// `inner`, present until `presence` says otherwise.
     pub fn new(inner: D, presence: Presence) -> Self {
-        Self { inner, presence }
+        Self {
+            inner,
+            presence,
+            clock: None,
+        }
+    }
+
+    /// Takes the presence's delay on `clock`.
+    pub fn with_clock(mut self, clock: SharedClock) -> Self {
+        self.clock = Some(clock);
+        self
+    }
+
+    /// Whether to answer, after the delay.
+    fn answers(&self) -> bool {
+        if self.presence.is_gone() {
+            return false;
+        }
+        let delay = self.presence.delay();
+        if let (Some(clock), false) = (&self.clock, delay.is_zero()) {
+            clock.sleep_until(clock.now().saturating_add(delay));
+        }
+        true
     }
 }
 
 impl<D: ByteDevice> ByteDevice for Unpluggable<D> {
     fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
-        if self.presence.is_gone() {
-            Vec::new()
-        } else {
+        if self.answers() {
             self.inner.receive(bytes)
+        } else {
+            Vec::new()
         }
     }
 
@@ -121,10 +160,10 @@ impl<D: ByteDevice> ByteDevice for Unpluggable<D> {
 
 impl<D: PacketDevice> PacketDevice for Unpluggable<D> {
     fn receive(&mut self, packet: &[u8; 8]) -> Option<[u8; 8]> {
-        if self.presence.is_gone() {
-            None
-        } else {
+        if self.answers() {
             self.inner.receive(packet)
+        } else {
+            None
         }
     }
 }

@@ -4,14 +4,18 @@
 
 mod c29u;
 mod open;
+mod settings;
 mod sim;
+mod takeover;
 mod trc;
 
 pub mod links;
 
-pub use c29u::C29uDevice;
+pub use c29u::{C29uDevice, Stored};
 pub use open::{open_devices, OpenError, Opened};
+pub use settings::SettingRefused;
 pub use sim::{FieldError, SimDevice, SimRig};
+pub use takeover::{ControlNotes, Takeover};
 pub use trc::TrcDevice;
 
 use crate::device::c29u::C29uError;
@@ -27,6 +31,9 @@ pub enum DeviceError {
     /// From the TRP-C29U driver.
     #[error(transparent)]
     C29u(#[from] C29uError),
+    /// A script may not change that setting (or not so).
+    #[error(transparent)]
+    Refused(Box<SettingRefused>),
     /// The device is lost; the operation was not tried.
     #[error("{device} is offline (lost {ago:.1?} ago: {cause}); the operation was not done")]
     Offline {
@@ -51,7 +58,7 @@ impl DeviceError {
                 e,
                 C29uError::Link(_) | C29uError::Timeout { .. } | C29uError::Garbled { .. }
             ),
-            DeviceError::Offline { .. } => false,
+            DeviceError::Offline { .. } | DeviceError::Refused(_) => false,
         }
     }
 
@@ -182,6 +189,22 @@ impl Device {
         match self {
             Device::Trc(d) => &d.name,
             Device::C29u(d) => &d.name,
+        }
+    }
+
+    /// The TRC1000, if this is one.
+    pub fn as_trc(&mut self) -> Option<&mut TrcDevice> {
+        match self {
+            Device::Trc(d) => Some(d),
+            Device::C29u(_) => None,
+        }
+    }
+
+    /// The TRP-C29U, if this is one.
+    pub fn as_c29u(&mut self) -> Option<&mut C29uDevice> {
+        match self {
+            Device::C29u(d) => Some(d),
+            Device::Trc(_) => None,
         }
     }
 

@@ -6,24 +6,21 @@ use super::links::{Counted, Presence, TransactionCounter, Unpluggable};
 use super::sim::{SimDevice, SimRig};
 use super::trc::{PacketReopener, TrcDevice};
 use super::{Device, DeviceError};
+use crate::config::feeding::{feed_timing, TRC1000_TIMEOUT};
 use crate::config::{C29uConfig, DeviceConfig, Port, RigConfig, Trc1000Address, Trc1000Config};
 use crate::device::c29u::{open_port, share, C29u, C29uOptions, SharedLink};
 use crate::device::trc1000::{Trc1000, Trc1000Error};
 use crate::link::memory::{MemoryByteLink, MemoryPacketLink};
+use crate::link::tcp::TcpLink;
 use crate::link::usb::{UsbPacketLink, UsbTarget};
 use crate::link::{ByteLink, PacketLink};
 use crate::protocol::c29u::baud_code;
-use crate::sim::c29u::{C29u as SimModule, Eeprom, ModuleConfig};
+use crate::sim::c29u::{C29uModel, Eeprom, ModuleConfig};
 use crate::sim::c29u_line::SimulatedC29u;
 use crate::sim::trc1000::Trc1000Sim;
 use crate::time::clock::SharedClock;
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
-
-/// How long a TRC1000 request waits for its answer in a run (the board answers within a few
-/// milliseconds; a lost board costs this much per retry).
-pub const TRC_TIMEOUT: Duration = Duration::from_millis(250);
 
 /// A device that could not be opened.
 #[derive(Debug, thiserror::Error)]
@@ -56,7 +53,7 @@ pub fn open_devices(
     let mut sim = SimRig::default();
     let mut lines: BTreeMap<String, SharedLink> = BTreeMap::new();
     for (name, device) in &config.devices {
-        let opened = match device {
+        let mut opened = match device {
             DeviceConfig::Trc1000(c) if simulate => {
                 let (d, s) = simulated_trc(name, c, clock, count);
                 sim.insert(name, s);
@@ -72,6 +69,9 @@ pub fn open_devices(
                 Device::C29u(Box::new(real_c29u(name, c, clock, count, &mut lines)?))
             }
         };
+        if let Device::C29u(d) = &mut opened {
+            d.feed_timing = feed_timing(&config.devices, name);
+        }
         devices.push(opened);
     }
     Ok(Opened { devices, sim })
@@ -93,13 +93,13 @@ fn simulated_trc(
     let board = Arc::new(Mutex::new(Trc1000Sim::new()));
     let presence = Presence::new();
     let link = MemoryPacketLink::new(
-        Unpluggable::new(Arc::clone(&board), presence.clone()),
+        Unpluggable::new(Arc::clone(&board), presence.clone()).with_clock(Arc::clone(clock)),
         format!("TRC1000 {name}"),
     )
     .with_clock(Arc::clone(clock));
     let link: Box<dyn PacketLink> = Box::new(Counted::new(link, Arc::clone(count)));
     let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
-    driver.set_timeout(TRC_TIMEOUT);
+    driver.set_timeout(TRC1000_TIMEOUT);
     (
         TrcDevice::new(name, config.clone(), driver, None),
         SimDevice::Trc { board, presence },
@@ -123,7 +123,7 @@ fn real_trc(
     });
     let link = reopener().map_err(|e| open_error(name, Trc1000Error::Link(e)))?;
     let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
-    driver.set_timeout(TRC_TIMEOUT);
+    driver.set_timeout(TRC1000_TIMEOUT);
     Ok(TrcDevice::new(name, config.clone(), driver, Some(reopener)))
 }
 
@@ -174,11 +174,11 @@ fn simulated_c29u(
         },
         ..Eeprom::factory()
     };
-    let module = SimulatedC29u::new(SimModule::new(c.protocol, Arc::clone(clock), eeprom));
+    let module = SimulatedC29u::new(C29uModel::new(c.protocol, Arc::clone(clock), eeprom));
     let model = module.model();
     let presence = Presence::new();
     let link = MemoryByteLink::new(
-        Unpluggable::new(module, presence.clone()),
+        Unpluggable::new(module, presence.clone()).with_clock(Arc::clone(clock)),
         format!("TRP-C29U {name}"),
     )
     .with_clock(Arc::clone(clock));
@@ -201,8 +201,16 @@ fn real_c29u(
     let (baud, timeout) = (c.baud, c.timeout);
     let reopen_count = Arc::clone(count);
     let reopen_port = port.clone();
+    let device_server = matches!(c.port, Port::Tcp { .. });
     let reopener: ByteReopener = Box::new(move || {
-        let link = open_port(&reopen_port, baud, timeout)?;
+        // Tried once a second while the module is lost, with every other module waiting: a
+        // device server gets the module's own timeout to answer (as much as an exchange, which
+        // config::feeding counts), not the longer wait of the first connection.
+        let link: Box<dyn ByteLink> = if device_server {
+            Box::new(TcpLink::connect(&reopen_port, timeout)?)
+        } else {
+            open_port(&reopen_port, baud, timeout)?
+        };
         Ok(Box::new(Counted::new(link, Arc::clone(&reopen_count))) as Box<dyn ByteLink>)
     });
     // Modules on one RS-485 line share one port (and take turns on it).

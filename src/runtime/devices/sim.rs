@@ -175,6 +175,20 @@ impl SimRig {
         Ok(())
     }
 
+    /// Makes a simulated device take `delay` over each request (zero: answer at once).
+    pub fn set_answer_delay(
+        &self,
+        dev: &str,
+        delay: std::time::Duration,
+    ) -> Result<(), FieldError> {
+        match self.get(dev)? {
+            SimDevice::Trc { presence, .. } | SimDevice::C29u { presence, .. } => {
+                presence.set_delay(delay);
+            }
+        }
+        Ok(())
+    }
+
     /// Unplugs and replugs a simulated device.
     pub fn power_cycle(&self, dev: &str) -> Result<(), FieldError> {
         match self.get(dev)? {

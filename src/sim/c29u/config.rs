@@ -1,22 +1,10 @@
 //! The communication settings the TRP-C29U keeps in EEPROM (8-1..8-3, 10-2..10-4).
 
-use super::SimError;
+use super::C29uModelError;
+use crate::protocol::c29u_ascii::{ConfigReport, DataFormat};
 use serde::{Deserialize, Serialize};
 
 pub use crate::protocol::c29u::{CounterEdge, Protocol};
-
-/// The digital I/O module type every C29U reports and accepts in `%` and `$ID2` (8-1, 8-12).
-pub const DIO_TYPE: u8 = 0x40;
-
-/// The model code in bits 2..0 of the format reported by `$ID2` (8-12: 3 = TRP-C29U).
-pub const MODEL_CODE: u8 = 3;
-
-/// Data format bit 7: counters count falling edges (8-3).
-const FMT_FALLING: u8 = 0x80;
-/// Data format bit 6: ASCII checksum enabled (8-3).
-const FMT_CHECKSUM: u8 = 0x40;
-/// Data format bit 0: counters shown in hex, "engineer mode" (8-3).
-const FMT_HEX: u8 = 0x01;
 
 /// Settings stored in EEPROM that define how the module talks (8-1..8-3, 10-2..10-4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -45,48 +33,35 @@ impl ModuleConfig {
         }
     }
 
-    /// Settings from the fields of a `%IDNNPPBBDD` command (8-1); rejects a bad baud code or a
-    /// data format with any of the unused bits 5..1 set.
-    pub fn from_parts(id: u8, baud_code: u8, data_format: u8) -> Result<Self, SimError> {
-        let used = FMT_FALLING | FMT_CHECKSUM | FMT_HEX;
-        if data_format & !used != 0 {
-            return Err(SimError::BadValue(format!(
-                "data format {data_format:02X}: bits 5..1 must be 0 (8-3)"
-            )));
-        }
+    /// Settings from the fields of a `%IDNNPPBBDD` command (8-1); rejects a bad baud code.
+    pub fn from_parts(id: u8, baud_code: u8, format: DataFormat) -> Result<Self, C29uModelError> {
         let cfg = Self {
             id,
             baud_code,
-            checksum: data_format & FMT_CHECKSUM != 0,
-            counter_edge: if data_format & FMT_FALLING != 0 {
+            checksum: format.checksum,
+            counter_edge: if format.falling_edge {
                 CounterEdge::Falling
             } else {
                 CounterEdge::Rising
             },
-            hex_counters: data_format & FMT_HEX != 0,
+            hex_counters: format.hex_counters,
         };
         cfg.validate()?;
         Ok(cfg)
     }
 
-    /// The data format byte as SET by `%` (8-3): bit 7 falling, bit 6 checksum, bit 0 hex.
-    pub fn data_format(&self) -> u8 {
-        let mut dd = 0;
-        if self.counter_edge == CounterEdge::Falling {
-            dd |= FMT_FALLING;
+    /// The data format as `%` sets it (8-3).
+    pub fn data_format(&self) -> DataFormat {
+        DataFormat {
+            falling_edge: self.counter_edge == CounterEdge::Falling,
+            checksum: self.checksum,
+            hex_counters: self.hex_counters,
         }
-        if self.checksum {
-            dd |= FMT_CHECKSUM;
-        }
-        if self.hex_counters {
-            dd |= FMT_HEX;
-        }
-        dd
     }
 
-    /// The data format byte as READ by `$ID2` (NOTES): bit 7 edge, bit 6 checksum, bits 2..0 = 3.
-    pub fn reported_format(&self) -> u8 {
-        (self.data_format() & (FMT_FALLING | FMT_CHECKSUM)) | MODEL_CODE
+    /// What `$ID2` answers for these settings (8-12, NOTES).
+    pub fn report(&self) -> ConfigReport {
+        ConfigReport::of_c29u(self.baud_code, self.data_format())
     }
 
     /// The line speed the baud code stands for, if it is one of 03..=0A.
@@ -95,9 +70,9 @@ impl ModuleConfig {
     }
 
     /// Checks what every protocol requires: a baud code from the 8-2 table.
-    pub fn validate(&self) -> Result<(), SimError> {
+    pub fn validate(&self) -> Result<(), C29uModelError> {
         if baud_rate(self.baud_code).is_none() {
-            return Err(SimError::BadValue(format!(
+            return Err(C29uModelError::BadValue(format!(
                 "baud code {:02X} outside 03..=0A (8-2)",
                 self.baud_code
             )));

@@ -1,15 +1,13 @@
 //! What the TRP-C29U keeps across resets and power cycles, and its JSON state file.
 
 use super::config::ModuleConfig;
-use super::SimError;
+use super::C29uModelError;
+use crate::protocol::c29u_ascii::ModuleName;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// The factory name of the module (8-14).
 pub const DEFAULT_NAME: &str = "TRPC29";
-
-/// Longest name the module keeps (8-17: "Max. 6 characters").
-pub const MAX_NAME_LEN: usize = 6;
 
 /// Everything that survives a reset or power cycle (serde Serialize/Deserialize, JSON file).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -51,14 +49,14 @@ impl Eeprom {
     }
 
     /// Reads and validates an EEPROM image from a JSON file; any failure names the file.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, SimError> {
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, C29uModelError> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|e| file_error(path, &e))?;
         Self::from_json(&text).map_err(|reason| file_error(path, &reason))
     }
 
     /// Writes the image to a JSON file atomically: a temporary file beside it, then a rename.
-    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SimError> {
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), C29uModelError> {
         let path = path.as_ref();
         let json = serde_json::to_string_pretty(self).map_err(|e| file_error(path, &e))?;
         let tmp = temp_path(path).ok_or_else(|| file_error(path, &"not a file path"))?;
@@ -81,7 +79,7 @@ impl Eeprom {
     }
 
     /// Checks every field holds a value the module could have stored.
-    pub fn validate(&self) -> Result<(), SimError> {
+    pub fn validate(&self) -> Result<(), C29uModelError> {
         self.config.validate()?;
         validate_name(&self.name)?;
         validate_led_mode(self.led_mode)
@@ -94,29 +92,27 @@ impl Default for Eeprom {
     }
 }
 
-/// Checks a module name: 1..=6 printable ASCII characters (space included).
-pub fn validate_name(name: &str) -> Result<(), SimError> {
-    let printable = name.bytes().all(|b| (0x20..=0x7E).contains(&b));
-    if name.is_empty() || name.len() > MAX_NAME_LEN || !printable {
-        return Err(SimError::BadValue(format!(
+/// Checks a module name by the rule of 8-14/8-17 ([`ModuleName`]).
+pub fn validate_name(name: &str) -> Result<(), C29uModelError> {
+    ModuleName::new(name).map(|_| ()).ok_or_else(|| {
+        C29uModelError::BadValue(format!(
             "name {name:?}: 1..=6 printable ASCII characters (8-17)"
-        )));
-    }
-    Ok(())
+        ))
+    })
 }
 
 /// Checks an LED mode: 0 or 1 (8-18, 10-10).
-pub fn validate_led_mode(mode: u8) -> Result<(), SimError> {
+pub fn validate_led_mode(mode: u8) -> Result<(), C29uModelError> {
     if mode > 1 {
-        return Err(SimError::BadValue(format!(
+        return Err(C29uModelError::BadValue(format!(
             "LED mode {mode}: 0 or 1 (8-18)"
         )));
     }
     Ok(())
 }
 
-fn file_error(path: &Path, reason: &dyn std::fmt::Display) -> SimError {
-    SimError::Io(format!("EEPROM state file {}: {reason}", path.display()))
+fn file_error(path: &Path, reason: &dyn std::fmt::Display) -> C29uModelError {
+    C29uModelError::Io(format!("EEPROM state file {}: {reason}", path.display()))
 }
 
 /// A temporary name in the same directory, so the rename stays on one file system.

@@ -117,7 +117,7 @@ mod tests {
 
     #[test]
     fn the_model_notes_writes_the_watchdog_power_cycles_and_resets_with_their_times() {
-        use crate::sim::c29u::{C29u, Eeprom, Protocol};
+        use crate::sim::c29u::{C29uModel, Eeprom, Protocol};
         use crate::time::clock::{Clock, VirtualClock};
         use std::sync::Arc;
 
@@ -127,7 +127,7 @@ mod tests {
             power_on_value: 0x30,
             ..Eeprom::factory()
         };
-        let mut m = C29u::new(Protocol::Modbus, Arc::new(clock.clone()), eeprom);
+        let mut m = C29uModel::new(Protocol::Modbus, Arc::new(clock.clone()), eeprom);
         m.record_outputs(16);
         let ms = Duration::from_millis;
         m.write_outputs(0x05).unwrap();

@@ -20,7 +20,8 @@
 //!   wiring being active-low) since the last clear; latched high = the wire level has gone to 1
 //!   (input released). They are set by a change of the input, not by a level already held when
 //!   they were cleared. They are RAM: a reset or power cycle clears them.
-//! - The `#**` snapshot is RAM too: lost on reset / power cycle (`$ID4` then answers `?ID`).
+//! - What `#**` made the module remember is RAM too: lost on reset / power cycle (`$ID4` then
+//!   answers `?ID`).
 //! - A Modbus module's ID can only be set to 1..=247 (9-1); ASCII takes 00..=FF.
 
 mod config;
@@ -31,18 +32,20 @@ mod view;
 #[cfg(test)]
 mod tests;
 
-pub use config::{baud_rate, CounterEdge, ModuleConfig, Protocol, DIO_TYPE, MODEL_CODE};
-pub use eeprom::{validate_led_mode, validate_name, Eeprom, DEFAULT_NAME, MAX_NAME_LEN};
+pub use config::{baud_rate, CounterEdge, ModuleConfig, Protocol};
+pub use eeprom::{validate_led_mode, validate_name, Eeprom, DEFAULT_NAME};
 pub use history::{OutputCause, OutputChange, OutputHistory};
-pub use view::{Firmware, SimState, Snapshot, WatchdogState, WatchdogStatus, FIRMWARE};
+pub use view::{SimState, WatchdogState, WatchdogStatus, FIRMWARE_DATE, FIRMWARE_MODEL};
 
+use crate::protocol::c29u_ascii::{SynchronizedData, WatchdogReading};
+use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::time::clock::SharedClock;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// Why the model refused a request.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum SimError {
+pub enum C29uModelError {
     /// Output write refused: the watchdog has fired, until it is disabled.
     #[error("module in safe mode: the host watchdog has fired; disable it to write outputs")]
     SafeMode,
@@ -53,8 +56,8 @@ pub enum SimError {
     #[error("bad value: {0}")]
     BadValue(String),
     /// `$ID4` before any `#**` (the module answers `?ID`).
-    #[error("no #** snapshot taken since power on")]
-    NoSnapshot,
+    #[error("no #** received since power on")]
+    NotSynchronized,
     /// The EEPROM state file could not be read, parsed or written.
     #[error("{0}")]
     Io(String),
@@ -64,11 +67,11 @@ pub enum SimError {
 pub const CHANNELS: u8 = 8;
 
 /// The single-bit mask of a channel, or `BadChannel`.
-fn channel_bit(ch: u8) -> Result<u8, SimError> {
+fn channel_bit(ch: u8) -> Result<u8, C29uModelError> {
     if ch < CHANNELS {
         Ok(1u8 << ch)
     } else {
-        Err(SimError::BadChannel(ch))
+        Err(C29uModelError::BadChannel(ch))
     }
 }
 
@@ -78,7 +81,7 @@ fn tenths_duration(t: u8) -> Duration {
 }
 
 /// The simulated TRP-C29U: RAM state, EEPROM image, and the clock that drives its watchdog.
-pub struct C29u {
+pub struct C29uModel {
     protocol: Protocol,
     clock: SharedClock,
     eeprom: Eeprom,
@@ -93,15 +96,16 @@ pub struct C29u {
     /// When an enabled, not yet fired watchdog fires; `None` when disabled or fired.
     deadline: Option<Duration>,
     reset_flag: bool,
-    snapshot: Option<Snapshot>,
+    /// What the last `#**` made the module remember (8-25).
+    synchronized: Option<SynchronizedData>,
     history: OutputHistory,
     /// EEPROM writes that stored what was there already.
     eeprom_rewrites: u64,
 }
 
-impl std::fmt::Debug for C29u {
+impl std::fmt::Debug for C29uModel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("C29u")
+        f.debug_struct("C29uModel")
             .field("protocol", &self.protocol)
             .field("eeprom", &self.eeprom)
             .field("state_file", &self.state_file)
@@ -112,12 +116,12 @@ impl std::fmt::Debug for C29u {
             .field("latched_high", &self.latched_high)
             .field("deadline", &self.deadline)
             .field("reset_flag", &self.reset_flag)
-            .field("snapshot", &self.snapshot)
+            .field("synchronized", &self.synchronized)
             .finish_non_exhaustive()
     }
 }
 
-impl C29u {
+impl C29uModel {
     /// Powers on a module with the given EEPROM contents (no state file).
     pub fn new(protocol: Protocol, clock: SharedClock, eeprom: Eeprom) -> Self {
         let mut m = Self {
@@ -133,7 +137,7 @@ impl C29u {
             latched_high: 0,
             deadline: None,
             reset_flag: true,
-            snapshot: None,
+            synchronized: None,
             history: OutputHistory::default(),
             eeprom_rewrites: 0,
         };
@@ -143,15 +147,15 @@ impl C29u {
 
     /// Powers on a module whose EEPROM is persisted to a JSON file: loaded if present (factory,
     /// written at once, otherwise) and saved atomically on every EEPROM change. An unreadable,
-    /// corrupt or invalid file is `SimError::Io` naming the file.
+    /// corrupt or invalid file is `C29uModelError::Io` naming the file.
     pub fn with_state_file(
         protocol: Protocol,
         clock: SharedClock,
         path: PathBuf,
-    ) -> Result<Self, SimError> {
+    ) -> Result<Self, C29uModelError> {
         let eeprom = match std::fs::read_to_string(&path) {
             Ok(text) => Eeprom::from_json(&text).map_err(|reason| {
-                SimError::Io(format!("EEPROM state file {}: {reason}", path.display()))
+                C29uModelError::Io(format!("EEPROM state file {}: {reason}", path.display()))
             })?,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 let fresh = Eeprom::factory();
@@ -159,7 +163,7 @@ impl C29u {
                 fresh
             }
             Err(e) => {
-                return Err(SimError::Io(format!(
+                return Err(C29uModelError::Io(format!(
                     "EEPROM state file {}: {e}",
                     path.display()
                 )))
@@ -182,11 +186,11 @@ impl C29u {
 
     /// Validates and stores new communication settings (takes effect at once; the front end
     /// answers the command that set them with the old ones). Modbus IDs must be 1..=247.
-    pub fn set_config(&mut self, cfg: ModuleConfig) -> Result<(), SimError> {
+    pub fn set_config(&mut self, cfg: ModuleConfig) -> Result<(), C29uModelError> {
         self.tick();
         cfg.validate()?;
-        if self.protocol == Protocol::Modbus && !(1..=247).contains(&cfg.id) {
-            return Err(SimError::BadValue(format!(
+        if self.protocol == Protocol::Modbus && !SLAVE_IDS.contains(&cfg.id) {
+            return Err(C29uModelError::BadValue(format!(
                 "Modbus ID {} outside 1..=247 (9-1)",
                 cfg.id
             )));
@@ -218,7 +222,7 @@ impl C29u {
     /// Applies `n` full pulses to channel `ch`: each one leaves the resting level and comes back
     /// (energize then release from released; release then energize from energized), so the
     /// channel counts `n` whichever edge is configured, ends where it was, and latches both ways.
-    pub fn pulse(&mut self, ch: u8, n: u32) -> Result<(), SimError> {
+    pub fn pulse(&mut self, ch: u8, n: u32) -> Result<(), C29uModelError> {
         let bit = channel_bit(ch)?;
         self.tick();
         if n == 0 {
@@ -232,7 +236,7 @@ impl C29u {
         Ok(())
     }
 
-    /// Unplug and replug: counters reload from EEPROM, latches and snapshot are lost, DO is the
+    /// Unplug and replug: counters reload from EEPROM, latches and the `#**` data are lost, DO is the
     /// power-on value (the safe value while in safe mode), the reset flag is set, an enabled
     /// watchdog starts counting again.
     pub fn power_cycle(&mut self) {
@@ -252,21 +256,21 @@ impl C29u {
     }
 
     /// Writes all eight outputs; `SafeMode` once the watchdog has fired.
-    pub fn write_outputs(&mut self, value: u8) -> Result<(), SimError> {
+    pub fn write_outputs(&mut self, value: u8) -> Result<(), C29uModelError> {
         self.tick();
         if self.eeprom.safe_mode {
-            return Err(SimError::SafeMode);
+            return Err(C29uModelError::SafeMode);
         }
         self.drive(self.clock.now(), value, OutputCause::HostWrite);
         Ok(())
     }
 
     /// Writes one output; `BadChannel` outside 0..=7, `SafeMode` once the watchdog has fired.
-    pub fn write_output(&mut self, ch: u8, on: bool) -> Result<(), SimError> {
+    pub fn write_output(&mut self, ch: u8, on: bool) -> Result<(), C29uModelError> {
         let bit = channel_bit(ch)?;
         self.tick();
         if self.eeprom.safe_mode {
-            return Err(SimError::SafeMode);
+            return Err(C29uModelError::SafeMode);
         }
         let value = if on {
             self.outputs | bit
@@ -288,11 +292,11 @@ impl C29u {
     }
 
     /// One channel's live counter.
-    pub fn counter(&self, ch: u8) -> Result<u16, SimError> {
+    pub fn counter(&self, ch: u8) -> Result<u16, C29uModelError> {
         self.counters
             .get(usize::from(ch))
             .copied()
-            .ok_or(SimError::BadChannel(ch))
+            .ok_or(C29uModelError::BadChannel(ch))
     }
 
     /// All eight live counters, channel 0 first.
@@ -301,7 +305,7 @@ impl C29u {
     }
 
     /// Clears one live counter (EEPROM keeps its saved value, 8-6).
-    pub fn clear_counter(&mut self, ch: u8) -> Result<(), SimError> {
+    pub fn clear_counter(&mut self, ch: u8) -> Result<(), C29uModelError> {
         channel_bit(ch)?;
         self.tick();
         if let Some(slot) = self.counters.get_mut(usize::from(ch)) {
@@ -317,7 +321,7 @@ impl C29u {
     }
 
     /// Saves all live counters to EEPROM, to be reloaded at reset and power on (8-8).
-    pub fn save_counters(&mut self) -> Result<(), SimError> {
+    pub fn save_counters(&mut self) -> Result<(), C29uModelError> {
         self.tick();
         let mut next = self.eeprom.clone();
         next.saved_counters = self.counters;
@@ -343,7 +347,7 @@ impl C29u {
 
     /// Sets the host watchdog timeout in 0.1 s units and starts counting; 0 disables it and
     /// leaves safe mode (DO stays as it is). Stored in EEPROM: reset and power loss keep it.
-    pub fn set_watchdog(&mut self, tenths: u8) -> Result<(), SimError> {
+    pub fn set_watchdog(&mut self, tenths: u8) -> Result<(), C29uModelError> {
         self.tick();
         let mut next = self.eeprom.clone();
         next.watchdog_tenths = tenths;
@@ -353,6 +357,12 @@ impl C29u {
         self.commit(next)?;
         self.restart_countdown();
         Ok(())
+    }
+
+    /// The watchdog as `~IDWR` reports it (8-21), as of now.
+    pub fn watchdog_reading(&mut self) -> WatchdogReading {
+        let status = self.watchdog();
+        WatchdogReading::of(status.timeout_tenths, status.expired)
     }
 
     /// The watchdog's mode and whether it has fired, as of now.
@@ -384,7 +394,7 @@ impl C29u {
     }
 
     /// Stores the safe value in EEPROM (DO is not changed).
-    pub fn set_safe_value(&mut self, v: u8) -> Result<(), SimError> {
+    pub fn set_safe_value(&mut self, v: u8) -> Result<(), C29uModelError> {
         self.tick();
         let mut next = self.eeprom.clone();
         next.safe_value = v;
@@ -397,7 +407,7 @@ impl C29u {
     }
 
     /// Stores the power-on value in EEPROM (DO is not changed).
-    pub fn set_power_on_value(&mut self, v: u8) -> Result<(), SimError> {
+    pub fn set_power_on_value(&mut self, v: u8) -> Result<(), C29uModelError> {
         self.tick();
         let mut next = self.eeprom.clone();
         next.power_on_value = v;
@@ -405,13 +415,13 @@ impl C29u {
     }
 
     /// Stores the current DO as the safe value (`~ID5S`).
-    pub fn save_outputs_as_safe(&mut self) -> Result<(), SimError> {
+    pub fn save_outputs_as_safe(&mut self) -> Result<(), C29uModelError> {
         self.tick();
         self.set_safe_value(self.outputs)
     }
 
     /// Stores the current DO as the power-on value (`~ID5P`).
-    pub fn save_outputs_as_power_on(&mut self) -> Result<(), SimError> {
+    pub fn save_outputs_as_power_on(&mut self) -> Result<(), C29uModelError> {
         self.tick();
         self.set_power_on_value(self.outputs)
     }
@@ -422,17 +432,12 @@ impl C29u {
     }
 
     /// Renames the module: 1..=6 printable ASCII characters (8-17).
-    pub fn set_name(&mut self, name: &str) -> Result<(), SimError> {
+    pub fn set_name(&mut self, name: &str) -> Result<(), C29uModelError> {
         self.tick();
         validate_name(name)?;
         let mut next = self.eeprom.clone();
         name.clone_into(&mut next.name);
         self.commit(next)
-    }
-
-    /// The firmware identity: `C29M`, 09-07-03 (NOTES 8-15 / 10-5).
-    pub fn firmware(&self) -> Firmware {
-        FIRMWARE
     }
 
     /// True once after a reset or power on, then false (8-16, 10-6).
@@ -453,7 +458,7 @@ impl C29u {
     }
 
     /// Stores the LED operating mode: 0 or 1.
-    pub fn set_led_mode(&mut self, mode: u8) -> Result<(), SimError> {
+    pub fn set_led_mode(&mut self, mode: u8) -> Result<(), C29uModelError> {
         self.tick();
         validate_led_mode(mode)?;
         let mut next = self.eeprom.clone();
@@ -461,22 +466,25 @@ impl C29u {
         self.commit(next)
     }
 
-    /// `#**` broadcast: remembers DO and DI (wire form) and marks the snapshot fresh.
-    pub fn take_snapshot(&mut self) {
+    /// `#**` broadcast: remembers DO and DI (wire form), fresh until read (8-25).
+    pub fn synchronize(&mut self) {
         self.tick();
-        self.snapshot = Some(Snapshot {
+        self.synchronized = Some(SynchronizedData {
             fresh: true,
             outputs: self.outputs,
             inputs_wire: self.inputs_wire(),
         });
     }
 
-    /// `$ID4`: the last snapshot, fresh only on the first read after the `#**`.
-    pub fn read_snapshot(&mut self) -> Result<Snapshot, SimError> {
+    /// `$ID4`: what the last `#**` remembered, fresh only on the first read after it (8-26).
+    pub fn read_synchronized(&mut self) -> Result<SynchronizedData, C29uModelError> {
         self.tick();
-        let snap = self.snapshot.as_mut().ok_or(SimError::NoSnapshot)?;
-        let out = *snap;
-        snap.fresh = false;
+        let data = self
+            .synchronized
+            .as_mut()
+            .ok_or(C29uModelError::NotSynchronized)?;
+        let out = *data;
+        data.fresh = false;
         Ok(out)
     }
 
@@ -539,7 +547,7 @@ impl C29u {
 
     /// Writes the EEPROM image to the state file if a best-effort write (the watchdog firing)
     /// failed earlier; a no-op otherwise.
-    pub fn flush(&mut self) -> Result<(), SimError> {
+    pub fn flush(&mut self) -> Result<(), C29uModelError> {
         self.tick();
         if self.unsaved {
             if let Some(path) = &self.state_file {
@@ -558,7 +566,7 @@ impl C29u {
         self.counters = self.eeprom.saved_counters;
         self.latched_low = 0;
         self.latched_high = 0;
-        self.snapshot = None;
+        self.synchronized = None;
         self.reset_flag = true;
         let in_safe_mode = self.eeprom.safe_mode;
         let value = if in_safe_mode {
@@ -616,7 +624,7 @@ impl C29u {
 
     /// Makes `next` the EEPROM image, writing the state file first; on a write error nothing
     /// changes.
-    fn commit(&mut self, next: Eeprom) -> Result<(), SimError> {
+    fn commit(&mut self, next: Eeprom) -> Result<(), C29uModelError> {
         if next == self.eeprom {
             self.eeprom_rewrites = self.eeprom_rewrites.saturating_add(1);
         }

@@ -1,6 +1,7 @@
 //! Behaviour of the TRP-C29U model in virtual time.
 
 use super::*;
+use crate::protocol::c29u_ascii::{ConfigReport, DataFormat, SynchronizedData};
 use crate::time::clock::VirtualClock;
 use std::sync::Arc;
 
@@ -8,13 +9,18 @@ fn ms(n: u64) -> Duration {
     Duration::from_millis(n)
 }
 
-fn module(protocol: Protocol) -> (C29u, VirtualClock) {
+/// A data format byte of 8-3 as the protocol reads it.
+fn format(dd: u8) -> DataFormat {
+    DataFormat::from_byte(dd).unwrap()
+}
+
+fn module(protocol: Protocol) -> (C29uModel, VirtualClock) {
     let clock = VirtualClock::at_epoch();
-    let m = C29u::new(protocol, Arc::new(clock.clone()), Eeprom::factory());
+    let m = C29uModel::new(protocol, Arc::new(clock.clone()), Eeprom::factory());
     (m, clock)
 }
 
-fn ascii() -> (C29u, VirtualClock) {
+fn ascii() -> (C29uModel, VirtualClock) {
     module(Protocol::Ascii)
 }
 
@@ -73,14 +79,10 @@ fn factory_module_powers_on_with_documented_defaults() {
             expired: false
         }
     );
+    assert_eq!(FIRMWARE_MODEL, "C29M");
     assert_eq!(
-        m.firmware(),
-        Firmware {
-            model: "C29M",
-            year: 9,
-            month: 7,
-            day: 3
-        }
+        (FIRMWARE_DATE.year, FIRMWARE_DATE.month, FIRMWARE_DATE.day),
+        (9, 7, 3)
     );
 }
 
@@ -88,30 +90,30 @@ fn factory_module_powers_on_with_documented_defaults() {
 fn factory_data_format_reads_back_as_03_like_8_12() {
     // 8-12: "$012" -> "!01400603": DIO type 40, 9600 baud, format 03 (rising, no checksum, C29U).
     let cfg = ModuleConfig::factory();
-    assert_eq!(DIO_TYPE, 0x40);
-    assert_eq!(cfg.baud_code, 0x06);
-    assert_eq!(cfg.data_format(), 0x00);
-    assert_eq!(cfg.reported_format(), 0x03);
+    assert_eq!(cfg.report().module_type, 0x40);
+    assert_eq!(cfg.report().baud_code, 0x06);
+    assert_eq!(cfg.data_format().to_byte(), 0x00);
+    assert_eq!(cfg.report().format, 0x03);
 }
 
 #[test]
 fn data_format_bits_follow_8_3() {
-    let cfg = ModuleConfig::from_parts(0x03, 0x05, 0xC1).unwrap();
+    let cfg = ModuleConfig::from_parts(0x03, 0x05, format(0xC1)).unwrap();
     assert_eq!(cfg.id, 3);
     assert_eq!(cfg.baud_rate(), Some(4800));
     assert_eq!(cfg.counter_edge, CounterEdge::Falling);
     assert!(cfg.checksum);
     assert!(cfg.hex_counters);
-    assert_eq!(cfg.data_format(), 0xC1);
+    assert_eq!(cfg.data_format().to_byte(), 0xC1);
     // $ID2 shows the edge and checksum bits and the model code, not the hex bit.
-    assert_eq!(cfg.reported_format(), 0xC3);
+    assert_eq!(cfg.report().format, 0xC3);
     // 8-3's example "%0101400601": ID 01, 9600, counter mode hex.
-    let hex = ModuleConfig::from_parts(0x01, 0x06, 0x01).unwrap();
+    let hex = ModuleConfig::from_parts(0x01, 0x06, format(0x01)).unwrap();
     assert!(hex.hex_counters && !hex.checksum);
     assert_eq!(hex.counter_edge, CounterEdge::Rising);
     // 8-3's first example "%0001400600": new ID 01, 9600, checksum disabled.
     assert_eq!(
-        ModuleConfig::from_parts(0x01, 0x06, 0x00).unwrap(),
+        ModuleConfig::from_parts(0x01, 0x06, format(0x00)).unwrap(),
         ModuleConfig::factory()
     );
 }
@@ -119,17 +121,15 @@ fn data_format_bits_follow_8_3() {
 #[test]
 fn from_parts_rejects_bad_baud_and_unused_format_bits() {
     assert!(matches!(
-        ModuleConfig::from_parts(1, 0x02, 0),
-        Err(SimError::BadValue(_))
+        ModuleConfig::from_parts(1, 0x02, format(0)),
+        Err(C29uModelError::BadValue(_))
     ));
     assert!(matches!(
-        ModuleConfig::from_parts(1, 0x0B, 0),
-        Err(SimError::BadValue(_))
+        ModuleConfig::from_parts(1, 0x0B, format(0)),
+        Err(C29uModelError::BadValue(_))
     ));
-    assert!(matches!(
-        ModuleConfig::from_parts(1, 0x06, 0x03),
-        Err(SimError::BadValue(_))
-    ));
+    // The reserved bits are the protocol's to refuse: such a format is no `DataFormat`.
+    assert_eq!(DataFormat::from_byte(0x03), None);
 }
 
 #[test]
@@ -157,7 +157,10 @@ fn set_config_validates_and_stores() {
     let (mut m, _) = ascii();
     let mut cfg = ModuleConfig::factory();
     cfg.baud_code = 0x0B;
-    assert!(matches!(m.set_config(cfg), Err(SimError::BadValue(_))));
+    assert!(matches!(
+        m.set_config(cfg),
+        Err(C29uModelError::BadValue(_))
+    ));
     assert_eq!(
         m.config(),
         ModuleConfig::factory(),
@@ -183,7 +186,10 @@ fn modbus_ids_are_1_to_247() {
     let mut cfg = ModuleConfig::factory();
     for bad in [0u8, 248, 255] {
         cfg.id = bad;
-        assert!(matches!(m.set_config(cfg), Err(SimError::BadValue(_))));
+        assert!(matches!(
+            m.set_config(cfg),
+            Err(C29uModelError::BadValue(_))
+        ));
     }
     for good in [1u8, 2, 247] {
         cfg.id = good;
@@ -401,10 +407,13 @@ fn inputs_survive_a_power_cycle_without_counting() {
 fn channels_outside_0_to_7_are_bad_channel() {
     let (mut m, _) = ascii();
     for ch in [8u8, 9, 15, 255] {
-        assert_eq!(m.counter(ch), Err(SimError::BadChannel(ch)));
-        assert_eq!(m.clear_counter(ch), Err(SimError::BadChannel(ch)));
-        assert_eq!(m.pulse(ch, 1), Err(SimError::BadChannel(ch)));
-        assert_eq!(m.write_output(ch, true), Err(SimError::BadChannel(ch)));
+        assert_eq!(m.counter(ch), Err(C29uModelError::BadChannel(ch)));
+        assert_eq!(m.clear_counter(ch), Err(C29uModelError::BadChannel(ch)));
+        assert_eq!(m.pulse(ch, 1), Err(C29uModelError::BadChannel(ch)));
+        assert_eq!(
+            m.write_output(ch, true),
+            Err(C29uModelError::BadChannel(ch))
+        );
     }
     assert_eq!(m.outputs(), 0);
     assert_eq!(m.counters(), [0; 8]);
@@ -488,8 +497,8 @@ fn watchdog_fires_to_the_safe_value_and_refuses_writes() {
     assert!(m.in_safe_mode());
     assert_eq!(m.outputs(), 0x14);
     assert!(m.watchdog().expired);
-    assert_eq!(m.write_outputs(0x01), Err(SimError::SafeMode));
-    assert_eq!(m.write_output(0, true), Err(SimError::SafeMode));
+    assert_eq!(m.write_outputs(0x01), Err(C29uModelError::SafeMode));
+    assert_eq!(m.write_output(0, true), Err(C29uModelError::SafeMode));
     assert_eq!(m.outputs(), 0x14);
 }
 
@@ -498,7 +507,7 @@ fn a_write_after_the_deadline_is_refused_even_without_a_poll() {
     let (mut m, clock) = ascii();
     m.set_watchdog(1).unwrap();
     clock.advance(ms(5000));
-    assert_eq!(m.write_outputs(0x55), Err(SimError::SafeMode));
+    assert_eq!(m.write_outputs(0x55), Err(C29uModelError::SafeMode));
     assert_eq!(m.outputs(), 0);
 }
 
@@ -540,7 +549,7 @@ fn host_ok_does_not_leave_safe_mode() {
     clock.advance(ms(100));
     m.host_ok();
     assert!(m.in_safe_mode());
-    assert_eq!(m.write_outputs(1), Err(SimError::SafeMode));
+    assert_eq!(m.write_outputs(1), Err(C29uModelError::SafeMode));
 }
 
 #[test]
@@ -580,7 +589,7 @@ fn a_new_timeout_in_safe_mode_keeps_safe_mode() {
     let wd = m.watchdog();
     assert!(wd.enabled && wd.expired);
     assert_eq!(wd.timeout_tenths, 50);
-    assert_eq!(m.write_outputs(1), Err(SimError::SafeMode));
+    assert_eq!(m.write_outputs(1), Err(C29uModelError::SafeMode));
 }
 
 #[test]
@@ -635,7 +644,7 @@ fn safe_mode_persists_across_reset_and_power_cycle() {
     m.reset();
     assert!(m.in_safe_mode());
     assert_eq!(m.outputs(), 0x21, "safe value, not the power-on value");
-    assert_eq!(m.write_outputs(0), Err(SimError::SafeMode));
+    assert_eq!(m.write_outputs(0), Err(C29uModelError::SafeMode));
     m.power_cycle();
     assert!(m.in_safe_mode());
     assert_eq!(m.outputs(), 0x21);
@@ -670,7 +679,7 @@ fn name_can_be_changed_like_8_17() {
     assert_eq!(m.name(), "ABCDEF");
     for bad in ["", "ABCDEFG", "AB\rC", "é"] {
         assert!(
-            matches!(m.set_name(bad), Err(SimError::BadValue(_))),
+            matches!(m.set_name(bad), Err(C29uModelError::BadValue(_))),
             "{bad:?}"
         );
     }
@@ -682,7 +691,10 @@ fn led_mode_is_0_or_1() {
     let (mut m, _) = ascii();
     m.set_led_mode(1).unwrap();
     assert_eq!(m.led_mode(), 1);
-    assert!(matches!(m.set_led_mode(2), Err(SimError::BadValue(_))));
+    assert!(matches!(
+        m.set_led_mode(2),
+        Err(C29uModelError::BadValue(_))
+    ));
     assert_eq!(m.led_mode(), 1);
     m.reset();
     assert_eq!(m.led_mode(), 1);
@@ -702,44 +714,44 @@ fn reset_flag_is_read_once() {
 }
 
 #[test]
-fn snapshot_is_fresh_then_stale() {
+fn synchronized_data_is_fresh_then_stale() {
     // 8-26: after #**, $ID4 answers A=1 once, then A=0.
     let (mut m, _) = ascii();
-    assert_eq!(m.read_snapshot(), Err(SimError::NoSnapshot));
+    assert_eq!(m.read_synchronized(), Err(C29uModelError::NotSynchronized));
     m.write_outputs(0x01).unwrap();
     m.set_inputs(0xF1); // wire 0E, like the "!1010E00" example
-    m.take_snapshot();
+    m.synchronize();
     m.write_outputs(0xFF).unwrap();
     m.set_inputs(0);
-    let first = m.read_snapshot().unwrap();
+    let first = m.read_synchronized().unwrap();
     assert_eq!(
         first,
-        Snapshot {
+        SynchronizedData {
             fresh: true,
             outputs: 0x01,
             inputs_wire: 0x0E
         }
     );
-    let second = m.read_snapshot().unwrap();
+    let second = m.read_synchronized().unwrap();
     assert_eq!(
         second,
-        Snapshot {
+        SynchronizedData {
             fresh: false,
             ..first
         }
     );
-    m.take_snapshot();
-    let third = m.read_snapshot().unwrap();
+    m.synchronize();
+    let third = m.read_synchronized().unwrap();
     assert!(third.fresh);
     assert_eq!((third.outputs, third.inputs_wire), (0xFF, 0xFF));
 }
 
 #[test]
-fn snapshot_is_lost_on_reset() {
+fn synchronized_data_is_lost_on_reset() {
     let (mut m, _) = ascii();
-    m.take_snapshot();
+    m.synchronize();
     m.reset();
-    assert_eq!(m.read_snapshot(), Err(SimError::NoSnapshot));
+    assert_eq!(m.read_synchronized(), Err(C29uModelError::NotSynchronized));
 }
 
 // ---- state ----------------------------------------------------------------------------------
@@ -852,7 +864,8 @@ fn state_file_is_created_and_persists_across_instances() {
     let clock = VirtualClock::at_epoch();
     let shared: SharedClock = Arc::new(clock.clone());
     {
-        let mut m = C29u::with_state_file(Protocol::Ascii, shared.clone(), path.clone()).unwrap();
+        let mut m =
+            C29uModel::with_state_file(Protocol::Ascii, shared.clone(), path.clone()).unwrap();
         assert!(path.exists(), "factory image written at once");
         assert_eq!(m.eeprom(), &Eeprom::factory());
         assert_eq!(m.state_file(), Some(path.as_path()));
@@ -865,7 +878,7 @@ fn state_file_is_created_and_persists_across_instances() {
         m.set_watchdog(100).unwrap();
         assert_eq!(Eeprom::load(&path).unwrap(), *m.eeprom());
     }
-    let mut m = C29u::with_state_file(Protocol::Ascii, shared, path.clone()).unwrap();
+    let mut m = C29uModel::with_state_file(Protocol::Ascii, shared, path.clone()).unwrap();
     assert_eq!(m.name(), "SAVED");
     assert_eq!(m.outputs(), 0x3C);
     assert_eq!(m.counter(7), Ok(42));
@@ -884,14 +897,14 @@ fn safe_mode_is_written_to_the_state_file() {
     let path = dir.file("io.json");
     let clock = VirtualClock::at_epoch();
     let shared: SharedClock = Arc::new(clock.clone());
-    let mut m = C29u::with_state_file(Protocol::Modbus, shared.clone(), path.clone()).unwrap();
+    let mut m = C29uModel::with_state_file(Protocol::Modbus, shared.clone(), path.clone()).unwrap();
     m.set_safe_value(0x81).unwrap();
     m.set_watchdog(1).unwrap();
     clock.advance(ms(100));
     assert!(m.in_safe_mode());
     assert!(Eeprom::load(&path).unwrap().safe_mode);
     drop(m);
-    let mut again = C29u::with_state_file(Protocol::Modbus, shared, path.clone()).unwrap();
+    let mut again = C29uModel::with_state_file(Protocol::Modbus, shared, path.clone()).unwrap();
     assert!(again.in_safe_mode());
     assert_eq!(again.outputs(), 0x81);
     again.set_watchdog(0).unwrap();
@@ -929,12 +942,12 @@ fn corrupt_state_file_is_a_typed_error_naming_the_file() {
     for (file, text) in cases {
         let path = dir.file(file);
         std::fs::write(&path, text).unwrap();
-        match C29u::with_state_file(Protocol::Ascii, clock.clone(), path.clone()) {
-            Err(SimError::Io(msg)) => assert!(msg.contains(file), "{msg}"),
+        match C29uModel::with_state_file(Protocol::Ascii, clock.clone(), path.clone()) {
+            Err(C29uModelError::Io(msg)) => assert!(msg.contains(file), "{msg}"),
             other => panic!("{file}: expected Io error, got {other:?}"),
         }
         match Eeprom::load(&path) {
-            Err(SimError::Io(msg)) => assert!(msg.contains(file), "{msg}"),
+            Err(C29uModelError::Io(msg)) => assert!(msg.contains(file), "{msg}"),
             other => panic!("{file}: expected Io error, got {other:?}"),
         }
     }
@@ -948,13 +961,13 @@ fn unreadable_or_unwritable_state_file_is_an_io_error() {
     let path = dir.file("adir");
     std::fs::create_dir(&path).unwrap();
     assert!(matches!(
-        C29u::with_state_file(Protocol::Ascii, clock.clone(), path),
-        Err(SimError::Io(_))
+        C29uModel::with_state_file(Protocol::Ascii, clock.clone(), path),
+        Err(C29uModelError::Io(_))
     ));
     // A missing parent directory: the factory image cannot be written.
     let path = dir.file("missing/io.json");
-    match C29u::with_state_file(Protocol::Ascii, clock, path) {
-        Err(SimError::Io(msg)) => assert!(msg.contains("io.json"), "{msg}"),
+    match C29uModel::with_state_file(Protocol::Ascii, clock, path) {
+        Err(C29uModelError::Io(msg)) => assert!(msg.contains("io.json"), "{msg}"),
         other => panic!("expected Io error, got {other:?}"),
     }
 }
@@ -964,11 +977,11 @@ fn a_failed_eeprom_write_changes_nothing() {
     let dir = TempDir::new("failwrite");
     let path = dir.file("io.json");
     let clock: SharedClock = Arc::new(VirtualClock::at_epoch());
-    let mut m = C29u::with_state_file(Protocol::Ascii, clock, path).unwrap();
+    let mut m = C29uModel::with_state_file(Protocol::Ascii, clock, path).unwrap();
     std::fs::remove_dir_all(&dir.0).unwrap(); // the directory vanishes under the module
-    assert!(matches!(m.set_name("NEW"), Err(SimError::Io(_))));
+    assert!(matches!(m.set_name("NEW"), Err(C29uModelError::Io(_))));
     assert_eq!(m.name(), "TRPC29");
-    assert!(matches!(m.set_watchdog(5), Err(SimError::Io(_))));
+    assert!(matches!(m.set_watchdog(5), Err(C29uModelError::Io(_))));
     assert!(!m.watchdog().enabled);
 }
 
@@ -1063,7 +1076,7 @@ fn changing_the_counter_edge_keeps_the_counts() {
 #[test]
 fn the_model_can_move_between_threads() {
     fn is_send<T: Send>() {}
-    is_send::<C29u>();
+    is_send::<C29uModel>();
 }
 
 #[test]
@@ -1162,8 +1175,8 @@ mod props {
         PowerOn(u8),
         SaveSafe,
         SaveOn,
-        Snapshot,
-        ReadSnapshot,
+        Synchronize,
+        ReadSynchronized,
         Name(String),
         Led(u8),
         Config(u8, u8, u8),
@@ -1189,8 +1202,8 @@ mod props {
             any::<u8>().prop_map(Op::PowerOn),
             Just(Op::SaveSafe),
             Just(Op::SaveOn),
-            Just(Op::Snapshot),
-            Just(Op::ReadSnapshot),
+            Just(Op::Synchronize),
+            Just(Op::ReadSynchronized),
             ".{0,8}".prop_map(Op::Name),
             any::<u8>().prop_map(Op::Led),
             any::<(u8, u8, u8)>().prop_map(|(a, b, c)| Op::Config(a, b, c)),
@@ -1198,7 +1211,7 @@ mod props {
         ]
     }
 
-    fn apply(m: &mut C29u, clock: &VirtualClock, op: &Op) {
+    fn apply(m: &mut C29uModel, clock: &VirtualClock, op: &Op) {
         match *op {
             Op::Inputs(v) => m.set_inputs(v),
             Op::Pulse(c, n) => {
@@ -1225,9 +1238,9 @@ mod props {
             Op::PowerOn(v) => m.set_power_on_value(v).unwrap(),
             Op::SaveSafe => m.save_outputs_as_safe().unwrap(),
             Op::SaveOn => m.save_outputs_as_power_on().unwrap(),
-            Op::Snapshot => m.take_snapshot(),
-            Op::ReadSnapshot => {
-                let _ = m.read_snapshot();
+            Op::Synchronize => m.synchronize(),
+            Op::ReadSynchronized => {
+                let _ = m.read_synchronized();
             }
             Op::Name(ref n) => {
                 let _ = m.set_name(n);
@@ -1236,7 +1249,9 @@ mod props {
                 let _ = m.set_led_mode(v);
             }
             Op::Config(id, baud, dd) => {
-                if let Ok(cfg) = ModuleConfig::from_parts(id, baud, dd) {
+                let parsed = DataFormat::from_byte(dd)
+                    .and_then(|f| ModuleConfig::from_parts(id, baud, f).ok());
+                if let Some(cfg) = parsed {
                     let _ = m.set_config(cfg);
                 }
             }
@@ -1251,13 +1266,15 @@ mod props {
         fn data_format_round_trips(cfg in valid_config()) {
             let back = ModuleConfig::from_parts(cfg.id, cfg.baud_code, cfg.data_format());
             prop_assert_eq!(back, Ok(cfg));
-            prop_assert_eq!(cfg.reported_format() & 0x07, MODEL_CODE);
-            prop_assert_eq!(cfg.reported_format() & 0xC0, cfg.data_format() & 0xC0);
+            let report = cfg.report();
+            prop_assert_eq!(report.model(), ConfigReport::MODEL_C29U);
+            prop_assert_eq!(report.format & 0xC0, cfg.data_format().to_byte() & 0xC0);
         }
 
         #[test]
         fn from_parts_never_panics_and_accepts_only_valid(id: u8, baud: u8, dd: u8) {
-            let ok = ModuleConfig::from_parts(id, baud, dd).is_ok();
+            let ok = DataFormat::from_byte(dd)
+                .is_some_and(|f| ModuleConfig::from_parts(id, baud, f).is_ok());
             prop_assert_eq!(ok, (3..=0x0A).contains(&baud) && dd & 0x3E == 0);
         }
 
@@ -1280,7 +1297,7 @@ mod props {
         #[test]
         fn state_round_trips_through_json(e in valid_eeprom(), inputs: u8) {
             let clock = VirtualClock::at_epoch();
-            let mut m = C29u::new(Protocol::Ascii, Arc::new(clock), e);
+            let mut m = C29uModel::new(Protocol::Ascii, Arc::new(clock), e);
             m.set_inputs(inputs);
             let s = m.state();
             let back: SimState = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
@@ -1377,13 +1394,13 @@ mod props {
                 prop_assert_eq!(wd.enabled, wd.timeout_tenths != 0);
                 if wd.expired {
                     let before = m.outputs();
-                    prop_assert_eq!(m.write_outputs(!before), Err(SimError::SafeMode));
+                    prop_assert_eq!(m.write_outputs(!before), Err(C29uModelError::SafeMode));
                     prop_assert_eq!(m.outputs(), before);
                 }
                 prop_assert!(m.eeprom().validate().is_ok());
                 prop_assert!(!m.name().is_empty() && m.name().len() <= 6);
                 for ch in 8..=255u8 {
-                    prop_assert_eq!(m.counter(ch), Err(SimError::BadChannel(ch)));
+                    prop_assert_eq!(m.counter(ch), Err(C29uModelError::BadChannel(ch)));
                 }
             }
         }
@@ -1396,7 +1413,7 @@ fn a_failed_write_when_the_watchdog_fires_is_retried_by_flush() {
     let path = dir.file("io.json");
     let clock = VirtualClock::at_epoch();
     let mut m =
-        C29u::with_state_file(Protocol::Ascii, Arc::new(clock.clone()), path.clone()).unwrap();
+        C29uModel::with_state_file(Protocol::Ascii, Arc::new(clock.clone()), path.clone()).unwrap();
     m.set_watchdog(1).unwrap();
     std::fs::remove_dir_all(&dir.0).unwrap();
     clock.advance(ms(100));
@@ -1404,7 +1421,7 @@ fn a_failed_write_when_the_watchdog_fires_is_retried_by_flush() {
         m.in_safe_mode(),
         "fires even though the file cannot be written"
     );
-    assert!(matches!(m.flush(), Err(SimError::Io(_))));
+    assert!(matches!(m.flush(), Err(C29uModelError::Io(_))));
     std::fs::create_dir_all(&dir.0).unwrap();
     m.flush().unwrap();
     assert!(Eeprom::load(&path).unwrap().safe_mode);

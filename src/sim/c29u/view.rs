@@ -1,24 +1,14 @@
-//! Plain values the TRP-C29U model hands out: firmware, watchdog status, snapshot, state.
+//! Plain values the TRP-C29U model hands out: firmware, watchdog status, state.
 
 use super::config::Protocol;
+use crate::protocol::c29u::FirmwareDate;
 use serde::{Deserialize, Serialize};
 
-/// The firmware identity the module reports (8-15, 10-5).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub struct Firmware {
-    /// Module type text, `C29M`.
-    pub model: &'static str,
-    /// Two-digit year (9 = 2009).
-    pub year: u8,
-    /// Month 1..=12.
-    pub month: u8,
-    /// Day of month.
-    pub day: u8,
-}
+/// The firmware the simulated module reports (NOTES 8-15 / 10-5: model `C29M`, 09-07-03).
+pub const FIRMWARE_MODEL: &str = "C29M";
 
-/// The firmware of the simulated module (NOTES 8-15 / 10-5: `C29M`, 09-07-03).
-pub const FIRMWARE: Firmware = Firmware {
-    model: "C29M",
+/// The release date of [`FIRMWARE_MODEL`].
+pub const FIRMWARE_DATE: FirmwareDate = FirmwareDate {
     year: 9,
     month: 7,
     day: 3,
@@ -33,17 +23,6 @@ pub struct WatchdogStatus {
     pub timeout_tenths: u8,
     /// The watchdog has fired: DO is at the safe value and output writes are refused.
     pub expired: bool,
-}
-
-/// DO and DI as remembered by the last `#**` broadcast (8-25, 8-26).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Snapshot {
-    /// True only on the first read after the `#**`.
-    pub fresh: bool,
-    /// DO byte at the time of the `#**`.
-    pub outputs: u8,
-    /// DI byte at the time of the `#**`, wire form (active-low).
-    pub inputs_wire: u8,
 }
 
 /// The `watchdog` object of the `state` control line.

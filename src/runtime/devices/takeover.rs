@@ -1,0 +1,211 @@
+//! Taking control of a TRP-C29U, one exchange at a time: the stored safe and power-on values
+//! set to the wanted ones (only where they differ, to spare the EEPROM), the outputs written
+//! (leaving safe mode first if the module refuses because it is in it), and the host watchdog
+//! on and fed. One exchange a step, so the runner can feed the other modules' watchdogs
+//! between steps whatever each exchange takes.
+
+use super::c29u::C29uDevice;
+use super::DeviceError;
+use crate::device::c29u::{C29u, C29uError, Preset, PresetWrite, WatchdogInfo, WatchdogTimeout};
+use std::time::Duration;
+
+/// Stores a preset without the outputs taking a value other than the safe one: over ASCII, where
+/// the module stores only its current outputs (8-24), the outputs are driven to `value` first
+/// when it is the safe value; any other value is refused (`PresetDrivesOutputs`, naming the
+/// `c29` command that can store it).
+fn store_at_safe_value(d: &mut C29u, preset: Preset, value: u8, safe: u8) -> Result<(), C29uError> {
+    match d.store_preset(preset, value, PresetWrite::KeepOutputs) {
+        Err(C29uError::PresetDrivesOutputs { .. }) if value == safe => {
+            d.write_outputs(safe)?;
+            d.store_preset(preset, value, PresetWrite::KeepOutputs)
+        }
+        other => other,
+    }
+}
+
+/// What taking control of a module found worth telling.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct ControlNotes {
+    /// It was in safe mode; its watchdog was disabled to leave it.
+    pub left_safe_mode: bool,
+    /// Its own watchdog was on without rig.toml asking; the runner feeds it.
+    pub adopted_watchdog: Option<WatchdogTimeout>,
+    /// Its stored safe value was changed to the wanted one (from this).
+    pub safe_value_was: Option<u8>,
+    /// Its stored power-on value was changed to the wanted one (from this).
+    pub power_on_value_was: Option<u8>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stage {
+    ReadWatchdog,
+    ReadSafe,
+    WriteSafe,
+    ReadPowerOn,
+    WritePowerOn,
+    WriteOutputs,
+    /// Refused in safe mode: turn the watchdog off (the only way out), then do `resume`.
+    LeaveSafeMode {
+        resume: Write,
+    },
+    Watchdog,
+    Done,
+}
+
+/// A stage that writes, and so may be refused in safe mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Write {
+    SafeValue,
+    PowerOnValue,
+    Outputs,
+}
+
+/// Taking control of one module, step by step.
+#[derive(Debug, Clone)]
+pub struct Takeover {
+    outputs: u8,
+    stage: Stage,
+    before: Option<WatchdogInfo>,
+    notes: ControlNotes,
+}
+
+impl Takeover {
+    /// Taking control with `outputs` to write.
+    pub fn new(outputs: u8) -> Self {
+        Self {
+            outputs,
+            stage: Stage::ReadWatchdog,
+            before: None,
+            notes: ControlNotes::default(),
+        }
+    }
+
+    /// What was found so far.
+    pub fn notes(&self) -> &ControlNotes {
+        &self.notes
+    }
+
+    /// Does the next exchange at `now`; true once the module is under control.
+    pub fn step(&mut self, d: &mut C29uDevice, now: Duration) -> Result<bool, DeviceError> {
+        self.stage = match self.stage {
+            Stage::ReadWatchdog => {
+                self.before = Some(d.driver.watchdog()?);
+                Stage::ReadSafe
+            }
+            Stage::ReadSafe => {
+                let stored = d.driver.safe_value()?;
+                d.stored.safe_value = Some(stored);
+                if stored == d.config.safe_value {
+                    Stage::ReadPowerOn
+                } else {
+                    self.notes.safe_value_was = Some(stored);
+                    Stage::WriteSafe
+                }
+            }
+            Stage::ReadPowerOn => match d.config.power_on_value {
+                None => Stage::WriteOutputs,
+                Some(wanted) => {
+                    let stored = d.driver.power_on_value()?;
+                    d.stored.power_on_value = Some(stored);
+                    if stored == wanted {
+                        Stage::WriteOutputs
+                    } else {
+                        self.notes.power_on_value_was = Some(stored);
+                        Stage::WritePowerOn
+                    }
+                }
+            },
+            Stage::WriteSafe => self.write(d, Write::SafeValue)?,
+            Stage::WritePowerOn => self.write(d, Write::PowerOnValue)?,
+            Stage::WriteOutputs => self.write(d, Write::Outputs)?,
+            Stage::LeaveSafeMode { resume } => {
+                d.driver.set_watchdog(None)?;
+                d.stored.watchdog = Some(None);
+                self.notes.left_safe_mode = true;
+                match resume {
+                    Write::SafeValue => Stage::WriteSafe,
+                    Write::PowerOnValue => Stage::WritePowerOn,
+                    Write::Outputs => Stage::WriteOutputs,
+                }
+            }
+            Stage::Watchdog => {
+                self.watchdog(d, now)?;
+                d.controlled = true;
+                Stage::Done
+            }
+            Stage::Done => Stage::Done,
+        };
+        Ok(self.stage == Stage::Done)
+    }
+
+    /// One write; a refusal in safe mode (the first time) leads out of it and back here.
+    fn write(&mut self, d: &mut C29uDevice, step: Write) -> Result<Stage, DeviceError> {
+        let safe = d.config.safe_value;
+        let result = match step {
+            Write::SafeValue => store_at_safe_value(&mut d.driver, Preset::Safe, safe, safe),
+            Write::PowerOnValue => match d.config.power_on_value {
+                Some(v) => store_at_safe_value(&mut d.driver, Preset::PowerOn, v, safe),
+                None => Ok(()),
+            },
+            Write::Outputs => d.driver.write_outputs(self.outputs),
+        };
+        match result {
+            Err(C29uError::SafeMode { .. }) if !self.notes.left_safe_mode => {
+                return Ok(Stage::LeaveSafeMode { resume: step });
+            }
+            other => other?,
+        }
+        Ok(match step {
+            Write::SafeValue => {
+                d.stored.safe_value = Some(d.config.safe_value);
+                Stage::ReadPowerOn
+            }
+            Write::PowerOnValue => {
+                d.stored.power_on_value = d.config.power_on_value;
+                Stage::WriteOutputs
+            }
+            Write::Outputs => {
+                d.outputs_written = Some(self.outputs);
+                Stage::Watchdog
+            }
+        })
+    }
+
+    /// The host watchdog on and fed: the wanted one, or the module's own when none is wanted
+    /// (adopted: the runner feeds it, and leaves it on at the end).
+    fn watchdog(&mut self, d: &mut C29uDevice, now: Duration) -> Result<(), DeviceError> {
+        let before = self.before.unwrap_or(WatchdogInfo {
+            enabled: false,
+            timeout_tenths: 0,
+            expired: None,
+        });
+        let module_own =
+            WatchdogTimeout::from_tenths(before.timeout_tenths).filter(|_| before.enabled);
+        let left = self.notes.left_safe_mode;
+        match (d.watchdog, module_own) {
+            (Some(t), _) => {
+                let same = before.enabled && before.timeout_tenths == t.tenths();
+                if same && !left {
+                    d.driver.host_ok()?;
+                } else {
+                    d.driver.set_watchdog(Some(t.as_duration()))?;
+                }
+                d.stored.watchdog = Some(Some(t));
+                d.watchdog_ours = true;
+            }
+            (None, Some(own)) => {
+                if left {
+                    d.driver.set_watchdog(Some(own.as_duration()))?;
+                } else {
+                    d.driver.host_ok()?;
+                }
+                d.stored.watchdog = Some(Some(own));
+                d.watchdog = Some(own);
+                self.notes.adopted_watchdog = Some(own);
+            }
+            (None, None) => d.stored.watchdog = Some(None),
+        }
+        d.last_feed = now;
+        Ok(())
+    }
+}

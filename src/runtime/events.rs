@@ -1,0 +1,454 @@
+//! What fires handlers in a tick: edges between this tick's readings and the last ones
+//! (press/release, turn, rise/fall), counters reaching their thresholds and due timers, in
+//! that order, one log line per event handled.
+
+use super::devices::Device;
+use super::state::Runtime;
+use super::subscriptions::{Arg, Call, Source};
+use crate::device::trc1000::rotary_changes;
+use std::time::Duration;
+
+/// The inputs a device must be read for, by what its handlers wait for.
+#[derive(Debug, Clone, Copy, Default)]
+struct Needs {
+    switches: bool,
+    rotaries: bool,
+    inputs: bool,
+    counters: bool,
+}
+
+impl<H: Clone> Runtime<H> {
+    /// Reads the inputs the handlers wait for and turns what changed, and the timers that are
+    /// due, into handler calls, in order: device events (by device, then switch, rotary,
+    /// input, counter), then timers (deadline order). Logs one line per event handled.
+    pub fn collect_calls(&mut self) -> Vec<Call<H>> {
+        let mut needs = vec![Needs::default(); self.devices.len()];
+        for s in &self.handlers.list {
+            let Some(n) = source_device(&s.source).and_then(|dev| needs.get_mut(dev)) else {
+                continue;
+            };
+            match s.source {
+                Source::Press { .. } | Source::Release { .. } => n.switches = true,
+                Source::Turn { .. } => n.rotaries = true,
+                Source::Rise { .. } | Source::Fall { .. } => n.inputs = true,
+                Source::Counter { .. } => n.counters = true,
+                Source::Timer(_) | Source::Stop => {}
+            }
+        }
+        let mut calls = Vec::new();
+        for (dev, need) in needs.iter().enumerate() {
+            if need.switches {
+                self.switches(dev);
+            }
+            if need.rotaries {
+                self.rotaries(dev);
+            }
+            if need.inputs {
+                self.inputs(dev);
+            }
+            if need.counters {
+                self.counters(dev);
+            }
+            let events = self
+                .devices
+                .get(dev)
+                .map(|d| device_events(dev, d, self.tick))
+                .unwrap_or_default();
+            for (event, args) in events {
+                self.dispatch(&event, &args, &mut calls);
+            }
+        }
+        self.counter_calls(&mut calls);
+        self.timer_calls(&mut calls);
+        calls
+    }
+
+    /// Adds the calls of the handlers waiting for `event`, logging it once if any.
+    fn dispatch(&mut self, event: &Source, args: &[Arg], calls: &mut Vec<Call<H>>) {
+        let before = calls.len();
+        calls.extend(
+            self.handlers
+                .list
+                .iter()
+                .filter(|s| s.source == *event)
+                .map(|s| s.call(args.to_vec())),
+        );
+        if calls.len() == before {
+            return;
+        }
+        let name = source_device(event).map_or(String::new(), |dev| self.device_name(dev));
+        if let Some(line) = event_line(&name, event, args) {
+            self.log.activity(&line);
+        }
+    }
+
+    /// Fires counter handlers whose count reached their threshold in this tick's reading.
+    fn counter_calls(&mut self, calls: &mut Vec<Call<H>>) {
+        let tick = self.tick;
+        let mut lines = Vec::new();
+        let fresh: Vec<Option<[u16; 8]>> = self
+            .devices
+            .iter()
+            .map(|d| match d {
+                Device::C29u(c) if c.counters.fresh(tick) => c.counters.current,
+                _ => None,
+            })
+            .collect();
+        for s in &mut self.handlers.list {
+            let Source::Counter {
+                dev,
+                ch,
+                threshold,
+                armed,
+            } = &mut s.source
+            else {
+                continue;
+            };
+            let Some(count) = fresh
+                .get(*dev)
+                .copied()
+                .flatten()
+                .and_then(|c| c.get(usize::from(*ch)).copied())
+            else {
+                continue;
+            };
+            if *armed && count >= *threshold {
+                *armed = false;
+                let (dev, ch, threshold) = (*dev, *ch, *threshold);
+                calls.push(s.call(vec![Arg::Int(i64::from(count))]));
+                let name = self.devices.get(dev).map_or("", Device::name);
+                lines.push(format!(
+                    "{name}: counter DI{ch} at {count} (threshold {threshold})"
+                ));
+            } else if !*armed && count < *threshold {
+                *armed = true;
+            }
+        }
+        for l in lines {
+            self.log.activity(&l);
+        }
+    }
+
+    /// Fires the timers that are due; logs each firing (at most once a second per timer, so
+    /// a fast `every` does not flood the log).
+    fn timer_calls(&mut self, calls: &mut Vec<Call<H>>) {
+        let now = self.now();
+        let fired = self.handlers.schedule.due(now, self.clock.wall());
+        let mut lines = Vec::new();
+        for f in fired {
+            let Some(s) = self
+                .handlers
+                .list
+                .iter_mut()
+                .find(|s| s.source == Source::Timer(f.id))
+            else {
+                continue;
+            };
+            calls.push(s.call(vec![Arg::Int(i64::try_from(f.missed).unwrap_or(i64::MAX))]));
+            let quiet = s
+                .last_logged
+                .is_some_and(|t| now.saturating_sub(t) < Duration::from_secs(1));
+            if !quiet {
+                s.last_logged = Some(now);
+                let missed = if f.missed > 0 {
+                    format!(" ({} missed)", f.missed)
+                } else {
+                    String::new()
+                };
+                lines.push(format!("{} fired{missed}", s.label));
+            }
+        }
+        // Spent `after` timers go with their handlers.
+        let schedule = &self.handlers.schedule;
+        self.handlers.list.retain(|s| match s.source {
+            Source::Timer(t) => schedule.contains(t),
+            _ => true,
+        });
+        for l in lines {
+            self.log.activity(&l);
+        }
+    }
+}
+
+/// The device a source waits on, if it is a device event.
+fn source_device(source: &Source) -> Option<usize> {
+    match *source {
+        Source::Press { dev, .. }
+        | Source::Release { dev, .. }
+        | Source::Turn { dev, .. }
+        | Source::Rise { dev, .. }
+        | Source::Fall { dev, .. }
+        | Source::Counter { dev, .. } => Some(dev),
+        Source::Timer(_) | Source::Stop => None,
+    }
+}
+
+/// The events of `device` (at index `idx`) from its readings at `tick`, each as the source it
+/// matches and the handler's arguments. The first reading is only a baseline.
+fn device_events(idx: usize, device: &Device, tick: u64) -> Vec<(Source, Vec<Arg>)> {
+    let mut events = Vec::new();
+    match device {
+        Device::Trc(d) => {
+            if let Some((old, new)) = d.switches.change_at(tick) {
+                let (pressed, released) = old.changes(&new);
+                for switch in pressed {
+                    events.push((
+                        Source::Press { dev: idx, switch },
+                        vec![Arg::Str(switch.name().into())],
+                    ));
+                }
+                for switch in released {
+                    events.push((
+                        Source::Release { dev: idx, switch },
+                        vec![Arg::Str(switch.name().into())],
+                    ));
+                }
+            }
+            if let Some((old, new)) = d.rotaries.change_at(tick) {
+                for c in rotary_changes(&old, &new) {
+                    events.push((
+                        Source::Turn {
+                            dev: idx,
+                            rotary: c.rotary,
+                        },
+                        vec![Arg::Int(i64::from(c.delta)), Arg::Int(i64::from(c.value))],
+                    ));
+                }
+            }
+        }
+        Device::C29u(d) => {
+            if let Some((old, new)) = d.inputs.change_at(tick) {
+                for ch in 0..8u8 {
+                    let bit = 1u8 << ch;
+                    let args = vec![Arg::Int(i64::from(ch))];
+                    if old & bit == 0 && new & bit != 0 {
+                        events.push((Source::Rise { dev: idx, ch }, args));
+                    } else if old & bit != 0 && new & bit == 0 {
+                        events.push((Source::Fall { dev: idx, ch }, args));
+                    }
+                }
+            }
+        }
+    }
+    events
+}
+
+/// The log line of a device event on the device called `name`.
+fn event_line(name: &str, event: &Source, args: &[Arg]) -> Option<String> {
+    Some(match (event, args) {
+        (Source::Press { switch, .. }, _) => format!("{name}: {switch} pressed"),
+        (Source::Release { switch, .. }, _) => format!("{name}: {switch} released"),
+        (Source::Turn { rotary, .. }, [Arg::Int(delta), Arg::Int(value)]) => {
+            format!("{name}: {} turned {delta:+} (now {value})", rotary.name())
+        }
+        (Source::Rise { ch, .. }, _) => format!("{name}: DI{ch} on"),
+        (Source::Fall { ch, .. }, _) => format!("{name}: DI{ch} off"),
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::protocol::trc1000::{Rotary, Switch};
+    use crate::runtime::subscriptions::{Arg, Call, Source};
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    /// One tick: what fires, as (handler, args).
+    fn tick(r: &mut TestRig) -> Vec<(&'static str, Vec<Arg>)> {
+        r.next_tick(TICK);
+        let calls: Vec<Call<&'static str>> = r.rt.collect_calls();
+        calls.into_iter().map(|c| (c.handler, c.args)).collect()
+    }
+
+    fn sub(r: &mut TestRig, source: Source, handler: &'static str) {
+        r.rt.subscribe(source, handler, handler.into());
+    }
+
+    #[test]
+    fn the_first_reading_is_a_baseline_then_input_edges_fire_their_handlers() {
+        let mut r = TestRig::started();
+        sub(&mut r, Source::Rise { dev: IO, ch: 3 }, "rise3");
+        sub(&mut r, Source::Fall { dev: IO, ch: 3 }, "fall3");
+        r.sim.set_input("io", 3, true).unwrap();
+        assert!(tick(&mut r).is_empty(), "held at start is not a rise");
+        r.sim.set_input("io", 3, false).unwrap();
+        assert_eq!(tick(&mut r), [("fall3", vec![Arg::Int(3)])]);
+        assert!(tick(&mut r).is_empty());
+        r.sim.set_input("io", 3, true).unwrap();
+        assert_eq!(tick(&mut r), [("rise3", vec![Arg::Int(3)])]);
+        let log = r.log();
+        assert!(
+            log.contains("io: DI3 off") && log.contains("io: DI3 on"),
+            "{log}"
+        );
+    }
+
+    #[test]
+    fn an_edge_nobody_waits_for_fires_nothing_and_is_not_logged() {
+        let mut r = TestRig::started();
+        sub(&mut r, Source::Rise { dev: IO, ch: 3 }, "rise3");
+        tick(&mut r);
+        r.sim.set_input("io", 5, true).unwrap();
+        assert!(tick(&mut r).is_empty());
+        assert!(!r.log().contains("DI5"), "{}", r.log());
+    }
+
+    #[test]
+    fn switches_and_rotaries_fire_press_release_and_turn() {
+        let mut r = TestRig::started();
+        let s1 = Switch::from_name("S1").unwrap();
+        let s41a = Rotary::from_name("S41A").unwrap();
+        sub(
+            &mut r,
+            Source::Press {
+                dev: PANEL,
+                switch: s1,
+            },
+            "press",
+        );
+        sub(
+            &mut r,
+            Source::Release {
+                dev: PANEL,
+                switch: s1,
+            },
+            "release",
+        );
+        sub(
+            &mut r,
+            Source::Turn {
+                dev: PANEL,
+                rotary: s41a,
+            },
+            "turn",
+        );
+        tick(&mut r);
+        r.sim.set_switch("panel", "S1", true).unwrap();
+        r.sim.turn("panel", "S41A", 2).unwrap();
+        assert_eq!(
+            tick(&mut r),
+            [
+                ("press", vec![Arg::Str("S1".into())]),
+                ("turn", vec![Arg::Int(2), Arg::Int(2)])
+            ]
+        );
+        r.sim.set_switch("panel", "S1", false).unwrap();
+        assert_eq!(tick(&mut r), [("release", vec![Arg::Str("S1".into())])]);
+        let log = r.log();
+        assert!(log.contains("panel: S1 pressed"), "{log}");
+        assert!(log.contains("panel: S41A turned +2 (now 2)"), "{log}");
+        assert!(log.contains("panel: S1 released"), "{log}");
+    }
+
+    #[test]
+    fn a_counter_handler_fires_once_at_its_threshold_and_is_rearmed_below_it() {
+        let mut r = TestRig::started();
+        let at = |threshold| Source::Counter {
+            dev: IO,
+            ch: 2,
+            threshold,
+            armed: true,
+        };
+        sub(&mut r, at(3), "three");
+        sub(&mut r, at(0), "zero");
+        assert_eq!(
+            tick(&mut r),
+            [("zero", vec![Arg::Int(0)])],
+            "also at the first reading"
+        );
+        r.sim.pulse("io", 2, 2).unwrap();
+        assert!(tick(&mut r).is_empty());
+        r.sim.pulse("io", 2, 1).unwrap();
+        assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])]);
+        r.sim.pulse("io", 2, 5).unwrap();
+        assert!(tick(&mut r).is_empty(), "once");
+        r.rt.c29u(IO).unwrap().driver.clear_counter(2).unwrap();
+        assert!(tick(&mut r).is_empty(), "below again: re-armed");
+        r.sim.pulse("io", 2, 4).unwrap();
+        assert_eq!(tick(&mut r), [("three", vec![Arg::Int(4)])]);
+        assert!(
+            r.log().contains("io: counter DI2 at 4 (threshold 3)"),
+            "{}",
+            r.log()
+        );
+    }
+
+    #[test]
+    fn device_events_come_first_by_device_then_counters_then_timers() {
+        let mut r = TestRig::started();
+        r.rt.after(TICK, "timer");
+        let s1 = Switch::from_name("S1").unwrap();
+        let counter = Source::Counter {
+            dev: IO,
+            ch: 0,
+            threshold: 1,
+            armed: true,
+        };
+        sub(&mut r, counter, "counter");
+        sub(
+            &mut r,
+            Source::Press {
+                dev: PANEL,
+                switch: s1,
+            },
+            "press",
+        );
+        sub(&mut r, Source::Rise { dev: IO, ch: 0 }, "rise");
+        r.rt.tick += 1;
+        r.rt.collect_calls();
+        r.sim.set_switch("panel", "S1", true).unwrap();
+        r.sim.pulse("io", 0, 1).unwrap();
+        r.sim.set_input("io", 0, true).unwrap();
+        let order: Vec<&str> = tick(&mut r).into_iter().map(|(h, _)| h).collect();
+        assert_eq!(order, ["rise", "press", "counter", "timer"]);
+    }
+
+    #[test]
+    fn due_timers_fire_with_what_they_missed_and_spent_ones_go() {
+        let mut r = TestRig::started();
+        r.rt.every(Duration::from_millis(100), "every").unwrap();
+        r.rt.after(Duration::from_millis(250), "after");
+        r.clock.advance(Duration::from_millis(280));
+        let fired = tick(&mut r);
+        assert_eq!(
+            fired,
+            [("every", vec![Arg::Int(2)]), ("after", vec![Arg::Int(0)])],
+            "every: due at 100 ms, 200 and 300 missed at 300 ms"
+        );
+        assert_eq!(r.rt.handlers.list().len(), 1, "the spent `after` went");
+        let log = r.log();
+        assert!(log.contains("every 100ms fired (2 missed)"), "{log}");
+        assert!(log.contains("after 250ms fired"), "{log}");
+    }
+
+    #[test]
+    fn a_fast_timer_is_logged_at_most_once_a_second() {
+        let mut r = TestRig::started();
+        r.rt.every(TICK, "fast").unwrap();
+        let mut fired = 0;
+        for _ in 0..100 {
+            fired += tick(&mut r).len();
+        }
+        assert_eq!(fired, 100);
+        assert_eq!(
+            r.log().matches("every 20ms fired").count(),
+            2,
+            "{}",
+            r.log()
+        );
+    }
+
+    #[test]
+    fn devices_nobody_waits_on_are_not_read() {
+        let mut r = TestRig::started();
+        r.rt.every(TICK, "timer").unwrap();
+        let before = r.requests();
+        for _ in 0..10 {
+            tick(&mut r);
+        }
+        assert_eq!(r.requests(), before);
+    }
+}

@@ -1,0 +1,220 @@
+//! Outputs: what the script wants (the DO byte, the relay), noted during the tick and written
+//! at its end, one transaction per device, only where it changed; the safe state instead
+//! while everything is held safe.
+
+use super::devices::Device;
+use super::state::Runtime;
+
+impl<H: Clone> Runtime<H> {
+    /// Sets the DO byte the script wants on the TRP-C29U at `idx` (written at the end of the
+    /// tick).
+    pub fn set_outputs(&mut self, idx: usize, value: u8) {
+        let cause = self.cause.clone();
+        if let Some(d) = self.c29u(idx) {
+            if d.outputs != value {
+                d.outputs = value;
+                d.outputs_cause = cause;
+            }
+        }
+    }
+
+    /// Sets the relay the script wants on the TRC1000 at `idx` (selected at the end of the
+    /// tick).
+    pub fn set_relay(&mut self, idx: usize, relay: u8) {
+        let cause = self.cause.clone();
+        if let Some(d) = self.trc(idx) {
+            if d.relay != relay {
+                d.relay = relay;
+                d.relay_cause = cause;
+            }
+        }
+    }
+
+    /// Puts what the script wants back to the safe values (a restarted script starts from
+    /// them); a TRC1000 without a safe relay keeps its relay.
+    pub fn reset_outputs(&mut self) {
+        for d in &mut self.devices {
+            match d {
+                Device::Trc(t) => {
+                    if let Some(r) = t.config.safe_relay {
+                        t.relay = r;
+                    }
+                }
+                Device::C29u(c) => c.outputs = c.config.safe_value,
+            }
+        }
+    }
+
+    /// Writes what changed, one transaction per device: the DO byte the script wants (the
+    /// safe value while held safe), the relay it wants (the safe relay while held safe).
+    pub fn flush_outputs(&mut self) {
+        for idx in 0..self.devices.len() {
+            if !self.ready_for_exchange(idx) {
+                continue;
+            }
+            let held = self.held_safe;
+            let result = match self.devices.get_mut(idx) {
+                Some(Device::Trc(d)) => {
+                    let target = if held {
+                        d.config.safe_relay
+                    } else {
+                        Some(d.relay)
+                    };
+                    match target {
+                        Some(relay) if d.relay_written != Some(relay) => {
+                            let before = d.relay_written;
+                            let line = format!(
+                                "{}: relay {} -> {relay} ({})",
+                                d.name,
+                                before.map_or("?".to_string(), |r| r.to_string()),
+                                if held { "held safe" } else { &d.relay_cause }
+                            );
+                            d.select_relay(relay).map(|()| Some(line))
+                        }
+                        _ => Ok(None),
+                    }
+                }
+                Some(Device::C29u(d)) => {
+                    let target = if held { d.config.safe_value } else { d.outputs };
+                    if d.outputs_written == Some(target) {
+                        Ok(None)
+                    } else {
+                        let before = d.outputs_written;
+                        let line = format!(
+                            "{}: outputs {} -> {target:#04x} ({})",
+                            d.name,
+                            before.map_or("?".to_string(), |v| format!("{v:#04x}")),
+                            if held { "held safe" } else { &d.outputs_cause }
+                        );
+                        d.write_outputs(target).map(|()| Some(line))
+                    }
+                }
+                None => Ok(None),
+            };
+            match result {
+                Ok(Some(line)) => self.log.activity(&line),
+                Ok(None) => {}
+                Err(e) if e.is_safe_mode() => self.regain_control(idx),
+                Err(e) => {
+                    if !e.is_comm_failure() {
+                        let name = self.device_name(idx);
+                        self.log
+                            .error(&format!("{name}: writing outputs failed: {e}"));
+                    }
+                    self.note_failure(idx, &e);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    #[test]
+    fn what_the_script_sets_is_written_once_at_flush_and_only_when_it_changed() {
+        let mut r = TestRig::started();
+        r.rt.cause = "io.on_rise DI3".into();
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.set_relay(PANEL, 6);
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05, "not before the flush");
+        assert_eq!(r.sim.relay("panel").unwrap(), 3);
+        let before = r.requests();
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x21);
+        assert_eq!(r.sim.relay("panel").unwrap(), 6);
+        assert_eq!(r.requests(), before + 2, "one transaction per device");
+        let log = r.log();
+        assert!(
+            log.contains("io: outputs 0x05 -> 0x21 (io.on_rise DI3)"),
+            "{log}"
+        );
+        assert!(
+            log.contains("panel: relay 3 -> 6 (io.on_rise DI3)"),
+            "{log}"
+        );
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.flush_outputs();
+        assert_eq!(r.requests(), before + 2, "nothing changed, nothing written");
+    }
+
+    #[test]
+    fn while_held_safe_the_safe_values_are_written_instead() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0xF0);
+        r.rt.set_relay(PANEL, 7);
+        r.rt.flush_outputs();
+        r.rt.held_safe = true;
+        r.rt.set_outputs(IO, 0xF1);
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        assert_eq!(r.sim.relay("panel").unwrap(), 3);
+        assert!(
+            r.log().contains("io: outputs 0xf0 -> 0x05 (held safe)"),
+            "{}",
+            r.log()
+        );
+        r.rt.held_safe = false;
+        r.rt.flush_outputs();
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0xF1,
+            "the script's outputs again"
+        );
+        assert_eq!(r.sim.relay("panel").unwrap(), 7);
+    }
+
+    #[test]
+    fn a_write_refused_in_safe_mode_takes_control_again_with_the_scripts_outputs() {
+        let mut r = TestRig::started();
+        // Someone else sets a 0.1 s watchdog behind the runner's back; it fires although the
+        // runner fed on time (a stall is caught before this: see upkeep).
+        let io = r.rt.c29u(IO).unwrap();
+        io.driver
+            .set_watchdog(Some(Duration::from_millis(100)))
+            .unwrap();
+        r.clock.advance(Duration::from_millis(150));
+        assert!(r.sim.safe_mode("io").unwrap());
+        r.rt.set_outputs(IO, 0x42);
+        r.rt.flush_outputs();
+        assert!(!r.sim.safe_mode("io").unwrap());
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x42);
+        assert!(
+            r.sim.watchdog("io").unwrap().enabled,
+            "the watchdog is on again"
+        );
+        assert!(r.rt.online(IO));
+        let log = r.log();
+        assert!(log.contains("io: the module is in safe mode"), "{log}");
+        assert!(log.contains("io: was in safe mode"), "{log}");
+    }
+
+    #[test]
+    fn a_lost_device_is_not_written_and_its_outputs_wait() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        r.rt.set_outputs(IO, 0x33);
+        r.rt.flush_outputs();
+        assert!(!r.rt.online(IO), "the failed write loses it");
+        let before = r.requests();
+        r.rt.flush_outputs();
+        assert_eq!(r.requests(), before, "a lost device is not written");
+        assert_eq!(
+            r.rt.c29u(IO).unwrap().outputs,
+            0x33,
+            "what the script wants is kept"
+        );
+    }
+
+    #[test]
+    fn reset_outputs_goes_back_to_the_safe_values() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x77);
+        r.rt.set_relay(PANEL, 1);
+        r.rt.reset_outputs();
+        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+    }
+}

@@ -1,0 +1,209 @@
+//! Losing devices and getting them back: a communication failure marks a device lost; it is
+//! tried again once a second without retries and taken control of again when it answers;
+//! past the grace time every output is held safe until all devices are back.
+
+use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::state::Runtime;
+use crate::time::duration::format_duration;
+use std::time::Duration;
+
+/// How often a lost device is tried again.
+pub const RETRY_INTERVAL: Duration = Duration::from_secs(1);
+
+impl<H: Clone> Runtime<H> {
+    /// Notes a failed operation: a communication failure marks the device lost.
+    pub fn note_failure(&mut self, idx: usize, error: &DeviceError) {
+        if !error.is_comm_failure() {
+            return;
+        }
+        let now = self.now();
+        if let Some(d) = self.devices.get_mut(idx) {
+            let name = d.name().to_string();
+            if d.health_mut().lose(now, error, RETRY_INTERVAL) {
+                self.log.warn(&format!(
+                    "{name}: lost: {error}; trying again every {}",
+                    format_duration(RETRY_INTERVAL)
+                ));
+            }
+        }
+    }
+
+    /// When the next lost device is to be tried again (`None`: none is lost).
+    pub fn next_retry(&self) -> Option<Duration> {
+        self.devices
+            .iter()
+            .map(Device::health)
+            .filter(|h| !h.online())
+            .map(|h| h.next_retry)
+            .min()
+    }
+
+    /// Tries lost devices whose retry time has come (one try each, without retries, so a
+    /// lost device costs at most one timeout a second), takes control of those that are back,
+    /// and holds every output safe while a device has been lost beyond the grace time.
+    pub fn supervise(&mut self) {
+        for idx in 0..self.devices.len() {
+            let now = self.now();
+            let due = self
+                .devices
+                .get(idx)
+                .is_some_and(|d| !d.health().online() && now >= d.health().next_retry);
+            if !due {
+                continue;
+            }
+            self.feed_watchdogs();
+            let Some(d) = self.devices.get_mut(idx) else {
+                continue;
+            };
+            let health = d.health();
+            let reopen = health.link_failed;
+            let tried = if reopen { d.reopen() } else { Ok(()) };
+            let tried = tried.and_then(|()| match d {
+                Device::C29u(c) => c.probe(),
+                Device::Trc(t) => t.probe(),
+            });
+            match tried {
+                Ok(()) => {
+                    let name = d.name().to_string();
+                    let lost_for = d.health().lost_for(now);
+                    // Back only once it is under control again: a device that answers a probe
+                    // but fails the rest stays lost, and its grace time keeps running.
+                    if self.take_control(idx) {
+                        if let Some(d) = self.devices.get_mut(idx) {
+                            d.health_mut().back();
+                        }
+                        self.log.info(&format!(
+                            "{name}: back after {}; watchdog, safe value and outputs applied \
+                             again",
+                            format_duration(lost_for)
+                        ));
+                    }
+                }
+                Err(e) => {
+                    let retry = now.saturating_add(RETRY_INTERVAL);
+                    let h = d.health_mut();
+                    h.next_retry = retry;
+                    h.link_failed = h.link_failed || e.is_link_failure();
+                }
+            }
+        }
+        self.check_grace();
+    }
+
+    /// Holds everything safe once a device has been lost for longer than the grace time;
+    /// lets go when every device is back.
+    fn check_grace(&mut self) {
+        let now = self.now();
+        let beyond: Vec<String> = self
+            .devices
+            .iter()
+            .filter(|d| d.health().lost_for(now) > self.grace)
+            .map(|d| d.name().to_string())
+            .collect();
+        let all_back = self.devices.iter().all(|d| d.health().online());
+        if !self.held_safe && !beyond.is_empty() {
+            self.held_safe = true;
+            self.log.warn(&format!(
+                "{} lost for longer than the grace time ({}): every output is held at its \
+                 safe state until it is back",
+                beyond.join(", "),
+                format_duration(self.grace)
+            ));
+        } else if self.held_safe && all_back {
+            self.held_safe = false;
+            self.log
+                .info("every device is back: the script's outputs apply again");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RETRY_INTERVAL;
+    use crate::runtime::devices::DeviceError;
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    /// Reads the module's inputs in a new tick, as a handler would.
+    fn poll(r: &mut TestRig) {
+        r.next_tick(TICK);
+        r.rt.inputs(IO);
+    }
+
+    #[test]
+    fn a_lost_device_is_tried_once_a_second_and_taken_control_of_when_back() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        poll(&mut r);
+        assert!(!r.rt.online(IO));
+        assert_eq!(r.log().matches("io: lost: ").count(), 1);
+        let before = r.requests();
+        r.clock.advance(RETRY_INTERVAL - TICK);
+        r.rt.supervise();
+        assert_eq!(r.requests(), before, "not before its retry time");
+        r.clock.advance(TICK);
+        r.rt.supervise();
+        assert_eq!(r.requests(), before + 1, "one try, no retries");
+        assert!(!r.rt.online(IO));
+        r.sim.set_gone("io", false).unwrap();
+        r.rt.c29u(IO).unwrap().outputs = 0x0C;
+        r.clock.advance(RETRY_INTERVAL);
+        r.rt.supervise();
+        assert!(r.rt.online(IO));
+        assert!(!r.rt.held_safe, "lost past the grace time, and now back");
+        r.rt.flush_outputs();
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x0C,
+            "the script's outputs again"
+        );
+        assert!(r.log().contains("io: back after 2"), "{}", r.log());
+        assert_eq!(r.log().matches("io: lost: ").count(), 1, "lost once");
+    }
+
+    #[test]
+    fn past_the_grace_time_everything_is_held_safe_until_every_device_is_back() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x30);
+        r.rt.flush_outputs();
+        r.sim.set_gone("panel", true).unwrap();
+        r.next_tick(TICK);
+        r.rt.switches(PANEL);
+        r.clock.advance(Duration::from_millis(900));
+        r.rt.supervise();
+        assert!(!r.rt.held_safe, "within the grace time");
+        r.clock.advance(Duration::from_millis(200));
+        r.rt.supervise();
+        assert!(r.rt.held_safe);
+        r.rt.flush_outputs();
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x05,
+            "the device that answers goes safe"
+        );
+        assert!(r
+            .log()
+            .contains("panel lost for longer than the grace time (1s)"));
+        r.sim.set_gone("panel", false).unwrap();
+        r.clock.advance(RETRY_INTERVAL);
+        r.rt.supervise();
+        assert!(!r.rt.held_safe);
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x30);
+        assert!(r.log().contains("every device is back"), "{}", r.log());
+    }
+
+    #[test]
+    fn only_communication_failures_lose_a_device() {
+        let mut r = TestRig::started();
+        let refused = DeviceError::Offline {
+            device: "io".into(),
+            ago: Duration::ZERO,
+            cause: String::new(),
+        };
+        r.rt.note_failure(IO, &refused);
+        assert!(r.rt.online(IO));
+    }
+}

@@ -1,0 +1,12 @@
+//! Fail-safe supervision, all in one place: taking control of every device (at start, when it
+//! comes back, when a module went safe), keeping it (host watchdogs fed, outputs read back),
+//! losing devices and trying them again, holding every output safe while one has been lost
+//! for longer than its grace time, and the safe state at the end.
+
+mod control;
+mod loss;
+mod safe_state;
+mod upkeep;
+
+pub use control::Unavailable;
+pub use loss::RETRY_INTERVAL;

@@ -1,0 +1,244 @@
+//! Keeping control while the run goes: host watchdogs fed at a quarter of their timeout, and
+//! every few seconds the modules' outputs read back and the relays selected again.
+
+use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::state::Runtime;
+use crate::time::duration::format_duration;
+use std::time::Duration;
+
+impl<H: Clone> Runtime<H> {
+    /// Feeds each host watchdog the runner keeps, at a quarter of its timeout.
+    pub fn feed_watchdogs(&mut self) {
+        self.feed_watchdogs_except(None);
+    }
+
+    /// `feed_watchdogs`, leaving out the device at `skip` (one being taken control of; then
+    /// a stalled module is fed as it is, and checked at the next feed).
+    pub fn feed_watchdogs_except(&mut self, skip: Option<usize>) {
+        let now = self.now();
+        for idx in 0..self.devices.len() {
+            if !self.online(idx) || skip == Some(idx) {
+                continue;
+            }
+            let Some(d) = self.c29u(idx) else { continue };
+            if let (Some(stall), None) = (d.stalled(now), skip) {
+                self.after_stall(idx, stall);
+                continue;
+            }
+            if let Err(e) = d.feed(now) {
+                self.note_failure(idx, &e);
+            }
+        }
+    }
+
+    /// The module at `idx` was not fed for `stall`, longer than its watchdog's timeout (the
+    /// runner stalled: a paused VM, a stopped process, a blocked exchange): its watchdog has
+    /// fired if it kept time as the runner did. Neither protocol reports that reliably, so the
+    /// outputs the runner wants are written: a module in safe mode refuses, and is taken
+    /// control of again at once, with the cause in the log; one that takes them is fed.
+    fn after_stall(&mut self, idx: usize, stall: Duration) {
+        let held = self.held_safe;
+        let now = self.now();
+        let Some(d) = self.c29u(idx) else { return };
+        let target = if held { d.config.safe_value } else { d.outputs };
+        let result = d.write_outputs(target).and_then(|()| d.feed(now));
+        match result {
+            Ok(_) => {}
+            Err(e) if e.is_safe_mode() => {
+                let timeout = d.watchdog.map_or(stall, |t| t.as_duration());
+                let (name, safe) = (d.name.clone(), d.config.safe_value);
+                self.log.warn(&format!(
+                    "{name}: host watchdog fired after a {} stall (not fed for that long, its \
+                     timeout is {}): its outputs went to the safe value {safe:#04x}; taking \
+                     control again",
+                    format_duration(stall),
+                    format_duration(timeout)
+                ));
+                self.take_control(idx);
+            }
+            Err(e) => self.note_failure(idx, &e),
+        }
+    }
+
+    /// When the next watchdog feed is due (`None`: nothing to feed). The scan loop wakes for
+    /// it between ticks.
+    pub fn next_feed(&self) -> Option<Duration> {
+        self.devices
+            .iter()
+            .filter_map(|d| match d {
+                Device::C29u(c) => c.next_feed(),
+                Device::Trc(_) => None,
+            })
+            .min()
+    }
+
+    /// Checks that the modules still drive what was written (a module reset or power cycled
+    /// by someone else goes back to its power-on value) and selects each relay again (a board
+    /// that was unplugged forgets it); run every few seconds.
+    pub fn verify_outputs(&mut self) {
+        for idx in 0..self.devices.len() {
+            if !self.ready_for_exchange(idx) {
+                continue;
+            }
+            let result = match self.devices.get_mut(idx) {
+                Some(Device::C29u(d)) => match d.outputs_written {
+                    Some(written) => {
+                        d.driver
+                            .read_outputs()
+                            .map_err(DeviceError::from)
+                            .map(|actual| {
+                                (actual != written).then(|| {
+                                    d.outputs_written = None;
+                                    format!(
+                                        "{}: outputs read {actual:#04x} but {written:#04x} was \
+                                     written (module reset or power cycled?); writing them again",
+                                        d.name
+                                    )
+                                })
+                            })
+                    }
+                    None => Ok(None),
+                },
+                Some(Device::Trc(d)) => {
+                    d.relay_written = None;
+                    Ok(None)
+                }
+                None => Ok(None),
+            };
+            match result {
+                Ok(Some(line)) => self.log.warn(&line),
+                Ok(None) => {}
+                Err(e) => self.note_failure(idx, &e),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    const TICK: Duration = Duration::from_millis(20);
+
+    #[test]
+    fn host_watchdogs_are_fed_at_their_interval() {
+        let mut r = TestRig::started();
+        // The rig's 1 s watchdog: a feed may be 778 ms late (config::feeding), so every
+        // 221.7 ms rather than every quarter.
+        let interval = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        assert_eq!(interval.as_micros(), 221_666);
+        let before = r.requests();
+        for _ in 0..500 {
+            r.next_tick(TICK);
+            r.rt.feed_watchdogs();
+        }
+        assert!(!r.sim.safe_mode("io").unwrap(), "10 s fed, never expired");
+        // At the first tick at least 221.7 ms after the last feed: every 240 ms at 20 ms ticks.
+        assert_eq!(r.requests() - before, 10_000 / 240);
+    }
+
+    #[test]
+    fn next_feed_and_next_retry() {
+        let mut r = TestRig::started();
+        let interval = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        assert_eq!(r.rt.next_feed(), Some(interval));
+        assert_eq!(r.rt.next_retry(), None);
+        r.sim.set_gone("panel", true).unwrap();
+        r.clock.advance(Duration::from_millis(100));
+        r.rt.switches(PANEL);
+        let lost_at = r.rt.now();
+        assert_eq!(r.rt.next_retry(), Some(lost_at + Duration::from_secs(1)));
+        assert_eq!(r.rt.next_feed(), Some(interval));
+        r.sim.set_gone("io", true).unwrap();
+        r.next_tick(TICK);
+        r.rt.inputs(IO);
+        assert_eq!(r.rt.next_feed(), None, "a lost module is not fed");
+    }
+
+    #[test]
+    fn a_feed_due_before_an_exchange_is_sent_first() {
+        let mut r = TestRig::started();
+        r.clock.advance(Duration::from_millis(900));
+        assert!(!r.sim.safe_mode("io").unwrap());
+        // A slow panel read (any exchange) would let the module's 1 s watchdog fire, but the
+        // feed that fell due goes out before it.
+        r.sim
+            .set_answer_delay("panel", Duration::from_millis(300))
+            .unwrap();
+        r.next_tick(TICK);
+        r.rt.switches(PANEL);
+        assert!(r.rt.now() > Duration::from_millis(1200));
+        assert!(!r.sim.safe_mode("io").unwrap());
+    }
+
+    #[test]
+    fn outputs_changed_behind_the_runners_back_are_noticed_and_written_again() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.flush_outputs();
+        r.sim.power_cycle("io").unwrap();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x11, "the power-on value");
+        r.rt.verify_outputs();
+        assert!(
+            r.log().contains(
+                "io: outputs read 0x11 but 0x21 was written (module reset or power cycled?)"
+            ),
+            "{}",
+            r.log()
+        );
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x21);
+    }
+
+    #[test]
+    fn relays_are_selected_again_at_each_check() {
+        let mut r = TestRig::started();
+        r.rt.set_relay(PANEL, 4);
+        r.rt.flush_outputs();
+        r.sim.power_cycle("panel").unwrap();
+        assert_ne!(r.sim.relay("panel").unwrap(), 4);
+        r.rt.verify_outputs();
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.relay("panel").unwrap(), 4);
+    }
+
+    #[test]
+    fn after_a_stall_longer_than_the_watchdog_the_module_is_taken_control_of_at_once() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x60);
+        r.rt.flush_outputs();
+        // The runner stalls (a paused VM, a stopped process): nothing is fed for 1.2 s.
+        r.clock.advance(Duration::from_millis(1200));
+        assert!(r.sim.safe_mode("io").unwrap(), "its 1 s watchdog fired");
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
+        // The first feed opportunity after the stall notices it.
+        r.next_tick(TICK);
+        r.rt.feed_watchdogs();
+        assert!(!r.sim.safe_mode("io").unwrap());
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x60,
+            "the script's outputs at once"
+        );
+        let log = r.log();
+        assert!(
+            log.contains(
+                "io: host watchdog fired after a 1.22s stall (not fed for that long, its \
+                 timeout is 1s): its outputs went to the safe value 0x05; taking control again"
+            ),
+            "{log}"
+        );
+        assert!(!log.contains("power cycled"), "{log}");
+    }
+
+    #[test]
+    fn a_feed_that_is_late_but_in_time_is_just_a_feed() {
+        let mut r = TestRig::started();
+        r.clock.advance(Duration::from_millis(900));
+        let before = r.requests();
+        r.rt.feed_watchdogs();
+        assert_eq!(r.requests() - before, 1, "one host OK, no check");
+        assert!(!r.log().contains("stall"), "{}", r.log());
+    }
+}

@@ -1,0 +1,244 @@
+//! The state of one run that scripts act on: the clock, the devices, the handlers, records,
+//! the log and the stop request. Its jobs live beside it: `registry` (devices by name and
+//! index), `inputs` (lazy reads), `outputs` (what the script wants written), `safety`
+//! (supervision), `subscriptions` and `events` (handlers and what fires them).
+//!
+//! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
+
+use super::devices::links::TransactionCounter;
+use super::devices::Device;
+use super::log::Logger;
+use super::records::Records;
+use super::schedule::TimerKind;
+use super::subscriptions::{Source, Subscriptions};
+use crate::time::clock::SharedClock;
+use crate::time::zone::Zone;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+/// The state of one run.
+pub struct Runtime<H> {
+    /// The one source of time.
+    pub clock: SharedClock,
+    /// The zone of cron, `now()` and the log.
+    pub zone: Zone,
+    /// The devices, in name order.
+    pub devices: Vec<Device>,
+    /// The script's handlers and timers.
+    pub handlers: Subscriptions<H>,
+    /// Records and measurements.
+    pub records: Records,
+    /// The log.
+    pub log: Logger,
+    /// The current tick (0 while the top level runs at start).
+    pub tick: u64,
+    /// Monotonic time the run started.
+    pub started: Duration,
+    /// The script asked to stop, with this exit status.
+    pub stop_request: Option<i64>,
+    /// The handler running now, for the log lines of the outputs it changes.
+    pub cause: String,
+    /// A device has been lost for longer than its grace time: every device is held at its
+    /// safe state until all are back.
+    pub held_safe: bool,
+    /// Requests sent on all links.
+    pub transactions: TransactionCounter,
+    /// How long a device may be lost before everything goes safe.
+    pub grace: Duration,
+}
+
+impl<H: Clone> Runtime<H> {
+    /// A run over `devices` (already opened) starting now.
+    pub fn new(
+        clock: SharedClock,
+        zone: Zone,
+        devices: Vec<Device>,
+        records: Records,
+        log: Logger,
+        transactions: TransactionCounter,
+        grace: Duration,
+    ) -> Self {
+        let started = clock.now();
+        Self {
+            clock,
+            zone,
+            devices,
+            handlers: Subscriptions::new(zone),
+            records,
+            log,
+            tick: 0,
+            started,
+            stop_request: None,
+            cause: "top level".into(),
+            held_safe: false,
+            transactions,
+            grace,
+        }
+    }
+
+    /// Monotonic now.
+    pub fn now(&self) -> Duration {
+        self.clock.now()
+    }
+
+    /// Wall time now in the run's zone, as RFC 3339 with milliseconds.
+    pub fn wall_text(&self) -> String {
+        self.zone
+            .at(self.clock.wall())
+            .to_rfc3339_opts(chrono::SecondsFormat::Millis, false)
+    }
+
+    /// How long the run has been going.
+    pub fn uptime(&self) -> Duration {
+        self.now().saturating_sub(self.started)
+    }
+
+    /// Requests sent so far on all links.
+    pub fn transaction_count(&self) -> u64 {
+        self.transactions.load(Ordering::Relaxed)
+    }
+
+    /// When the next tick has something to do, if no handler polls inputs: the earliest
+    /// timer or retry of a lost device (watchdogs are fed between ticks). `None` when every
+    /// tick has work.
+    pub fn idle_until(&self) -> Option<Duration> {
+        if self.handlers.polls_inputs() {
+            return None;
+        }
+        let now = self.now();
+        let timer = self.handlers.next_timer(now, self.clock.wall());
+        let upkeep = self.next_retry();
+        let next = match (timer, upkeep) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        Some(next.unwrap_or(Duration::MAX))
+    }
+
+    /// How often the loop ticks while the script's handlers stay as they are: every `period`
+    /// while a handler polls inputs, else at its fastest `every` (no faster than the period);
+    /// `None` when only single timers, cron or upkeep wake it.
+    pub fn tick_interval(&self, period: Duration) -> Option<Duration> {
+        if self.handlers.polls_inputs() {
+            return Some(period);
+        }
+        self.handlers
+            .list()
+            .iter()
+            .filter_map(|s| match s.source {
+                Source::Timer(id) => match self.handlers.timer_kind(id) {
+                    Some(TimerKind::Every(every)) => Some((*every).max(period)),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .min()
+    }
+
+    /// Something that changes when handlers come or go (their count and the newest id).
+    pub fn handlers_signature(&self) -> (usize, Option<u64>) {
+        let list = self.handlers.list();
+        (list.len(), list.last().map(|s| s.id))
+    }
+
+    /// Forgets every handler and timer and the script's outputs (back to the safe values),
+    /// before the script is started again.
+    pub fn reset_program(&mut self) {
+        self.handlers.clear();
+        self.stop_request = None;
+        self.reset_outputs();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::subscriptions::Source;
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    #[test]
+    fn idle_until_is_none_while_a_handler_polls_inputs() {
+        let mut r = TestRig::started();
+        r.rt.subscribe(Source::Rise { dev: IO, ch: 0 }, "rise", "rise".into());
+        assert_eq!(r.rt.idle_until(), None);
+    }
+
+    #[test]
+    fn idle_until_is_the_earliest_timer_or_retry() {
+        let mut r = TestRig::started();
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(Duration::MAX),
+            "nothing to do: watchdogs are fed between ticks"
+        );
+        r.rt.after(Duration::from_millis(100), "soon");
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(Duration::from_millis(100)),
+            "the timer"
+        );
+        r.rt.reset_program();
+        r.sim.set_gone("panel", true).unwrap();
+        r.rt.tick += 1;
+        r.rt.switches(PANEL);
+        let lost_at = r.rt.now();
+        assert_eq!(
+            r.rt.idle_until(),
+            Some(lost_at + Duration::from_secs(1)),
+            "the retry"
+        );
+    }
+
+    #[test]
+    fn the_tick_interval_follows_input_polls_and_the_fastest_every() {
+        let mut r = TestRig::started();
+        let period = Duration::from_millis(20);
+        assert_eq!(r.rt.tick_interval(period), None, "nothing to do");
+        r.rt.cron("0 0 * * * *", "hourly").unwrap();
+        r.rt.after(Duration::from_millis(5), "once");
+        assert_eq!(r.rt.tick_interval(period), None, "only now and then");
+        let slow = r.rt.every(Duration::from_secs(1), "slow").unwrap();
+        assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
+        let before = r.rt.handlers_signature();
+        let fast = r.rt.every(Duration::from_millis(5), "fast").unwrap();
+        assert_ne!(r.rt.handlers_signature(), before);
+        assert_eq!(
+            r.rt.tick_interval(period),
+            Some(period),
+            "no faster than a period"
+        );
+        r.rt.cancel(fast);
+        assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
+        r.rt.cancel(slow);
+        r.rt.subscribe(Source::Rise { dev: IO, ch: 0 }, "rise", "rise".into());
+        assert_eq!(
+            r.rt.tick_interval(period),
+            Some(period),
+            "inputs polled every tick"
+        );
+    }
+
+    #[test]
+    fn reset_program_forgets_handlers_the_stop_request_and_the_scripts_outputs() {
+        let mut r = TestRig::started();
+        r.rt.every(Duration::from_secs(1), "t").unwrap();
+        r.rt.subscribe(Source::Stop, "s", "on_stop".into());
+        r.rt.stop_request = Some(3);
+        r.rt.set_outputs(IO, 0x99);
+        r.rt.set_relay(PANEL, 7);
+        r.rt.reset_program();
+        assert!(r.rt.handlers.list().is_empty());
+        assert!(!r.rt.has_work());
+        assert_eq!(r.rt.stop_request, None);
+        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+    }
+
+    #[test]
+    fn uptime_and_wall_time_come_from_the_runs_clock() {
+        let r = TestRig::started();
+        r.clock.advance(Duration::from_millis(1500));
+        assert_eq!(r.rt.uptime(), Duration::from_millis(1500));
+        assert_eq!(r.rt.wall_text(), "1970-01-01T00:00:01.500+00:00");
+    }
+}
