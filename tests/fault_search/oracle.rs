@@ -428,9 +428,32 @@ impl Facts<'_> {
         }
     }
 
-    /// Whether the host could reach `line` when the run ended.
+    /// When the run began to end: its "stopping" line, else its last error (an error end, a
+    /// caught panic), else when it returned.
+    fn end_began(&self) -> Duration {
+        let End::Ran { log, .. } = &self.run.end else {
+            return self.run.ended_at;
+        };
+        log.iter()
+            .rev()
+            .find(|l| l.contains(" stopping: "))
+            .or_else(|| log.iter().rev().find(|l| l.contains(" error: ")))
+            .and_then(|l| log_time(l))
+            .unwrap_or(self.run.ended_at)
+    }
+
+    /// Whether the host could reach `line` all through the end of the run (the safe state is
+    /// owed only to a module it could reach).
     fn reachable(&self, line: u8) -> bool {
+        let (from, to) = (self.end_began(), self.run.ended_at);
+        let down_meanwhile = self.case.faults.iter().any(|&(start, f)| match f {
+            Fault::Silence { line: l, ms: d } | Fault::Unplug { line: l, ms: d } => {
+                self.case.line(l) == line && ms(start) <= to && ms(start) + ms(d) >= from
+            }
+            _ => false,
+        });
         self.run.killed_at.is_none()
+            && !down_meanwhile
             && self.run.lines_at_end.get(&line).copied() == Some(LineState::Up)
     }
 
@@ -766,6 +789,16 @@ impl Facts<'_> {
             );
         }
     }
+}
+
+/// The virtual time of a log line (`HH:MM:SS.mmm ...`; the search's wall clock starts at
+/// midnight).
+fn log_time(line: &str) -> Option<Duration> {
+    let stamp = line.get(..12)?;
+    let mut parts = stamp.split([':', '.']);
+    let mut next = || parts.next().and_then(|p| p.parse::<u64>().ok());
+    let (h, m, sec, milli) = (next()?, next()?, next()?, next()?);
+    Some(ms(((h * 60 + m) * 60 + sec) * 1000 + milli))
 }
 
 /// How many times channel `ch` changed in the DI bytes `field` (either edge: an upper bound on
