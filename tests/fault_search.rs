@@ -740,3 +740,25 @@ fn defect_11_a_safe_state_that_did_not_reach_a_module_is_not_exit_0() {
         faults: vec![(15_001, Fault::Late { line: 0, ms: 250 })],
     });
 }
+
+/// Found by the search on main (FAULT_SEARCH_SEED=23 FAULT_SEARCH_CASES=5000): an ASCII counter
+/// read shifted by one channel after a late answer (DI0 pulsed, DI1 shows the count).
+#[test]
+fn defect_13_counters_are_never_shifted_by_a_late_answer() {
+    assert_keeps_promises(&Case {
+        rig: bare(
+            500,
+            10_001,
+            Module {
+                timeout_ms: 200,
+                retries: 1,
+                ..plain(Proto::Ascii, None, 0x00)
+            },
+        ),
+        script: vec![every(100, vec![Stmt::RecordCounters { dev: 0 }])],
+        faults: vec![
+            (0, Fault::Input { dev: 0, value: 1 }),
+            (1, Fault::Late { line: 0, ms: 250 }),
+        ],
+    });
+}

@@ -17,7 +17,8 @@
 //!   the field put on them (`wrong-input`); a clean status after a failure is
 //!   `exit-hides-failure` (the statuses are `runtime::exit`'s);
 //! - a script error says where in the script it happened (`error-without-location`);
-//! - nothing is written to a module's EEPROM that it holds already (`eeprom-rewrite`).
+//! - nothing is written to a module's EEPROM that it holds already, unless an answer on its
+//!   line was lost (`eeprom-rewrite`).
 
 use super::case::{Case, Fault, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
@@ -205,8 +206,19 @@ impl Facts<'_> {
             );
         }
         for (i, m) in self.run.modules.iter().enumerate() {
+            // After a write whose answer was lost, writing again is the only way to be sure.
+            let answers_lost = self.case.faults.iter().any(|&(_, f)| match f {
+                Fault::Drop { line, .. }
+                | Fault::Garble { line, .. }
+                | Fault::Late { line, .. }
+                | Fault::LinkStall { line, .. }
+                | Fault::Silence { line, .. }
+                | Fault::Unplug { line, .. }
+                | Fault::Panic { line } => self.case.line(line) == m.line,
+                _ => false,
+            });
             let rewrites = lock(&m.model).eeprom_rewrites();
-            if rewrites > 0 {
+            if rewrites > 0 && !answers_lost {
                 let name = self.names(i);
                 self.push(
                     "eeprom-rewrite",
@@ -448,7 +460,7 @@ impl Facts<'_> {
         let (from, to) = (self.end_began(), self.run.ended_at);
         let down_meanwhile = self.case.faults.iter().any(|&(start, f)| match f {
             Fault::Silence { line: l, ms: d } | Fault::Unplug { line: l, ms: d } => {
-                self.case.line(l) == line && ms(start) <= to && ms(start) + ms(d) >= from
+                self.case.line(l) == line && ms(start) < to && ms(start) + ms(d) > from
             }
             _ => false,
         });
@@ -522,8 +534,8 @@ impl Facts<'_> {
                 continue;
             };
             let wd = now.watchdog;
-            let must_be_on = !self.reachable(m.line) || matches!(self.run.end, End::Panicked);
-            if (wd.enabled && wd.timeout_tenths > w) || (must_be_on && !wd.enabled) {
+            // Off is fine once the outputs are safe; otherwise only the watchdog can make them so.
+            if (wd.enabled && wd.timeout_tenths > w) || (!wd.enabled && now.outputs != m.safe) {
                 self.push(
                     "watchdog-weakened",
                     format!(
