@@ -7,7 +7,7 @@ use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, OpenError, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
 use crate::runtime::exit;
 use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
@@ -110,6 +110,18 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
+    start_with(source, file, setup, open_devices)
+}
+
+/// As `start`, with the devices opened by `open` instead of `open_devices` (given the same
+/// config, clock, `simulate` flag and request counter): the fault search puts simulators
+/// behind fault-injecting links under the real drivers this way.
+pub fn start_with(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
+) -> Result<Rig, RigError> {
     if setup.config.devices.is_empty() {
         return Err(RigError::NoDevices {
             simulated: setup.simulate,
@@ -123,7 +135,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         None => Records::in_memory(),
     };
     let count = TransactionCounter::default();
-    let opened = open_devices(&setup.config, &setup.clock, setup.simulate, &count)?;
+    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
     let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
     log.set_quiet(setup.quiet);
     if setup.keep_log {
