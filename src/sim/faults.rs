@@ -19,6 +19,7 @@
 //! - `Panic` makes the next link call panic: a bug anywhere under the runner, to test that a
 //!   panic still leaves the outputs safe.
 
+use crate::link::line;
 use crate::link::{ByteLink, LinkError};
 use crate::sim::ByteDevice;
 use crate::time::clock::{Clock, SharedClock, VirtualClock};
@@ -79,9 +80,9 @@ impl fmt::Display for LinkFault {
     }
 }
 
-/// Whether the line carries anything.
+/// Whether the line carries anything (up, unplugged, or connected to a module that says nothing).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum LineState {
+pub enum Connection {
     /// Requests reach the device and answers come back.
     #[default]
     Up,
@@ -106,7 +107,7 @@ struct PlanState {
     /// Faults not yet due, by time (stable for equal times).
     schedule: VecDeque<(Duration, LinkFault)>,
     armed: Armed,
-    state: LineState,
+    state: Connection,
     /// The host is gone (killed): nothing it sends arrives, whatever else is planned.
     cut: bool,
     /// Faults that came due, with their times.
@@ -137,7 +138,7 @@ impl FaultPlan {
     }
 
     /// Applies the faults due at `now`; returns the line's state then.
-    pub fn state_at(&self, now: Duration) -> LineState {
+    pub fn state_at(&self, now: Duration) -> Connection {
         let mut p = self.lock();
         p.apply_due(now);
         p.current()
@@ -157,9 +158,9 @@ impl FaultPlan {
 
 impl PlanState {
     /// The state the host sees.
-    fn current(&self) -> LineState {
+    fn current(&self) -> Connection {
         match self.state {
-            LineState::Up if self.cut => LineState::Silent,
+            Connection::Up if self.cut => Connection::Silent,
             s => s,
         }
     }
@@ -174,9 +175,9 @@ impl PlanState {
                 LinkFault::Drop { answers } => a.drop = a.drop.saturating_add(answers.into()),
                 LinkFault::Garble { at, xor } => a.garble.push_back((at, xor)),
                 LinkFault::Late(d) => a.late.push_back(d),
-                LinkFault::Disconnect => self.state = LineState::Disconnected,
-                LinkFault::Silence => self.state = LineState::Silent,
-                LinkFault::Reconnect => self.state = LineState::Up,
+                LinkFault::Disconnect => self.state = Connection::Disconnected,
+                LinkFault::Silence => self.state = Connection::Silent,
+                LinkFault::Reconnect => self.state = Connection::Up,
                 LinkFault::Stall(d) => a.stall = a.stall.saturating_add(d),
                 LinkFault::Panic => a.panic = true,
             }
@@ -198,6 +199,8 @@ pub struct FaultyLink<D: ByteDevice> {
     wire: VecDeque<(Duration, Vec<u8>)>,
     /// Bytes that have arrived and not been read.
     arrived: VecDeque<u8>,
+    /// The line's timing as the exchange layer keeps it (untimed: memory has no wire).
+    line: line::LineState,
 }
 
 impl<D: ByteDevice> FaultyLink<D> {
@@ -210,6 +213,7 @@ impl<D: ByteDevice> FaultyLink<D> {
             plan,
             wire: VecDeque::new(),
             arrived: VecDeque::new(),
+            line: line::LineState::untimed(),
         }
     }
 
@@ -219,7 +223,7 @@ impl<D: ByteDevice> FaultyLink<D> {
     }
 
     /// Applies the due faults and runs those that act on a call (panic, stall); the state.
-    fn begin_call(&mut self) -> LineState {
+    fn begin_call(&mut self) -> Connection {
         let now = self.clock.now();
         let (state, stall, panic) = {
             let mut p = self.plan.lock();
@@ -235,7 +239,7 @@ impl<D: ByteDevice> FaultyLink<D> {
         if !stall.is_zero() {
             self.clock.sleep_until(now.saturating_add(stall));
         }
-        if state == LineState::Disconnected {
+        if state == Connection::Disconnected {
             self.wire.clear();
             self.arrived.clear();
         }
@@ -292,9 +296,9 @@ impl<D: ByteDevice> FaultyLink<D> {
 impl<D: ByteDevice> ByteLink for FaultyLink<D> {
     fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
         match self.begin_call() {
-            LineState::Disconnected => Err(self.unplugged()),
-            LineState::Silent => Ok(()),
-            LineState::Up => {
+            Connection::Disconnected => Err(self.unplugged()),
+            Connection::Silent => Ok(()),
+            Connection::Up => {
                 let mut answer = self.device.receive(bytes);
                 answer.extend(self.device.line_idle());
                 self.send_back(answer);
@@ -304,7 +308,7 @@ impl<D: ByteDevice> ByteLink for FaultyLink<D> {
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
-        if self.begin_call() == LineState::Disconnected {
+        if self.begin_call() == Connection::Disconnected {
             return Err(self.unplugged());
         }
         let now = self.clock.now();
@@ -330,20 +334,16 @@ impl<D: ByteDevice> ByteLink for FaultyLink<D> {
         Ok(n)
     }
 
-    fn discard_input(&mut self) -> Result<(), LinkError> {
-        // Only what has arrived can be thrown away; what is still on its way comes later.
-        let now = self.clock.now();
-        self.land(now);
-        self.arrived.clear();
-        Ok(())
-    }
-
     fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {
         Ok(())
     }
 
     fn describe(&self) -> String {
         format!("simulated {}", self.name)
+    }
+
+    fn line(&mut self) -> Option<&mut line::LineState> {
+        Some(&mut self.line)
     }
 }
 
@@ -461,6 +461,7 @@ impl Clock for EventClock {
 mod tests {
     use super::*;
     use crate::device::exchange::{exchange, ExchangeError, Timing};
+    use crate::link::line::FrameGap;
     use std::sync::atomic::{AtomicU32, Ordering};
 
     /// Answers each request with "<request>!" and counts what it heard.
@@ -491,6 +492,9 @@ mod tests {
         let timing = Timing {
             timeout: Duration::from_millis(200),
             gap: None,
+            frame_gap: FrameGap::Auto,
+            auto_gap: |_| Duration::ZERO,
+            max_answer: 64,
         };
         let frame = |r: &[u8]| {
             let end = r.iter().position(|&b| b == b'!')?;
@@ -565,7 +569,7 @@ mod tests {
         ));
         let mut buf = [0u8; 8];
         assert!(link.read(&mut buf, MS(5)).is_err());
-        assert_eq!(plan.state_at(clock.now()), LineState::Disconnected);
+        assert_eq!(plan.state_at(clock.now()), Connection::Disconnected);
         clock.advance(MS(10));
         assert_eq!(ask(&mut link, &clock, b"b"), None);
         assert_eq!(
@@ -573,14 +577,14 @@ mod tests {
             0,
             "a silent device hears nothing"
         );
-        assert_eq!(plan.state_at(clock.now()), LineState::Up);
+        assert_eq!(plan.state_at(clock.now()), Connection::Up);
         assert_eq!(ask(&mut link, &clock, b"c").as_deref(), Some(&b"c!"[..]));
         // A killed host: nothing gets through, and a planned reconnect does not change that.
         plan.cut_off();
         plan.add(MS(40), LinkFault::Reconnect);
         clock.advance(MS(20));
         assert_eq!(ask(&mut link, &clock, b"d"), None);
-        assert_eq!(plan.state_at(clock.now()), LineState::Silent);
+        assert_eq!(plan.state_at(clock.now()), Connection::Silent);
         assert_eq!(heard.load(Ordering::SeqCst), 1);
     }
 

@@ -13,7 +13,7 @@ use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevi
 use rigscript::script::rig::{start_with, RigError, RigSetup};
 use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig, Protocol, WatchdogStatus};
 use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use rigscript::sim::faults::{EventClock, FaultPlan, FaultyLink, LineState, LinkFault};
+use rigscript::sim::faults::{Connection, EventClock, FaultPlan, FaultyLink, LinkFault};
 use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
 use rigscript::time::zone::Zone;
 use std::collections::BTreeMap;
@@ -128,7 +128,7 @@ pub struct Run {
     /// The simulated modules.
     pub modules: Vec<ModuleView>,
     /// Each line's state at the end of the run.
-    pub lines_at_end: BTreeMap<u8, LineState>,
+    pub lines_at_end: BTreeMap<u8, Connection>,
     /// Each module at the end of the run.
     pub at_end: Vec<ModuleState>,
     /// Each module after `AFTER_END_WAIT` on its own.
@@ -336,13 +336,13 @@ pub fn run(case: &Case) -> Run {
     clock.clear();
 
     let at_end = states(&modules);
-    let lines_at_end: BTreeMap<u8, LineState> = plans
+    let lines_at_end: BTreeMap<u8, Connection> = plans
         .iter()
         .map(|(line, plan)| (*line, plan.state_at(ended_at)))
         .collect();
     // Left alone: unplugged adapters go back in (their modules boot), and time passes.
     for (line, state) in &lines_at_end {
-        if *state == LineState::Disconnected {
+        if *state == Connection::Disconnected {
             for m in modules.iter().filter(|m| m.line == *line) {
                 lock(&m.model).power_cycle();
             }
@@ -518,15 +518,7 @@ fn opener(
                 .get(&line)
                 .cloned()
                 .unwrap_or_else(|| panic!("{name}: no line {line}"));
-            let options = C29uOptions {
-                protocol: c.protocol,
-                id: c.id,
-                baud: c.baud,
-                checksum: c.checksum,
-                timeout: c.timeout,
-                retries: u32::from(c.retries),
-                di_active_low: c.di_active_low,
-            };
+            let options = rigscript::runtime::devices::c29u_options(c);
             let open_error = |e| OpenError {
                 device: name.clone(),
                 source: rigscript::runtime::devices::DeviceError::C29u(e),

@@ -26,7 +26,7 @@ use super::render;
 use rigscript::runtime::exit;
 use rigscript::sim::c29u::{OutputCause, OutputChange};
 use rigscript::sim::c29u_line::lock;
-use rigscript::sim::faults::LineState;
+use rigscript::sim::faults::Connection;
 use std::collections::BTreeSet;
 
 /// The signal the search sends (SIGTERM).
@@ -466,7 +466,7 @@ impl Facts<'_> {
         });
         self.run.killed_at.is_none()
             && !down_meanwhile
-            && self.run.lines_at_end.get(&line).copied() == Some(LineState::Up)
+            && self.run.lines_at_end.get(&line).copied() == Some(Connection::Up)
     }
 
     fn end_state(&mut self) {
