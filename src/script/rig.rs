@@ -110,17 +110,20 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
-    start_with(source, file, setup, open_devices)
+    start_with(source, file, setup, open_devices, |_| {})
 }
 
 /// As `start`, with the devices opened by `open` instead of `open_devices` (given the same
-/// config, clock, `simulate` flag and request counter): the fault search puts simulators
-/// behind fault-injecting links under the real drivers this way.
+/// config, clock, `simulate` flag and request counter: the fault search puts simulators behind
+/// fault-injecting links under the real drivers this way), and `prepare` given the program
+/// before its top level runs (`verify` has it keep count of what the script does from the
+/// first line on).
 pub fn start_with(
     source: &str,
     file: &str,
     setup: RigSetup,
     open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
+    prepare: impl FnOnce(&mut ScriptProgram),
 ) -> Result<Rig, RigError> {
     if setup.config.devices.is_empty() {
         return Err(RigError::NoDevices {
@@ -166,7 +169,8 @@ pub fn start_with(
         r.end_safe("a device is not available", true);
         return Err(e.into());
     }
-    let program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    let mut program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    prepare(&mut program);
     let period = setup.period.unwrap_or(setup.config.period);
     let options = RunOptions {
         period,

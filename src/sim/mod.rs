@@ -1,5 +1,6 @@
 //! Device models that answer at the far end of a link: in memory, or on a pseudo-terminal.
 
+pub mod answer_faults;
 pub mod c29u;
 pub mod c29u_ascii;
 pub mod c29u_line;

@@ -11,6 +11,7 @@ use rigscript::device::c29u::{share, C29u, C29uOptions, SharedLink};
 use rigscript::runtime::devices::links::{Counted, Presence, TransactionCounter};
 use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevice, SimRig};
 use rigscript::script::rig::{start_with, RigError, RigSetup};
+use rigscript::sim::answer_faults::AnswerFaults;
 use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig, Protocol, WatchdogStatus};
 use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use rigscript::sim::faults::{Connection, EventClock, FaultPlan, FaultyLink, LinkFault};
@@ -299,7 +300,7 @@ pub fn run(case: &Case) -> Run {
     };
     let opener = opener(buses, plans.clone(), &modules);
     let started = catch_unwind(AssertUnwindSafe(|| {
-        start_with(&source, "case.rhai", setup, opener).map_err(Box::new)
+        start_with(&source, "case.rhai", setup, opener, |_| {}).map_err(Box::new)
     }));
     let end = match started {
         Ok(Err(e)) if matches!(*e, RigError::Script(_)) => {
@@ -549,6 +550,8 @@ fn opener(
                     SimDevice::C29u {
                         model: Arc::clone(model),
                         presence: Presence::new(),
+                        // The case's faults come from its FaultyLink, not from here.
+                        faults: AnswerFaults::default(),
                     },
                 );
             }
