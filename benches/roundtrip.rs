@@ -1,15 +1,13 @@
 //! Request round trips per second through the real TRP-C29U driver over a pseudo-terminal to
-//! the simulator served in this process, for each protocol. Run: `cargo bench --bench roundtrip`.
+//! the simulator served in this process, for each protocol, with no frame gap (a pty has no
+//! wire). Run: `cargo bench --bench roundtrip`.
 
-use rigscript::device::c29u::{share, C29u, C29uOptions, Protocol};
+mod common;
+
+use common::Served;
+use rigscript::device::c29u::{share, C29u, C29uOptions, FrameGap, Protocol};
 use rigscript::link::serial::SerialLink;
-use rigscript::protocol::c29u_modbus::silence_gap;
-use rigscript::sim::c29u::{C29uModel as Model, Eeprom};
-use rigscript::sim::c29u_line::SimulatedC29u;
-use rigscript::sim::pty::{Faults, PtyServer};
 use rigscript::time::clock::SystemClock;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Round trips measured per protocol (after a short warm-up).
@@ -17,51 +15,16 @@ const ROUND_TRIPS: u32 = 2000;
 const WARM_UP: u32 = 50;
 const BAUD: u32 = 9600;
 
-/// The simulator on a pty in a thread; stops when dropped.
-struct Served {
-    path: String,
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
-impl Served {
-    fn start(protocol: Protocol) -> Self {
-        let mut server = PtyServer::open(None).expect("create a pty");
-        let path = server.path().to_string();
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop2 = Arc::clone(&stop);
-        let thread = std::thread::spawn(move || {
-            let model = Model::new(protocol, SystemClock::shared(), Eeprom::factory());
-            let mut device = SimulatedC29u::new(model);
-            server
-                .serve(&mut device, &Faults::default(), silence_gap(BAUD), &stop2)
-                .expect("serve the simulator");
-        });
-        Self {
-            path,
-            stop,
-            thread: Some(thread),
-        }
-    }
-}
-
-impl Drop for Served {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-    }
-}
-
 /// Round trips per second of `count` `request`s on a fresh simulator.
 fn measure(protocol: Protocol, count: u32, request: fn(&mut C29u)) -> f64 {
-    let served = Served::start(protocol);
+    let served = Served::start(protocol, BAUD);
     let link = SerialLink::open(&served.path, BAUD).expect("open the pty");
     let options = C29uOptions {
         protocol,
         timeout: Duration::from_millis(500),
         retries: 0,
+        // The exchange itself; the silence a line needs is measured by benches/line.rs.
+        frame_gap: FrameGap::Fixed(Duration::ZERO),
         ..C29uOptions::default()
     };
     let mut dev = C29u::new(share(Box::new(link)), SystemClock::shared(), options).unwrap();

@@ -60,6 +60,7 @@ pub mod script;
 pub mod service;
 pub mod sim;
 pub mod time;
+pub mod verify;
 
 pub use script::builder::RigBuilder;
 pub use script::rig::{Rig, RigError};

@@ -9,8 +9,8 @@ use crate::cli::output::{
 };
 use crate::cli::sim::{parse_byte, ProtocolArg};
 use crate::device::c29u::{
-    watchdog_tenths, C29u, C29uError, C29uOptions, ConfigChange, CounterEdge, Preset, PresetWrite,
-    Protocol, WatchdogInfo,
+    watchdog_tenths, C29u, C29uError, C29uOptions, ConfigChange, CounterEdge, FrameGap, Preset,
+    PresetWrite, Protocol, WatchdogInfo,
 };
 use crate::device::exchange::{format_frame, Direction};
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
@@ -55,6 +55,11 @@ pub struct C29Args {
     #[arg(long, global = true, value_name = "N", default_value_t = 2,
           value_parser = clap::value_parser!(u32).range(0..=20))]
     pub retries: u32,
+    /// Silence kept on a serial line before each request: auto (Modbus t3.5, ASCII t1.5 at the
+    /// baud rate) or a duration up to 1s for a module that needs more; nothing over tcp://
+    #[arg(long, global = true, value_name = "auto|DUR", default_value = "auto",
+          value_parser = FrameGap::parse)]
+    pub frame_gap: FrameGap,
     /// Print one JSON document instead of text (monitor: one JSON object a line)
     #[arg(long, global = true)]
     pub json: bool,
@@ -343,6 +348,7 @@ impl C29Args {
             checksum: self.checksum,
             timeout: Duration::from_millis(self.timeout),
             retries: self.retries,
+            frame_gap: self.frame_gap,
             ..C29uOptions::default()
         }
     }

@@ -13,6 +13,7 @@ pub mod scan;
 pub mod sim;
 pub mod test;
 pub mod trc;
+pub mod verify;
 
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
 #[derive(Debug, Parser)]
@@ -31,6 +32,8 @@ pub enum Command {
     Check(check::CheckArgs),
     /// Run scenario tests (*.test.rhai) in virtual time against the simulators
     Test(test::TestArgs),
+    /// Search a script for events that break its invariants, on the simulators in virtual time
+    Verify(verify::VerifyArgs),
     /// Find TRC1000 boards and TRP-C29U modules on this machine
     Scan(scan::ScanArgs),
     /// Talk to a TRP-C29U module: I/O, counters, latches, watchdog, presets, identity, config
@@ -71,6 +74,7 @@ pub fn main() -> i32 {
         Command::Run(args) => run::run(args),
         Command::Check(args) => check::run(args),
         Command::Test(args) => test::run(args),
+        Command::Verify(args) => verify::run(args),
         Command::Scan(args) => scan::run(args),
         Command::C29(args) => c29::run(args),
         Command::Trc(args) => trc::run(args),

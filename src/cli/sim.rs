@@ -1,15 +1,18 @@
 //! `rigscript sim c29u`: serves simulated TRP-C29U modules on a pseudo-terminal, driven by
 //! control lines on standard input.
 
+use crate::cli::c29::parse_baud;
+use crate::device::c29u::auto_frame_gap;
+use crate::protocol::c29u::baud_code;
 use crate::protocol::c29u_modbus::silence_gap;
 use crate::sim::c29u::{C29uModel, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use crate::sim::pty::{Faults, PtyServer};
+use crate::sim::pty::{Faults, PtyServer, StrictTiming};
 use crate::time::clock::{SharedClock, SystemClock};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, Write};
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -72,6 +75,15 @@ pub struct C29uSimArgs {
     /// Seed for fault injection, for repeatable runs.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// The modules' configured line speed (default: as stored, factory 9600).
+    #[arg(long, value_parser = parse_baud)]
+    pub baud: Option<u32>,
+    /// Time the line in real time at the configured baud: answers take their time on the
+    /// wire, and a request that starts less than t3.5 (ASCII: t1.5) after the previous frame
+    /// ended is dropped and counted (`state` shows "early_frames"); after a request that got
+    /// no answer a pty only allows checking for one character of silence.
+    #[arg(long)]
+    pub strict_timing: bool,
 }
 
 /// Parses a byte written as decimal, `0x..` hex or `0b..` binary.
@@ -177,8 +189,13 @@ pub fn parse_control(line: &str) -> Result<ControlLine, String> {
     Ok(ControlLine { target, control })
 }
 
-/// Applies one control line to the modules and returns the line to print.
-pub fn apply_control(line: &str, modules: &[(u8, SharedModel)]) -> String {
+/// Applies one control line to the modules and returns the line to print; `early_frames`
+/// (under strict timing) joins the state.
+pub fn apply_control(
+    line: &str,
+    modules: &[(u8, SharedModel)],
+    early_frames: Option<&AtomicU64>,
+) -> String {
     let parsed = match parse_control(line) {
         Ok(p) => p,
         Err(e) => return format!("error: {e}"),
@@ -207,10 +224,16 @@ pub fn apply_control(line: &str, modules: &[(u8, SharedModel)]) -> String {
             model.power_cycle();
             "ok".into()
         }
-        Control::State => match serde_json::to_string(&model.state()) {
-            Ok(json) => json,
-            Err(e) => format!("error: {e}"),
-        },
+        Control::State => {
+            let mut state = match serde_json::to_value(model.state()) {
+                Ok(state) => state,
+                Err(e) => return format!("error: {e}"),
+            };
+            if let (Some(early), Some(map)) = (early_frames, state.as_object_mut()) {
+                map.insert("early_frames".into(), early.load(Ordering::Relaxed).into());
+            }
+            state.to_string()
+        }
     }
 }
 
@@ -255,6 +278,9 @@ fn build_model(
     }
     if args.checksum {
         config.checksum = true;
+    }
+    if let Some(code) = args.baud.and_then(baud_code) {
+        config.baud_code = code;
     }
     model.set_config(config).map_err(|e| e.to_string())?;
     // Inputs energized when the power comes on are levels, not edges: nothing counts or latches.
@@ -305,6 +331,8 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
 
     // Standard input may end (a pipe closed, </dev/null) without the simulator ending.
     let control_modules = modules.clone();
+    let early = Arc::new(AtomicU64::new(0));
+    let early_shown = args.strict_timing.then(|| Arc::clone(&early));
     std::thread::spawn(move || {
         let stdin = std::io::stdin();
         for line in stdin.lock().lines() {
@@ -312,14 +340,22 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
             if line.trim().is_empty() {
                 continue;
             }
-            let reply = apply_control(&line, &control_modules);
+            let reply = apply_control(&line, &control_modules, early_shown.as_deref());
             let mut out = std::io::stdout().lock();
             let _ = writeln!(out, "{reply}");
             let _ = out.flush();
         }
     });
 
-    let gap = silence_gap(crate::protocol::c29u::baud_rate(baud_code).unwrap_or(9600));
+    let baud = crate::protocol::c29u::baud_rate(baud_code).unwrap_or(9600);
+    let gap = silence_gap(baud);
+    if args.strict_timing {
+        server.strict_timing(StrictTiming {
+            baud,
+            required: auto_frame_gap(args.protocol.into(), baud),
+            early,
+        });
+    }
     let faults = Faults {
         drop: args.drop,
         corrupt: args.corrupt,

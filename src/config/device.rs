@@ -3,6 +3,8 @@
 use super::error::ProblemKind;
 use super::reader::{bad, boolean, duration, integer_in, string, Reader, TableRef};
 use super::script_may_change::{self, ScriptMayChange};
+pub use crate::link::line::FrameGap;
+use crate::link::line::MAX_FRAME_GAP;
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
 pub use crate::protocol::c29u::{Protocol, WatchdogTimeout};
 use std::collections::BTreeMap;
@@ -71,7 +73,7 @@ pub struct C29uConfig {
     pub baud: u32,
     /// ASCII checksums on (default off; Modbus RTU always has its CRC).
     pub checksum: bool,
-    /// How long to wait for an answer (default 100 ms).
+    /// How long to wait for an answer (default 100 ms; `TIMEOUT_RANGE`).
     pub timeout: Duration,
     /// How many times to repeat a request that got no valid answer (default 2, at most 10).
     pub retries: u8,
@@ -83,9 +85,17 @@ pub struct C29uConfig {
     pub power_on_value: Option<u8>,
     /// Whether an energized input reads as a 0 bit on the wire (default true, per NOTES.md).
     pub di_active_low: bool,
+    /// Silence kept on a serial line before each request (default auto: the protocol's rule).
+    pub frame_gap: FrameGap,
     /// Which of the fail-safe settings given here the script may change (`script_may_change`).
     pub script_may_change: ScriptMayChange,
 }
+
+/// The answer timeouts rig.toml accepts: an answer at 1200 baud with its request takes a
+/// quarter of a second, and every wait on a silent module delays a SIGTERM's safe-state write
+/// and the watchdog feed by timeout x attempts, so more than a second helps nobody.
+pub const TIMEOUT_RANGE: std::ops::RangeInclusive<Duration> =
+    Duration::from_millis(1)..=Duration::from_secs(1);
 
 impl C29uConfig {
     /// A module at `port` with every other setting at its default.
@@ -102,6 +112,7 @@ impl C29uConfig {
             safe_value: 0x00,
             power_on_value: None,
             di_active_low: true,
+            frame_gap: FrameGap::Auto,
             script_may_change: ScriptMayChange::ALL,
         }
     }
@@ -148,6 +159,7 @@ const DEVICE_KEYS_C29U: &[&str] = &[
     "safe_value",
     "power_on_value",
     "di_active_low",
+    "frame_gap",
     script_may_change::KEY,
 ];
 
@@ -303,8 +315,12 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
         .unwrap_or(c.checksum);
     c.timeout = r
         .read(t, "timeout", |v| match duration(v)? {
-            d if d.is_zero() => Err(bad(v, "is not a timeout; it must be above zero")),
-            d => Ok(d),
+            d if TIMEOUT_RANGE.contains(&d) => Ok(d),
+            _ => Err(bad(
+                v,
+                "is not a timeout; use 1ms to 1s (a silent module costs this per try, \
+                 and a SIGTERM waits for it)",
+            )),
         })
         .unwrap_or(c.timeout);
     if let Some(n) = r.read(t, "retries", |v| {
@@ -320,6 +336,7 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
     c.di_active_low = r
         .read(t, "di_active_low", boolean)
         .unwrap_or(c.di_active_low);
+    c.frame_gap = r.read(t, "frame_gap", frame_gap).unwrap_or(c.frame_gap);
     let listed = r.read(t, script_may_change::KEY, script_may_change::read);
     c.script_may_change = ScriptMayChange::of(t, &listed.unwrap_or_default());
     port.map(|port| C29uConfig { port, ..c })
@@ -375,6 +392,26 @@ fn baud(v: &DeValue<'_>) -> Result<u32, ProblemKind> {
         .ok_or_else(|| bad(v, use_rates))
 }
 
+fn frame_gap(v: &DeValue<'_>) -> Result<FrameGap, ProblemKind> {
+    let not_a_gap = || {
+        bad(
+            v,
+            r#"is not a frame gap; use "auto" (the protocol's silence) or a duration up to 1s"#,
+        )
+    };
+    let d = match v {
+        DeValue::String(s) if s.as_ref() == "auto" => return Ok(FrameGap::Auto),
+        DeValue::String(_) => duration(v).map_err(|_| not_a_gap())?,
+        // A bare number gets the duration reader's advice (write a unit).
+        _ => duration(v)?,
+    };
+    if d <= MAX_FRAME_GAP {
+        Ok(FrameGap::Fixed(d))
+    } else {
+        Err(not_a_gap())
+    }
+}
+
 fn byte(v: &DeValue<'_>) -> Result<u8, ProblemKind> {
     let n = integer_in(
         v,
@@ -407,4 +444,63 @@ fn watchdog(v: &DeValue<'_>) -> Result<Option<WatchdogTimeout>, ProblemKind> {
     WatchdogTimeout::from_duration(d)
         .map(Some)
         .ok_or_else(not_a_watchdog)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::RigConfig;
+    use super::*;
+
+    fn io(extra: &str) -> Result<C29uConfig, String> {
+        let text = format!("[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n{extra}\n");
+        let mut c = RigConfig::parse(&text, "rig.toml").map_err(|e| e.to_string())?;
+        match c.devices.remove("io") {
+            Some(DeviceConfig::C29u(io)) => Ok(io),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn frame_gap_is_auto_unless_given() {
+        assert_eq!(io("").unwrap().frame_gap, FrameGap::Auto);
+        assert_eq!(
+            io("frame_gap = \"auto\"").unwrap().frame_gap,
+            FrameGap::Auto
+        );
+        assert_eq!(
+            io("frame_gap = \"5ms\"").unwrap().frame_gap,
+            FrameGap::Fixed(Duration::from_millis(5))
+        );
+        assert_eq!(
+            io("frame_gap = \"0s\"").unwrap().frame_gap,
+            FrameGap::Fixed(Duration::ZERO)
+        );
+        for bad in ["frame_gap = \"2s\"", "frame_gap = \"often\""] {
+            let e = io(bad).unwrap_err();
+            assert!(e.contains("devices.io.frame_gap"), "{e}");
+            assert!(e.contains("\"auto\""), "{e}");
+        }
+        assert!(io("frame_gap = 5").unwrap_err().contains("has no unit"));
+    }
+
+    #[test]
+    fn absurd_timeouts_are_refused_with_the_accepted_range() {
+        assert_eq!(
+            io("timeout = \"1s\"").unwrap().timeout,
+            Duration::from_secs(1)
+        );
+        assert_eq!(
+            io("timeout = \"1ms\"").unwrap().timeout,
+            Duration::from_millis(1)
+        );
+        for bad in [
+            "timeout = \"1000000h\"",
+            "timeout = \"1.001s\"",
+            "timeout = \"0s\"",
+            "timeout = \"500us\"",
+        ] {
+            let e = io(bad).unwrap_err();
+            assert!(e.contains("use 1ms to 1s"), "{bad}: {e}");
+        }
+    }
 }

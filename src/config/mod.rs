@@ -18,8 +18,8 @@ mod tests;
 mod wake_latency;
 
 pub use device::{
-    is_device_name, C29uConfig, DeviceConfig, Port, Protocol, Trc1000Address, Trc1000Config,
-    WatchdogTimeout,
+    is_device_name, C29uConfig, DeviceConfig, FrameGap, Port, Protocol, Trc1000Address,
+    Trc1000Config, WatchdogTimeout,
 };
 pub use error::{ConfigError, Problem, ProblemKind};
 pub use limits::{

@@ -102,6 +102,7 @@ fn the_example_reads_as_written() {
             safe_value: 0,
             power_on_value: Some(0),
             di_active_low: true,
+            frame_gap: FrameGap::Auto,
             script_may_change: ScriptMayChange {
                 safe_value: false,
                 power_on_value: false,
@@ -503,7 +504,7 @@ fn bad_c29u_values() {
             "rig.toml:4: devices.io.checksum: true is for the ascii protocol only; Modbus RTU frames always carry a CRC",
         ),
         ("checksum = \"no\"", "rig.toml:4: devices.io.checksum: expected true or false, found a string"),
-        ("timeout = \"0ms\"", "rig.toml:4: devices.io.timeout: \"0ms\" is not a timeout; it must be above zero"),
+        ("timeout = \"0ms\"", "rig.toml:4: devices.io.timeout: \"0ms\" is not a timeout; use 1ms to 1s (a silent module costs this per try, and a SIGTERM waits for it)"),
         ("timeout = 250", "rig.toml:4: devices.io.timeout: 250 has no unit: write \"250ms\""),
         ("retries = 11", "rig.toml:4: devices.io.retries: 11 is not a retry count; use 0-10"),
         ("safe_value = 256", "rig.toml:4: devices.io.safe_value: 256 is not a DO byte; use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"),
@@ -513,7 +514,8 @@ fn bad_c29u_values() {
         (
             "prtocol = \"ascii\"",
             "rig.toml:4: devices.io.prtocol: unknown key; known keys here: kind, port, protocol, id, \
-             baud, checksum, timeout, retries, watchdog, safe_value, power_on_value, di_active_low",
+             baud, checksum, timeout, retries, watchdog, safe_value, power_on_value, di_active_low, \
+             frame_gap",
         ),
         ("safe_relay = 0", "rig.toml:4: devices.io.safe_relay: unknown key"),
     ];
@@ -735,7 +737,7 @@ proptest! {
         key in prop::sample::select(vec![
             "period", "on_error", "records", "grace", "kind", "unit", "device", "safe_relay",
             "port", "protocol", "id", "baud", "checksum", "timeout", "retries", "watchdog",
-            "safe_value", "power_on_value", "di_active_low",
+            "safe_value", "power_on_value", "di_active_low", "frame_gap",
         ]),
         value in prop_oneof![
             any::<i64>().prop_map(|n| n.to_string()),

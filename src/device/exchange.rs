@@ -1,18 +1,48 @@
-//! One request/answer exchange on a byte link: flush stale input, send, and collect the answer
-//! until the protocol says it is complete, the line falls silent after it, or time runs out.
+//! One request/answer exchange on a byte link: keep the silence the line needs before the
+//! request (dropping whatever arrives meanwhile), send, and collect the answer until the
+//! protocol says it is complete, the line falls silent after it, or time runs out.
+//!
+//! The silence is counted from the end of the last frame on the line, whoever sent it: an
+//! answer, our own request that gets none, stray bytes. After a timeout the line must stay
+//! silent for one more timeout before the next request, so a late answer is heard and dropped
+//! instead of being taken for the answer to the request after it. The waits sleep; a request
+//! already late is sent at once. Every buffer is bounded by the longest valid answer.
 
+use crate::link::line::{FrameGap, LineState};
 use crate::link::{ByteLink, LinkError};
 use crate::time::clock::Clock;
 use std::time::Duration;
 
+/// How long after a write returns a USB-serial adapter may start sending the bytes: they go
+/// out with its next USB frame, at most 1 ms away at full speed.
+pub const ADAPTER_LATENCY: Duration = Duration::from_millis(1);
+
 /// How an exchange waits.
 #[derive(Debug, Clone, Copy)]
 pub struct Timing {
-    /// How long to wait for the whole answer.
+    /// How long to wait for the whole answer, once the request has left the wire.
     pub timeout: Duration,
     /// Silence after some bytes that ends an answer whose end the protocol cannot tell
     /// (Modbus: 3.5 character times); `None` when only the protocol ends an answer.
     pub gap: Option<Duration>,
+    /// The silence to keep on a timed serial line before the request.
+    pub frame_gap: FrameGap,
+    /// The protocol's rule for `FrameGap::Auto`: the silence at a given baud.
+    pub auto_gap: fn(u32) -> Duration,
+    /// The longest answer the protocol has; more bytes than this are not an answer.
+    pub max_answer: usize,
+}
+
+impl Timing {
+    /// The silence to keep before a request on `line`: none where the host does not time the
+    /// line (TCP device servers time their own; memory has no wire).
+    pub fn silence_on(&self, line: &LineState) -> Duration {
+        match (line.baud, self.frame_gap) {
+            (None, _) => Duration::ZERO,
+            (Some(baud), FrameGap::Auto) => (self.auto_gap)(baud),
+            (Some(_), FrameGap::Fixed(gap)) => gap,
+        }
+    }
 }
 
 /// How an exchange ended without an answer.
@@ -24,8 +54,22 @@ pub enum ExchangeError {
     /// No complete answer in time; `received` holds whatever did arrive.
     #[error("no complete answer in time")]
     Timeout {
-        /// Bytes that arrived before time ran out.
+        /// Bytes that arrived before time ran out (at most the longest answer).
         received: Vec<u8>,
+    },
+    /// More bytes came than the longest answer has, with no answer among them.
+    #[error("{} bytes and no answer among them", received.len())]
+    Overflow {
+        /// The first bytes that came.
+        received: Vec<u8>,
+    },
+    /// The line never fell silent long enough to send (another master, a babbling device).
+    #[error("the line did not fall silent: {heard} bytes came in {within:?}")]
+    Busy {
+        /// How many bytes were dropped while waiting.
+        heard: usize,
+        /// How long it waited.
+        within: Duration,
     },
 }
 
@@ -49,60 +93,153 @@ pub fn exchange(
     request: &[u8],
     expect_answer: bool,
     timing: Timing,
+    frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
+    tracer: &mut Option<Tracer>,
+) -> Result<Vec<u8>, ExchangeError> {
+    let mut line = link.line().copied().unwrap_or_default();
+    let outcome = send_and_collect(
+        link,
+        clock,
+        &mut line,
+        request,
+        expect_answer,
+        &timing,
+        frame,
+        tracer,
+    );
+    if let Some(kept) = link.line() {
+        *kept = line;
+    }
+    outcome
+}
+
+#[allow(clippy::too_many_arguments)]
+fn send_and_collect(
+    link: &mut dyn ByteLink,
+    clock: &dyn Clock,
+    line: &mut LineState,
+    request: &[u8],
+    expect_answer: bool,
+    timing: &Timing,
     mut frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     tracer: &mut Option<Tracer>,
 ) -> Result<Vec<u8>, ExchangeError> {
-    // Anything already waiting is a late answer to an earlier request.
-    link.discard_input()?;
+    keep_silence(link, clock, line, timing)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
     }
     link.write_all(request)?;
+    // A USB-serial adapter returns from the write before the bytes are out: they are on the
+    // wire until `request_end` at the earliest.
+    let request_end = clock.now().saturating_add(line.wire_time(request.len()));
     if !expect_answer {
+        // No answer will say when the request really ended: allow for its leaving late.
+        let latency = line.baud.map_or(Duration::ZERO, |_| ADAPTER_LATENCY);
+        line.quiet_since = Some(request_end.saturating_add(latency));
         return Ok(Vec::new());
     }
-    let deadline = clock.now().saturating_add(timing.timeout);
+    line.quiet_since = Some(request_end);
+    let deadline = request_end.saturating_add(timing.timeout);
     let mut received = Vec::new();
     let mut chunk = [0u8; 256];
     loop {
-        let left = deadline.saturating_sub(clock.now());
+        let now = clock.now();
+        let left = deadline.saturating_sub(now);
         if left.is_zero() {
-            return Err(timed_out(received, tracer));
+            // The module may still answer: the next request waits until the line has been
+            // silent for one more timeout.
+            line.quiet_since = Some(now);
+            line.settle = Some(timing.timeout);
+            trace_received(tracer, &received);
+            return Err(ExchangeError::Timeout { received });
         }
         let wait = match timing.gap {
             Some(gap) if !received.is_empty() => gap.min(left),
             _ => left,
         };
         let n = link.read(&mut chunk, wait)?;
-        match chunk.get(..n) {
-            Some(bytes) if !bytes.is_empty() => {
-                received.extend_from_slice(bytes);
-                if let Some(answer) = frame(&received) {
-                    if let Some(trace) = tracer.as_mut() {
-                        trace(Direction::Received, &answer);
-                    }
-                    return Ok(answer);
-                }
+        let Some(bytes) = chunk.get(..n).filter(|b| !b.is_empty()) else {
+            if timing.gap.is_some() && !received.is_empty() && wait < left {
+                // The line fell silent after an answer the protocol could not end itself:
+                // hand it over whole, the parser judges it.
+                line.quiet_since = Some(clock.now());
+                trace_received(tracer, &received);
+                return Ok(received);
             }
-            _ => {
-                if timing.gap.is_some() && !received.is_empty() && wait < left {
-                    // The line fell silent after an answer the protocol could not end itself:
-                    // hand it over whole, the parser judges it.
-                    if let Some(trace) = tracer.as_mut() {
-                        trace(Direction::Received, &received);
-                    }
-                    return Ok(received);
+            continue;
+        };
+        let room = timing.max_answer.saturating_sub(received.len());
+        if bytes.len() > room {
+            received.extend_from_slice(bytes.get(..room).unwrap_or_default());
+            line.quiet_since = Some(clock.now());
+            trace_received(tracer, &received);
+            return Err(ExchangeError::Overflow { received });
+        }
+        received.extend_from_slice(bytes);
+        if let Some(answer) = frame(&received) {
+            // On a wire the answer has ended when its last byte is in.
+            line.quiet_since = Some(clock.now());
+            trace_received(tracer, &answer);
+            return Ok(answer);
+        }
+    }
+}
+
+/// Waits until the line has been silent as long as it must be before a request: the frame gap,
+/// or after a timeout the settling time. Bytes that come meanwhile are dropped and restart the
+/// count; a line that never falls silent within a timeout more ends in `Busy`.
+fn keep_silence(
+    link: &mut dyn ByteLink,
+    clock: &dyn Clock,
+    line: &mut LineState,
+    timing: &Timing,
+) -> Result<(), ExchangeError> {
+    let gap = timing.silence_on(line);
+    let started = clock.now();
+    let mut heard = 0usize;
+    let mut scratch = [0u8; 256];
+    loop {
+        let needed = line.settle.map_or(gap, |settle| settle.max(gap));
+        let now = clock.now();
+        let waited = now.saturating_sub(started);
+        if heard > 0 && waited > timing.timeout.saturating_add(needed) {
+            return Err(ExchangeError::Busy {
+                heard,
+                within: waited,
+            });
+        }
+        let quiet_at = line.quiet_since.map_or(now, |t| t.saturating_add(needed));
+        if now < quiet_at {
+            if line.settle.is_some() {
+                // Listen rather than sleep: a late answer's arrival restarts the count.
+                let n = link.read(&mut scratch, quiet_at.saturating_sub(now))?;
+                if n > 0 {
+                    heard = heard.saturating_add(n);
+                    line.quiet_since = Some(clock.now());
                 }
+            } else {
+                clock.sleep_until(quiet_at);
+            }
+            continue;
+        }
+        // One look at what came meanwhile; usually nothing, and the request goes out.
+        match link.read(&mut scratch, Duration::ZERO)? {
+            0 => {
+                line.settle = None;
+                return Ok(());
+            }
+            n => {
+                heard = heard.saturating_add(n);
+                line.quiet_since = Some(clock.now());
             }
         }
     }
 }
 
-fn timed_out(received: Vec<u8>, tracer: &mut Option<Tracer>) -> ExchangeError {
+fn trace_received(tracer: &mut Option<Tracer>, received: &[u8]) {
     if let (Some(trace), false) = (tracer.as_mut(), received.is_empty()) {
-        trace(Direction::Received, &received);
+        trace(Direction::Received, received);
     }
-    ExchangeError::Timeout { received }
 }
 
 /// Formats a frame for `--trace`: hex, plus printable text for ASCII frames.
@@ -181,11 +318,71 @@ mod tests {
         Some(buf[..=end].to_vec())
     }
 
+    fn t35(baud: u32) -> Duration {
+        crate::protocol::c29u_modbus::silence_gap(baud)
+    }
+
     fn timing(gap: Option<u64>) -> Timing {
         Timing {
             timeout: Duration::from_millis(200),
             gap: gap.map(Duration::from_millis),
+            frame_gap: FrameGap::Auto,
+            auto_gap: t35,
+            max_answer: 64,
         }
+    }
+
+    /// Answers every request with `answer`, noting the clock time each request arrived.
+    struct Stamped {
+        clock: VirtualClock,
+        answer: Vec<u8>,
+        heard_at: Arc<Mutex<Vec<Duration>>>,
+    }
+    impl ByteDevice for Stamped {
+        fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+            self.heard_at.lock().unwrap().push(self.clock.now());
+            // `~**` (host OK) gets no answer.
+            if bytes.starts_with(b"~") {
+                Vec::new()
+            } else {
+                self.answer.clone()
+            }
+        }
+    }
+
+    fn stamped(
+        answer: &[u8],
+    ) -> (
+        VirtualClock,
+        Arc<Mutex<Vec<Duration>>>,
+        MemoryByteLink<Stamped>,
+    ) {
+        let clock = VirtualClock::at_epoch();
+        let heard_at = Arc::new(Mutex::new(Vec::new()));
+        let device = Stamped {
+            clock: clock.clone(),
+            answer: answer.to_vec(),
+            heard_at: heard_at.clone(),
+        };
+        let link = MemoryByteLink::new(device, "t").with_clock(Arc::new(clock.clone()));
+        (clock, heard_at, link)
+    }
+
+    fn ask(
+        link: &mut dyn ByteLink,
+        clock: &VirtualClock,
+        expect: bool,
+    ) -> Result<Vec<u8>, ExchangeError> {
+        let request: &[u8] = if expect { b"ask\r" } else { b"~**\r" };
+        exchange(
+            link,
+            clock,
+            request,
+            expect,
+            timing(None),
+            line_end,
+            &mut None,
+        )
     }
 
     #[test]
@@ -282,6 +479,219 @@ mod tests {
         .unwrap()
         .is_empty());
         assert_eq!(clock.now(), Duration::ZERO);
+    }
+
+    #[test]
+    fn requests_keep_the_silence_after_the_answer_and_after_an_unanswered_request() {
+        let (clock, heard_at, link) = stamped(b"!01\r");
+        let mut link = link.with_line(9600);
+        let wire = |n| crate::link::line::wire_time(n, 9600);
+        ask(&mut link, &clock, true).unwrap();
+        let answer_end = wire(4) + wire(4);
+        assert_eq!(
+            clock.now(),
+            answer_end,
+            "the answer arrives as its frame ends"
+        );
+        ask(&mut link, &clock, true).unwrap();
+        ask(&mut link, &clock, false).unwrap();
+        ask(&mut link, &clock, true).unwrap();
+        let heard = heard_at.lock().unwrap().clone();
+        assert_eq!(heard[0], Duration::ZERO, "the first request goes at once");
+        assert_eq!(heard[1], answer_end + t35(9600), "t3.5 after the answer");
+        let second_end = heard[1] + wire(4) + wire(4);
+        assert_eq!(heard[2], second_end + t35(9600));
+        assert_eq!(
+            heard[3],
+            heard[2] + ADAPTER_LATENCY + wire(4) + t35(9600),
+            "an unanswered request is on the wire until its last byte has left the adapter"
+        );
+    }
+
+    #[test]
+    fn the_silence_belongs_to_the_line_whoever_asks_next() {
+        // Two drivers' exchanges on one link: the gap is kept across them, from the line's state.
+        let (clock, heard_at, link) = stamped(b"!01\r");
+        let mut link: Box<dyn ByteLink> = Box::new(link.with_line(115_200));
+        ask(link.as_mut(), &clock, true).unwrap();
+        let end = clock.now();
+        let mut other = timing(None);
+        other.frame_gap = FrameGap::Fixed(Duration::from_millis(5));
+        exchange(
+            link.as_mut(),
+            &clock,
+            b"x\r",
+            true,
+            other,
+            line_end,
+            &mut None,
+        )
+        .unwrap();
+        assert_eq!(heard_at.lock().unwrap()[1], end + Duration::from_millis(5));
+        assert_eq!(t35(115_200), Duration::from_micros(1750));
+    }
+
+    #[test]
+    fn a_late_request_is_not_delayed_and_untimed_links_add_nothing() {
+        let (clock, heard_at, link) = stamped(b"!01\r");
+        let mut link = link.with_line(9600);
+        ask(&mut link, &clock, true).unwrap();
+        clock.advance(Duration::from_millis(50));
+        let before = clock.now();
+        ask(&mut link, &clock, true).unwrap();
+        assert_eq!(heard_at.lock().unwrap()[1], before);
+
+        let (clock, heard_at, mut untimed) = stamped(b"!01\r");
+        ask(&mut untimed, &clock, true).unwrap();
+        ask(&mut untimed, &clock, false).unwrap();
+        ask(&mut untimed, &clock, true).unwrap();
+        assert!(
+            heard_at.lock().unwrap().iter().all(|t| t.is_zero()),
+            "no gap over TCP or memory"
+        );
+        assert_eq!(clock.now(), Duration::ZERO);
+    }
+
+    #[test]
+    fn after_a_timeout_a_late_answer_is_dropped_before_the_next_request() {
+        // The first answer comes 250 ms late (timeout 200 ms); the next request must not take it.
+        let (clock, heard_at, link) = stamped(b"!01\r");
+        let mut link = link.delay_answers(|n| Duration::from_millis(if n == 0 { 250 } else { 0 }));
+        let first = ask(&mut link, &clock, true).unwrap_err();
+        assert!(matches!(first, ExchangeError::Timeout { ref received } if received.is_empty()));
+        assert_eq!(clock.now(), Duration::from_millis(200));
+        let second = exchange(
+            &mut link,
+            &clock,
+            b"next\r",
+            true,
+            timing(None),
+            line_end,
+            &mut None,
+        );
+        assert_eq!(second.unwrap(), b"!01\r");
+        let heard = heard_at.lock().unwrap().clone();
+        assert_eq!(
+            heard[1],
+            Duration::from_millis(250 + 200),
+            "the late answer at 250 ms was heard, then 200 ms of silence kept"
+        );
+        assert!(
+            link.read(&mut [0u8; 8], Duration::ZERO).unwrap() == 0,
+            "nothing left over"
+        );
+    }
+
+    #[test]
+    fn a_quiet_line_after_a_timeout_costs_nothing_later() {
+        let (clock, heard_at, link) = stamped(b"");
+        let mut link = link;
+        ask(&mut link, &clock, true).unwrap_err();
+        clock.advance(Duration::from_secs(1));
+        let before = clock.now();
+        ask(&mut link, &clock, true).unwrap_err();
+        assert_eq!(heard_at.lock().unwrap()[1], before);
+    }
+
+    /// A peer that, once asked, sends `01 46 77` nonstop: every read finds a buffer full,
+    /// 100 µs apart.
+    struct Flooding {
+        clock: VirtualClock,
+        line: LineState,
+        started: bool,
+    }
+    impl ByteLink for Flooding {
+        fn write_all(&mut self, _bytes: &[u8]) -> Result<(), LinkError> {
+            self.started = true;
+            Ok(())
+        }
+        fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+            if !self.started {
+                self.clock.advance(timeout);
+                return Ok(0);
+            }
+            self.clock.advance(Duration::from_micros(100));
+            for (slot, byte) in buf.iter_mut().zip([0x01, 0x46, 0x77].iter().cycle()) {
+                *slot = *byte;
+            }
+            Ok(buf.len())
+        }
+        fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "flood".into()
+        }
+        fn line(&mut self) -> Option<&mut LineState> {
+            Some(&mut self.line)
+        }
+    }
+
+    #[test]
+    fn a_flooding_peer_fills_no_more_than_the_longest_answer_and_then_blocks_the_line() {
+        let clock = VirtualClock::at_epoch();
+        let mut link = Flooding {
+            clock: clock.clone(),
+            line: LineState::untimed(),
+            started: false,
+        };
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let log2 = log.clone();
+        let mut tracer: Option<Tracer> =
+            Some(Box::new(move |_, b| log2.lock().unwrap().push(b.len())));
+        let mut ask = |tracer: &mut Option<Tracer>| {
+            exchange(
+                &mut link,
+                &clock,
+                b"x",
+                true,
+                timing(Some(2)),
+                |_| None,
+                tracer,
+            )
+        };
+        match ask(&mut tracer) {
+            Err(ExchangeError::Overflow { received }) => assert_eq!(received.len(), 64),
+            other => panic!("expected an overflow, got {other:?}"),
+        }
+        assert_eq!(
+            *log.lock().unwrap(),
+            vec![1, 64],
+            "the trace shows at most the longest answer"
+        );
+        let before = clock.now();
+        match ask(&mut None) {
+            Err(ExchangeError::Busy { heard, within }) => {
+                assert!(heard > 64);
+                assert!(within <= Duration::from_millis(201));
+            }
+            other => panic!("expected a busy line, got {other:?}"),
+        }
+        assert!(
+            clock.now() - before <= Duration::from_millis(201),
+            "given up after a timeout"
+        );
+    }
+
+    #[test]
+    fn stale_input_is_dropped_before_the_request() {
+        let (clock, _heard, link) = stamped(b"!02\r");
+        let mut link = link.with_line(9600);
+        // An answer to a request nobody waits for any more (sent without expecting one).
+        exchange(
+            &mut link,
+            &clock,
+            b"x\r",
+            false,
+            timing(None),
+            line_end,
+            &mut None,
+        )
+        .unwrap();
+        clock.advance(Duration::from_millis(100));
+        let got = ask(&mut link, &clock, true).unwrap();
+        assert_eq!(got, b"!02\r");
+        assert_eq!(link.read(&mut [0u8; 8], Duration::ZERO).unwrap(), 0);
     }
 
     #[test]

@@ -1,19 +1,28 @@
 //! In-memory links to simulators, for tests and `--sim` runs: the same driver code, no wire.
 
+use super::line::LineState;
 use super::{ByteLink, LinkError, PacketLink};
 use crate::sim::{ByteDevice, PacketDevice};
 use crate::time::clock::SharedClock;
 use std::collections::VecDeque;
 use std::time::Duration;
 
-/// A byte link whose far end is a simulated device; answers are available as soon as a write
-/// returns. A read that finds nothing waits out its timeout on the link's clock, if it has one
-/// (so virtual time moves as it would on a wire), or returns at once.
+/// How late the answer to the n-th write (from 0) comes, on top of its time on the wire.
+pub type AnswerDelay = Box<dyn FnMut(u64) -> Duration + Send>;
+
+/// A byte link whose far end is a simulated device. Without a clock, answers are available as
+/// soon as a write returns. With one, an empty read waits out its timeout on that clock (so
+/// virtual time moves as it would on a wire), and an answer arrives when its frame would end:
+/// after the request's and the answer's time on the wire (`with_line`) and any delay given to
+/// it (`delay_answers`), never before an earlier answer.
 pub struct MemoryByteLink<D: ByteDevice> {
     device: D,
-    pending: VecDeque<u8>,
+    in_flight: VecDeque<(Duration, Vec<u8>)>,
     name: String,
     clock: Option<SharedClock>,
+    line: LineState,
+    delay: Option<AnswerDelay>,
+    writes: u64,
 }
 
 impl<D: ByteDevice> MemoryByteLink<D> {
@@ -21,15 +30,30 @@ impl<D: ByteDevice> MemoryByteLink<D> {
     pub fn new(device: D, name: impl Into<String>) -> Self {
         Self {
             device,
-            pending: VecDeque::new(),
+            in_flight: VecDeque::new(),
             name: name.into(),
             clock: None,
+            line: LineState::untimed(),
+            delay: None,
+            writes: 0,
         }
     }
 
-    /// Makes empty reads wait out their timeout on `clock`.
+    /// Makes empty reads wait out their timeout on `clock`, and answers arrive in its time.
     pub fn with_clock(mut self, clock: SharedClock) -> Self {
         self.clock = Some(clock);
+        self
+    }
+
+    /// Models a serial line at `baud` whose silences the host keeps, as on a serial port.
+    pub fn with_line(mut self, baud: u32) -> Self {
+        self.line = LineState::serial(baud);
+        self
+    }
+
+    /// Delays the answer to the n-th write (from 0) by `delay(n)`: a module that answers late.
+    pub fn delay_answers(mut self, delay: impl FnMut(u64) -> Duration + Send + 'static) -> Self {
+        self.delay = Some(Box::new(delay));
         self
     }
 
@@ -37,40 +61,85 @@ impl<D: ByteDevice> MemoryByteLink<D> {
     pub fn device(&mut self) -> &mut D {
         &mut self.device
     }
+
+    fn now(&self) -> Duration {
+        self.clock.as_ref().map_or(Duration::ZERO, |c| c.now())
+    }
+
+    /// Copies what has arrived by `now` into `buf`.
+    fn take_arrived(&mut self, buf: &mut [u8], now: Duration) -> usize {
+        let mut n = 0;
+        while let Some((at, bytes)) = self.in_flight.front_mut() {
+            if self.clock.is_some() && *at > now {
+                break;
+            }
+            let Some(room) = buf.get_mut(n..) else { break };
+            let k = room.len().min(bytes.len());
+            if k == 0 {
+                break;
+            }
+            for (slot, byte) in room.iter_mut().zip(bytes.drain(..k)) {
+                *slot = byte;
+            }
+            n += k;
+            if bytes.is_empty() {
+                self.in_flight.pop_front();
+            }
+        }
+        n
+    }
 }
 
 impl<D: ByteDevice> ByteLink for MemoryByteLink<D> {
     fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
         // A driver writes whole frames, so the frame ends here: the line then falls silent.
-        let answer = self.device.receive(bytes);
-        self.pending.extend(answer);
-        let late = self.device.line_idle();
-        self.pending.extend(late);
+        let mut answer = self.device.receive(bytes);
+        answer.extend(self.device.line_idle());
+        let written = self.writes;
+        self.writes = self.writes.saturating_add(1);
+        if answer.is_empty() {
+            return Ok(());
+        }
+        let late = self.delay.as_mut().map_or(Duration::ZERO, |d| d(written));
+        let after_earlier = self.in_flight.back().map_or(Duration::ZERO, |(at, _)| *at);
+        let starts = self
+            .now()
+            .saturating_add(self.line.wire_time(bytes.len()))
+            .saturating_add(late)
+            .max(after_earlier);
+        let at = starts.saturating_add(self.line.wire_time(answer.len()));
+        self.in_flight.push_back((at, answer));
         Ok(())
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
-        if self.pending.is_empty() {
-            wait_out(self.clock.as_ref(), timeout);
+        let now = self.now();
+        let n = self.take_arrived(buf, now);
+        if n > 0 || timeout.is_zero() {
+            return Ok(n);
         }
-        let n = buf.len().min(self.pending.len());
-        for (slot, byte) in buf.iter_mut().zip(self.pending.drain(..n)) {
-            *slot = byte;
+        if let Some(clock) = &self.clock {
+            let until = now.saturating_add(timeout);
+            let next = self.in_flight.front().map(|(at, _)| *at);
+            clock.sleep_until(next.map_or(until, |at| at.min(until)));
         }
-        Ok(n)
+        let now = self.now();
+        Ok(self.take_arrived(buf, now))
     }
 
-    fn discard_input(&mut self) -> Result<(), LinkError> {
-        self.pending.clear();
-        Ok(())
-    }
-
-    fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {
+    fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
+        if self.line.baud.is_some() {
+            self.line.baud = Some(baud);
+        }
         Ok(())
     }
 
     fn describe(&self) -> String {
         format!("simulated {}", self.name)
+    }
+
+    fn line(&mut self) -> Option<&mut LineState> {
+        Some(&mut self.line)
     }
 }
 
@@ -135,6 +204,7 @@ fn wait_out(clock: Option<&SharedClock>, timeout: Duration) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::link::line::wire_time;
     use crate::time::clock::{Clock, VirtualClock};
     use std::sync::Arc;
 
@@ -160,9 +230,28 @@ mod tests {
         assert_eq!(link.read(&mut buf, Duration::ZERO).unwrap(), 1);
         assert_eq!(buf[0], b'a');
         assert_eq!(link.read(&mut buf, Duration::ZERO).unwrap(), 0);
-        link.write_all(b"xyz").unwrap();
-        link.discard_input().unwrap();
-        assert_eq!(link.read(&mut buf, Duration::ZERO).unwrap(), 0);
+    }
+
+    #[test]
+    fn answers_arrive_after_their_wire_time_and_their_delay_in_order() {
+        let clock = VirtualClock::at_epoch();
+        let mut link = MemoryByteLink::new(Echo, "echo")
+            .with_clock(Arc::new(clock.clone()))
+            .with_line(9600)
+            .delay_answers(|n| Duration::from_millis(if n == 0 { 250 } else { 0 }));
+        link.write_all(b"ab").unwrap();
+        let mut buf = [0u8; 4];
+        assert_eq!(link.read(&mut buf, Duration::ZERO).unwrap(), 0, "not yet");
+        assert_eq!(link.read(&mut buf, Duration::from_millis(200)).unwrap(), 0);
+        assert_eq!(clock.now(), Duration::from_millis(200));
+        link.write_all(b"cd").unwrap();
+        assert_eq!(link.read(&mut buf, Duration::from_millis(200)).unwrap(), 2);
+        assert_eq!(&buf[..2], b"ba", "the late answer comes first");
+        let first = Duration::from_millis(250) + wire_time(4, 9600);
+        assert_eq!(clock.now(), first);
+        assert_eq!(link.read(&mut buf, Duration::from_millis(200)).unwrap(), 2);
+        assert_eq!(&buf[..2], b"dc");
+        assert_eq!(clock.now(), first + wire_time(2, 9600));
     }
 
     #[test]

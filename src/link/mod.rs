@@ -3,6 +3,7 @@
 //! A `ByteLink` carries a byte stream (a serial port, a TCP socket to a serial device server, or
 //! memory to a simulator); a `PacketLink` carries the TRC1000's fixed 8-byte interrupt packets.
 
+use line::LineState;
 use std::time::Duration;
 
 /// Why a link failed, with what to try next in the message.
@@ -47,17 +48,21 @@ pub enum LinkError {
 
 /// A byte stream to one device (or one bus of devices) with per-call timeouts.
 pub trait ByteLink: Send {
-    /// Writes all of `bytes`.
+    /// Writes all of `bytes`, handing them to the line without waiting for them to leave it
+    /// (the exchange layer knows how long they take); gives up if the line takes no data.
     fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError>;
-    /// Reads what is available into `buf`, waiting up to `timeout` for the first byte;
-    /// returns 0 when nothing arrived in time.
+    /// Reads what is available into `buf`, waiting up to `timeout` for the first byte (a zero
+    /// `timeout` only looks); returns 0 when nothing arrived in time.
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError>;
-    /// Throws away input that arrived before the next request (stale or late answers).
-    fn discard_input(&mut self) -> Result<(), LinkError>;
     /// Changes the line speed (a no-op where the link has none, such as TCP or memory).
     fn set_baud(&mut self, baud: u32) -> Result<(), LinkError>;
     /// The link in words for messages, such as `serial /dev/ttyUSB0 at 9600 baud`.
     fn describe(&self) -> String;
+    /// The line's timing, kept here for the exchange layer so that every module on this link
+    /// shares it; `None` for a link without one (a closed link).
+    fn line(&mut self) -> Option<&mut LineState> {
+        None
+    }
 }
 
 /// A link that carries fixed 8-byte packets (the TRC1000's interrupt endpoints).
@@ -70,7 +75,9 @@ pub trait PacketLink: Send {
     fn describe(&self) -> String;
 }
 
+pub mod fd;
 pub mod holders;
+pub mod line;
 pub mod memory;
 pub mod serial;
 pub mod tcp;
@@ -85,16 +92,16 @@ impl<T: ByteLink + ?Sized> ByteLink for Box<T> {
         (**self).read(buf, timeout)
     }
 
-    fn discard_input(&mut self) -> Result<(), LinkError> {
-        (**self).discard_input()
-    }
-
     fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
         (**self).set_baud(baud)
     }
 
     fn describe(&self) -> String {
         (**self).describe()
+    }
+
+    fn line(&mut self) -> Option<&mut LineState> {
+        (**self).line()
     }
 }
 

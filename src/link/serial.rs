@@ -1,15 +1,25 @@
-//! A serial port link (8N1, no flow control) on `serialport`: USB-serial adapters and ptys.
+//! A serial port link (8N1, no flow control): USB-serial adapters and ptys. `serialport` opens
+//! and configures the port; bytes move through `link::fd` with one system call per step (no
+//! flush of input, no wait for output to drain: the exchange layer times the line itself).
 
+use super::fd::{self, Read};
+use super::line::LineState;
 use super::{ByteLink, LinkError};
-use serialport::{ClearBuffer, DataBits, FlowControl, Parity, SerialPort, StopBits, TTYPort};
-use std::io::{self, Read, Write};
+use serialport::{DataBits, FlowControl, Parity, SerialPort, StopBits, TTYPort};
+use std::io;
+use std::os::fd::AsRawFd;
 use std::time::Duration;
+
+/// How long a write may wait for room in the port's output buffer: frames are a few dozen
+/// bytes and leave in milliseconds, so a port that takes none for this long (a stalled
+/// adapter) is failed rather than allowed to hold the caller, a SIGTERM included.
+pub const WRITE_TIMEOUT: Duration = Duration::from_millis(500);
 
 /// An open serial port.
 pub struct SerialLink {
     port: TTYPort,
     path: String,
-    baud: u32,
+    line: LineState,
 }
 
 impl SerialLink {
@@ -23,14 +33,18 @@ impl SerialLink {
             .timeout(Duration::from_millis(100))
             .open_native()
             .map_err(|e| open_error(path, e))?;
+        fd::set_nonblocking(port.as_raw_fd()).map_err(|source| LinkError::Io {
+            what: format!("serial port {path}"),
+            source,
+        })?;
         Ok(Self {
             port,
             path: path.to_string(),
-            baud,
+            line: LineState::serial(baud),
         })
     }
 
-    /// serialport reports a failed ioctl (tcflush, termios) without its errno (EIO becomes
+    /// serialport reports a failed ioctl (termios) without its errno (EIO becomes
     /// "Unknown"), so a device node that has vanished is what tells a hangup from other trouble.
     fn port_error(&self, e: serialport::Error) -> LinkError {
         let io = match e.kind() {
@@ -125,47 +139,38 @@ fn not_a_tty(path: &str, e: &serialport::Error) -> Option<String> {
 
 impl ByteLink for SerialLink {
     fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
-        self.port
-            .write_all(bytes)
-            .and_then(|()| self.port.flush())
+        fd::write_all_within(self.port.as_raw_fd(), bytes, WRITE_TIMEOUT)
             .map_err(|e| self.io_error(e))
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
-        if let Err(e) = self.port.set_timeout(timeout) {
-            return Err(self.port_error(e));
-        }
-        match self.port.read(buf) {
+        match fd::read_within(self.port.as_raw_fd(), buf, timeout) {
+            Ok(Read::Bytes(n)) => Ok(n),
+            Ok(Read::Nothing) => Ok(0),
             // A tty that polls readable and then reads nothing has hung up.
-            Ok(0) if !buf.is_empty() => {
-                Err(self.io_error(io::Error::from(io::ErrorKind::UnexpectedEof)))
-            }
-            Ok(n) => Ok(n),
-            Err(e)
-                if e.kind() == io::ErrorKind::TimedOut || e.kind() == io::ErrorKind::WouldBlock =>
-            {
-                Ok(0)
-            }
+            Ok(Read::Closed) => Err(self.io_error(io::Error::from(io::ErrorKind::UnexpectedEof))),
             Err(e) => Err(self.io_error(e)),
         }
-    }
-
-    fn discard_input(&mut self) -> Result<(), LinkError> {
-        self.port
-            .clear(ClearBuffer::Input)
-            .map_err(|e| self.port_error(e))
     }
 
     fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
         self.port
             .set_baud_rate(baud)
             .map_err(|e| self.port_error(e))?;
-        self.baud = baud;
+        self.line.baud = Some(baud);
         Ok(())
     }
 
     fn describe(&self) -> String {
-        format!("serial port {} at {} baud", self.path, self.baud)
+        format!(
+            "serial port {} at {} baud",
+            self.path,
+            self.line.baud.unwrap_or_default()
+        )
+    }
+
+    fn line(&mut self) -> Option<&mut LineState> {
+        Some(&mut self.line)
     }
 }
 
@@ -241,6 +246,7 @@ mod tests {
 
     #[test]
     fn pty_round_trip_timeout_and_hangup() {
+        use std::io::{Read as _, Write as _};
         let (mut master, slave) = TTYPort::pair().unwrap();
         let path = slave.name().unwrap();
         let mut link = SerialLink::open(&path, 9600).unwrap();
@@ -264,13 +270,36 @@ mod tests {
             Err(LinkError::Disconnected { .. }) => {}
             other => panic!("expected Disconnected after the far end closed, got {other:?}"),
         }
-        match link.discard_input() {
+        match link.read(&mut buf, Duration::ZERO) {
             Err(LinkError::Disconnected { .. }) => {}
-            other => panic!("expected Disconnected from a flush after hangup, got {other:?}"),
+            other => panic!("expected Disconnected from a look after hangup, got {other:?}"),
         }
         match link.write_all(b"x") {
             Err(LinkError::Disconnected { .. }) => {}
             other => panic!("expected Disconnected from a write after hangup, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn writes_never_wait_for_the_line_to_drain_and_give_up_when_it_takes_nothing() {
+        // Nobody reads the far end: a tcdrain would wait for ever.
+        let (_master, slave) = TTYPort::pair().unwrap();
+        let path = slave.name().unwrap();
+        let (done, outcome) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut link = SerialLink::open(&path, 9600).unwrap();
+            let small = link.write_all(b"01 01 00 20");
+            let big = (0..64).find_map(|_| link.write_all(&[0u8; 65536]).err());
+            let _ = done.send((small.is_ok(), big.map(|e| e.to_string())));
+        });
+        let (small, big) = outcome
+            .recv_timeout(Duration::from_secs(20))
+            .expect("the writes returned");
+        assert!(
+            small,
+            "a frame is handed over without waiting for it to leave"
+        );
+        let big = big.expect("a port that takes nothing fails the write");
+        assert!(big.contains("takes no data"), "{big}");
     }
 }

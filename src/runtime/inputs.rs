@@ -49,6 +49,7 @@ impl<H: Clone> Runtime<H> {
     /// answers (a communication failure marks it lost); the last reading otherwise. `None`
     /// if the device has no such input or was never read.
     fn read_lazily<D, T: Copy>(&mut self, idx: usize, input: &Input<D, T>) -> Option<T> {
+        self.input_accesses = self.input_accesses.wrapping_add(1);
         let tick = self.tick;
         let d = self.devices.get_mut(idx).and_then(input.device)?;
         if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {

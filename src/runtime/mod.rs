@@ -2,9 +2,11 @@
 //! act on, the scan loop and its fail-safe supervision.
 
 pub mod devices;
+pub mod error_log;
 mod events;
 pub mod exit;
 mod inputs;
+pub mod invariants;
 pub mod log;
 mod outputs;
 pub mod records;

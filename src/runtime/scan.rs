@@ -8,7 +8,9 @@
 //!
 //! All timing comes from the `Clock`; scenario tests drive the same loop in virtual time.
 
+use super::error_log::ErrorLog;
 use super::exit;
+use super::invariants::{Check, Violation};
 use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::Call;
@@ -64,6 +66,8 @@ pub trait Program {
     fn start(&mut self) -> Result<(), Fault>;
     /// Runs one handler.
     fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
+    /// Evaluates an invariant: whether it holds.
+    fn holds(&mut self, check: &Check<Self::Handler>) -> Result<bool, Fault>;
 }
 
 /// How a run is driven.
@@ -95,6 +99,8 @@ pub enum EndReason {
     Signal(i32),
     /// A script or runtime error (policy `stop`, or at the first start).
     Error(String),
+    /// An invariant was found false (`runtime::invariants`).
+    Violated(String),
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -120,6 +126,9 @@ pub struct Runner<P: Program> {
     latency: LatencyRequest,
     /// What the loop measured.
     pub stats: Stats,
+    /// The script errors so far.
+    pub errors: ErrorLog,
+    violation: Option<Violation>,
     /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
     pub service: Option<crate::service::notify::Notifier>,
 }
@@ -142,6 +151,8 @@ impl<P: Program> Runner<P> {
             trouble: Trouble::default(),
             latency: LatencyRequest::default(),
             stats: Stats::default(),
+            errors: ErrorLog::default(),
+            violation: None,
             service: None,
         }
     }
@@ -164,6 +175,11 @@ impl<P: Program> Runner<P> {
         }
     }
 
+    /// The invariant found false, if one was (the run then ended).
+    pub fn violation(&self) -> Option<&Violation> {
+        self.violation.as_ref()
+    }
+
     /// When the next tick is due.
     pub fn next_deadline(&self) -> Duration {
         self.next_deadline
@@ -180,6 +196,7 @@ impl<P: Program> Runner<P> {
         self.last_start = self.clock.now();
         if let Err(f) = self.program.start() {
             let message = describe(&f, "top level");
+            self.errors.push(&message, f.over_budget);
             self.finish(EndReason::Error(message));
         }
     }
@@ -409,6 +426,9 @@ impl<P: Program> Runner<P> {
         if self.status().is_some() || self.ended_by_signal() {
             return;
         }
+        if self.state == State::Running && !self.check_invariants() {
+            return;
+        }
         let stop = self.rt.borrow().stop_request;
         if let Some(code) = stop {
             self.finish(EndReason::Stopped(code));
@@ -453,7 +473,9 @@ impl<P: Program> Runner<P> {
         self.next_deadline = self.next_deadline.saturating_add(period);
         if now > self.next_deadline {
             self.stats.overruns = self.stats.overruns.saturating_add(1);
-            self.next_deadline = boundary_at_or_after(self.next_deadline, period, now);
+            // Already late: the next tick starts at once, on the last boundary passed.
+            self.next_deadline =
+                boundary_at_or_after(self.next_deadline, period, now).saturating_sub(period);
         }
         if let Some(idle) = self.idle_until() {
             if idle > self.next_deadline {
@@ -498,9 +520,50 @@ impl<P: Program> Runner<P> {
         }
     }
 
+    /// Checks every invariant after the handlers, before the outputs are written; false if
+    /// the run ended: an invariant found false (the safe state is written instead of this
+    /// tick's outputs, status 1 whatever the policy), or one that could not be evaluated (a
+    /// script error that is never skipped or restarted: it could not vouch for the outputs).
+    fn check_invariants(&mut self) -> bool {
+        let checks = self.rt.borrow().invariant_checks();
+        let accesses = self.rt.borrow().input_accesses;
+        for check in checks {
+            self.rt.borrow_mut().cause.clone_from(&check.call.label);
+            match self.program.holds(&check) {
+                Ok(true) => {}
+                Ok(false) => {
+                    let violation = {
+                        let rt = self.rt.borrow();
+                        Violation {
+                            name: check.name,
+                            at: check.at,
+                            uptime: rt.uptime(),
+                            devices: rt.readings(),
+                        }
+                    };
+                    self.rt.borrow_mut().report_violation(&violation);
+                    let message = violation.to_string();
+                    self.violation = Some(violation);
+                    self.finish(EndReason::Violated(message));
+                    return false;
+                }
+                Err(f) => {
+                    let message = describe(&f, &check.call.label);
+                    self.errors.push(&message, f.over_budget);
+                    self.finish(EndReason::Error(message));
+                    return false;
+                }
+            }
+        }
+        let mut rt = self.rt.borrow_mut();
+        rt.invariants_read_inputs = rt.input_accesses != accesses;
+        true
+    }
+
     /// Applies the error policy to a failed handler; true if the tick goes on.
     fn handle_fault(&mut self, fault: &Fault, label: &str) -> bool {
         let message = describe(fault, label);
+        self.errors.push(&message, fault.over_budget);
         let policy = match (self.options.policy, fault.over_budget) {
             // A runaway handler is never skipped: it would run away again.
             (ErrorPolicy::Skip, true) => ErrorPolicy::Stop,
@@ -562,6 +625,7 @@ impl<P: Program> Runner<P> {
         }
         if let Err(f) = self.program.start() {
             let message = describe(&f, "top level");
+            self.errors.push(&message, f.over_budget);
             self.schedule_restart(&message);
         }
     }
@@ -589,6 +653,8 @@ impl<P: Program> Runner<P> {
                         .info(&format!("stopping: the script called stop({code})"));
                 }
                 EndReason::Finished(why) => rt.log.info(&format!("stopping: {why}")),
+                // Logged with the tick's readings by `report_violation`.
+                EndReason::Violated(_) => {}
             }
         }
         if was_running {
@@ -597,6 +663,7 @@ impl<P: Program> Runner<P> {
                 self.rt.borrow_mut().cause.clone_from(&call.label);
                 if let Err(f) = self.program.call(&call) {
                     let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
                     self.rt.borrow_mut().log.error(&message);
                     self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
                 }
@@ -611,6 +678,7 @@ impl<P: Program> Runner<P> {
             .collect();
         let why = match &reason {
             EndReason::Error(_) => "script error",
+            EndReason::Violated(_) => "invariant false",
             EndReason::Signal(_) => "signal",
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
@@ -618,7 +686,7 @@ impl<P: Program> Runner<P> {
         rt.end_safe(why, true);
         let failed = rt.records.failed();
         let (status, because) = match reason {
-            EndReason::Error(_) => (exit::ERROR, None),
+            EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
             EndReason::Stopped(code) if code != 0 => (
                 i32::try_from(code.clamp(1, 255)).unwrap_or(exit::ERROR),
                 None,
@@ -776,6 +844,10 @@ mod tests {
             self.rt.borrow_mut().every(self.every, ()).unwrap();
             Ok(())
         }
+        fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
         fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
             self.calls += 1;
             self.clock.advance(self.burn);
@@ -846,6 +918,21 @@ mod tests {
     }
 
     #[test]
+    fn after_an_overrun_the_next_tick_starts_at_once() {
+        let (mut r, clock) = runner(
+            Duration::from_millis(20),
+            Duration::from_millis(50),
+            ErrorPolicy::Stop,
+        );
+        r.advance(Duration::from_millis(100));
+        assert!(r.stats.overruns > 0);
+        assert!(
+            r.next_deadline() <= clock.now(),
+            "no sleep to the next boundary after a tick that ran late"
+        );
+    }
+
+    #[test]
     fn idle_ticks_are_skipped_when_no_handler_polls_inputs() {
         let (mut r, _clock) = runner(Duration::from_secs(1), Duration::ZERO, ErrorPolicy::Stop);
         r.advance(Duration::from_secs(10));
@@ -895,6 +982,10 @@ mod tests {
                 rt.every(Duration::from_secs(1), ()).unwrap();
             }
             Ok(())
+        }
+        fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
         }
         fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
             self.calls += 1;
@@ -975,6 +1066,10 @@ mod tests {
             assert!(!self.at_start, "a bug at the top level");
             Ok(())
         }
+        fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
         fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
             let _held = self.rt.borrow_mut();
             panic!("a bug in a binding");
@@ -1049,6 +1144,10 @@ mod tests {
             }
             Ok(())
         }
+        fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
         fn call(&mut self, call: &Call<&'static str>) -> Result<(), Fault> {
             if call.handler == "signal" {
                 self.flag.store(SIGTERM as usize, Ordering::SeqCst);
@@ -1086,9 +1185,10 @@ mod tests {
         let signalled = Duration::from_millis(100);
         runner.advance(signalled);
         assert_eq!(runner.status(), Some(exit::signal(SIGTERM)));
-        // No exchange after the signal but the end's: two tries of 1 s with the silent module.
+        // No exchange after the signal but the end's: two tries of 1 s with the silent module,
+        // each after the line has been silent a timeout more (a late answer's chance).
         let took = r.clock.now() - signalled;
-        assert!(took <= Duration::from_millis(2500), "{took:?}");
+        assert!(took <= Duration::from_millis(4500), "{took:?}");
         let log = runner.runtime().borrow().log.lines().join("\n");
         assert!(log.contains("io: the safe state did not reach it"), "{log}");
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");

@@ -112,7 +112,8 @@ pub fn validate_cron(expr: &str) -> Result<(), ScheduleError> {
     parse_cron(expr).map(|_| ())
 }
 
-fn parse_cron(expr: &str) -> Result<Cron, ScheduleError> {
+/// Reads a cron expression as the schedule does (5 or 6 fields, seconds first when 6).
+pub fn parse_cron(expr: &str) -> Result<Cron, ScheduleError> {
     CronParser::builder()
         .seconds(Seconds::Optional)
         .build()

@@ -7,6 +7,7 @@
 
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
+use super::invariants::Invariant;
 use super::log::Logger;
 use super::records::Records;
 use super::subscriptions::Subscriptions;
@@ -25,6 +26,13 @@ pub struct Runtime<H> {
     pub devices: Vec<Device>,
     /// The script's handlers and timers.
     pub handlers: Subscriptions<H>,
+    /// What the script states must hold after every tick (`invariants`).
+    pub invariants: Vec<Invariant<H>>,
+    /// Whether the invariants read device inputs when last evaluated (or have not been yet):
+    /// then every tick runs, so the inputs they read are read every tick.
+    pub invariants_read_inputs: bool,
+    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
+    pub input_accesses: u64,
     /// Records and measurements.
     pub records: Records,
     /// The log.
@@ -63,6 +71,9 @@ impl<H: Clone> Runtime<H> {
             zone,
             devices,
             handlers: Subscriptions::new(zone),
+            invariants: Vec::new(),
+            invariants_read_inputs: true,
+            input_accesses: 0,
             records,
             log,
             tick: 0,
@@ -99,9 +110,12 @@ impl<H: Clone> Runtime<H> {
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
     /// timer or retry of a lost device (watchdogs are fed between ticks). `None` when every
-    /// tick has work.
+    /// tick has work: a handler polls inputs, or an invariant read device inputs when last
+    /// evaluated (an invariant that reads only outputs, script state or time can change only
+    /// in a tick that runs anyway, and is checked in every tick that runs).
     pub fn idle_until(&self) -> Option<Duration> {
-        if self.handlers.polls_inputs() {
+        let invariants_poll = !self.invariants.is_empty() && self.invariants_read_inputs;
+        if self.handlers.polls_inputs() || invariants_poll {
             return None;
         }
         let now = self.now();
@@ -133,6 +147,8 @@ impl<H: Clone> Runtime<H> {
     /// before the script is started again.
     pub fn reset_program(&mut self) {
         self.handlers.clear();
+        self.invariants.clear();
+        self.invariants_read_inputs = true;
         self.stop_request = None;
         self.reset_outputs();
     }

@@ -1,6 +1,7 @@
 //! The script API: `device(name)` and its TRC1000 and TRP-C29U handles, timers and flow
-//! (`every`, `after`, `cron`, `cancel`, `on_stop`, `stop`, `now`, `uptime`), records
-//! (`record`, `measure`) and messages (`print`, `log`, `warn`), bound to the runtime.
+//! (`every`, `after`, `cron`, `cancel`, `on_stop`, `stop`, `now`, `uptime`), invariants
+//! (`invariant`), records (`record`, `measure`) and messages (`print`, `log`, `warn`), bound to
+//! the runtime.
 //!
 //! Inputs read through a handle come from the tick's snapshot (the first access in a tick
 //! reads the device); outputs set through it are written once at the end of the tick. Other
@@ -10,6 +11,7 @@
 
 use super::engine::Guard;
 use super::error::STOP_MARKER;
+use super::reads::{Item, ReadTracker, ALL_COUNTERS, ALL_INPUTS, ALL_SWITCHES};
 use super::values::to_json;
 use crate::device::c29u::{C29uError, Latches, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
@@ -18,7 +20,7 @@ use crate::runtime::records::Limits;
 use crate::runtime::scan::Shared;
 use crate::runtime::subscriptions::Source;
 use crate::time::duration::{duration_from_millis_f64, duration_from_millis_i64, parse_duration};
-use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, Position, AST};
+use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, NativeCallContext, Position, AST};
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::rc::Rc;
@@ -111,6 +113,7 @@ pub struct Panel {
     rt: Rt,
     idx: usize,
     name: Rc<str>,
+    reads: ReadTracker,
 }
 
 /// A TRP-C29U in a script.
@@ -119,6 +122,19 @@ pub struct Io {
     rt: Rt,
     idx: usize,
     name: Rc<str>,
+    reads: ReadTracker,
+}
+
+impl Panel {
+    fn read(&self, mask: u128) {
+        self.reads.note(self.idx, mask);
+    }
+}
+
+impl Io {
+    fn read(&self, mask: u128) {
+        self.reads.note(self.idx, mask);
+    }
 }
 
 /// A duration from a script value: `"20ms"`, `"1.5s"`, `"5m"`, or milliseconds.
@@ -202,12 +218,15 @@ fn c29u_op<T>(
     r.or_else(|e| device_error(&io.name, &e))
 }
 
-/// Registers the whole script API on `engine` over `rt` (with `resolve_variables` for a run).
-pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities) {
-    register_device(engine, rt);
+/// Registers the whole script API on `engine` over `rt` (with `resolve_variables` for a run),
+/// noting what the script reads from its devices in `reads` (when that tracks) and placing
+/// invariants in `file`.
+pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities, reads: &ReadTracker, file: &str) {
+    register_device(engine, rt, reads);
     register_panel(engine, arities);
     register_io(engine, arities);
     register_flow(engine, rt, arities);
+    register_invariant(engine, rt, arities, file);
     register_records(engine, rt);
 }
 
@@ -225,29 +244,32 @@ fn setter<T: rhai::Variant + Clone>(
 }
 
 /// The handle of the device at `idx`.
-fn handle(rt: &Rt, idx: usize) -> Option<Dynamic> {
+fn handle(rt: &Rt, idx: usize, reads: &ReadTracker) -> Option<Dynamic> {
     let r = rt.borrow();
     let d = r.devices.get(idx)?;
     let name: Rc<str> = Rc::from(d.name());
+    let reads = reads.clone();
     Some(match d {
         Device::Trc(_) => Dynamic::from(Panel {
             rt: Rc::clone(rt),
             idx,
             name,
+            reads,
         }),
         Device::C29u(_) => Dynamic::from(Io {
             rt: Rc::clone(rt),
             idx,
             name,
+            reads,
         }),
     })
 }
 
-fn register_device(engine: &mut Engine, rt: &Rt) {
-    let r = Rc::clone(rt);
+fn register_device(engine: &mut Engine, rt: &Rt, reads: &ReadTracker) {
+    let (r, t) = (Rc::clone(rt), reads.clone());
     engine.register_fn("device", move |name: &str| -> R<Dynamic> {
         let idx = r.borrow().device_index(name);
-        match idx.and_then(|i| handle(&r, i)) {
+        match idx.and_then(|i| handle(&r, i, &t)) {
             Some(h) => Ok(h),
             None => fail(format!(
                 "no device called {name:?} in this rig (devices: {})",
@@ -258,13 +280,14 @@ fn register_device(engine: &mut Engine, rt: &Rt) {
 }
 
 /// Resolves the script's variables as a run needs them: each is checked by `guard` as it is
-/// used (`engine::Guard::check_var`), and each device is a variable of its name.
-pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>) {
+/// used (`engine::Guard::check_var`), and each device is a variable of its name (its reads
+/// noted in `reads`).
+pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads: &ReadTracker) {
     // Each device is also a variable of its name. And a variable holding a device handle is
     // read as a plain copy of it: a handler that uses the device it is registered on
     // (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and locks while
     // `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that.
-    let r = Rc::clone(rt);
+    let (r, t) = (Rc::clone(rt), reads.clone());
     let names: Vec<(String, usize)> = {
         let b = rt.borrow();
         b.devices
@@ -287,7 +310,7 @@ pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>) {
             None => Ok(names
                 .iter()
                 .find(|(n, _)| n == name)
-                .and_then(|(_, i)| handle(&r, *i))),
+                .and_then(|(_, i)| handle(&r, *i, &t))),
         }
     });
 }
@@ -296,8 +319,12 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     engine.register_type_with_name::<Panel>("TRC1000");
     engine.register_fn("to_string", |p: &mut Panel| format!("TRC1000 {}", p.name));
     engine.register_fn("to_debug", |p: &mut Panel| format!("TRC1000 {}", p.name));
-    engine.register_get("online", |p: &mut Panel| p.rt.borrow().online(p.idx));
+    engine.register_get("online", |p: &mut Panel| {
+        p.read(Item::Online.mask());
+        p.rt.borrow().online(p.idx)
+    });
     engine.register_get("relay", |p: &mut Panel| {
+        p.read(Item::Relay.mask());
         p.rt.borrow_mut()
             .trc(p.idx)
             .map_or(0, |d| i64::from(d.relay))
@@ -316,9 +343,11 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("pressed", |p: &mut Panel, name: &str| -> R<bool> {
         let s = switch(&p.name, name)?;
+        p.read(Item::Switch(s).mask());
         Ok(p.rt.borrow_mut().switches(p.idx).is_pressed(s))
     });
     engine.register_fn("pressed", |p: &mut Panel| -> Array {
+        p.read(ALL_SWITCHES);
         let set = p.rt.borrow_mut().switches(p.idx);
         set.pressed_names()
             .into_iter()
@@ -327,10 +356,12 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("rotary", |p: &mut Panel, name: &str| -> R<i64> {
         let r = rotary(&p.name, name)?;
+        p.read(Item::Rotary(r).mask());
         Ok(i64::from(p.rt.borrow_mut().rotaries(p.idx).get(r)))
     });
     engine.register_fn("turned", |p: &mut Panel, name: &str| -> R<i64> {
         let r = rotary(&p.name, name)?;
+        p.read(Item::Rotary(r).mask());
         Ok(p.rt.borrow_mut().turned(p.idx, r))
     });
     for (method, pressed) in [("on_press", true), ("on_release", false)] {
@@ -340,6 +371,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
             move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
                 let s = switch(&p.name, name)?;
                 a.check(&f, method, &["switch name"])?;
+                p.read(Item::Switch(s).mask());
                 let source = if pressed {
                     Source::Press {
                         dev: p.idx,
@@ -363,6 +395,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
         move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
             let r = rotary(&p.name, name)?;
             a.check(&f, "on_turn", &["delta", "value"])?;
+            p.read(Item::Rotary(r).mask());
             let label = format!("{}.on_turn {}", p.name, r.name());
             let source = Source::Turn {
                 dev: p.idx,
@@ -381,8 +414,12 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     engine.register_type_with_name::<Io>("TRP-C29U");
     engine.register_fn("to_string", |d: &mut Io| format!("TRP-C29U {}", d.name));
     engine.register_fn("to_debug", |d: &mut Io| format!("TRP-C29U {}", d.name));
-    engine.register_get("online", |d: &mut Io| d.rt.borrow().online(d.idx));
+    engine.register_get("online", |d: &mut Io| {
+        d.read(Item::Online.mask());
+        d.rt.borrow().online(d.idx)
+    });
     engine.register_get("outputs", |d: &mut Io| {
+        d.read(Item::Outputs.mask());
         d.rt.borrow_mut()
             .c29u(d.idx)
             .map_or(0, |c| i64::from(c.outputs))
@@ -394,6 +431,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("output", |d: &mut Io, ch: i64| -> R<bool> {
         let c = channel(&d.name, ch)?;
+        d.read(Item::Outputs.mask());
         let v = d.rt.borrow_mut().c29u(d.idx).map_or(0, |c| c.outputs);
         Ok(v & (1 << c) != 0)
     });
@@ -406,18 +444,22 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         Ok(())
     });
     engine.register_get("inputs", |d: &mut Io| {
+        d.read(ALL_INPUTS);
         i64::from(d.rt.borrow_mut().inputs(d.idx))
     });
     engine.register_fn("input", |d: &mut Io, ch: i64| -> R<bool> {
         let c = channel(&d.name, ch)?;
+        d.read(Item::Input(c).mask());
         Ok(d.rt.borrow_mut().inputs(d.idx) & (1 << c) != 0)
     });
     engine.register_fn("counter", |d: &mut Io, ch: i64| -> R<i64> {
         let c = channel(&d.name, ch)?;
+        d.read(Item::Counter(c).mask());
         let counts = d.rt.borrow_mut().counters(d.idx);
         Ok(counts.get(usize::from(c)).map_or(0, |v| i64::from(*v)))
     });
     engine.register_fn("counters", |d: &mut Io| -> Array {
+        d.read(ALL_COUNTERS);
         let counts = d.rt.borrow_mut().counters(d.idx);
         counts
             .iter()
@@ -452,6 +494,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         c29u_op(d, |m| Ok(m.driver.save_counters()?))
     });
     engine.register_fn("latched", |d: &mut Io| -> Map {
+        d.read(Item::Latches.mask());
         let l = d.rt.borrow_mut().latches(d.idx);
         // "on": channels energized since the last clear; "off": released since then.
         let mut m = Map::new();
@@ -541,6 +584,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         engine.register_fn(method, move |d: &mut Io, ch: i64, f: FnPtr| -> R<i64> {
             let c = channel(&d.name, ch)?;
             a.check(&f, method, &["channel"])?;
+            d.read(Item::Input(c).mask());
             let source = if rise {
                 Source::Rise { dev: d.idx, ch: c }
             } else {
@@ -561,6 +605,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 ));
             };
             a.check(&f, "on_counter", &["count"])?;
+            d.read(Item::Counter(c).mask());
             let label = format!("{}.on_counter DI{c} >= {t}", d.name);
             let source = Source::Counter {
                 dev: d.idx,
@@ -657,6 +702,27 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     let r = Rc::clone(rt);
     engine.register_fn("warn", move |m: Dynamic| {
         r.borrow_mut().log.warn(&format!("script: {m}"));
+    });
+}
+
+/// `invariant(name, || bool)`: states what must hold after every tick's handlers.
+fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &str) {
+    let (r, a, file) = (Rc::clone(rt), arities.clone(), file.to_string());
+    engine.register_fn(
+        "invariant",
+        move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
+            a.check(&f, "invariant", &[])?;
+            let at = super::error::location(&file, ctx.call_position());
+            let added = r.borrow_mut().add_invariant(name, f, at);
+            added.or_else(|e| fail(e.to_string()))
+        },
+    );
+    engine.register_fn("invariant", |_name: &str, v: Dynamic| -> R<()> {
+        fail(format!(
+            "invariant(name, check): the check must be a closure taking no parameters, such \
+             as `|| io.outputs == 0`, not {}",
+            v.type_name()
+        ))
     });
 }
 

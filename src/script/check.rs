@@ -6,7 +6,8 @@
 //!   library, as registered on the engine `run` uses) nor in the script, and calls with a number
 //!   of arguments no overload takes, with "did you mean" suggestions by edit distance;
 //! - literal arguments: device names in `device("...")` against the rig, switch and rotary
-//!   names, channels, durations and cron expressions, the number of parameters of handlers;
+//!   names, channels, durations and cron expressions, the number of parameters of handlers,
+//!   and invariants that are not closures taking no parameters;
 //! - properties and methods called on a variable known to hold a device (bound once to a
 //!   `device("...")` literal, or a device's own name) that its kind does not have.
 //!
@@ -15,6 +16,7 @@
 
 use super::api::{register, takes_words, Arities, Io, Panel};
 use super::engine::{sandboxed, DEFAULT_BUDGET};
+use super::reads::ReadTracker;
 use crate::config::{DeviceConfig, RigConfig};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::links::TransactionCounter;
@@ -92,6 +94,7 @@ const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("cron", 1, &["missed"]),
     ("after", 1, &[]),
     ("on_stop", 0, &[]),
+    ("invariant", 1, &[]),
 ];
 
 /// Functions Rhai's evaluator handles itself, never registered: (name, the argument counts
@@ -134,6 +137,8 @@ impl Registry {
             &mut engine,
             &Rc::new(RefCell::new(runtime)),
             &Arities::default(),
+            &ReadTracker::default(),
+            "",
         );
         Self::of(&engine)
     }
@@ -915,6 +920,7 @@ impl Checker<'_> {
                     self.report(*at, e.to_string());
                 }
             }
+            ("invariant", _) if !is_method => self.check_invariant(args, pos),
             _ => {}
         }
         let device_only = matches!(
@@ -939,6 +945,48 @@ impl Checker<'_> {
                     }
                 }
             }
+        }
+    }
+
+    /// `invariant(name, || bool)`: a name, and a closure (not a value computed once). Another
+    /// number of arguments is reported as for every call.
+    fn check_invariant(&mut self, args: &[Expr], pos: Position) {
+        let [name, check] = args else {
+            return;
+        };
+        let place = |e: &Expr| {
+            if e.position().is_none() {
+                pos
+            } else {
+                e.position()
+            }
+        };
+        if !matches!(name, Expr::StringConstant(..) | Expr::Variable(..)) {
+            self.report(
+                place(name),
+                "the first argument of invariant is its name, a string".into(),
+            );
+        }
+        let value = matches!(
+            check,
+            Expr::BoolConstant(..)
+                | Expr::IntegerConstant(..)
+                | Expr::FloatConstant(..)
+                | Expr::StringConstant(..)
+                | Expr::CharConstant(..)
+                | Expr::Unit(..)
+                | Expr::And(..)
+                | Expr::Or(..)
+                | Expr::Dot(..)
+                | Expr::Index(..)
+        );
+        if value || matches!(check, Expr::FnCall(c, _) if c.name.as_str() != "Fn") {
+            self.report(
+                place(check),
+                "the check of invariant must be a closure taking no parameters, such as `|| \
+                 io.outputs == 0`: a value is computed once, a closure every tick"
+                    .into(),
+            );
         }
     }
 
@@ -1075,6 +1123,38 @@ after("1s", |x| {});
         assert_eq!(p.len(), 2, "{p:?}");
         assert!(p[0].starts_with("1:4: io is a TRP-C29U"), "{p:?}");
         assert!(p[1].starts_with("2:7: panel is a TRC1000"), "{p:?}");
+    }
+
+    #[test]
+    fn invariants_must_be_closures_taking_no_parameters() {
+        let good = problems(
+            "let limit = 3;\ninvariant(\"low\", || io.outputs <= limit);\ninvariant(\"a\", || true);\n",
+        );
+        assert!(good.is_empty(), "{good:?}");
+        let p = problems(
+            "invariant(\"x\", |a| true);\ninvariant(\"y\", io.outputs == 0);\ninvariant(\"z\");\ninvariant(\"w\", true);\n",
+        );
+        assert_eq!(p.len(), 4, "{p:#?}");
+        assert!(
+            p[0].starts_with("1:16: the handler of invariant takes no parameters"),
+            "{}",
+            p[0]
+        );
+        assert!(
+            p[1].starts_with("2:") && p[1].contains("must be a closure"),
+            "{}",
+            p[1]
+        );
+        assert!(
+            p[2].starts_with("3:1: invariant takes 2 arguments, not 1"),
+            "{}",
+            p[2]
+        );
+        assert!(
+            p[3].starts_with("4:16: the check of invariant must be a closure"),
+            "{}",
+            p[3]
+        );
     }
 
     #[test]

@@ -7,7 +7,10 @@ pub mod builder;
 pub mod check;
 pub mod engine;
 pub mod error;
+#[cfg(test)]
+mod invariant_tests;
 pub mod program;
+pub mod reads;
 pub mod rig;
 pub mod scenario;
 pub mod values;

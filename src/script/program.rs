@@ -5,10 +5,13 @@
 use super::api::{register, resolve_variables, Arities, Rt};
 use super::engine::{sandboxed, Guard};
 use super::error::{breach_fault, fault, is_stop};
+use super::reads::{ReadSet, ReadTracker};
 use crate::config::ScriptLimits;
+use crate::runtime::invariants::Check;
 use crate::runtime::scan::{Fault, Program};
 use crate::runtime::subscriptions::{Arg, Call};
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
+use std::collections::BTreeMap;
 use std::rc::Rc;
 use std::sync::Arc;
 
@@ -19,6 +22,20 @@ pub struct ScriptProgram {
     file: String,
     arities: Arities,
     guard: Rc<Guard>,
+    reads: ReadTracker,
+    coverage: Option<Coverage>,
+}
+
+/// What the script did, when asked to keep count (`verify`): how often each handler ran, what
+/// the handlers and the top level read, and what each invariant read.
+#[derive(Debug, Clone, Default)]
+pub struct Coverage {
+    /// Calls per handler label (`panel.on_press S12`, `every 20ms`).
+    pub fired: BTreeMap<String, u64>,
+    /// What the top level and the handlers read.
+    pub script_reads: ReadSet,
+    /// What each invariant read, by name.
+    pub invariant_reads: BTreeMap<String, ReadSet>,
 }
 
 impl ScriptProgram {
@@ -32,8 +49,9 @@ impl ScriptProgram {
         };
         let guard = Guard::install(&mut engine, limits, clock, transactions);
         let arities = Arities::default();
-        register(&mut engine, rt, &arities);
-        resolve_variables(&mut engine, rt, &guard);
+        let reads = ReadTracker::default();
+        register(&mut engine, rt, &arities, &reads, file);
+        resolve_variables(&mut engine, rt, &guard, &reads);
         arities.learn(&ast);
         Self {
             engine,
@@ -41,6 +59,35 @@ impl ScriptProgram {
             file: file.to_string(),
             arities,
             guard,
+            reads,
+            coverage: None,
+        }
+    }
+
+    /// Starts keeping count of what the script does (see `Coverage`).
+    pub fn track_coverage(&mut self) {
+        self.reads.enable();
+        self.coverage.get_or_insert_with(Coverage::default);
+    }
+
+    /// What the script did since `track_coverage`.
+    pub fn coverage(&self) -> Option<&Coverage> {
+        self.coverage.as_ref()
+    }
+
+    fn note_reads(&mut self, invariant: Option<&str>) {
+        let Some(c) = self.coverage.as_mut() else {
+            return;
+        };
+        let read = self.reads.take();
+        match invariant {
+            Some(name) => match c.invariant_reads.get_mut(name) {
+                Some(set) => set.union(&read),
+                None => {
+                    c.invariant_reads.insert(name.to_string(), read);
+                }
+            },
+            None => c.script_reads.union(&read),
         }
     }
 
@@ -97,6 +144,7 @@ impl Program for ScriptProgram {
     fn start(&mut self) -> Result<(), Fault> {
         self.guard.begin_call();
         let result = self.engine.run_ast_with_scope(&mut Scope::new(), &self.ast);
+        self.note_reads(None);
         self.outcome(result, || Position::NONE)
     }
 
@@ -116,6 +164,48 @@ impl Program for ScriptProgram {
             .handler
             .call::<Dynamic>(&self.engine, &self.ast, args)
             .map(|_| ());
+        if let Some(c) = self.coverage.as_mut() {
+            match c.fired.get_mut(&call.label) {
+                Some(n) => *n = n.saturating_add(1),
+                None => {
+                    c.fired.insert(call.label.clone(), 1);
+                }
+            }
+        }
+        self.note_reads(None);
         self.outcome(result, || self.body_start(&call.handler, n))
+    }
+
+    fn holds(&mut self, check: &Check<FnPtr>) -> Result<bool, Fault> {
+        let (call, at) = (&check.call, check.at.as_deref());
+        self.guard.begin_call();
+        let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, ());
+        self.note_reads(Some(&check.name));
+        // Where nothing places an error (Rhai's own limits), it is the invariant's.
+        let placed = |mut f: Fault| {
+            if f.location.is_none() {
+                f.location = at.map(str::to_string);
+            }
+            f
+        };
+        if let Some(b) = self.guard.end_call() {
+            let ended = result.as_ref().map(|_| ()).map_err(|e| &**e);
+            return Err(placed(breach_fault(&self.file, &b, ended, Position::NONE)));
+        }
+        match result {
+            Ok(v) => v.as_bool().map_err(|_| Fault {
+                location: at.map(str::to_string),
+                cause: format!(
+                    "{} returned {} ({}), not true or false",
+                    call.label,
+                    super::values::show(&v),
+                    v.type_name()
+                ),
+                over_budget: false,
+            }),
+            // stop() inside an invariant: the run is stopping anyway; it holds.
+            Err(e) if is_stop(&e) => Ok(true),
+            Err(e) => Err(placed(fault(&self.file, &e, Position::NONE))),
+        }
     }
 }

@@ -7,7 +7,7 @@ use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, OpenError, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
 use crate::runtime::exit;
 use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::records::{RecordError, Records};
@@ -110,6 +110,21 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
+    start_with(source, file, setup, open_devices, |_| {})
+}
+
+/// As `start`, with the devices opened by `open` instead of `open_devices` (given the same
+/// config, clock, `simulate` flag and request counter: the fault search puts simulators behind
+/// fault-injecting links under the real drivers this way), and `prepare` given the program
+/// before its top level runs (`verify` has it keep count of what the script does from the
+/// first line on).
+pub fn start_with(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
+    prepare: impl FnOnce(&mut ScriptProgram),
+) -> Result<Rig, RigError> {
     if setup.config.devices.is_empty() {
         return Err(RigError::NoDevices {
             simulated: setup.simulate,
@@ -124,7 +139,7 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         None => Records::in_memory(),
     };
     let count = TransactionCounter::default();
-    let opened = open_devices(&setup.config, &setup.clock, setup.simulate, &count)?;
+    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
     let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
     log.set_quiet(setup.quiet);
     log.set_format(setup.log_format);
@@ -158,7 +173,8 @@ pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError>
         r.end_safe("a device is not available", true);
         return Err(e.into());
     }
-    let program = ScriptProgram::new(&rt, ast, file, limits);
+    let mut program = ScriptProgram::new(&rt, ast, file, limits);
+    prepare(&mut program);
     let period = setup.period.unwrap_or(setup.config.period);
     let options = RunOptions {
         period,

@@ -4,21 +4,31 @@
 //!
 //! The test API:
 //! - `rig(path)`, `rig(path, config)`, `rig_at(path, iso_time)`, `rig_at(path, iso_time,
-//!   zone)`: the script at `path` (relative to the test file) on simulated devices (those of
-//!   `config`, else `panel` and `io` as with `--sim`), wall time starting at
-//!   2026-03-28T12:00:00Z (or `iso_time`), cron and log in UTC (or the offset of `iso_time`,
-//!   or the IANA `zone`). Its top level has run when `rig` returns.
+//!   zone)`, `rig_at(path, iso_time, zone, config)`: the script at `path` (relative to the
+//!   test file) on simulated devices (those of `config`, else `panel` and `io` as with
+//!   `--sim`), wall time starting at 2026-03-28T12:00:00Z (or `iso_time`), cron and log in UTC
+//!   (or the offset of `iso_time`, or the IANA `zone`). Its top level has run when `rig`
+//!   returns.
 //! - `r.advance(dur)` runs every tick due until virtual time has moved by `dur`; `r.tick()`
 //!   runs the next tick (when no handler polls inputs, idle ticks are skipped, so this can move
-//!   time to the next timer). Each tick at the period of rig.toml (20 ms by default).
+//!   time to the next timer). Each tick at the period of rig.toml (20 ms by default). An
+//!   invariant of the script found false fails the `advance` or `tick` it happened in, with
+//!   the invariant's name and the tick's inputs and outputs (once: a test that catches it can
+//!   go on to look at the rig).
 //! - Field side: `r.press(dev, name)`, `r.release(dev, name)`, `r.turn(dev, name,
 //!   half_turns)`, `r.set_inputs(dev, byte)`, `r.set_input(dev, ch, on)`, `r.pulse(dev, ch,
-//!   n)`, `r.fail(dev)`, `r.restore(dev)`, `r.power_cycle(dev)`, `r.signal_stop()`.
+//!   n)`, `r.fail(dev)`, `r.restore(dev)`, `r.power_cycle(dev)`, `r.drop_answers(dev, n)` and
+//!   `r.garble_answers(dev, n)` (the device's next `n` answers lost or garbled),
+//!   `r.signal_stop()`, `r.end()` (the run ends normally, as at `--for`).
+//! - Time itself: `r.stall(dur)` (virtual time moves on without a tick: the host stalled),
+//!   `r.step_wall(step)` (the wall clock steps by `"+1h"`, `"-90s"`...: NTP, a clock change).
 //! - Read from the simulators: `r.outputs(dev)`, `r.relay(dev)`, `r.safe_mode(dev)`,
 //!   `r.safe_value(dev)`, `r.power_on_value(dev)`, `r.watchdog(dev)` (`#{enabled,
 //!   timeout_ms, expired}`), `r.counter(dev, ch)`.
 //! - Read from the run: `r.records()`, `r.stopped()`, `r.exit_status()` (`()` while
-//!   running), `r.log()`, `r.now()`, `r.overruns()`, `r.online(dev)`.
+//!   running), `r.log()`, `r.now()`, `r.overruns()`, `r.online(dev)`, `r.held_safe()`
+//!   (outputs held safe for a device lost past its grace time), `r.errors()` (the script
+//!   errors so far, as logged), `r.violation()` (the invariant found false, or `()`).
 //! - `assert(cond)`, `assert(cond, msg)`, `assert_eq(a, b)`, `assert_eq(a, b, msg)`.
 
 use super::api::{duration, fail, R};
@@ -29,6 +39,8 @@ use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
 use crate::runtime::devices::FieldError;
 use crate::runtime::log::LogFormat;
+use crate::runtime::scan::EndReason;
+use crate::sim::answer_faults::AnswerFault;
 use crate::time::clock::VirtualClock;
 use crate::time::zone::Zone;
 use chrono::{DateTime, FixedOffset, Utc};
@@ -56,6 +68,28 @@ pub struct TestResult {
 /// A script under test on its simulators.
 struct Scenario {
     rig: Rig,
+    clock: VirtualClock,
+    violation_reported: bool,
+}
+
+impl Scenario {
+    /// An error naming the invariant found false, the first time the test drives the rig
+    /// after it was.
+    fn violation(&mut self) -> R<()> {
+        if self.violation_reported {
+            return Ok(());
+        }
+        match self.rig.runner.violation() {
+            Some(v) => {
+                self.violation_reported = true;
+                fail(format!(
+                    "{v} (t={})",
+                    crate::time::duration::format_duration(v.uptime)
+                ))
+            }
+            None => Ok(()),
+        }
+    }
 }
 
 /// A scenario as a test script holds it.
@@ -107,7 +141,7 @@ fn load(
     let setup = RigSetup {
         config,
         simulate: true,
-        clock: Arc::new(clock),
+        clock: Arc::new(clock.clone()),
         zone,
         period: None,
         end_after: None,
@@ -120,7 +154,11 @@ fn load(
     };
     let rig = start(&source, &path.display().to_string(), setup)
         .or_else(|e| fail(format!("cannot start {}: {e}", path.display())))?;
-    Ok(RigHandle(Rc::new(RefCell::new(Scenario { rig }))))
+    Ok(RigHandle(Rc::new(RefCell::new(Scenario {
+        rig,
+        clock,
+        violation_reported: false,
+    }))))
 }
 
 impl RigHandle {
@@ -161,23 +199,63 @@ pub fn register(engine: &mut Engine, base: &Path) {
             load(&b, path, None, at, zone)
         },
     );
+    let b = base.to_path_buf();
+    engine.register_fn(
+        "rig_at",
+        move |path: &str, time: &str, zone: &str, config: &str| -> R<RigHandle> {
+            let at = parse_time(time)?;
+            let zone = Zone::parse(zone).or_else(|e| fail(e.to_string()))?;
+            load(&b, path, Some(config), at, zone)
+        },
+    );
     register_driving(engine);
     register_field(engine);
     register_observations(engine);
     register_asserts(engine);
 }
 
+/// A wall-clock step written `"+1h"`, `"-90s"` (a duration with a sign; none means forward).
+fn wall_step(text: &str) -> R<chrono::TimeDelta> {
+    let (negative, rest) = match text.trim().strip_prefix('-') {
+        Some(rest) => (true, rest),
+        None => (false, text.trim().trim_start_matches('+')),
+    };
+    let d = crate::time::duration::parse_duration(rest).or_else(|e| fail(e.to_string()))?;
+    let step = chrono::TimeDelta::from_std(d)
+        .or_else(|_| fail(format!("a wall-clock step of {text:?} is too large")))?;
+    Ok(if negative { -step } else { step })
+}
+
 fn register_driving(engine: &mut Engine) {
     engine.register_fn("advance", |r: &mut RigHandle, d: Dynamic| -> R<()> {
         let d = duration(&d)?;
-        r.0.borrow_mut().rig.runner.advance(d);
+        let mut s = r.0.borrow_mut();
+        s.rig.runner.advance(d);
+        s.violation()
+    });
+    engine.register_fn("tick", |r: &mut RigHandle| -> R<()> {
+        let mut s = r.0.borrow_mut();
+        s.rig.runner.step();
+        s.violation()
+    });
+    engine.register_fn("stall", |r: &mut RigHandle, d: Dynamic| -> R<()> {
+        let d = duration(&d)?;
+        r.0.borrow().clock.advance(d);
         Ok(())
     });
-    engine.register_fn("tick", |r: &mut RigHandle| {
-        r.0.borrow_mut().rig.runner.step();
+    engine.register_fn("step_wall", |r: &mut RigHandle, step: &str| -> R<()> {
+        let step = wall_step(step)?;
+        r.0.borrow().clock.step_wall(step);
+        Ok(())
     });
     engine.register_fn("signal_stop", |r: &mut RigHandle| {
         r.0.borrow_mut().rig.runner.signal_stop();
+    });
+    engine.register_fn("end", |r: &mut RigHandle| {
+        r.0.borrow_mut()
+            .rig
+            .runner
+            .finish(EndReason::Finished("the test ended the run".into()));
     });
 }
 
@@ -228,6 +306,22 @@ fn register_field(engine: &mut Engine) {
     engine.register_fn("power_cycle", |r: &mut RigHandle, dev: &str| {
         r.sim(|s| s.power_cycle(dev))
     });
+    for (name, fault) in [
+        ("drop_answers", AnswerFault::Drop),
+        ("garble_answers", AnswerFault::Garble),
+    ] {
+        engine.register_fn(name, move |r: &mut RigHandle, dev: &str, n: i64| -> R<()> {
+            let n = usize::try_from(n).or_else(|_| fail(format!("{name}: {n} answers?")))?;
+            let queued = r.sim(|s| s.fault_answers(dev, fault, n))?;
+            if queued < n {
+                return fail(format!(
+                    "{name}({dev:?}, {n}): only {queued} more can wait; make the device gone \
+                     with r.fail(dev) for a dead line"
+                ));
+            }
+            Ok(())
+        });
+    }
 }
 
 fn register_observations(engine: &mut Engine) {
@@ -293,6 +387,26 @@ fn register_observations(engine: &mut Engine) {
     });
     engine.register_fn("overruns", |r: &mut RigHandle| -> i64 {
         i64::try_from(r.0.borrow().rig.runner.stats.overruns).unwrap_or(i64::MAX)
+    });
+    engine.register_fn("held_safe", |r: &mut RigHandle| -> bool {
+        r.0.borrow().rig.runner.runtime().borrow().held_safe
+    });
+    engine.register_fn("errors", |r: &mut RigHandle| -> Array {
+        let s = r.0.borrow();
+        s.rig
+            .runner
+            .errors
+            .kept()
+            .iter()
+            .map(|e| Dynamic::from(e.message.clone()))
+            .collect()
+    });
+    engine.register_fn("violation", |r: &mut RigHandle| -> Dynamic {
+        r.0.borrow()
+            .rig
+            .runner
+            .violation()
+            .map_or(Dynamic::UNIT, |v| Dynamic::from(v.to_string()))
     });
     engine.register_fn("online", |r: &mut RigHandle, dev: &str| -> R<bool> {
         let s = r.0.borrow();

@@ -1,11 +1,15 @@
 //! Device models that answer at the far end of a link: in memory, or on a pseudo-terminal.
 
+pub mod answer_faults;
 pub mod c29u;
 pub mod c29u_ascii;
 pub mod c29u_line;
 pub mod c29u_modbus;
+pub mod faults;
 pub mod pty;
+pub mod relay;
 pub mod trc1000;
+pub mod wire;
 
 use std::sync::{Arc, Mutex};
 

@@ -1,12 +1,15 @@
 //! Serves a simulated byte device on a pseudo-terminal, so any serial program can talk to it,
-//! with optional fault injection (dropped, corrupted or delayed answers).
+//! with optional fault injection (dropped, corrupted or delayed answers) and, with strict
+//! timing, the line's timing as a module on a shared line sees it.
 
+use super::wire::{Side, Timeline};
 use super::ByteDevice;
 use serialport::{SerialPort, TTYPort};
 use std::io::{self, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 /// Why the pty server failed.
 #[derive(Debug, thiserror::Error)]
@@ -39,6 +42,21 @@ pub struct Faults {
     pub seed: Option<u64>,
 }
 
+/// Real-time line timing for the served device (`sim c29u --strict-timing`): a pty delivers
+/// bytes at once, so the server times the line itself at `baud`. Answers leave when their
+/// frame would end on the wire (after the request's frame); a request that starts less than
+/// `required` after the previous frame on the line ended (its own answer included) is dropped,
+/// as a module on a shared line drops the merged frame it hears, and counted in `early`.
+#[derive(Debug, Clone)]
+pub struct StrictTiming {
+    /// The module's configured line speed.
+    pub baud: u32,
+    /// The silence a request must follow (t3.5 for Modbus).
+    pub required: Duration,
+    /// Requests dropped for starting too early.
+    pub early: Arc<AtomicU64>,
+}
+
 /// A pseudo-terminal whose far end is a simulated device.
 pub struct PtyServer {
     master: TTYPort,
@@ -46,6 +64,45 @@ pub struct PtyServer {
     _slave: TTYPort,
     path: String,
     link: Option<PathBuf>,
+    strict: Option<StrictTiming>,
+}
+
+/// The line as the server times it under strict timing.
+struct Line {
+    origin: Instant,
+    timeline: Timeline,
+    rules: StrictTiming,
+    /// The frame being received started too early: its bytes go nowhere.
+    dropping: bool,
+}
+
+impl Line {
+    fn now(&self) -> Duration {
+        self.origin.elapsed()
+    }
+
+    /// Takes `n` request bytes that just arrived; false if they belong to an early frame.
+    fn hear(&mut self, n: usize) -> bool {
+        let sent = self.timeline.send(Side::Master, self.now(), n);
+        if sent.started {
+            // A pty hands a request over through a kernel worker, so the server sees it late by
+            // a delay it cannot measure (milliseconds on a loaded machine). After an answer the
+            // server timed itself that only lengthens the silence it measures, and the full
+            // silence is required; after a request of the master's that got no answer both ends
+            // of the silence carry such a delay, so there only one character of silence is
+            // required: a master that keeps none is still caught. (The driver's rule after an
+            // unanswered request is pinned exactly in virtual time, in `device::exchange`.)
+            let required = match sent.frame.after {
+                Some(Side::Master) => self.timeline.wire_time(1).min(self.rules.required),
+                _ => self.rules.required,
+            };
+            self.dropping = sent.frame.silence.is_some_and(|s| s < required);
+            if self.dropping {
+                self.rules.early.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        !self.dropping
+    }
 }
 
 impl PtyServer {
@@ -73,7 +130,13 @@ impl PtyServer {
             _slave: slave,
             path,
             link,
+            strict: None,
         })
+    }
+
+    /// Times the line as `timing` says from now on.
+    pub fn strict_timing(&mut self, timing: StrictTiming) {
+        self.strict = Some(timing);
     }
 
     /// The path clients open, such as `/dev/pts/7`.
@@ -97,6 +160,15 @@ impl PtyServer {
         let poll = Duration::from_millis(50);
         let mut buf = [0u8; 1024];
         let mut heard_since_idle = false;
+        if self.strict.is_some() {
+            prefer_realtime();
+        }
+        let mut line = self.strict.clone().map(|rules| Line {
+            origin: Instant::now(),
+            timeline: Timeline::new(rules.baud),
+            rules,
+            dropping: false,
+        });
         while !stop.load(Ordering::Relaxed) {
             let wait = if heard_since_idle { gap } else { poll };
             self.master
@@ -106,9 +178,12 @@ impl PtyServer {
                 Ok(n) => {
                     let received = buf.get(..n).unwrap_or_default();
                     heard_since_idle = true;
+                    if line.as_mut().is_some_and(|l| !l.hear(n)) {
+                        continue;
+                    }
                     let answer = device.receive(received);
                     if !answer.is_empty() {
-                        self.send(answer, faults, &mut rng)?;
+                        self.answer(answer, faults, &mut rng, line.as_mut())?;
                     }
                 }
                 Err(e)
@@ -121,7 +196,7 @@ impl PtyServer {
                         heard_since_idle = false;
                         let answer = device.line_idle();
                         if !answer.is_empty() {
-                            self.send(answer, faults, &mut rng)?;
+                            self.answer(answer, faults, &mut rng, line.as_mut())?;
                         }
                     }
                 }
@@ -132,14 +207,29 @@ impl PtyServer {
         Ok(())
     }
 
-    fn send(
+    fn answer(
         &mut self,
         mut answer: Vec<u8>,
         faults: &Faults,
         rng: &mut fastrand::Rng,
+        line: Option<&mut Line>,
     ) -> Result<(), PtyError> {
-        if !faults.delay.is_zero() {
-            std::thread::sleep(faults.delay);
+        // Under strict timing the answer starts once the request has left the wire and is
+        // handed over when its own last byte would arrive.
+        let timed = line.map(|l| {
+            let now = l.now();
+            let start = l
+                .timeline
+                .busy_until(Side::Master)
+                .map_or(now, |end| end.max(now))
+                .saturating_add(faults.delay);
+            let end = start.saturating_add(l.timeline.wire_time(answer.len()));
+            (l, start, end)
+        });
+        match &timed {
+            Some((l, _, end)) => std::thread::sleep(end.saturating_sub(l.now())),
+            None if !faults.delay.is_zero() => std::thread::sleep(faults.delay),
+            None => {}
         }
         if faults.drop > 0.0 && rng.f64() < faults.drop {
             return Ok(());
@@ -150,10 +240,24 @@ impl PtyServer {
                 *byte ^= 1 << rng.u8(..8);
             }
         }
+        // The frame ends as its last byte is handed over: the master can have it before the
+        // write returns.
+        if let Some((l, start, _)) = timed {
+            let end = l.now();
+            l.timeline.frame(Side::Slave, start, end, answer.len());
+        }
         self.master.write_all(&answer)?;
-        self.master.flush()?;
         Ok(())
     }
+}
+
+/// Best effort for a thread that times a line: prompt timers, and a real-time priority where
+/// the system allows it (a simulator starved by other work would misjudge the line).
+pub fn prefer_realtime() {
+    let _ = crate::time::clock::prefer_prompt_wakeups();
+    let param = libc::sched_param { sched_priority: 10 };
+    // SAFETY: a valid sched_param for the calling thread; a refusal (no privilege) is harmless.
+    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
 }
 
 impl Drop for PtyServer {
@@ -209,7 +313,23 @@ mod tests {
         Arc<std::sync::atomic::AtomicUsize>,
         std::thread::JoinHandle<()>,
     ) {
+        run_timed_server(faults, link, None)
+    }
+
+    fn run_timed_server(
+        faults: Faults,
+        link: Option<PathBuf>,
+        strict: Option<StrictTiming>,
+    ) -> (
+        String,
+        Arc<AtomicBool>,
+        Arc<std::sync::atomic::AtomicUsize>,
+        std::thread::JoinHandle<()>,
+    ) {
         let mut server = PtyServer::open(link.as_deref()).unwrap();
+        if let Some(strict) = strict {
+            server.strict_timing(strict);
+        }
         let path = server.path().to_string();
         let stop = Arc::new(AtomicBool::new(false));
         let idles = Arc::new(std::sync::atomic::AtomicUsize::new(0));
@@ -297,6 +417,33 @@ mod tests {
             .map(|(a, b)| (a ^ b).count_ones())
             .sum();
         assert_eq!(differing, 1);
+        stop.store(true, Ordering::Relaxed);
+        handle.join().unwrap();
+    }
+
+    #[test]
+    fn strict_timing_drops_and_counts_requests_that_follow_too_soon() {
+        let early = Arc::new(AtomicU64::new(0));
+        let required = Duration::from_millis(20);
+        let strict = StrictTiming {
+            baud: 9600,
+            required,
+            early: Arc::clone(&early),
+        };
+        let (path, stop, _, handle) = run_timed_server(Faults::default(), None, Some(strict));
+        let mut link = SerialLink::open(&path, 9600).unwrap();
+        let started = Instant::now();
+        assert_eq!(ask(&mut link, b"abc\r", 4), b"cba\r");
+        assert!(
+            started.elapsed() >= crate::link::line::wire_time(8, 9600),
+            "the answer took its time on the wire"
+        );
+        // At once after the answer: a module on a shared line hears one merged frame.
+        assert_eq!(ask(&mut link, b"xy\r", 3), b"", "dropped");
+        assert_eq!(early.load(Ordering::Relaxed), 1);
+        std::thread::sleep(required * 2);
+        assert_eq!(ask(&mut link, b"xy\r", 3), b"yx\r");
+        assert_eq!(early.load(Ordering::Relaxed), 1);
         stop.store(true, Ordering::Relaxed);
         handle.join().unwrap();
     }

@@ -184,6 +184,20 @@ impl VirtualClock {
         }
     }
 
+    /// Steps the wall clock by `by` (forward or back) while monotonic time stays: an NTP step,
+    /// a manual clock change. Cron timers see it; `every` and `after` do not.
+    pub fn step_wall(&self, by: chrono::TimeDelta) {
+        let mut s = self.lock();
+        s.wall_origin =
+            s.wall_origin
+                .checked_add_signed(by)
+                .unwrap_or(if by < chrono::TimeDelta::zero() {
+                    DateTime::<Utc>::MIN_UTC
+                } else {
+                    DateTime::<Utc>::MAX_UTC
+                });
+    }
+
     fn lock(&self) -> std::sync::MutexGuard<'_, VirtualState> {
         // A poisoned lock only means another test thread panicked; the time value is still valid.
         self.state.lock().unwrap_or_else(|e| e.into_inner())
@@ -223,6 +237,9 @@ mod tests {
         c.advance_to(Duration::from_secs(1));
         assert_eq!(c.now(), Duration::from_secs(2), "never goes backwards");
         assert_eq!(c.wall().timestamp(), 2);
+        c.step_wall(chrono::TimeDelta::hours(-1));
+        assert_eq!(c.wall().timestamp(), 2 - 3600, "the wall clock steps back");
+        assert_eq!(c.now(), Duration::from_secs(2), "monotonic time does not");
     }
 
     #[cfg(target_os = "linux")]

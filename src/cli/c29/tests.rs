@@ -38,6 +38,23 @@ fn rig(protocol: Protocol) -> (SharedModel, C29u) {
 }
 
 #[test]
+fn frame_gap_is_auto_or_a_bounded_duration() {
+    let gap = |extra: &[&str]| {
+        let mut args = vec!["--port", "/dev/ttyUSB0"];
+        args.extend_from_slice(extra);
+        args.push("status");
+        parse(&args).map(|a| a.options().frame_gap)
+    };
+    assert_eq!(gap(&[]).unwrap(), FrameGap::Auto);
+    assert_eq!(
+        gap(&["--frame-gap", "5ms"]).unwrap(),
+        FrameGap::Fixed(Duration::from_millis(5))
+    );
+    assert_eq!(gap(&["--frame-gap", "auto"]).unwrap(), FrameGap::Auto);
+    assert!(gap(&["--frame-gap", "3s"]).is_err());
+}
+
+#[test]
 fn options_parse_before_or_after_the_command_with_defaults() {
     let a = parse(&["--port", "/dev/ttyUSB0", "status"]).unwrap();
     let o = a.options();

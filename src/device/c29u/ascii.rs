@@ -40,11 +40,13 @@ impl AsciiBackend {
         refusal: &mut Option<AsciiError>,
     ) -> Result<Answer, C29uError> {
         let frame = request.encode(self.id, self.checksum);
-        let name = format!(
-            "`{}`",
-            String::from_utf8_lossy(frame.strip_suffix(&[CR]).unwrap_or(&frame))
-        );
-        let port = t.port();
+        // Worded only when something went wrong (a poll must cost little).
+        let name = || {
+            format!(
+                "`{}`",
+                String::from_utf8_lossy(frame.strip_suffix(&[CR]).unwrap_or(&frame))
+            )
+        };
         let (id, with_checksum) = (self.id, self.checksum);
         let expects = request.expects_answer();
         t.with_retries(|t| {
@@ -52,12 +54,12 @@ impl AsciiBackend {
             let timeout = t.timeout;
             let answer = t
                 .exchange(&frame, expects, None, line_frame)
-                .map_err(|e| exchange_fault(e, &port, id, &name, timeout, true))?;
+                .map_err(|e| exchange_fault(e, &t.port(), id, &name(), timeout, true))?;
             if !expects {
                 return Ok(Answer::Done);
             }
             parse_answer(request, &answer, with_checksum, id).map_err(|e| {
-                let fault = classify(&e, &port, id, &name);
+                let fault = classify(&e, &t.port(), id, &name());
                 *refusal = Some(e);
                 fault
             })

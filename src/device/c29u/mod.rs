@@ -5,9 +5,10 @@ mod ascii;
 mod modbus;
 mod transport;
 
+pub use crate::link::line::FrameGap;
 pub use crate::protocol::c29u::{CounterEdge, Protocol, WatchdogTimeout};
 pub use crate::protocol::c29u_ascii::Preset;
-pub use transport::{share, SharedLink};
+pub use transport::{ascii_frame_gap, auto_frame_gap, share, SharedLink};
 
 use crate::device::exchange::{format_frame, ExchangeError, Tracer};
 use crate::link::{serial::SerialLink, tcp::TcpLink, LinkError};
@@ -33,6 +34,8 @@ pub struct C29uOptions {
     pub retries: u32,
     /// Inputs read 0 on the wire when energized (NOTES: true for the real module).
     pub di_active_low: bool,
+    /// Silence kept on a serial line before each request to this module.
+    pub frame_gap: FrameGap,
 }
 
 impl Default for C29uOptions {
@@ -45,6 +48,7 @@ impl Default for C29uOptions {
             timeout: Duration::from_millis(200),
             retries: 2,
             di_active_low: true,
+            frame_gap: FrameGap::Auto,
         }
     }
 }
@@ -135,6 +139,9 @@ pub enum C29uError {
     InvalidArgument(String),
 }
 
+/// How many received bytes an error message shows.
+const SHOWN_BYTES: usize = 32;
+
 /// A preset in words, for messages.
 fn preset_words(preset: Preset) -> &'static str {
     match preset {
@@ -164,13 +171,18 @@ pub enum PresetWrite {
 
 fn received_note(received: &[u8], text: bool) -> String {
     if received.is_empty() {
-        " (nothing came back)".to_string()
-    } else {
-        let shown = format_frame(crate::device::exchange::Direction::Received, received, text);
+        return " (nothing came back)".to_string();
+    }
+    let shown = received.get(..SHOWN_BYTES).unwrap_or(received);
+    let frame = format_frame(crate::device::exchange::Direction::Received, shown, text);
+    let frame = frame.trim_start_matches("<< ");
+    if shown.len() < received.len() {
         format!(
-            " (only this came back: {})",
-            shown.trim_start_matches("<< ")
+            " (only this came back: {frame} ... {} bytes in all)",
+            received.len()
         )
+    } else {
+        format!(" (only this came back: {frame})")
     }
 }
 
@@ -367,7 +379,14 @@ impl C29u {
             }
         };
         Ok(Self {
-            transport: Transport::new(link, clock, options.timeout, options.retries),
+            transport: Transport::new(
+                link,
+                clock,
+                options.timeout,
+                options.retries,
+                options.protocol,
+                options.frame_gap,
+            ),
             backend,
             options,
         })
@@ -656,6 +675,23 @@ pub(crate) fn exchange_fault(
             timeout,
             received,
             text,
+        }),
+        ExchangeError::Overflow { received } => Fault::Retry(C29uError::Garbled {
+            port: port.to_string(),
+            id,
+            request: request.to_string(),
+            detail: format!(
+                "more bytes than any answer has and no answer among them{}",
+                received_note(&received, text)
+            ),
+        }),
+        ExchangeError::Busy { heard, within } => Fault::Final(C29uError::Garbled {
+            port: port.to_string(),
+            id,
+            request: request.to_string(),
+            detail: format!(
+                "the line never fell silent to let the request out ({heard} bytes in {within:?} from something else on it)"
+            ),
         }),
     }
 }

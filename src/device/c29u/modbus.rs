@@ -42,13 +42,15 @@ impl ModbusBackend {
 
     fn call(&mut self, t: &mut Transport, request: &Request) -> Result<Response, C29uError> {
         let frame = request.encode(self.id);
-        // The frame as sent (CRC aside) is what a person compares with a bus capture or the manual.
-        let name = describe_frame(
-            frame
-                .get(..frame.len().saturating_sub(2))
-                .unwrap_or_default(),
-        );
-        let port = t.port();
+        // The frame as sent (CRC aside) is what a person compares with a bus capture or the
+        // manual; worded only when something went wrong (a poll must cost little).
+        let name = || {
+            describe_frame(
+                frame
+                    .get(..frame.len().saturating_sub(2))
+                    .unwrap_or_default(),
+            )
+        };
         let (id, gap) = (self.id, Some(self.gap()));
         let expects = request.expects_answer();
         t.with_retries(|t| {
@@ -62,12 +64,12 @@ impl ModbusBackend {
                     fed = received.len();
                     reader.push(fresh).into_iter().next()
                 })
-                .map_err(|e| exchange_fault(e, &port, id, &name, timeout, false))?;
+                .map_err(|e| exchange_fault(e, &t.port(), id, &name(), timeout, false))?;
             if !expects {
                 // Only host OK goes unanswered; an empty vendor answer stands for it.
                 return Ok(Response::Vendor(VendorResponse::WatchdogSet));
             }
-            parse_response(request, id, &answer).map_err(|e| classify(e, &port, id, &name))
+            parse_response(request, id, &answer).map_err(|e| classify(e, &t.port(), id, &name()))
         })
     }
 

@@ -1,13 +1,43 @@
-//! The shared serial line under a TRP-C29U driver: one request at a time, per-request timeout,
-//! retries, and `--trace` output.
+//! The shared serial line under a TRP-C29U driver: one request at a time, the silence before
+//! each, per-request timeout, retries, and `--trace` output.
 
 use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
+use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
+use crate::protocol::c29u::Protocol;
+use crate::protocol::c29u_modbus::{silence_gap, MAX_FRAME_LEN};
 use crate::time::clock::SharedClock;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::C29uError;
+
+/// The longest ASCII answer is 16 characters (`!01C29M090703`, checksum, CR); four times that
+/// leaves room for noise before a whole answer and bounds what a babbling line can fill.
+pub const ASCII_MAX_ANSWER: usize = 64;
+
+/// The silence kept before each ASCII request on a serial line: 1.5 character times, 0.75 ms
+/// above 19200 baud (the shape of Modbus's t1.5). ASCII frames end at their CR, so no module
+/// needs silence to find a frame's end; what a shared RS-485 pair needs is turnaround, the
+/// answering module letting go of the line before the next request starts, and a receiver
+/// that also frames by silence must see the request apart from the answer. Both take well
+/// under 1.5 characters; t3.5 would cost a quarter of a 9600 baud poll, this costs a tenth.
+pub fn ascii_frame_gap(baud: u32) -> Duration {
+    if baud > 19_200 {
+        return Duration::from_micros(750);
+    }
+    // 1.5 characters x 10 bits = 15 bit times.
+    Duration::from_nanos(15_000_000_000 / u64::from(baud.max(1)))
+}
+
+/// The silence `FrameGap::Auto` keeps before each request in `protocol` at `baud`: Modbus
+/// RTU's t3.5 (Modbus over Serial Line 2.5.1.1), or `ascii_frame_gap`.
+pub fn auto_frame_gap(protocol: Protocol, baud: u32) -> Duration {
+    match protocol {
+        Protocol::Modbus => silence_gap(baud),
+        Protocol::Ascii => ascii_frame_gap(baud),
+    }
+}
 
 /// A byte link that several drivers (modules with different IDs on one line) take turns on.
 pub type SharedLink = Arc<Mutex<Box<dyn ByteLink>>>;
@@ -33,16 +63,27 @@ pub(crate) struct Transport {
     pub timeout: Duration,
     /// Further attempts after a timeout or a garbled answer.
     pub retries: u32,
+    protocol: Protocol,
+    frame_gap: FrameGap,
     tracer: Option<Tracer>,
 }
 
 impl Transport {
-    pub fn new(link: SharedLink, clock: SharedClock, timeout: Duration, retries: u32) -> Self {
+    pub fn new(
+        link: SharedLink,
+        clock: SharedClock,
+        timeout: Duration,
+        retries: u32,
+        protocol: Protocol,
+        frame_gap: FrameGap,
+    ) -> Self {
         Self {
             link,
             clock,
             timeout,
             retries,
+            protocol,
+            frame_gap,
             tracer: None,
         }
     }
@@ -67,7 +108,7 @@ impl Transport {
     }
 
     /// One exchange; the line is held for exactly this long, so one dead module costs the
-    /// others at most its own timeout.
+    /// others at most its own timeout (and, at the next request, the settling after it).
     pub fn exchange(
         &mut self,
         request: &[u8],
@@ -75,9 +116,16 @@ impl Transport {
         gap: Option<Duration>,
         frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     ) -> Result<Vec<u8>, ExchangeError> {
+        let (auto_gap, max_answer): (fn(u32) -> Duration, usize) = match self.protocol {
+            Protocol::Modbus => (silence_gap, MAX_FRAME_LEN),
+            Protocol::Ascii => (ascii_frame_gap, ASCII_MAX_ANSWER),
+        };
         let timing = Timing {
             timeout: self.timeout,
             gap,
+            frame_gap: self.frame_gap,
+            auto_gap,
+            max_answer,
         };
         let mut link = self.link.lock().unwrap_or_else(|e| e.into_inner());
         exchange(
@@ -104,6 +152,69 @@ impl Transport {
                 Err(Fault::Retry(e)) if tries_left == 0 => return Err(e),
                 Err(Fault::Retry(_)) => tries_left -= 1,
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::c29u::{share, C29u, C29uError, C29uOptions};
+    use crate::link::memory::MemoryByteLink;
+    use crate::sim::ByteDevice;
+    use crate::time::clock::{Clock, VirtualClock};
+
+    #[test]
+    fn ascii_keeps_one_and_a_half_characters_modbus_three_and_a_half() {
+        assert_eq!(
+            ascii_frame_gap(9600),
+            Duration::from_micros(1562) + Duration::from_nanos(500)
+        );
+        assert_eq!(ascii_frame_gap(115_200), Duration::from_micros(750));
+        assert_eq!(
+            auto_frame_gap(Protocol::Ascii, 19_200),
+            Duration::from_nanos(781_250)
+        );
+        assert_eq!(auto_frame_gap(Protocol::Modbus, 9600), silence_gap(9600));
+        assert_eq!(
+            auto_frame_gap(Protocol::Modbus, 38_400),
+            Duration::from_micros(1750)
+        );
+    }
+
+    struct Silent;
+    impl ByteDevice for Silent {
+        fn receive(&mut self, _bytes: &[u8]) -> Vec<u8> {
+            Vec::new()
+        }
+    }
+
+    #[test]
+    fn a_silent_module_holds_the_line_for_every_try_and_the_settling_before_each_retry() {
+        // What config::feeding counts: tries x (silence + request + timeout), the silence
+        // before a retry being the timeout.
+        for (retries, baud) in [(0u32, 9600), (2, 9600), (3, 1200)] {
+            let clock = VirtualClock::at_epoch();
+            let link = MemoryByteLink::new(Silent, "silent")
+                .with_clock(Arc::new(clock.clone()))
+                .with_line(baud);
+            let options = C29uOptions {
+                baud,
+                timeout: Duration::from_millis(100),
+                retries,
+                ..C29uOptions::default()
+            };
+            let mut dev =
+                C29u::new(share(Box::new(link)), Arc::new(clock.clone()), options).unwrap();
+            assert!(matches!(
+                dev.read_counters(),
+                Err(C29uError::Timeout { .. })
+            ));
+            let request = crate::link::line::wire_time(8, baud);
+            let tries = retries + 1;
+            let expected = (request + Duration::from_millis(100)) * tries
+                + Duration::from_millis(100) * retries;
+            assert_eq!(clock.now(), expected, "{retries} retries at {baud} baud");
         }
     }
 }

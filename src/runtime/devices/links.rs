@@ -2,6 +2,7 @@
 //! (transactions per tick for `--stats`), and a simulated device that can be made to stop
 //! answering (a lost device in scenario tests) or to answer slowly.
 
+use crate::link::line::LineState;
 use crate::link::{ByteLink, LinkError, PacketLink};
 use crate::sim::{ByteDevice, PacketDevice};
 use crate::time::clock::SharedClock;
@@ -39,16 +40,16 @@ impl<L: ByteLink> ByteLink for Counted<L> {
         self.inner.read(buf, timeout)
     }
 
-    fn discard_input(&mut self) -> Result<(), LinkError> {
-        self.inner.discard_input()
-    }
-
     fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
         self.inner.set_baud(baud)
     }
 
     fn describe(&self) -> String {
         self.inner.describe()
+    }
+
+    fn line(&mut self) -> Option<&mut LineState> {
+        self.inner.line()
     }
 }
 
@@ -186,10 +187,6 @@ impl ByteLink for ClosedLink {
 
     fn read(&mut self, _buf: &mut [u8], _timeout: Duration) -> Result<usize, LinkError> {
         Err(closed(&self.0))
-    }
-
-    fn discard_input(&mut self) -> Result<(), LinkError> {
-        Ok(())
     }
 
     fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {

@@ -15,6 +15,7 @@ use crate::link::tcp::TcpLink;
 use crate::link::usb::{UsbPacketLink, UsbTarget};
 use crate::link::{ByteLink, PacketLink};
 use crate::protocol::c29u::baud_code;
+use crate::sim::answer_faults::{AnswerFaults, Faulty};
 use crate::sim::c29u::{C29uModel, Eeprom, ModuleConfig};
 use crate::sim::c29u_line::SimulatedC29u;
 use crate::sim::trc1000::Trc1000Sim;
@@ -92,8 +93,13 @@ fn simulated_trc(
 ) -> (TrcDevice, SimDevice) {
     let board = Arc::new(Mutex::new(Trc1000Sim::new()));
     let presence = Presence::new();
+    let faults = AnswerFaults::default();
     let link = MemoryPacketLink::new(
-        Unpluggable::new(Arc::clone(&board), presence.clone()).with_clock(Arc::clone(clock)),
+        Unpluggable::new(
+            Faulty::new(Arc::clone(&board), faults.clone()),
+            presence.clone(),
+        )
+        .with_clock(Arc::clone(clock)),
         format!("TRC1000 {name}"),
     )
     .with_clock(Arc::clone(clock));
@@ -102,7 +108,11 @@ fn simulated_trc(
     driver.set_timeout(TRC1000_TIMEOUT);
     (
         TrcDevice::new(name, config.clone(), driver, None),
-        SimDevice::Trc { board, presence },
+        SimDevice::Trc {
+            board,
+            presence,
+            faults,
+        },
     )
 }
 
@@ -127,7 +137,8 @@ fn real_trc(
     Ok(TrcDevice::new(name, config.clone(), driver, Some(reopener)))
 }
 
-fn options(c: &C29uConfig) -> C29uOptions {
+/// The driver options a TRP-C29U entry of rig.toml asks for.
+pub fn c29u_options(c: &C29uConfig) -> C29uOptions {
     C29uOptions {
         protocol: c.protocol,
         id: c.id,
@@ -136,6 +147,7 @@ fn options(c: &C29uConfig) -> C29uOptions {
         timeout: c.timeout,
         retries: u32::from(c.retries),
         di_active_low: c.di_active_low,
+        frame_gap: c.frame_gap,
     }
 }
 
@@ -145,14 +157,14 @@ fn drivers(
     line: &SharedLink,
     clock: &SharedClock,
 ) -> Result<(C29u, C29u), OpenError> {
-    let driver = C29u::new(Arc::clone(line), Arc::clone(clock), options(c))
+    let driver = C29u::new(Arc::clone(line), Arc::clone(clock), c29u_options(c))
         .map_err(|e| open_error(name, e))?;
     let probe = C29u::new(
         Arc::clone(line),
         Arc::clone(clock),
         C29uOptions {
             retries: 0,
-            ..options(c)
+            ..c29u_options(c)
         },
     )
     .map_err(|e| open_error(name, e))?;
@@ -177,8 +189,10 @@ fn simulated_c29u(
     let module = SimulatedC29u::new(C29uModel::new(c.protocol, Arc::clone(clock), eeprom));
     let model = module.model();
     let presence = Presence::new();
+    let faults = AnswerFaults::default();
     let link = MemoryByteLink::new(
-        Unpluggable::new(module, presence.clone()).with_clock(Arc::clone(clock)),
+        Unpluggable::new(Faulty::new(module, faults.clone()), presence.clone())
+            .with_clock(Arc::clone(clock)),
         format!("TRP-C29U {name}"),
     )
     .with_clock(Arc::clone(clock));
@@ -186,7 +200,11 @@ fn simulated_c29u(
     let (driver, probe) = drivers(name, c, &line, clock)?;
     Ok((
         C29uDevice::new(name, c.clone(), driver, probe, line, None),
-        SimDevice::C29u { model, presence },
+        SimDevice::C29u {
+            model,
+            presence,
+            faults,
+        },
     ))
 }
 

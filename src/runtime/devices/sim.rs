@@ -2,6 +2,7 @@
 //! switch, turn a knob, energize an input, pull a cable) and what it reads back from them.
 
 use super::links::Presence;
+use crate::sim::answer_faults::{AnswerFault, AnswerFaults};
 use crate::sim::c29u::WatchdogStatus;
 use crate::sim::c29u_line::{lock, SharedModel};
 use crate::sim::trc1000::Trc1000Sim;
@@ -17,6 +18,8 @@ pub enum SimDevice {
         board: Arc<Mutex<Trc1000Sim>>,
         /// Whether it answers.
         presence: Presence,
+        /// Faults waiting for its next answers.
+        faults: AnswerFaults,
     },
     /// A simulated TRP-C29U.
     C29u {
@@ -24,6 +27,8 @@ pub enum SimDevice {
         model: SharedModel,
         /// Whether it answers.
         presence: Presence,
+        /// Faults waiting for its next answers.
+        faults: AnswerFaults,
     },
 }
 
@@ -173,6 +178,30 @@ impl SimRig {
             }
         }
         Ok(())
+    }
+
+    /// Drops (or garbles) the next `n` answers of a simulated device; returns how many were
+    /// queued (`answer_faults::MAX_QUEUED` wait at most).
+    pub fn fault_answers(
+        &self,
+        dev: &str,
+        fault: AnswerFault,
+        n: usize,
+    ) -> Result<usize, FieldError> {
+        match self.get(dev)? {
+            SimDevice::Trc { faults, .. } | SimDevice::C29u { faults, .. } => {
+                Ok(faults.push(fault, n))
+            }
+        }
+    }
+
+    /// Whether a simulated device answers (is not made gone).
+    pub fn answers(&self, dev: &str) -> Result<bool, FieldError> {
+        match self.get(dev)? {
+            SimDevice::Trc { presence, .. } | SimDevice::C29u { presence, .. } => {
+                Ok(!presence.is_gone())
+            }
+        }
     }
 
     /// Makes a simulated device take `delay` over each request (zero: answer at once).

@@ -1,0 +1,301 @@
+//! Polling a TRP-C29U's inputs (FC01) as fast as the line allows: rigscript (`run` with
+//! `--period 1us` and one `io.on_rise` handler) against a C loop over libmodbus's
+//! `modbus_read_bits`, with and without t3.5 of silence before each request, all against the
+//! same simulator (served in this process on a pty) in the same run.
+//!
+//! Through a baud-accurate line (`sim::relay`, each byte held 10 bit times) at 9600 and 115200
+//! baud it reports polls per second (and the share of what a compliant master can reach: 14
+//! characters and t3.5 a poll) and the 2nd, 50th and 99th percentiles of the silence each master
+//! leaves before its requests; straight on the pty (at 115200 baud settings) how fast each
+//! goes. The masters of a setup take turns, 5 rounds of 3 s, and the table shows medians (and
+//! percentiles of every silence seen). Every row shows CPU time per poll of the polling process
+//! (user + system, from the scheduler's accounting, start-up excluded).
+//!
+//! Run: `cargo bench --bench line [WORDS]` (words pick rows: `9600`, `raw`, `libmodbus`...).
+//! `cargo test` runs it for half a second a row, so the comparison never silently drops out;
+//! it needs gcc and libmodbus-dev.
+
+mod common;
+
+use common::Served;
+use rigscript::link::line::wire_time;
+use rigscript::protocol::c29u::Protocol;
+use rigscript::protocol::c29u_modbus::silence_gap;
+use rigscript::sim::relay::LineRelay;
+use rigscript::sim::wire::{Frame, Side};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Who polls.
+#[derive(Clone, Copy)]
+enum Master {
+    /// `rigscript run`, with `frame_gap = "auto"` (t3.5) or `"0s"`.
+    Rigscript { gap: bool },
+    /// The C loop over libmodbus, sleeping t3.5 before each request or not at all.
+    Libmodbus { gap: bool },
+}
+
+impl Master {
+    fn name(self) -> &'static str {
+        match self {
+            Master::Rigscript { gap: true } => "rigscript",
+            Master::Rigscript { gap: false } => "rigscript, frame_gap 0s",
+            Master::Libmodbus { gap: true } => "libmodbus + t3.5 sleep",
+            Master::Libmodbus { gap: false } => "libmodbus back to back",
+        }
+    }
+}
+
+/// Builds the C loop with gcc against libmodbus; fails loudly (never skips) without them.
+fn build_c_loop() -> PathBuf {
+    let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/line/modbus_poll.c");
+    let binary = Path::new(env!("CARGO_TARGET_TMPDIR")).join("modbus_poll");
+    let status = Command::new("gcc")
+        .args(["-O2", "-Wall", "-Werror", "-I/usr/include/modbus", "-o"])
+        .arg(&binary)
+        .arg(&source)
+        .arg("-lmodbus")
+        .status()
+        .unwrap_or_else(|e| panic!("cannot run gcc ({e}): install gcc (and libmodbus-dev)"));
+    assert!(
+        status.success(),
+        "gcc could not build {}: install libmodbus-dev (`.ci/run` does)",
+        source.display()
+    );
+    binary
+}
+
+/// Starts `master` polling `port` at `baud`.
+fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Child {
+    let t35 = silence_gap(baud);
+    let mut command = match master {
+        Master::Rigscript { gap } => {
+            let config = dir.join(format!("rig-{baud}-{gap}.toml"));
+            let frame_gap = if gap { "auto" } else { "0s" };
+            std::fs::write(
+                &config,
+                format!(
+                    "[devices.io]\nkind = \"trp-c29u\"\nport = \"{port}\"\nbaud = {baud}\n\
+                     timeout = \"200ms\"\nframe_gap = \"{frame_gap}\"\n"
+                ),
+            )
+            .expect("write rig.toml");
+            let script = dir.join("poll.rhai");
+            std::fs::write(&script, "io.on_rise(0, || {});\n").expect("write the script");
+            let mut c = Command::new(env!("CARGO_BIN_EXE_rigscript"));
+            c.arg("run")
+                .arg(&script)
+                .arg("--config")
+                .arg(&config)
+                .args(["--period", "1us", "--wake-latency", "off", "--quiet"]);
+            c
+        }
+        Master::Libmodbus { gap } => {
+            let gap_us = if gap { t35.as_micros() } else { 0 };
+            let mut c = Command::new(c_loop);
+            c.arg(port).arg(baud.to_string()).arg(gap_us.to_string());
+            c
+        }
+    };
+    command
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start {}: {e}", master.name()))
+}
+
+/// CPU time of every thread of `pid` (user + system), from the scheduler's accounting.
+fn cpu_time(pid: u32) -> Duration {
+    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).expect("the master is running");
+    let nanos: u64 = tasks
+        .flatten()
+        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .sum();
+    Duration::from_nanos(nanos)
+}
+
+fn percentile(sorted: &[Duration], p: f64) -> Option<Duration> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let rank = ((sorted.len() - 1) as f64 * p / 100.0).round() as usize;
+    sorted.get(rank).copied()
+}
+
+fn ms(d: Option<Duration>) -> String {
+    d.map_or("-".into(), |d| format!("{:.3}", d.as_secs_f64() * 1e3))
+}
+
+/// What one master did in one measurement.
+struct Run {
+    rate: f64,
+    cpu_us: f64,
+    /// Silence before each request, through a relay.
+    silences: Vec<Duration>,
+    /// Requests that got no answer (lost on a loaded machine), through a relay.
+    unanswered: usize,
+}
+
+/// `master` polling for `window` after `warm_up`, through a relay at `baud` or (`relayed`
+/// false) straight on the pty.
+fn measure(
+    master: Master,
+    baud: u32,
+    relayed: bool,
+    (warm_up, window): (Duration, Duration),
+    c_loop: &Path,
+    dir: &Path,
+) -> Run {
+    let served = Served::start(Protocol::Modbus, baud);
+    let relay = relayed.then(|| LineRelay::start(&served.path, baud).expect("start the relay"));
+    let port = relay
+        .as_ref()
+        .map_or(served.path.clone(), |r| r.path().to_string());
+    let child = start(master, &port, baud, c_loop, dir);
+    std::thread::sleep(warm_up);
+    let (cpu0, polls0, at0) = (cpu_time(child.id()), served.answered(), Instant::now());
+    let mark0 = relay.as_ref().map(LineRelay::now);
+    std::thread::sleep(window);
+    let (cpu1, polls1, elapsed) = (cpu_time(child.id()), served.answered(), at0.elapsed());
+    let mark1 = relay.as_ref().map(LineRelay::now);
+    let _ = Command::new("kill")
+        .arg("-TERM")
+        .arg(child.id().to_string())
+        .status();
+    let output = child.wait_with_output().expect("the master ends");
+    // `rigscript run` ends on SIGTERM with 128 + 15, the C loop with 0.
+    assert!(
+        matches!(output.status.code(), Some(0 | 143)),
+        "{} failed: {}",
+        master.name(),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let polls = polls1.saturating_sub(polls0);
+    assert!(polls > 0, "{} made no poll in {window:?}", master.name());
+    let rate = polls as f64 / elapsed.as_secs_f64();
+    let cpu_us = cpu1.saturating_sub(cpu0).as_secs_f64() * 1e6 / polls as f64;
+    let (silences, unanswered) = match (relay, mark0, mark1) {
+        (Some(relay), Some(from), Some(to)) => {
+            let frames: Vec<Frame> = relay
+                .stop()
+                .expect("stop the relay")
+                .into_iter()
+                .filter(|f| f.start >= from && f.start <= to)
+                .collect();
+            let silences = frames
+                .iter()
+                .filter(|f| f.side == Side::Master)
+                .filter_map(|f| f.silence)
+                .collect();
+            // A request followed by another request got no answer.
+            let unanswered = frames
+                .windows(2)
+                .filter(|w| w.iter().all(|f| f.side == Side::Master))
+                .count();
+            (silences, unanswered)
+        }
+        _ => (Vec::new(), 0),
+    };
+    Run {
+        rate,
+        cpu_us,
+        silences,
+        unanswered,
+    }
+}
+
+/// One line of the table from the runs of one master: medians of rate and CPU, percentiles of
+/// every silence seen.
+fn print_row(setup: &str, master: Master, baud: u32, relayed: bool, runs: &[Run]) {
+    let rate = median(runs.iter().map(|r| r.rate).collect());
+    let cpu_us = median(runs.iter().map(|r| r.cpu_us).collect());
+    let mut silences: Vec<Duration> = runs.iter().flat_map(|r| r.silences.clone()).collect();
+    silences.sort();
+    let at = |p| ms(percentile(&silences, p));
+    let t35 = silence_gap(baud);
+    let (share, unanswered) = if relayed {
+        let ideal = 1.0 / (wire_time(14, baud) + t35).as_secs_f64();
+        (
+            format!("{:.0}%", rate / ideal * 100.0),
+            runs.iter().map(|r| r.unanswered).sum::<usize>().to_string(),
+        )
+    } else {
+        ("-".into(), "-".into())
+    };
+    println!(
+        "| {setup} | {} | {rate:.1} | {share} | {} | {} | {} | {unanswered} | {:.3} | {cpu_us:.1} |",
+        master.name(),
+        at(2.0),
+        at(50.0),
+        at(99.0),
+        t35.as_secs_f64() * 1e3,
+    );
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let full = args.iter().any(|a| a == "--bench");
+    // Words given (`cargo bench --bench line -- 9600 libmodbus`) pick rows by setup or master.
+    let words: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
+    let wanted = |setup: &str, master: Master| {
+        words.is_empty()
+            || words
+                .iter()
+                .all(|w| setup.contains(w.as_str()) || master.name().contains(w.as_str()))
+    };
+    // The masters of a setup take turns, round after round, and the table shows medians, so
+    // load that comes and goes on the machine falls on all of them alike.
+    let (times, rounds) = if full {
+        ((Duration::from_millis(500), Duration::from_secs(3)), 5)
+    } else {
+        ((Duration::from_millis(300), Duration::from_millis(500)), 1)
+    };
+    let c_loop = build_c_loop();
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("line-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a scratch directory");
+    println!(
+        "| setup | master | polls/s | of 14 chars + t3.5 | silence p2 ms | p50 ms | p99 ms | unanswered | t3.5 ms | CPU µs/poll |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let on_a_line = [
+        Master::Rigscript { gap: true },
+        Master::Libmodbus { gap: true },
+        Master::Libmodbus { gap: false },
+    ];
+    let on_the_pty = [
+        Master::Rigscript { gap: true },
+        Master::Libmodbus { gap: true },
+        Master::Rigscript { gap: false },
+        Master::Libmodbus { gap: false },
+    ];
+    let setups = [
+        ("9600 baud line", 9600, true, &on_a_line[..]),
+        ("115200 baud line", 115_200, true, &on_a_line[..]),
+        ("raw pty", 115_200, false, &on_the_pty[..]),
+    ];
+    for (setup, baud, relayed, masters) in setups {
+        let masters: Vec<Master> = masters
+            .iter()
+            .copied()
+            .filter(|&m| wanted(setup, m))
+            .collect();
+        let mut runs: Vec<Vec<Run>> = masters.iter().map(|_| Vec::new()).collect();
+        for _ in 0..rounds {
+            for (&master, seen) in masters.iter().zip(runs.iter_mut()) {
+                seen.push(measure(master, baud, relayed, times, &c_loop, &dir));
+            }
+        }
+        for (&master, seen) in masters.iter().zip(runs) {
+            print_row(setup, master, baud, relayed, &seen);
+        }
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

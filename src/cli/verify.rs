@@ -1,0 +1,192 @@
+//! `rigscript verify SCRIPT`: searches the script for a sequence of events on the simulated
+//! rig that breaks one of its invariants or a built-in check, in many runs of virtual time
+//! with a random but plausible field and faults; shrinks what it finds and writes it as a
+//! scenario test; after a pass, reports what was exercised.
+//!
+//! Exit status: 0 nothing found, 1 a counterexample, 2 usage or config error (a script that
+//! cannot run on the simulated rig says why, with the same messages as `check`).
+
+use crate::config::RigConfig;
+use crate::script::check::check;
+use crate::time::duration::{format_duration, parse_duration};
+use crate::verify::exec::Target;
+use crate::verify::{report, search, Options, SHRINK_BUDGET};
+use clap::Args;
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Where counterexamples go unless told otherwise.
+pub const DEFAULT_OUT: &str = "verify-failures";
+
+/// Options of `rigscript verify`.
+#[derive(Debug, Args)]
+pub struct VerifyArgs {
+    /// The script to verify (.rhai).
+    pub script: PathBuf,
+    /// The rig (every device is simulated, as with `run --sim`; default: panel and io).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// How many runs at most.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub runs: u64,
+    /// Virtual time each run lasts ("60s", "5m").
+    #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = run_for)]
+    pub run_for: Duration,
+    /// The seed of the search (printed; the same seed gives the same runs and result).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Worker threads (default: one per core).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=256))]
+    pub jobs: Option<u64>,
+    /// Play only the field: no lost devices, bad answers, stalls, clock steps or stop signals.
+    #[arg(long)]
+    pub no_faults: bool,
+    /// Where the counterexample's test file is written.
+    #[arg(long, default_value = DEFAULT_OUT)]
+    pub out: PathBuf,
+    /// Print one JSON document instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Operations each handler call (and invariant) may take (default: `operations` under
+    /// [limits] in rig.toml, else 1000000). The other limits are rig.toml's.
+    #[arg(long)]
+    pub budget: Option<u64>,
+}
+
+fn run_for(text: &str) -> Result<Duration, String> {
+    match parse_duration(text).map_err(|e| e.to_string())? {
+        d if d.is_zero() => Err("a run needs some time: use \"60s\" or more".into()),
+        d => Ok(d),
+    }
+}
+
+/// The command that repeats this search, for the test file's header.
+fn command(args: &VerifyArgs, seed: u64) -> String {
+    let mut c = format!("rigscript verify {} --seed {seed}", args.script.display());
+    if let Some(p) = &args.config {
+        c.push_str(&format!(" --config {}", p.display()));
+    }
+    if args.run_for != Duration::from_secs(60) {
+        c.push_str(&format!(" --for {}", format_duration(args.run_for)));
+    }
+    if args.no_faults {
+        c.push_str(" --no-faults");
+    }
+    c
+}
+
+/// Prints a line on standard output; a reader that went away (`| head`) is no error.
+fn say(line: &str) {
+    let _ = writeln!(std::io::stdout().lock(), "{line}");
+}
+
+/// Runs `rigscript verify`; returns the exit status.
+pub fn run(args: VerifyArgs) -> i32 {
+    let mut config = match &args.config {
+        Some(path) => match RigConfig::load(path) {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("rigscript verify: {e}");
+                return 2;
+            }
+        },
+        None => RigConfig::simulated_default(),
+    };
+    // Runs are simulated: they never append to the rig's records file.
+    config.records = None;
+    let file = args.script.display().to_string();
+    let source = match std::fs::read_to_string(&args.script) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("rigscript verify: cannot read {file}: {e}");
+            return 2;
+        }
+    };
+    let problems = check(&source, &config);
+    if !problems.is_empty() {
+        for p in &problems {
+            eprintln!("{file}:{p}");
+        }
+        eprintln!(
+            "rigscript verify: {file} cannot run on the simulated rig ({} problem(s)); fix it \
+             first (`rigscript check {file}`)",
+            problems.len()
+        );
+        return 2;
+    }
+    let seed = args.seed.unwrap_or_else(|| fastrand::u64(..));
+    let jobs = args.jobs.map_or_else(
+        || std::thread::available_parallelism().map_or(1, usize::from),
+        |j| usize::try_from(j).unwrap_or(1),
+    );
+    let opts = Options {
+        runs: args.runs,
+        seed,
+        jobs,
+        faults: !args.no_faults,
+        shrink: SHRINK_BUDGET,
+    };
+    let target = Target {
+        source,
+        file: file.clone(),
+        budget: args.budget.unwrap_or(config.limits.operations),
+        config,
+        run_for: args.run_for,
+    };
+    if !args.json {
+        say(&format!(
+            "verify {file}: seed {seed}, up to {} runs of {} at {} per tick, faults {}, {jobs} \
+             job(s)",
+            args.runs,
+            format_duration(args.run_for),
+            format_duration(target.config.period),
+            if args.no_faults { "off" } else { "on" }
+        ));
+    }
+    let show_progress = !args.json && std::io::stderr().is_terminal();
+    let total = args.runs;
+    let summary = match search(&target, &opts, |done| {
+        if show_progress {
+            eprint!("\r{done}/{total} runs");
+        }
+    }) {
+        Ok(s) => s,
+        Err(e) => {
+            if show_progress {
+                eprintln!();
+            }
+            eprintln!("rigscript verify: {file} cannot run on the simulated rig: {e}");
+            return 2;
+        }
+    };
+    if show_progress {
+        eprintln!();
+    }
+    let mut test = None;
+    if let Some(c) = &summary.counterexample {
+        match report::write_test(
+            &args.out,
+            &args.script,
+            args.config.as_deref(),
+            &target,
+            &summary,
+            c,
+            &command(&args, seed),
+        ) {
+            Ok(p) => test = Some(p),
+            Err(e) => eprintln!(
+                "rigscript verify: cannot write the counterexample's test under {}: {e}",
+                args.out.display()
+            ),
+        }
+    }
+    if args.json {
+        say(&report::to_json(&summary, &opts, test.as_deref()).to_string());
+    } else {
+        for line in report::human(&summary, &opts, test.as_deref()) {
+            say(&line);
+        }
+    }
+    i32::from(summary.counterexample.is_some())
+}

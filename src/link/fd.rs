@@ -1,0 +1,227 @@
+//! Byte I/O on a non-blocking file descriptor with the fewest system calls: a read that tells at
+//! once whether anything is there, a read that waits (one `poll`, then `read`), and a write whose
+//! wait for room is bounded. Serial ports and TCP sockets both go through here.
+
+use std::io;
+use std::os::fd::RawFd;
+use std::time::{Duration, Instant};
+
+/// Puts `fd` in non-blocking mode, so a read with nothing to read returns at once.
+pub fn set_nonblocking(fd: RawFd) -> io::Result<()> {
+    // SAFETY: fcntl on a descriptor the caller owns; no pointers.
+    let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+    if flags < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    // SAFETY: as above.
+    if unsafe { libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) } < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+/// What a read found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Read {
+    /// This many bytes (at least one).
+    Bytes(usize),
+    /// Nothing arrived (in time).
+    Nothing,
+    /// The far end has gone (a hung-up tty, a closed socket).
+    Closed,
+}
+
+/// Reads what is there now, without waiting.
+pub fn read_now(fd: RawFd, buf: &mut [u8]) -> io::Result<Read> {
+    if buf.is_empty() {
+        return Ok(Read::Nothing);
+    }
+    loop {
+        // SAFETY: `buf` is valid for writes of `buf.len()` bytes.
+        let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
+        if n > 0 {
+            return Ok(Read::Bytes(n.unsigned_abs()));
+        }
+        if n == 0 {
+            return Ok(Read::Closed);
+        }
+        let e = io::Error::last_os_error();
+        match e.kind() {
+            io::ErrorKind::WouldBlock => return Ok(Read::Nothing),
+            io::ErrorKind::Interrupted => continue,
+            _ => return Err(e),
+        }
+    }
+}
+
+/// Waits up to `timeout` for bytes, then reads what is there. Costs one `poll` and one `read`
+/// when bytes come; a `timeout` of zero only looks (one `read`).
+pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<Read> {
+    if timeout.is_zero() {
+        return read_now(fd, buf);
+    }
+    let deadline = Instant::now().checked_add(timeout);
+    loop {
+        let left = deadline.map_or(timeout, |d| d.saturating_duration_since(Instant::now()));
+        match wait(fd, libc::POLLIN, left)? {
+            Ready::Yes => {}
+            Ready::Hangup => {
+                return read_now(fd, buf).map(|r| match r {
+                    Read::Nothing => Read::Closed,
+                    other => other,
+                })
+            }
+            Ready::No => return Ok(Read::Nothing),
+        }
+        match read_now(fd, buf)? {
+            // Readable but nothing to read: another reader took it; wait out the rest.
+            Read::Nothing if !left.is_zero() => continue,
+            other => return Ok(other),
+        }
+    }
+}
+
+/// Writes all of `bytes`, waiting at most `timeout` in all for room (a stalled adapter or a
+/// peer that stopped reading ends in `TimedOut` instead of holding the caller).
+pub fn write_all_within(fd: RawFd, mut bytes: &[u8], timeout: Duration) -> io::Result<()> {
+    let deadline = Instant::now().checked_add(timeout);
+    while !bytes.is_empty() {
+        // SAFETY: `bytes` is valid for reads of `bytes.len()` bytes.
+        let n = unsafe { libc::write(fd, bytes.as_ptr().cast(), bytes.len()) };
+        if n > 0 {
+            bytes = bytes.get(n.unsigned_abs()..).unwrap_or_default();
+            continue;
+        }
+        let e = io::Error::last_os_error();
+        match e.kind() {
+            io::ErrorKind::Interrupted => continue,
+            io::ErrorKind::WouldBlock => {
+                let left =
+                    deadline.map_or(timeout, |d| d.saturating_duration_since(Instant::now()));
+                if left.is_zero() || wait(fd, libc::POLLOUT, left)? == Ready::No {
+                    return Err(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        format!("could not send for {timeout:?}: the other end takes no data"),
+                    ));
+                }
+            }
+            _ => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// Waits up to `timeout` until one of `fds` has bytes to read (or has hung up); tells which.
+pub fn wait_readable(fds: &[RawFd], timeout: Duration) -> io::Result<Vec<bool>> {
+    let mut pfds: Vec<libc::pollfd> = fds
+        .iter()
+        .map(|&fd| libc::pollfd {
+            fd,
+            events: libc::POLLIN,
+            revents: 0,
+        })
+        .collect();
+    let ts = timespec(timeout);
+    loop {
+        // SAFETY: `pfds` is a valid array of `pfds.len()` pollfds; a valid timespec.
+        let n = unsafe {
+            libc::ppoll(
+                pfds.as_mut_ptr(),
+                pfds.len() as libc::nfds_t,
+                &ts,
+                std::ptr::null(),
+            )
+        };
+        if n >= 0 {
+            return Ok(pfds.iter().map(|p| p.revents != 0).collect());
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
+fn timespec(timeout: Duration) -> libc::timespec {
+    libc::timespec {
+        tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
+        tv_nsec: libc::c_long::from(timeout.subsec_nanos()),
+    }
+}
+
+#[derive(Debug, PartialEq, Eq)]
+enum Ready {
+    Yes,
+    No,
+    Hangup,
+}
+
+fn wait(fd: RawFd, events: libc::c_short, timeout: Duration) -> io::Result<Ready> {
+    let mut pfd = libc::pollfd {
+        fd,
+        events,
+        revents: 0,
+    };
+    let ts = timespec(timeout);
+    loop {
+        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+        let n = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+        if n > 0 {
+            if pfd.revents & events != 0 {
+                return Ok(Ready::Yes);
+            }
+            if pfd.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0 {
+                return Ok(Ready::Hangup);
+            }
+            return Ok(Ready::No);
+        }
+        if n == 0 {
+            return Ok(Ready::No);
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::fd::AsRawFd;
+    use std::os::unix::net::UnixStream;
+
+    #[test]
+    fn reads_tell_nothing_bytes_and_closed_apart() {
+        let (a, b) = UnixStream::pair().unwrap();
+        set_nonblocking(a.as_raw_fd()).unwrap();
+        let mut buf = [0u8; 8];
+        assert_eq!(read_now(a.as_raw_fd(), &mut buf).unwrap(), Read::Nothing);
+        assert_eq!(
+            read_within(a.as_raw_fd(), &mut buf, Duration::from_millis(10)).unwrap(),
+            Read::Nothing
+        );
+        write_all_within(b.as_raw_fd(), b"hi", Duration::from_secs(1)).unwrap();
+        assert_eq!(
+            read_within(a.as_raw_fd(), &mut buf, Duration::from_secs(1)).unwrap(),
+            Read::Bytes(2)
+        );
+        assert_eq!(&buf[..2], b"hi");
+        drop(b);
+        assert_eq!(
+            read_within(a.as_raw_fd(), &mut buf, Duration::from_secs(1)).unwrap(),
+            Read::Closed
+        );
+    }
+
+    #[test]
+    fn a_write_nobody_reads_gives_up_in_time() {
+        let (a, _b) = UnixStream::pair().unwrap();
+        set_nonblocking(a.as_raw_fd()).unwrap();
+        let big = vec![0u8; 16 << 20];
+        let started = Instant::now();
+        let err = write_all_within(a.as_raw_fd(), &big, Duration::from_millis(100)).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::TimedOut);
+        assert!(started.elapsed() < Duration::from_secs(5));
+    }
+}

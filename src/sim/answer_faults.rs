@@ -1,0 +1,166 @@
+//! Faults in a simulated device's answers, on demand: the next answers dropped (the driver
+//! times out) or garbled (a byte of each gets its top bit flipped, which no frame of either
+//! TRP-C29U protocol survives: the CRC or checksum fails, or the ASCII turns non-ASCII). Put
+//! between an in-memory link and its simulator; a scenario test or `verify` queues the faults.
+//!
+//! (Drawn faults at a probability per answer are `pty::Faults`, for the pty server.)
+
+use super::{ByteDevice, PacketDevice};
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+
+/// Faults queued at most per device: each takes one answer, so a longer queue would not be
+/// plausible noise but a dead line (make the device gone for that).
+pub const MAX_QUEUED: usize = 64;
+
+/// What happens to one answer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AnswerFault {
+    /// The answer never arrives.
+    Drop,
+    /// The answer arrives with one byte's top bit flipped.
+    Garble,
+}
+
+/// The faults waiting for a device's next answers; shared between the wrapper and whoever
+/// queues them.
+#[derive(Debug, Clone, Default)]
+pub struct AnswerFaults(Arc<Mutex<VecDeque<AnswerFault>>>);
+
+impl AnswerFaults {
+    fn queue(&self) -> std::sync::MutexGuard<'_, VecDeque<AnswerFault>> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Queues `fault` for each of the next `n` answers (after those already queued); returns
+    /// how many were queued (the queue holds `MAX_QUEUED` at most).
+    pub fn push(&self, fault: AnswerFault, n: usize) -> usize {
+        let mut q = self.queue();
+        let room = MAX_QUEUED.saturating_sub(q.len()).min(n);
+        q.extend(std::iter::repeat(fault).take(room));
+        room
+    }
+
+    /// How many faults are waiting.
+    pub fn pending(&self) -> usize {
+        self.queue().len()
+    }
+
+    /// Forgets the waiting faults.
+    pub fn clear(&self) {
+        self.queue().clear();
+    }
+
+    fn next(&self) -> Option<AnswerFault> {
+        self.queue().pop_front()
+    }
+}
+
+/// Flips the top bit of the middle byte of `answer`.
+fn garble(mut answer: Vec<u8>) -> Vec<u8> {
+    let at = answer.len() / 2;
+    if let Some(b) = answer.get_mut(at) {
+        *b ^= 0x80;
+    }
+    answer
+}
+
+/// A simulated device whose answers suffer the faults queued in its `AnswerFaults`.
+pub struct Faulty<D> {
+    inner: D,
+    faults: AnswerFaults,
+}
+
+impl<D> Faulty<D> {
+    /// `inner`, with answers subject to `faults`.
+    pub fn new(inner: D, faults: AnswerFaults) -> Self {
+        Self { inner, faults }
+    }
+
+    fn apply(&self, answer: Vec<u8>) -> Vec<u8> {
+        if answer.is_empty() {
+            return answer;
+        }
+        match self.faults.next() {
+            None => answer,
+            Some(AnswerFault::Drop) => Vec::new(),
+            Some(AnswerFault::Garble) => garble(answer),
+        }
+    }
+}
+
+impl<D: ByteDevice> ByteDevice for Faulty<D> {
+    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+        let answer = self.inner.receive(bytes);
+        self.apply(answer)
+    }
+
+    fn line_idle(&mut self) -> Vec<u8> {
+        let answer = self.inner.line_idle();
+        self.apply(answer)
+    }
+}
+
+impl<D: PacketDevice> PacketDevice for Faulty<D> {
+    fn receive(&mut self, packet: &[u8; 8]) -> Option<[u8; 8]> {
+        let answer = self.inner.receive(packet)?;
+        match self.faults.next() {
+            None => Some(answer),
+            // USB packets carry a CRC: a garbled one is never delivered, so it is lost too.
+            Some(AnswerFault::Drop | AnswerFault::Garble) => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Echo;
+    impl ByteDevice for Echo {
+        fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+            bytes.to_vec()
+        }
+    }
+    impl PacketDevice for Echo {
+        fn receive(&mut self, packet: &[u8; 8]) -> Option<[u8; 8]> {
+            Some(*packet)
+        }
+    }
+
+    #[test]
+    fn queued_faults_take_the_next_answers_in_order() {
+        let faults = AnswerFaults::default();
+        let mut d = Faulty::new(Echo, faults.clone());
+        assert_eq!(faults.push(AnswerFault::Drop, 1), 1);
+        assert_eq!(faults.push(AnswerFault::Garble, 1), 1);
+        assert_eq!(ByteDevice::receive(&mut d, b"abc"), b"");
+        assert_eq!(
+            ByteDevice::receive(&mut d, b"abc"),
+            [b'a', b'b' ^ 0x80, b'c']
+        );
+        assert_eq!(ByteDevice::receive(&mut d, b"abc"), b"abc");
+        assert_eq!(faults.pending(), 0);
+    }
+
+    #[test]
+    fn silence_does_not_use_up_a_fault_and_the_queue_is_bounded() {
+        let faults = AnswerFaults::default();
+        let mut d = Faulty::new(Echo, faults.clone());
+        faults.push(AnswerFault::Drop, 1);
+        assert_eq!(ByteDevice::receive(&mut d, b""), b"");
+        assert_eq!(faults.pending(), 1, "no answer, nothing to drop");
+        assert_eq!(faults.push(AnswerFault::Drop, 1000), MAX_QUEUED - 1);
+        faults.clear();
+        assert_eq!(faults.pending(), 0);
+    }
+
+    #[test]
+    fn a_garbled_usb_packet_is_lost() {
+        let faults = AnswerFaults::default();
+        let mut d = Faulty::new(Echo, faults.clone());
+        faults.push(AnswerFault::Garble, 1);
+        assert_eq!(PacketDevice::receive(&mut d, &[1; 8]), None);
+        assert_eq!(PacketDevice::receive(&mut d, &[1; 8]), Some([1; 8]));
+    }
+}

@@ -1,0 +1,344 @@
+//! Coverage, so a pass means something: how often each handler fired, how often the values
+//! each invariant reads changed, and which values the script reads never changed at all.
+//! A handler that never fired or an invariant whose values never changed is a warning.
+
+use crate::device::c29u::Latches;
+use crate::protocol::trc1000::{Rotary, RotaryValues, Switch, SwitchSet};
+use crate::runtime::devices::Device;
+use crate::script::reads::{Item, ReadSet};
+use crate::script::rig::Rig;
+use serde_json::{json, Value};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// What one device showed at the end of a tick, for telling what changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct Shown {
+    switches: Option<SwitchSet>,
+    rotaries: Option<RotaryValues>,
+    inputs: Option<u8>,
+    counters: Option<[u16; 8]>,
+    latches: Option<(u8, u8)>,
+    online: bool,
+    outputs: u8,
+    relay: u8,
+}
+
+impl Shown {
+    fn of(d: &Device) -> Self {
+        match d {
+            Device::Trc(t) => Shown {
+                switches: t.switches.current,
+                rotaries: t.rotaries.current,
+                online: t.health.online(),
+                relay: t.relay,
+                ..Shown::default()
+            },
+            Device::C29u(c) => Shown {
+                inputs: c.inputs.current,
+                counters: c.counters.current,
+                latches: c.latches.current.map(
+                    |Latches {
+                         energized,
+                         released,
+                         ..
+                     }| (energized, released),
+                ),
+                online: c.health.online(),
+                outputs: c.outputs,
+                ..Shown::default()
+            },
+        }
+    }
+
+    /// The items that differ from `before`, as a mask.
+    fn changed(&self, before: &Shown) -> u128 {
+        let mut m = 0u128;
+        if self.switches != before.switches {
+            let (a, b) = (
+                before.switches.unwrap_or_default(),
+                self.switches.unwrap_or_default(),
+            );
+            for s in Switch::all() {
+                if a.is_pressed(s) != b.is_pressed(s) {
+                    m |= Item::Switch(s).mask();
+                }
+            }
+        }
+        if self.rotaries != before.rotaries {
+            let (a, b) = (
+                before.rotaries.unwrap_or_default(),
+                self.rotaries.unwrap_or_default(),
+            );
+            for r in Rotary::ALL {
+                if a.get(r) != b.get(r) {
+                    m |= Item::Rotary(r).mask();
+                }
+            }
+        }
+        if self.inputs != before.inputs {
+            let diff = self.inputs.unwrap_or(0) ^ before.inputs.unwrap_or(0);
+            for ch in 0..8u8 {
+                if diff & (1 << ch) != 0 {
+                    m |= Item::Input(ch).mask();
+                }
+            }
+        }
+        if self.counters != before.counters {
+            let (a, b) = (
+                before.counters.unwrap_or([0; 8]),
+                self.counters.unwrap_or([0; 8]),
+            );
+            for (ch, (x, y)) in (0u8..).zip(a.iter().zip(b.iter())) {
+                if x != y {
+                    m |= Item::Counter(ch).mask();
+                }
+            }
+        }
+        if self.latches != before.latches {
+            m |= Item::Latches.mask();
+        }
+        if self.online != before.online {
+            m |= Item::Online.mask();
+        }
+        if self.outputs != before.outputs {
+            m |= Item::Outputs.mask();
+        }
+        if self.relay != before.relay {
+            m |= Item::Relay.mask();
+        }
+        m
+    }
+}
+
+/// What one run exercised (and, summed, what all runs did).
+#[derive(Debug, Clone, Default)]
+pub struct Coverage {
+    /// Runs summed in.
+    pub runs: u64,
+    /// Ticks in all.
+    pub ticks: u64,
+    /// Device names by index.
+    pub devices: Vec<String>,
+    /// Handler label → times it ran.
+    pub fired: BTreeMap<String, u64>,
+    /// Handlers the script had at some point, fired or not.
+    pub handlers: BTreeSet<String>,
+    /// What the top level and the handlers read.
+    pub script_reads: ReadSet,
+    /// Invariant name → what it read.
+    pub invariant_reads: BTreeMap<String, ReadSet>,
+    /// Invariant name → ticks in which a value it reads changed.
+    pub invariant_changes: BTreeMap<String, u64>,
+    /// (device, item) → ticks in which it changed.
+    pub changes: BTreeMap<(usize, Item), u64>,
+    last: Vec<Shown>,
+}
+
+impl Coverage {
+    /// Starts following a rig.
+    pub fn start(rig: &Rig) -> Self {
+        let rt = rig.runner.runtime().borrow();
+        Self {
+            runs: 1,
+            devices: rt.devices.iter().map(|d| d.name().to_string()).collect(),
+            last: rt.devices.iter().map(Shown::of).collect(),
+            ..Self::default()
+        }
+    }
+
+    /// Notes what changed in the tick that just ran.
+    pub fn after_tick(&mut self, rig: &Rig) {
+        self.ticks = self.ticks.saturating_add(1);
+        let rt = rig.runner.runtime().borrow();
+        let invariants = rig.runner.program().coverage();
+        for (idx, d) in rt.devices.iter().enumerate() {
+            let now = Shown::of(d);
+            let Some(before) = self.last.get_mut(idx) else {
+                continue;
+            };
+            let changed = now.changed(before);
+            *before = now;
+            if changed == 0 {
+                continue;
+            }
+            let mut rest = changed;
+            while rest != 0 {
+                let bit = rest.trailing_zeros();
+                rest &= rest - 1;
+                if let Some(item) = Item::from_bit(bit) {
+                    *self.changes.entry((idx, item)).or_default() += 1;
+                }
+            }
+            if let Some(c) = invariants {
+                for (name, reads) in &c.invariant_reads {
+                    if reads.mask(idx) & changed != 0 {
+                        *self.invariant_changes.entry(name.clone()).or_default() += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Takes in what the program counted and the handlers it has, at the end of the run.
+    pub fn finish(&mut self, rig: &Rig) {
+        let rt = rig.runner.runtime().borrow();
+        for s in rt.handlers.list() {
+            self.handlers.insert(s.label.clone());
+        }
+        if let Some(c) = rig.runner.program().coverage() {
+            for (label, n) in &c.fired {
+                *self.fired.entry(label.clone()).or_default() += n;
+                self.handlers.insert(label.clone());
+            }
+            self.script_reads.union(&c.script_reads);
+            for (name, reads) in &c.invariant_reads {
+                self.invariant_reads
+                    .entry(name.clone())
+                    .or_default()
+                    .union(reads);
+            }
+        }
+        for inv in &rt.invariants {
+            self.invariant_reads.entry(inv.name.clone()).or_default();
+        }
+    }
+
+    /// Adds another run's coverage.
+    pub fn merge(&mut self, other: &Coverage) {
+        self.runs += other.runs;
+        self.ticks += other.ticks;
+        if self.devices.is_empty() {
+            self.devices.clone_from(&other.devices);
+        }
+        for (k, v) in &other.fired {
+            *self.fired.entry(k.clone()).or_default() += v;
+        }
+        self.handlers.extend(other.handlers.iter().cloned());
+        self.script_reads.union(&other.script_reads);
+        for (k, v) in &other.invariant_reads {
+            self.invariant_reads.entry(k.clone()).or_default().union(v);
+        }
+        for (k, v) in &other.invariant_changes {
+            *self.invariant_changes.entry(k.clone()).or_default() += v;
+        }
+        for (k, v) in &other.changes {
+            *self.changes.entry(*k).or_default() += v;
+        }
+    }
+
+    fn item_name(&self, dev: usize, item: Item) -> String {
+        let d = self.devices.get(dev).map_or("?", String::as_str);
+        format!("{d} {item}")
+    }
+
+    /// Everything the script reads (handlers, top level, invariants), but what it set
+    /// itself (its outputs).
+    pub fn all_reads(&self) -> ReadSet {
+        let mut all = self.script_reads.clone();
+        for r in self.invariant_reads.values() {
+            all.union(r);
+        }
+        all
+    }
+
+    /// Inputs the script reads that never changed in any run.
+    pub fn unchanged_inputs(&self) -> Vec<String> {
+        self.all_reads()
+            .items()
+            .into_iter()
+            .filter(|(_, item)| !matches!(item, Item::Outputs | Item::Relay))
+            .filter(|(dev, item)| !self.changes.contains_key(&(*dev, *item)))
+            .map(|(dev, item)| self.item_name(dev, item))
+            .collect()
+    }
+
+    /// The warnings: handlers that never fired, invariants whose values never changed.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for h in &self.handlers {
+            if h != "on_stop" && !self.fired.contains_key(h) {
+                out.push(format!("handler {h} never fired"));
+            }
+        }
+        for name in self.invariant_reads.keys() {
+            if self.invariant_changes.get(name).copied().unwrap_or(0) == 0 {
+                out.push(format!(
+                    "invariant {name:?}: the values it reads never changed, so it was never \
+                     put to the test"
+                ));
+            }
+        }
+        out
+    }
+
+    /// The report in lines for people.
+    pub fn lines(&self) -> Vec<String> {
+        let mut out = vec![format!(
+            "coverage over {} run(s), {} ticks:",
+            self.runs, self.ticks
+        )];
+        for h in &self.handlers {
+            let n = self.fired.get(h).copied().unwrap_or(0);
+            out.push(format!("  handler {h}: fired {n} times"));
+        }
+        for (name, reads) in &self.invariant_reads {
+            let n = self.invariant_changes.get(name).copied().unwrap_or(0);
+            let what: Vec<String> = reads
+                .items()
+                .into_iter()
+                .map(|(d, i)| self.item_name(d, i))
+                .collect();
+            out.push(format!(
+                "  invariant {name:?}: the values it reads changed in {n} ticks ({})",
+                if what.is_empty() {
+                    "it reads nothing from the devices".to_string()
+                } else {
+                    what.join(", ")
+                }
+            ));
+        }
+        let unchanged = self.unchanged_inputs();
+        if !unchanged.is_empty() {
+            out.push(format!(
+                "  read but never changed: {}",
+                unchanged.join(", ")
+            ));
+        }
+        out
+    }
+
+    /// The report as JSON.
+    pub fn to_json(&self) -> Value {
+        let invariants: serde_json::Map<String, Value> = self
+            .invariant_reads
+            .iter()
+            .map(|(name, reads)| {
+                let what: Vec<String> = reads
+                    .items()
+                    .into_iter()
+                    .map(|(d, i)| self.item_name(d, i))
+                    .collect();
+                (
+                    name.clone(),
+                    json!({
+                        "reads": what,
+                        "changed_ticks": self.invariant_changes.get(name).copied().unwrap_or(0),
+                    }),
+                )
+            })
+            .collect();
+        let handlers: serde_json::Map<String, Value> = self
+            .handlers
+            .iter()
+            .map(|h| (h.clone(), json!(self.fired.get(h).copied().unwrap_or(0))))
+            .collect();
+        json!({
+            "runs": self.runs,
+            "ticks": self.ticks,
+            "handlers": handlers,
+            "invariants": invariants,
+            "unchanged_inputs": self.unchanged_inputs(),
+            "warnings": self.warnings(),
+        })
+    }
+}

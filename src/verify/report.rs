@@ -1,0 +1,186 @@
+//! What `verify` tells people: the counterexample as one readable line and as a scenario test
+//! written to a file, or, after a pass, what was exercised and the warnings; or all of it as
+//! one JSON document.
+
+use super::checks::Watch;
+use super::exec::Target;
+use super::plan::{time_text, trace};
+use super::testfile::{relative, TestFile};
+use super::{Counterexample, Options, Summary};
+use crate::time::duration::format_duration;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+
+/// The one-line story of a counterexample: its events, then what failed.
+pub fn story(c: &Counterexample) -> String {
+    let events = trace(&c.events);
+    let failed = format!(
+        "{} false at {}: {}",
+        c.finding.check,
+        time_text(c.finding.at),
+        c.finding.detail
+    );
+    if events.is_empty() {
+        failed
+    } else {
+        format!("{events} → {failed}")
+    }
+}
+
+/// Where the counterexample's test goes: `DIR/<script>-<check>-seed<S>-run<N>.test.rhai`.
+pub fn test_path(out: &Path, script: &Path, seed: u64, c: &Counterexample) -> PathBuf {
+    let stem = script
+        .file_stem()
+        .map_or_else(|| "script".into(), |s| s.to_string_lossy().into_owned());
+    out.join(format!(
+        "{stem}-{}-seed{seed}-run{}.test.rhai",
+        c.finding.check.slug(),
+        c.run + 1
+    ))
+}
+
+/// Absolute, with `.` and `..` resolved where the path exists.
+fn absolute(p: &Path) -> PathBuf {
+    std::fs::canonicalize(p).unwrap_or_else(|_| {
+        std::env::current_dir()
+            .map(|d| d.join(p))
+            .unwrap_or_else(|_| p.to_path_buf())
+    })
+}
+
+/// Writes the counterexample's scenario test under `out` (created if missing); its path.
+pub fn write_test(
+    out: &Path,
+    script: &Path,
+    config: Option<&Path>,
+    target: &Target,
+    summary: &Summary,
+    c: &Counterexample,
+    command: &str,
+) -> std::io::Result<PathBuf> {
+    std::fs::create_dir_all(out)?;
+    let path = test_path(out, script, summary.seed, c);
+    let dir = absolute(out);
+    let script_rel = relative(&dir, &absolute(script));
+    let config_rel = config.map(|p| relative(&dir, &absolute(p)));
+    let header = vec![
+        format!(
+            "Found by `{command}` (seed {}, run {} of {}): {} event(s), shrunk from {}.",
+            summary.seed,
+            c.run + 1,
+            summary.runs,
+            c.events.len(),
+            c.original_events
+        ),
+        story(c),
+        format!("Run it: rigscript test {}", path.display()),
+    ];
+    let watch = Watch::new(&target.config);
+    let text = TestFile {
+        script: &script_rel,
+        config: config_rel.as_deref(),
+        start: &c.start,
+        steps: &c.steps,
+        finding: &c.finding,
+        safe_states: &watch.safe_states(),
+        header: &header,
+    }
+    .render();
+    std::fs::write(&path, text)?;
+    Ok(path)
+}
+
+/// The lines for people.
+pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<String> {
+    let mut out = Vec::new();
+    match &summary.counterexample {
+        Some(c) => {
+            out.push(format!(
+                "counterexample in run {} of seed {} (found after {:.1} s): {}",
+                c.run + 1,
+                summary.seed,
+                summary.search_time.as_secs_f64(),
+                c.found.check
+            ));
+            out.push(format!(
+                "shrunk from {} to {} event(s) in {} replays ({:.1} s){}:",
+                c.original_events,
+                c.events.len(),
+                c.replays,
+                c.shrink_time.as_secs_f64(),
+                if c.exhausted {
+                    ", stopped at the shrinking budget"
+                } else {
+                    ""
+                }
+            ));
+            out.push(format!("  {}", story(c)));
+            if let Some(p) = test {
+                out.push(format!("written to {}", p.display()));
+                out.push(format!("reproduce: rigscript test {}", p.display()));
+            }
+        }
+        None => {
+            out.push(format!(
+                "no counterexample in {} runs of {} ({} ticks, {} events, {} of them faults) \
+                 in {:.1} s; seed {}",
+                summary.runs,
+                format_duration(summary.run_for),
+                summary.coverage.ticks,
+                summary.events,
+                summary.faults,
+                summary.search_time.as_secs_f64(),
+                summary.seed
+            ));
+            if !opts.faults {
+                out.push("faults were off (--no-faults)".into());
+            }
+            out.extend(summary.coverage.lines());
+            for w in summary.coverage.warnings() {
+                out.push(format!("warning: {w}"));
+            }
+        }
+    }
+    out
+}
+
+/// The JSON document.
+pub fn to_json(summary: &Summary, opts: &Options, test: Option<&Path>) -> Value {
+    let counterexample = summary.counterexample.as_ref().map(|c| {
+        let events: Vec<Value> = c
+            .events
+            .iter()
+            .map(|e| json!({"at_ms": e.at.as_secs_f64() * 1000.0, "event": e.action.to_string()}))
+            .collect();
+        json!({
+            "run": c.run + 1,
+            "check": c.finding.check.to_string(),
+            "name": c.finding.check.name(),
+            "at_ms": c.finding.at.as_secs_f64() * 1000.0,
+            "detail": c.finding.detail,
+            "events": events,
+            "story": story(c),
+            "shrunk_from": c.original_events,
+            "replays": c.replays,
+            "shrink_exhausted": c.exhausted,
+            "start": c.start.wall_text(),
+            "zone": c.start.zone,
+            "test_file": test.map(|p| p.display().to_string()),
+        })
+    });
+    let passed = summary.counterexample.is_none();
+    json!({
+        "seed": summary.seed,
+        "runs": summary.runs,
+        "run_for_ms": summary.run_for.as_secs_f64() * 1000.0,
+        "faults": opts.faults,
+        "search_s": summary.search_time.as_secs_f64(),
+        "result": if counterexample.is_some() { "counterexample" } else { "pass" },
+        "counterexample": counterexample,
+        // Totals and coverage only after a pass: when a run failed, runs after it may or may
+        // not have finished, so they would differ between invocations.
+        "events": if passed { json!(summary.events) } else { Value::Null },
+        "fault_events": if passed { json!(summary.faults) } else { Value::Null },
+        "coverage": if passed { summary.coverage.to_json() } else { Value::Null },
+    })
+}

@@ -1,0 +1,351 @@
+//! Shrinking a counterexample to one a person can act on: the fewest events, each as simple as
+//! it can be, as early and as close together as they can be, that still make the same check
+//! fail. Greedy and deterministic: drop chunks of events, halving the chunk size down to single
+//! events (delta debugging); simplify each event (fewer pulses, fewer inputs, a shorter stall);
+//! shorten each wait (to nothing first: two events between the same two ticks, then by halves),
+//! the wait before the end too. Repeats until nothing helps or the budget is spent.
+
+use super::plan::{Event, Plan};
+use std::time::{Duration, Instant};
+
+/// A plan and how long its run lasts.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Candidate {
+    /// The plan.
+    pub plan: Plan,
+    /// The run ends here.
+    pub horizon: Duration,
+}
+
+/// What one replay of a candidate showed, when it still fails the same check.
+pub trait Replay {
+    /// When the check failed.
+    fn at(&self) -> Duration;
+    /// How many of the plan's events were played before it failed.
+    fn played(&self) -> usize;
+}
+
+/// How much shrinking may cost.
+#[derive(Debug, Clone, Copy)]
+pub struct Budget {
+    /// Replays at most.
+    pub replays: usize,
+    /// Wall-clock time at most.
+    pub time: Duration,
+}
+
+/// The result of shrinking.
+#[derive(Debug, Clone)]
+pub struct Shrunk<O> {
+    /// The smallest candidate found.
+    pub candidate: Candidate,
+    /// Its replay.
+    pub replay: O,
+    /// How many replays it took.
+    pub replays: usize,
+    /// Whether the budget ran out before nothing more helped.
+    pub exhausted: bool,
+}
+
+struct Shrinker<O, F> {
+    best: Candidate,
+    replay: O,
+    fails: F,
+    replays: usize,
+    budget: Budget,
+    began: Instant,
+    exhausted: bool,
+    margin: Duration,
+    quantum: Duration,
+}
+
+impl<O: Replay, F: FnMut(&Candidate) -> Option<O>> Shrinker<O, F> {
+    /// Tries a candidate; keeps it (cut to the events it played) if it still fails.
+    fn try_candidate(&mut self, mut c: Candidate) -> bool {
+        if c == self.best {
+            return false;
+        }
+        if self.replays >= self.budget.replays || self.began.elapsed() >= self.budget.time {
+            self.exhausted = true;
+            return false;
+        }
+        self.replays += 1;
+        match (self.fails)(&c) {
+            Some(r) => {
+                c.plan.events.truncate(r.played());
+                c.horizon = c.horizon.min(r.at().saturating_add(self.margin));
+                self.best = c;
+                self.replay = r;
+                true
+            }
+            None => false,
+        }
+    }
+
+    fn with_events(&self, events: Vec<Event>) -> Candidate {
+        Candidate {
+            plan: Plan {
+                start: self.best.plan.start.clone(),
+                events,
+            },
+            horizon: self.best.horizon,
+        }
+    }
+
+    /// Drops chunks of events, halving the chunk size down to one.
+    fn drop_events(&mut self) -> bool {
+        let mut changed = false;
+        let mut parts = 2usize;
+        loop {
+            let len = self.best.plan.events.len();
+            if len == 0 || self.exhausted {
+                return changed;
+            }
+            let chunk = len.div_ceil(parts.min(len));
+            let mut dropped = false;
+            let mut start = 0;
+            while start < self.best.plan.events.len() {
+                let mut events = self.best.plan.events.clone();
+                let end = (start + chunk).min(events.len());
+                events.drain(start..end);
+                if self.try_candidate(self.with_events(events)) {
+                    dropped = true;
+                    changed = true;
+                } else {
+                    start += chunk;
+                }
+                if self.exhausted {
+                    return changed;
+                }
+            }
+            if !dropped {
+                if chunk == 1 {
+                    return changed;
+                }
+                parts = parts.saturating_mul(2);
+            }
+        }
+    }
+
+    /// Replaces each event by a simpler one where that still fails.
+    fn simplify_events(&mut self) -> bool {
+        let mut changed = false;
+        let mut i = 0;
+        while i < self.best.plan.events.len() && !self.exhausted {
+            let options = self.best.plan.events[i].action.simpler();
+            for action in options {
+                let mut events = self.best.plan.events.clone();
+                if let Some(e) = events.get_mut(i) {
+                    e.action = action;
+                }
+                if self.try_candidate(self.with_events(events)) {
+                    changed = true;
+                    break;
+                }
+            }
+            i += 1;
+        }
+        changed
+    }
+
+    /// Shortens each wait (and the one before the end), moving everything after it earlier.
+    fn shorten_waits(&mut self) -> bool {
+        let mut changed = false;
+        let mut i = 0;
+        while i <= self.best.plan.events.len() && !self.exhausted {
+            let events = &self.best.plan.events;
+            let before = if i == 0 {
+                Duration::ZERO
+            } else {
+                events.get(i - 1).map_or(Duration::ZERO, |e| e.at)
+            };
+            let at = events.get(i).map_or(self.best.horizon, |e| e.at);
+            let gap = at.saturating_sub(before);
+            let q = self.quantum.as_nanos().max(1);
+            let round = |d: Duration| {
+                let n = d.as_nanos() / q * q;
+                Duration::from_nanos(u64::try_from(n).unwrap_or(u64::MAX))
+            };
+            let mut shorter: Vec<Duration> = [Duration::ZERO, gap / 4, gap / 2, gap * 3 / 4]
+                .into_iter()
+                .map(round)
+                .collect();
+            if i == self.best.plan.events.len() {
+                // The end: no sooner than one margin after the last event.
+                shorter = shorter.into_iter().map(|g| g.max(self.margin)).collect();
+            }
+            shorter.retain(|g| *g < gap);
+            shorter.dedup();
+            for g in shorter {
+                let cut = gap - g;
+                let mut c = self.best.clone();
+                for e in c.plan.events.iter_mut().skip(i) {
+                    e.at = e.at.saturating_sub(cut);
+                }
+                c.horizon = c.horizon.saturating_sub(cut);
+                if self.try_candidate(c) {
+                    changed = true;
+                    break;
+                }
+            }
+            i += 1;
+        }
+        changed
+    }
+}
+
+/// Shrinks `candidate` (whose replay is `replay`); `fails` replays a candidate and says how it
+/// failed the same check, or `None`. `margin` is how long a run goes on past the failure (a
+/// scan period or two); waits are shortened in whole steps of `quantum`.
+pub fn shrink<O: Replay>(
+    candidate: Candidate,
+    replay: O,
+    fails: impl FnMut(&Candidate) -> Option<O>,
+    budget: Budget,
+    margin: Duration,
+    quantum: Duration,
+) -> Shrunk<O> {
+    let mut best = candidate;
+    best.plan.events.truncate(replay.played());
+    best.horizon = best.horizon.min(replay.at().saturating_add(margin));
+    let mut s = Shrinker {
+        best,
+        replay,
+        fails,
+        replays: 0,
+        budget,
+        began: Instant::now(),
+        exhausted: false,
+        margin,
+        quantum,
+    };
+    loop {
+        let dropped = s.drop_events();
+        let simpler = s.simplify_events();
+        let shorter = s.shorten_waits();
+        if !(dropped || simpler || shorter) || s.exhausted {
+            break;
+        }
+    }
+    Shrunk {
+        candidate: s.best,
+        replay: s.replay,
+        replays: s.replays,
+        exhausted: s.exhausted,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::plan::{Action, StartPoint};
+    use super::*;
+    use std::sync::Arc;
+
+    /// A made-up failure: DI1 on, then (at least 300 ms later) DI2 on, with DI1 still on.
+    #[derive(Debug, Clone)]
+    struct Seen {
+        at: Duration,
+        played: usize,
+    }
+
+    impl Replay for Seen {
+        fn at(&self) -> Duration {
+            self.at
+        }
+        fn played(&self) -> usize {
+            self.played
+        }
+    }
+
+    fn fails(c: &Candidate) -> Option<Seen> {
+        let mut di1_since = None;
+        for (i, e) in c.plan.events.iter().enumerate() {
+            if e.at >= c.horizon {
+                return None;
+            }
+            if let Action::Input { ch, on, .. } = e.action {
+                match (ch, on) {
+                    (1, true) => di1_since = di1_since.or(Some(e.at)),
+                    (1, false) => di1_since = None,
+                    (2, true)
+                        if di1_since.is_some_and(|t| e.at >= t + Duration::from_millis(300)) =>
+                    {
+                        return Some(Seen {
+                            at: e.at + Duration::from_millis(20),
+                            played: i + 1,
+                        });
+                    }
+                    _ => {}
+                }
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn a_long_run_shrinks_to_the_two_events_that_matter_as_early_as_they_can_be() {
+        let dev: Arc<str> = Arc::from("io");
+        let mut events = Vec::new();
+        for i in 0..60u64 {
+            let ch = (i % 5) as u8;
+            events.push(Event {
+                at: Duration::from_millis(500 * i + 7),
+                action: Action::Input {
+                    dev: dev.clone(),
+                    ch,
+                    on: i % 3 != 0,
+                },
+            });
+        }
+        let plan = Plan {
+            start: StartPoint {
+                wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
+                zone: "UTC".into(),
+            },
+            events,
+        };
+        let c = Candidate {
+            plan,
+            horizon: Duration::from_secs(60),
+        };
+        let first = fails(&c).expect("the long run fails");
+        let budget = Budget {
+            replays: 10_000,
+            time: Duration::from_secs(60),
+        };
+        let s = shrink(
+            c,
+            first,
+            fails,
+            budget,
+            Duration::from_millis(40),
+            Duration::from_millis(1),
+        );
+        assert!(!s.exhausted);
+        let e = &s.candidate.plan.events;
+        assert_eq!(e.len(), 2, "{e:?}");
+        assert!(matches!(
+            e[0].action,
+            Action::Input {
+                ch: 1,
+                on: true,
+                ..
+            }
+        ));
+        assert!(matches!(
+            e[1].action,
+            Action::Input {
+                ch: 2,
+                on: true,
+                ..
+            }
+        ));
+        assert_eq!(e[0].at, Duration::ZERO);
+        let gap = e[1].at - e[0].at;
+        assert!(
+            gap >= Duration::from_millis(300) && gap < Duration::from_millis(400),
+            "{gap:?}"
+        );
+        assert!(s.candidate.horizon <= e[1].at + Duration::from_millis(60));
+    }
+}

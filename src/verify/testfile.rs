@@ -1,0 +1,244 @@
+//! A counterexample as a ready-to-run scenario test (`*.test.rhai`): the rig started where the
+//! run started, the same waits and events through the scenario API, and the check that failed
+//! written so that `rigscript test` fails with its name (an invariant fails the `advance` it
+//! is found false in; a built-in check is an assertion). Once the script is fixed the test
+//! passes, and can stay as a regression test.
+
+use super::checks::{Check, Finding};
+use super::exec::Step;
+use super::plan::{wall_step_text, Action, StartPoint};
+use crate::time::duration::format_duration;
+use std::fmt::Write;
+use std::path::{Component, Path, PathBuf};
+
+/// A Rhai string literal.
+fn quoted(text: &str) -> String {
+    let mut out = String::from("\"");
+    for c in text.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            '\n' => out.push_str("\\n"),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// `path` as seen from the directory `from` (both absolute, or both relative to one place).
+pub fn relative(from: &Path, path: &Path) -> PathBuf {
+    let a: Vec<Component> = from.components().collect();
+    let b: Vec<Component> = path.components().collect();
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let mut out = PathBuf::new();
+    for _ in common..a.len() {
+        out.push("..");
+    }
+    for c in b.iter().skip(common) {
+        out.push(c.as_os_str());
+    }
+    out
+}
+
+/// One action as a line of the scenario API.
+fn action_line(a: &Action) -> String {
+    match a {
+        Action::Input { dev, ch, on } => format!("r.set_input({}, {ch}, {on});", quoted(dev)),
+        Action::Inputs { dev, byte } => format!("r.set_inputs({}, {byte:#04x});", quoted(dev)),
+        Action::Pulse { dev, ch, n } => format!("r.pulse({}, {ch}, {n});", quoted(dev)),
+        Action::CounterNearWrap { dev, ch, below } => format!(
+            "r.pulse({d}, {ch}, ({} - r.counter({d}, {ch}) + 65536) % 65536); // to the wrap",
+            65535 - u32::from(*below),
+            d = quoted(dev),
+        ),
+        Action::Press { dev, switch } => {
+            format!("r.press({}, {});", quoted(dev), quoted(switch.name()))
+        }
+        Action::Release { dev, switch } => {
+            format!("r.release({}, {});", quoted(dev), quoted(switch.name()))
+        }
+        Action::Turn {
+            dev,
+            rotary,
+            half_turns,
+        } => format!(
+            "r.turn({}, {}, {half_turns});",
+            quoted(dev),
+            quoted(rotary.name())
+        ),
+        Action::Fail { dev } => format!("r.fail({});", quoted(dev)),
+        Action::Restore { dev } => format!("r.restore({});", quoted(dev)),
+        Action::DropAnswers { dev, n } => format!("r.drop_answers({}, {n});", quoted(dev)),
+        Action::GarbleAnswers { dev, n } => format!("r.garble_answers({}, {n});", quoted(dev)),
+        Action::PowerCycle { dev } => format!("r.power_cycle({});", quoted(dev)),
+        Action::Stall { by } => format!("r.stall({});", quoted(&format_duration(*by))),
+        Action::WallStep { seconds } => {
+            format!("r.step_wall({});", quoted(&wall_step_text(*seconds)))
+        }
+        Action::Stop => "r.signal_stop();".into(),
+    }
+}
+
+/// What the test file needs to know.
+#[derive(Debug, Clone)]
+pub struct TestFile<'a> {
+    /// The script, relative to the test file's directory.
+    pub script: &'a Path,
+    /// The rig.toml, relative to the test file's directory, if one was given.
+    pub config: Option<&'a Path>,
+    /// Where the run started.
+    pub start: &'a StartPoint,
+    /// What it did.
+    pub steps: &'a [Step],
+    /// What failed.
+    pub finding: &'a Finding,
+    /// (device, `"outputs"` or `"relay"`, safe value) for the built-in safety checks.
+    pub safe_states: &'a [(String, &'static str, u8)],
+    /// Comment lines at the top.
+    pub header: &'a [String],
+}
+
+impl TestFile<'_> {
+    /// The file's text.
+    pub fn render(&self) -> String {
+        let mut out = String::new();
+        for line in self.header {
+            let _ = writeln!(out, "// {line}");
+        }
+        let _ = writeln!(out);
+        let _ = writeln!(out, "fn test_{}() {{", self.finding.check.slug());
+        let script = quoted(&self.script.to_string_lossy());
+        let wall = quoted(&self.start.wall_text());
+        let zone = quoted(&self.start.zone);
+        match self.config {
+            Some(c) => {
+                let c = quoted(&c.to_string_lossy());
+                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone}, {c});");
+            }
+            None => {
+                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone});");
+            }
+        }
+        let last_advance = self
+            .steps
+            .iter()
+            .rposition(|s| matches!(s, Step::Advance(_)));
+        for (i, step) in self.steps.iter().enumerate() {
+            let line = match step {
+                Step::Advance(d) => {
+                    let mut l = format!("r.advance({});", quoted(&format_duration(*d)));
+                    if Some(i) == last_advance {
+                        if let Check::Invariant(_) = self.finding.check {
+                            let _ = write!(l, " // {} is found false here", self.finding.check);
+                        }
+                    }
+                    l
+                }
+                Step::Act(a) => action_line(a),
+                Step::End => "r.end();".into(),
+            };
+            let _ = writeln!(out, "    {line}");
+        }
+        for line in self.assertions() {
+            let _ = writeln!(out, "    {line}");
+        }
+        let _ = writeln!(out, "}}");
+        out
+    }
+
+    fn assertions(&self) -> Vec<String> {
+        let what = quoted(&format!("{}", self.finding.check));
+        match &self.finding.check {
+            Check::Invariant(_) => Vec::new(),
+            Check::ScriptError | Check::OverBudget => {
+                vec![format!("assert_eq(r.errors(), [], {what});")]
+            }
+            Check::HeldSafe | Check::EndSafe => self
+                .safe_states
+                .iter()
+                .filter(|(dev, ..)| self.finding.devices.contains(dev))
+                .map(|(dev, kind, v)| {
+                    let value = if *kind == "outputs" {
+                        format!("{v:#04x}")
+                    } else {
+                        v.to_string()
+                    };
+                    format!(
+                        "assert_eq(r.{kind}({d}), {value}, {m});",
+                        d = quoted(dev),
+                        m = quoted(&format!("{}: {dev}", self.finding.check)),
+                    )
+                })
+                .collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::trc1000::Switch;
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    #[test]
+    fn paths_are_written_from_the_test_files_directory() {
+        assert_eq!(
+            relative(
+                Path::new("/w/verify-failures"),
+                Path::new("/w/scripts/i.rhai")
+            ),
+            PathBuf::from("../scripts/i.rhai")
+        );
+        assert_eq!(
+            relative(Path::new("/w"), Path::new("/w/i.rhai")),
+            PathBuf::from("i.rhai")
+        );
+    }
+
+    #[test]
+    fn a_counterexample_reads_as_a_scenario_test() {
+        let start = StartPoint {
+            wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00.250Z").unwrap(),
+            zone: "UTC".into(),
+        };
+        let io: Arc<str> = Arc::from("io");
+        let steps = vec![
+            Step::Advance(Duration::from_millis(10)),
+            Step::Act(Action::Inputs {
+                dev: io.clone(),
+                byte: 0x0f,
+            }),
+            Step::Act(Action::Press {
+                dev: Arc::from("panel"),
+                switch: Switch::new(12).unwrap(),
+            }),
+            Step::Advance(Duration::from_millis(30)),
+        ];
+        let finding = Finding {
+            check: Check::Invariant("power only with guards closed".into()),
+            at: Duration::from_millis(40),
+            detail: String::new(),
+            devices: Vec::new(),
+        };
+        let text = TestFile {
+            script: Path::new("../scripts/interlock.rhai"),
+            config: None,
+            start: &start,
+            steps: &steps,
+            finding: &finding,
+            safe_states: &[],
+            header: &["found by verify".into()],
+        }
+        .render();
+        assert_eq!(
+            text,
+            "// found by verify\n\nfn test_power_only_with_guards_closed() {\n    let r = \
+             rig_at(\"../scripts/interlock.rhai\", \"2026-03-28T12:00:00.250Z\", \"UTC\");\n    \
+             r.advance(\"10ms\");\n    r.set_inputs(\"io\", 0x0f);\n    r.press(\"panel\", \
+             \"S12\");\n    r.advance(\"30ms\"); // invariant \"power only with guards closed\" \
+             is found false here\n}\n"
+        );
+    }
+}

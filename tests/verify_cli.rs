@@ -1,0 +1,405 @@
+//! `rigscript verify` as people run it: planted bugs found, shrunk and written as scenario tests
+//! that fail with the invariant's name; the five scripts pass with a bounded budget; the same
+//! seed gives the same result whatever the number of jobs; the built-in checks; coverage
+//! warnings; exit statuses. And invariants in `run`: a violation is a fault with exit 1.
+
+mod common;
+
+use common::{fresh_dir, rigscript};
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(rigscript())
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("run rigscript")
+}
+
+/// `rigscript verify ARGS.. --json --out OUT`: exit status and the JSON document.
+fn verify_json(args: &[&str], out: &Path) -> (i32, Value) {
+    let mut all = vec!["verify"];
+    all.extend_from_slice(args);
+    let out_dir = out.to_string_lossy().into_owned();
+    all.extend_from_slice(&["--json", "--out", &out_dir]);
+    let o = run(&all);
+    let doc = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!(
+            "not JSON ({e}): {}\nstderr: {}",
+            text(&o.stdout),
+            text(&o.stderr)
+        )
+    });
+    (o.status.code().unwrap_or(-1), doc)
+}
+
+/// Writes `source` as `name` in a fresh directory tagged `tag`; the directory and the path.
+fn script(tag: &str, name: &str, source: &str) -> (std::path::PathBuf, String) {
+    let dir = fresh_dir(tag);
+    let path = dir.join(name);
+    std::fs::write(&path, source).unwrap();
+    (dir, path.to_string_lossy().into_owned())
+}
+
+/// The planted-bug variants: (file, the invariant that catches them, fewest events needed).
+const PLANTED: &[(&str, &str, usize)] = &[
+    (
+        "tests/verify/interlock_guard_mask.rhai",
+        "power only with all guards closed and no stop pressed",
+        3,
+    ),
+    (
+        "tests/verify/interlock_trusts_a_lost_panel.rhai",
+        "power only with all guards closed and no stop pressed",
+        3,
+    ),
+    (
+        "tests/verify/rotary_reset_keeps_count.rhai",
+        "the relay follows the knob, one position per detent",
+        2,
+    ),
+    (
+        "tests/verify/counter_ack_keeps_waiting.rhai",
+        "the lamp is lit exactly while a batch waits for acknowledgement",
+        2,
+    ),
+];
+
+#[test]
+fn each_planted_bug_is_found_shrunk_and_written_as_a_failing_test() {
+    for (file, invariant, fewest) in PLANTED {
+        let out = fresh_dir("verify-planted");
+        let (status, doc) = verify_json(&[file, "--runs", "120", "--seed", "1"], &out);
+        assert_eq!(status, 1, "{file}: {doc:#}");
+        let c = &doc["counterexample"];
+        assert_eq!(c["name"], *invariant, "{file}: {c:#}");
+        let events = c["events"].as_array().unwrap().len();
+        assert!(
+            (*fewest..=10).contains(&events),
+            "{file}: shrunk to {events} events: {c:#}"
+        );
+        assert!(
+            c["story"].as_str().unwrap().contains(" → invariant "),
+            "{c:#}"
+        );
+        let test = c["test_file"].as_str().expect("a test file");
+        let o = run(&["test", test]);
+        let stdout = text(&o.stdout);
+        assert_eq!(
+            o.status.code(),
+            Some(1),
+            "{file}: the test must fail: {stdout}"
+        );
+        assert!(
+            stdout.contains(&format!("invariant {invariant:?} is false")),
+            "{file}: {stdout}"
+        );
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}
+
+#[test]
+fn the_five_scripts_keep_their_invariants_under_a_bounded_search() {
+    for script in [
+        "interlock",
+        "rotary_relay",
+        "counter_threshold",
+        "safe_values",
+        "cron_rig",
+    ] {
+        let out = fresh_dir("verify-scripts");
+        let path = format!("scripts/{script}.rhai");
+        let (status, doc) = verify_json(
+            &[&path, "--runs", "16", "--for", "20s", "--seed", "11"],
+            &out,
+        );
+        assert_eq!(status, 0, "{script}: {doc:#}");
+        assert_eq!(doc["result"], "pass");
+        assert_eq!(doc["runs"], 16);
+        let handlers = doc["coverage"]["handlers"].as_object().unwrap();
+        assert!(
+            handlers.values().any(|n| n.as_u64().unwrap() > 0),
+            "{script}: {handlers:?}"
+        );
+        assert!(
+            !doc["coverage"]["invariants"]
+                .as_object()
+                .unwrap()
+                .is_empty(),
+            "{script} states its invariants"
+        );
+        assert!(
+            !out.exists() || std::fs::read_dir(&out).unwrap().next().is_none(),
+            "nothing written on a pass"
+        );
+    }
+}
+
+#[test]
+fn the_same_seed_gives_the_same_counterexample_whatever_the_jobs() {
+    let out = fresh_dir("verify-seed");
+    let file = "tests/verify/interlock_guard_mask.rhai";
+    let (_, one) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "1"], &out);
+    let (_, two) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "2"], &out);
+    assert_eq!(one["seed"], 5);
+    let strip = |d: &Value| {
+        let c = &d["counterexample"];
+        (c["run"].clone(), c["story"].clone(), c["events"].clone())
+    };
+    assert_eq!(strip(&one), strip(&two));
+    assert!(one["counterexample"]["run"].as_u64().is_some());
+}
+
+#[test]
+fn a_pass_reports_coverage_and_warns_of_what_was_never_exercised() {
+    let (_dir, s) = script(
+        "verify-coverage",
+        "idle.rhai",
+        r#"let panel = device("panel");
+after("10m", || panel.relay = 1);
+panel.on_press("S3", || {});
+invariant("the relay stays at 0", || panel.relay == 0);
+"#,
+    );
+    let o = run(&[
+        "verify",
+        &s,
+        "--runs",
+        "4",
+        "--for",
+        "5s",
+        "--seed",
+        "2",
+        "--no-faults",
+    ]);
+    let stdout = text(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{stdout}{}", text(&o.stderr));
+    assert!(stdout.contains("seed 2"), "{stdout}");
+    assert!(
+        stdout.contains("handler panel.on_press S3: fired"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("warning: handler after 10m never fired"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(
+            "warning: invariant \"the relay stays at 0\": the values it reads never changed"
+        ),
+        "{stdout}"
+    );
+    assert!(stdout.contains("faults were off"), "{stdout}");
+}
+
+#[test]
+fn a_device_fault_the_script_does_not_handle_is_a_finding() {
+    let (dir, s) = script(
+        "verify-fault",
+        "careless.rhai",
+        "let io = device(\"io\");\nevery(\"100ms\", || io.clear_counter(0));\n",
+    );
+    let out = dir.join("out");
+    let (status, doc) = verify_json(&[&s, "--runs", "40", "--for", "10s", "--seed", "3"], &out);
+    assert_eq!(status, 1, "{doc:#}");
+    let c = &doc["counterexample"];
+    assert_eq!(c["name"], "no script error", "{c:#}");
+    assert!(
+        c["detail"].as_str().unwrap().contains("careless.rhai:2:"),
+        "{c:#}"
+    );
+    let o = run(&["test", c["test_file"].as_str().unwrap()]);
+    let stdout = text(&o.stdout);
+    assert_eq!(o.status.code(), Some(1), "{stdout}");
+    assert!(stdout.contains("no script error"), "{stdout}");
+    // Without faults the module always answers.
+    let (status, doc) = verify_json(
+        &[
+            &s,
+            "--runs",
+            "4",
+            "--for",
+            "5s",
+            "--seed",
+            "3",
+            "--no-faults",
+        ],
+        &out,
+    );
+    assert_eq!(status, 0, "{doc:#}");
+}
+
+#[test]
+fn a_runaway_handler_is_a_finding_of_one_event() {
+    let (dir, s) = script(
+        "verify-budget",
+        "runaway.rhai",
+        "let io = device(\"io\");\nio.on_rise(5, || { loop {} });\n",
+    );
+    let (status, doc) = verify_json(
+        &[
+            &s, "--runs", "20", "--for", "10s", "--seed", "1", "--budget", "20000",
+        ],
+        &dir.join("out"),
+    );
+    assert_eq!(status, 1, "{doc:#}");
+    let c = &doc["counterexample"];
+    assert_eq!(c["name"], "no handler over its budget", "{c:#}");
+    assert_eq!(c["events"].as_array().unwrap().len(), 1, "{c:#}");
+}
+
+#[test]
+fn outputs_not_at_the_rigs_safe_value_at_the_end_are_a_finding() {
+    // The script stores its own safe value, so the end of the run leaves 0xF0 where rig.toml
+    // says 0x00.
+    let (dir, s) = script(
+        "verify-end",
+        "weakens.rhai",
+        "let io = device(\"io\");\nio.safe_value = 0xF0;\nevery(\"1s\", || {});\n",
+    );
+    let (status, doc) = verify_json(
+        &[
+            &s,
+            "--runs",
+            "1",
+            "--for",
+            "2s",
+            "--seed",
+            "1",
+            "--no-faults",
+        ],
+        &dir.join("out"),
+    );
+    assert_eq!(status, 1, "{doc:#}");
+    let c = &doc["counterexample"];
+    assert_eq!(c["name"], "outputs safe after the run ends", "{c:#}");
+    assert_eq!(c["detail"], "io outputs 0xf0, safe value 0x00", "{c:#}");
+    let test = c["test_file"].as_str().unwrap();
+    let written = std::fs::read_to_string(test).unwrap();
+    assert!(written.contains("r.end();"), "{written}");
+    let o = run(&["test", test]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stdout));
+}
+
+#[test]
+fn a_script_that_cannot_run_or_a_bad_config_is_a_usage_error() {
+    let (dir, s) = script("verify-usage", "bad.rhai", "let x = device(\"nope\");\n");
+    let o = run(&["verify", &s, "--runs", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    let check = run(&["check", &s]);
+    let problem = text(&check.stdout);
+    let problem = problem.lines().next().unwrap();
+    assert!(
+        text(&o.stderr).contains(problem),
+        "the same message as check ({problem}): {}",
+        text(&o.stderr)
+    );
+    let toml = dir.join("rig.toml");
+    std::fs::write(&toml, "period = \"fast\"\n").unwrap();
+    let t = toml.to_string_lossy().into_owned();
+    let o = run(&["verify", "scripts/interlock.rhai", "--config", &t]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("rig.toml"), "{}", text(&o.stderr));
+    let o = run(&["verify", "scripts/interlock.rhai", "--runs", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn in_run_a_false_invariant_ends_the_run_with_1_and_the_safe_state_recorded() {
+    let (dir, s) = script(
+        "verify-run",
+        "contradicts.rhai",
+        "let io = device(\"io\");\nio.outputs = 3;\ninvariant(\"at most one output\", || io.outputs < 2);\nevery(\"1s\", || {});\n",
+    );
+    let records = dir.join("records.jsonl");
+    let o = run(&[
+        "run",
+        &s,
+        "--sim",
+        "--for",
+        "2s",
+        "--records",
+        &records.to_string_lossy(),
+    ]);
+    let stderr = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("invariant \"at most one output\" is false (stated at "),
+        "{stderr}"
+    );
+    assert!(stderr.contains("io outputs 0x03"), "{stderr}");
+    assert!(
+        !stderr.contains("io: outputs 0x00 -> 0x03"),
+        "never written: {stderr}"
+    );
+    let rec = std::fs::read_to_string(&records).unwrap();
+    assert!(rec.contains("\"invariant_violated\""), "{rec}");
+    assert!(rec.contains("\"at most one output\""), "{rec}");
+}
+
+#[test]
+fn a_call_over_the_scripts_limits_is_a_finding_that_names_the_limit() {
+    // (what, [limits] in rig.toml, the handler, the check, what the detail says)
+    let big = "let big = \"0123456789abcdef\"; for i in 0..11 { big += big; }";
+    let cases = [
+        (
+            "memory",
+            "memory = \"32MiB\"",
+            format!("{big} for i in 0..50 {{ let a = big + i; after(\"1h\", || a.len()); }}"),
+            "no handler over its budget",
+            "--memory-limit",
+        ),
+        (
+            "timers",
+            "timers = 50",
+            "for i in 0..10 { after(\"1h\", || {}); }".to_string(),
+            "no script error",
+            "--max-timers",
+        ),
+    ];
+    for (what, limit, body, check, says) in cases {
+        let (dir, s) = script(
+            &format!("verify-limit-{what}"),
+            "grows.rhai",
+            &format!("let io = device(\"io\");\nevery(\"100ms\", || {{ {body} }});\n"),
+        );
+        let toml = dir.join("rig.toml");
+        std::fs::write(
+            &toml,
+            format!(
+                "period = \"20ms\"\n\n[limits]\n{limit}\n\n[devices.io]\nkind = \"trp-c29u\"\n\
+                 port = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n"
+            ),
+        )
+        .unwrap();
+        let (status, doc) = verify_json(
+            &[
+                &s,
+                "--config",
+                &toml.to_string_lossy(),
+                "--runs",
+                "2",
+                "--jobs",
+                "1",
+                "--for",
+                "10s",
+                "--seed",
+                "1",
+                "--no-faults",
+            ],
+            &dir.join("out"),
+        );
+        assert_eq!(status, 1, "{what}: {doc:#}");
+        let c = &doc["counterexample"];
+        assert_eq!(c["name"], check, "{what}: {c:#}");
+        let detail = c.to_string();
+        assert!(detail.contains("grows.rhai:2:"), "{what}: placed: {c:#}");
+        assert!(detail.contains(says), "{what}: {c:#}");
+    }
+}
