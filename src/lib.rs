@@ -47,6 +47,7 @@
 //! Data flows one way: `script` -> `runtime` -> `device` -> (`protocol`, `link`); `sim` answers
 //! at the far end of a link. Time comes from a [`time::clock::Clock`] (real, or virtual in
 //! tests). See DESIGN.md for the whole picture.
+#![deny(missing_docs)]
 
 pub mod cli;
 pub mod config;

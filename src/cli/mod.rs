@@ -19,6 +19,7 @@ pub mod verify;
 #[derive(Debug, Parser)]
 #[command(name = "rigscript", version, about)]
 pub struct Cli {
+    /// What to do.
     #[command(subcommand)]
     pub command: Command,
 }
@@ -42,6 +43,7 @@ pub enum Command {
     Trc(trc::TrcArgs),
     /// Serve a simulated device on a pseudo-terminal for any serial program
     Sim {
+        /// Which device to simulate.
         #[command(subcommand)]
         device: sim::SimCommand,
     },

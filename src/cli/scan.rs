@@ -9,6 +9,7 @@ use crate::device::c29u::{open_port, share, C29u, C29uError, C29uOptions, Protoc
 use crate::link::usb::{list_boards, BoardInfo};
 use crate::link::LinkError;
 use crate::protocol::c29u::BAUD_CODES;
+use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::time::clock::{SharedClock, SystemClock};
 use clap::Args;
 use serde_json::{json, Value};
@@ -159,7 +160,7 @@ impl ScanArgs {
             Protocol::Ascii => all,
             Protocol::Modbus => all
                 .into_iter()
-                .filter(|id| (1..=247).contains(id))
+                .filter(|id| SLAVE_IDS.contains(id))
                 .collect(),
         }
     }

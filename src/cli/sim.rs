@@ -5,6 +5,7 @@ use crate::cli::c29::parse_baud;
 use crate::device::c29u::auto_frame_gap;
 use crate::protocol::c29u::baud_code;
 use crate::protocol::c29u_modbus::silence_gap;
+use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::sim::c29u::{C29uModel, Eeprom, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::pty::{Faults, PtyServer, StrictTiming};
@@ -111,7 +112,7 @@ impl C29uSimArgs {
     /// The IDs the protocol cannot have, refused as clap refuses a bad value (status 2).
     fn check_ids(&self) -> Result<(), clap::Error> {
         let bad = match self.protocol {
-            ProtocolArg::Modbus => self.id.iter().find(|id| !(1..=247).contains(*id)),
+            ProtocolArg::Modbus => self.id.iter().find(|id| !SLAVE_IDS.contains(*id)),
             ProtocolArg::Ascii => None,
         };
         match bad {
@@ -137,7 +138,12 @@ pub enum Control {
     /// Set the energized inputs.
     Di(u8),
     /// N full pulses on one input.
-    Pulse { channel: u8, count: u32 },
+    Pulse {
+        /// The input, 0-7.
+        channel: u8,
+        /// How many pulses.
+        count: u32,
+    },
     /// Power cycle the module.
     Reset,
     /// Print the module's state as one JSON line.

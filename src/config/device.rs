@@ -7,6 +7,7 @@ pub use crate::link::line::FrameGap;
 use crate::link::line::MAX_FRAME_GAP;
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
 pub use crate::protocol::c29u::{Protocol, WatchdogTimeout};
+use crate::protocol::c29u_modbus::SLAVE_IDS;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::PathBuf;
@@ -296,7 +297,11 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
     c.protocol = r.read(t, "protocol", protocol).unwrap_or(c.protocol);
     let proto = c.protocol;
     if let Some(id) = r.read(t, "id", |v| match proto {
-        Protocol::Modbus => integer_in(v, 1..=247, "is not a Modbus id; use 1-247"),
+        Protocol::Modbus => integer_in(
+            v,
+            i64::from(*SLAVE_IDS.start())..=i64::from(*SLAVE_IDS.end()),
+            "is not a Modbus id; use 1-247",
+        ),
         Protocol::Ascii => integer_in(v, 0..=255, "is not an ASCII id; use 0-255"),
     }) {
         c.id = u8::try_from(id).unwrap_or(c.id);
@@ -332,7 +337,29 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
     if let Some(n) = r.read(t, "safe_value", byte) {
         c.safe_value = n;
     }
-    c.power_on_value = r.read(t, "power_on_value", byte).or(c.power_on_value);
+    let by_hand = format!(
+        "rigscript c29 --port {} --protocol ascii --id {}{}",
+        port.as_ref().map_or("PORT".to_string(), Port::to_string),
+        c.id,
+        if c.checksum { " --checksum" } else { "" }
+    );
+    let (proto, safe) = (c.protocol, c.safe_value);
+    c.power_on_value = r
+        .read(t, "power_on_value", |v| match byte(v)? {
+            // Storing it would drive the outputs to it: refused before anything starts.
+            n if proto == Protocol::Ascii && n != safe => Err(bad(
+                v,
+                format!(
+                    "differs from safe_value {safe:#04x}: an ASCII module stores only its \
+                     current outputs as its power-on value (manual 8-24), so the runner would \
+                     have to drive the outputs to it; store it once by hand, when the outputs \
+                     may take that value (`{by_hand} power-on-value {n:#04x} --drive-outputs`), \
+                     and leave it out of rig.toml, or make it equal to safe_value"
+                ),
+            )),
+            n => Ok(n),
+        })
+        .or(c.power_on_value);
     c.di_active_low = r
         .read(t, "di_active_low", boolean)
         .unwrap_or(c.di_active_low);

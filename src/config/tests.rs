@@ -214,7 +214,7 @@ fn trc1000_keys() {
 fn c29u_keys() {
     let io = c29u(
         "protocol = \"ascii\"\nid = 0\nbaud = 115200\nchecksum = true\ntimeout = \"250ms\"\n\
-         retries = 0\nwatchdog = \"25.5s\"\nsafe_value = 0b1010_0101\npower_on_value = 0xFF\n\
+         retries = 0\nwatchdog = \"25.5s\"\nsafe_value = 0b1010_0101\npower_on_value = 0xA5\n\
          di_active_low = false",
     )
     .unwrap();
@@ -226,7 +226,7 @@ fn c29u_keys() {
     assert_eq!(io.retries, 0);
     assert_eq!(io.watchdog.map(WatchdogTimeout::tenths), Some(255));
     assert_eq!(io.safe_value, 0xA5);
-    assert_eq!(io.power_on_value, Some(0xFF));
+    assert_eq!(io.power_on_value, Some(0xA5));
     assert!(!io.di_active_low);
     assert_eq!(c29u("protocol = \"ascii\"\nid = 255").unwrap().id, 255);
     assert_eq!(c29u("id = 247").unwrap().id, 247);
@@ -509,6 +509,12 @@ fn bad_c29u_values() {
         ("retries = 11", "rig.toml:4: devices.io.retries: 11 is not a retry count; use 0-10"),
         ("safe_value = 256", "rig.toml:4: devices.io.safe_value: 256 is not a DO byte; use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"),
         ("power_on_value = -1", "rig.toml:4: devices.io.power_on_value: -1 is not a DO byte"),
+        // ASCII stores only the current outputs: a power-on value apart from the safe one
+        // would have the runner drive the outputs to it (issue 8 defect 2).
+        (
+            "protocol = \"ascii\"\npower_on_value = 0x0F",
+            "rig.toml:5: devices.io.power_on_value: 0x0F differs from safe_value 0x00: an ASCII module stores only its current outputs as its power-on value (manual 8-24), so the runner would have to drive the outputs to it; store it once by hand, when the outputs may take that value (`rigscript c29 --port /dev/ttyUSB0 --protocol ascii --id 1 power-on-value 0x0f --drive-outputs`)",
+        ),
         ("di_active_low = 1", "rig.toml:4: devices.io.di_active_low: expected true or false, found an integer"),
         ("id = 99999999999999999999", "rig.toml:4: devices.io.id: 99999999999999999999 is not a Modbus id"),
         (

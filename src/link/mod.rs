@@ -11,17 +11,29 @@ use std::time::Duration;
 pub enum LinkError {
     /// The port, host or USB device does not exist.
     #[error("{what} not found: {hint}")]
-    NotFound { what: String, hint: String },
+    NotFound {
+        /// What was being opened or used (a port, a host, a USB device).
+        what: String,
+        /// What to check or try next.
+        hint: String,
+    },
     /// The operating system refused access.
     #[error("permission denied opening {what}: {hint}")]
-    PermissionDenied { what: String, hint: String },
+    PermissionDenied {
+        /// What was being opened or used (a port, a host, a USB device).
+        what: String,
+        /// How to get access (group, udev rule).
+        hint: String,
+    },
     /// Another program holds the port exclusively.
     #[error(
         "{what} is busy: another program holds it exclusively ({holders}); end that program or \
          wait for it to finish, then try again"
     )]
     Busy {
+        /// What was being opened or used (a port, a host, a USB device).
         what: String,
+        /// The programs that hold it, where the system tells.
         holders: Box<holders::Holders>,
     },
     /// The path exists but is not a serial port (a file, a directory, a device that is not a
@@ -30,20 +42,37 @@ pub enum LinkError {
         "{path} is not a serial port ({detail}): give a serial device such as /dev/ttyUSB0 \
          (`rigscript scan` lists them)"
     )]
-    NotSerial { path: String, detail: String },
+    NotSerial {
+        /// The path given.
+        path: String,
+        /// What it is instead.
+        detail: String,
+    },
     /// The device went away while in use (cable unplugged, server closed the connection).
     #[error("{what} disconnected: {detail}")]
-    Disconnected { what: String, detail: String },
+    Disconnected {
+        /// What was being opened or used (a port, a host, a USB device).
+        what: String,
+        /// What the system said.
+        detail: String,
+    },
     /// Any other I/O failure on the link.
     #[error("{what}: {source}")]
     Io {
+        /// What was being opened or used (a port, a host, a USB device).
         what: String,
+        /// The system's error.
         #[source]
         source: std::io::Error,
     },
     /// A libusb failure other than the ones above.
     #[error("{what}: USB error: {detail}")]
-    Usb { what: String, detail: String },
+    Usb {
+        /// What was being opened or used (a port, a host, a USB device).
+        what: String,
+        /// libusb's error.
+        detail: String,
+    },
 }
 
 /// A byte stream to one device (or one bus of devices) with per-call timeouts.

@@ -44,7 +44,12 @@ pub enum UsbTarget {
     /// By DIP-switch unit 0-3 (product ID 0x02AC + unit).
     Unit(u8),
     /// By USB bus number and device address, for two boards that share a unit.
-    BusAddress { bus: u8, address: u8 },
+    BusAddress {
+        /// The USB bus number (as `lsusb` shows it).
+        bus: u8,
+        /// The device's address on that bus.
+        address: u8,
+    },
 }
 
 impl fmt::Display for UsbTarget {

@@ -30,7 +30,12 @@ pub const RESP_ROTARY1: u8 = 0xC3;
 pub enum DecodeError {
     /// The slice holds fewer bytes than the packet type carries.
     #[error("TRC1000 packet too short: {got} bytes, need {needed}")]
-    Short { needed: usize, got: usize },
+    Short {
+        /// Bytes the packet type carries.
+        needed: usize,
+        /// Bytes there were.
+        got: usize,
+    },
     /// The first byte is not a known command.
     #[error("unknown TRC1000 command byte 0x{0:02X}")]
     UnknownCommand(u8),
@@ -295,19 +300,33 @@ pub enum RotaryPacket {
 /// One of the 14 rotary encoders, in wire order (C2 bytes 1..7, then C3 bytes 1..7).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Rotary {
+    /// The encoder marked S41A on the board.
     S41A,
+    /// The encoder marked S41B on the board.
     S41B,
+    /// The encoder marked S42A on the board.
     S42A,
+    /// The encoder marked S42B on the board.
     S42B,
+    /// The encoder marked S43A on the board.
     S43A,
+    /// The encoder marked S43B on the board.
     S43B,
+    /// The encoder marked S44A on the board.
     S44A,
+    /// The encoder marked S44B on the board.
     S44B,
+    /// The encoder marked S45A on the board.
     S45A,
+    /// The encoder marked S45B on the board.
     S45B,
+    /// The encoder marked S37 on the board.
     S37,
+    /// The encoder marked S39 on the board.
     S39,
+    /// The encoder marked S38 on the board.
     S38,
+    /// The encoder marked S40 on the board.
     S40,
 }
 

@@ -20,7 +20,9 @@ pub enum PtyError {
     /// The requested symlink could not be made.
     #[error("cannot create the link {path}: {source}; pick another path or remove the file there")]
     Link {
+        /// The path asked for.
         path: PathBuf,
+        /// Why it could not be made.
         #[source]
         source: io::Error,
     },
