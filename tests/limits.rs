@@ -1,7 +1,8 @@
 //! The script's limits and the log, as a user meets them: a script that grows its memory, arms
 //! too many timers, runs away in operations or time, recurses, grows a string or a map, each
 //! stopped with its place and how to raise the limit, the safe state written; a log that never
-//! blocks the loop, in text or JSON; and a day of an idle interlock whose log fits on a screen.
+//! blocks the loop or a signal, in text or JSON; and a day of an idle interlock whose log fits
+//! on a screen.
 
 mod common;
 
@@ -274,6 +275,47 @@ fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
     assert!(dropped.ends_with("(stderr not being read)"), "{dropped}");
     let n: u64 = dropped.split_whitespace().next().unwrap().parse().unwrap();
     assert!(n > 1000, "{n}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn sigterm_ends_a_run_whose_stderr_nobody_reads() {
+    let dir = fresh_dir("log-pipe-signal");
+    let script = dir.join("chatty.rhai");
+    std::fs::write(
+        &script,
+        "let dashes = \"-\";\ndashes.pad(200, \"-\");\nevery(\"20ms\", || {\n  for i in 0..50 {\n    \
+         print(\"a long line of chatter \" + i + \" \" + dashes);\n  }\n});\n",
+    )
+    .unwrap();
+    let child = Command::new(rigscript())
+        .args(["run", "--sim", "--stats"])
+        .arg(&script)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // 600 KB of log a second: the 64 KiB pipe nobody reads is full long before this.
+    std::thread::sleep(Duration::from_millis(1500));
+    let sent = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(sent);
+    let (status, took, mut child) = wait_for(child, Duration::from_secs(60));
+    assert_eq!(status, Some(143), "SIGTERM not honoured (waited {took:?})");
+    let mut stats = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stats)
+        .unwrap();
+    assert!(
+        stats.lines().any(|l| l.starts_with("log lines dropped: ")),
+        "the pipe was full: {stats}"
+    );
     let _ = std::fs::remove_dir_all(dir);
 }
 

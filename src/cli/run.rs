@@ -56,19 +56,19 @@ pub struct RunArgs {
     #[arg(long, value_name = "auto|off|DURATION", value_parser = WakeLatency::parse)]
     pub wake_latency: Option<WakeLatency>,
     /// Operations each handler call may take before it is stopped as a runaway (default
-    /// 1000000; `operations` under [limits] in rig.toml).
+    /// 1000000; `operations` under `[limits]` in rig.toml).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub budget: Option<u64>,
     /// How long each handler call may run, device exchanges included, before it is stopped as
-    /// a runaway ("1s", "250ms"; default 1s; `handler_time` under [limits] in rig.toml).
+    /// a runaway ("1s", "250ms"; default 1s; `handler_time` under `[limits]` in rig.toml).
     #[arg(long, value_name = "DURATION", value_parser = time_limit)]
     pub handler_time: Option<Duration>,
     /// The most heap memory the run may hold before the script is stopped ("256MiB",
-    /// "1GiB", "512MB"; default 256MiB; `memory` under [limits] in rig.toml).
+    /// "1GiB", "512MB"; default 256MiB; `memory` under `[limits]` in rig.toml).
     #[arg(long, value_name = "SIZE", value_parser = memory_limit)]
     pub memory_limit: Option<u64>,
     /// The most timers (every, after, cron) armed at once; arming one more is a script error
-    /// (default 10000; `timers` under [limits] in rig.toml).
+    /// (default 10000; `timers` under `[limits]` in rig.toml).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub max_timers: Option<u32>,
     /// Log lines as text, or as one JSON object a line (time, level, source, message,

@@ -49,7 +49,7 @@ pub struct VerifyArgs {
     #[arg(long)]
     pub json: bool,
     /// Operations each handler call (and invariant) may take (default: `operations` under
-    /// [limits] in rig.toml, else 1000000). The other limits are rig.toml's.
+    /// `[limits]` in rig.toml, else 1000000). The other limits are rig.toml's.
     #[arg(long)]
     pub budget: Option<u64>,
 }

@@ -203,7 +203,7 @@ impl<P: Program> Runner<P> {
 
     /// Runs until the run ends, sleeping between ticks; returns the exit status.
     pub fn run(&mut self) -> i32 {
-        self.ask_prompt_wakeups();
+        self.note_prompt_wakeups(crate::time::clock::prefer_prompt_wakeups());
         self.stats.wake_latency = Some(wake_latency::describe(&None));
         loop {
             if let Some(status) = self.status() {
@@ -216,11 +216,12 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    /// Asks the OS to wake the loop promptly. Without these hints a tick starts 100-150 µs late
-    /// as a rule and milliseconds late when other processes keep the CPUs busy; they are hints
-    /// only, so a refusal (an old kernel, a sandbox) is logged once and the run goes on.
-    fn ask_prompt_wakeups(&mut self) {
-        let text = match crate::time::clock::prefer_prompt_wakeups() {
+    /// Notes how the request to wake the loop promptly went (`time::clock::prefer_prompt_wakeups`,
+    /// asked once a run). Without these hints a tick starts 100-150 µs late as a rule and
+    /// milliseconds late when other processes keep the CPUs busy; they are hints only, so a
+    /// refusal (an old kernel, a sandbox) is logged once and the run goes on.
+    fn note_prompt_wakeups(&mut self, outcome: std::io::Result<()>) {
+        let text = match outcome {
             Ok(()) => "granted".to_string(),
             Err(e) => {
                 let text = format!("refused ({e})");
@@ -1021,6 +1022,23 @@ mod tests {
         assert_eq!(r.status(), Some(exit::signal(SIGTERM)));
         let log = r.runtime().borrow().log.lines().join("\n");
         assert!(log.contains("stopping: SIGTERM received"), "{log}");
+    }
+
+    #[test]
+    fn a_refused_prompt_wakeup_request_is_logged_once_and_shown_by_stats() {
+        let (mut r, _clock) = runner(Duration::from_secs(3600), Duration::ZERO, ErrorPolicy::Stop);
+        let denied = std::io::Error::from_raw_os_error(libc::EPERM);
+        r.note_prompt_wakeups(Err(denied));
+        r.advance(Duration::from_secs(2));
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert_eq!(
+            log.matches("prompt wake-ups (1 ns timer slack, short scheduler slice) refused (")
+                .count(),
+            1,
+            "{log}"
+        );
+        let stats = r.stats.prompt_wakeups.clone().unwrap_or_default();
+        assert!(stats.starts_with("refused ("), "{stats}");
     }
 
     #[test]
