@@ -236,9 +236,10 @@ fn a_script_that_grows_memory_without_end_is_stopped_at_its_line() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-#[test]
-fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
-    let dir = fresh_dir("log-pipe");
+/// `rigscript run --sim --stats ARGS..` of a script that prints 600 KB of log a second, with
+/// stdout and stderr piped and nobody reading them; its directory and the process.
+fn chatty_run(tag: &str, args: &[&str]) -> (PathBuf, Child) {
+    let dir = fresh_dir(tag);
     let script = dir.join("chatty.rhai");
     std::fs::write(
         &script,
@@ -248,26 +249,38 @@ fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
     )
     .unwrap();
     let child = Command::new(rigscript())
-        .args(["run", "--sim", "--for", "3s", "--stats"])
+        .args(["run", "--sim", "--stats"])
+        .args(args)
         .arg(&script)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // Nobody reads stderr while it runs.
+    (dir, child)
+}
+
+/// What an ended run printed on stdout (`--stats`).
+fn stdout_of(child: &mut Child) -> String {
+    let mut out = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    out
+}
+
+#[test]
+fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
+    let (dir, child) = chatty_run("log-pipe", &["--for", "3s"]);
     let (status, took, mut child) = wait_for(child, Duration::from_secs(60));
     assert_eq!(
         status,
         Some(0),
         "the run did not end by itself (took {took:?})"
     );
-    let mut stats = String::new();
-    child
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut stats)
-        .unwrap();
+    let stats = stdout_of(&mut child);
     let dropped = stats
         .lines()
         .find_map(|l| l.strip_prefix("log lines dropped: "))
@@ -280,22 +293,8 @@ fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
 
 #[test]
 fn sigterm_ends_a_run_whose_stderr_nobody_reads() {
-    let dir = fresh_dir("log-pipe-signal");
-    let script = dir.join("chatty.rhai");
-    std::fs::write(
-        &script,
-        "let dashes = \"-\";\ndashes.pad(200, \"-\");\nevery(\"20ms\", || {\n  for i in 0..50 {\n    \
-         print(\"a long line of chatter \" + i + \" \" + dashes);\n  }\n});\n",
-    )
-    .unwrap();
-    let child = Command::new(rigscript())
-        .args(["run", "--sim", "--stats"])
-        .arg(&script)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    // 600 KB of log a second: the 64 KiB pipe nobody reads is full long before this.
+    let (dir, child) = chatty_run("log-pipe-signal", &[]);
+    // The 64 KiB pipe is full long before this.
     std::thread::sleep(Duration::from_millis(1500));
     let sent = Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
@@ -305,13 +304,7 @@ fn sigterm_ends_a_run_whose_stderr_nobody_reads() {
     assert!(sent);
     let (status, took, mut child) = wait_for(child, Duration::from_secs(60));
     assert_eq!(status, Some(143), "SIGTERM not honoured (waited {took:?})");
-    let mut stats = String::new();
-    child
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut stats)
-        .unwrap();
+    let stats = stdout_of(&mut child);
     assert!(
         stats.lines().any(|l| l.starts_with("log lines dropped: ")),
         "the pipe was full: {stats}"
