@@ -335,7 +335,7 @@ fn stopped_by(signal: &str, script: &str) -> (Option<i32>, String) {
     let status = child.wait().unwrap();
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
-    (status.code(), log + &rest)
+    (status.code(), log + rest.as_str())
 }
 
 #[test]

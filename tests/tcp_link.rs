@@ -3,60 +3,10 @@
 
 mod common;
 
-use common::{rigscript, SimProcess};
-use rigscript::link::serial::SerialLink;
-use rigscript::link::ByteLink;
+use common::{rigscript, start_relay, SimProcess};
 use serde_json::Value;
-use std::io::{ErrorKind, Read, Write};
-use std::net::{TcpListener, TcpStream};
+use std::net::TcpListener;
 use std::process::{Command, Output};
-use std::time::Duration;
-
-/// Relays each accepted connection to the serial port at `path`, one at a time, until the
-/// client hangs up; returns the listening port.
-fn start_relay(path: &str) -> u16 {
-    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = listener.local_addr().unwrap().port();
-    let path = path.to_string();
-    std::thread::spawn(move || {
-        for stream in listener.incoming() {
-            let Ok(stream) = stream else { break };
-            let Ok(serial) = SerialLink::open(&path, 9600) else {
-                break;
-            };
-            relay(stream, serial);
-        }
-    });
-    port
-}
-
-fn relay(mut socket: TcpStream, mut serial: SerialLink) {
-    socket
-        .set_read_timeout(Some(Duration::from_millis(1)))
-        .unwrap();
-    let mut buf = [0u8; 512];
-    loop {
-        match socket.read(&mut buf) {
-            Ok(0) => return,
-            Ok(n) => {
-                if serial.write_all(&buf[..n]).is_err() {
-                    return;
-                }
-            }
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
-            Err(_) => return,
-        }
-        match serial.read(&mut buf, Duration::from_millis(1)) {
-            Ok(0) => {}
-            Ok(n) => {
-                if socket.write_all(&buf[..n]).is_err() {
-                    return;
-                }
-            }
-            Err(_) => return,
-        }
-    }
-}
 
 fn rigscript_run(args: &[&str]) -> Output {
     Command::new(rigscript()).args(args).output().unwrap()

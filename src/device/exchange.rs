@@ -6,8 +6,11 @@
 //! answer, our own request that gets none, stray bytes. After a timeout the line must stay
 //! silent for one more timeout before the next request, so a late answer is heard and dropped
 //! instead of being taken for the answer to the request after it. The waits sleep; a request
-//! already late is sent at once. Every buffer is bounded by the longest valid answer.
+//! already late is sent at once. Every buffer is bounded by the longest valid answer. A
+//! `Cancel` cuts an exchange short: nothing is sent once it is set, and the waits look at it
+//! between slices.
 
+use crate::device::cancel::Cancel;
 use crate::link::line::{FrameGap, LineState};
 use crate::link::{ByteLink, LinkError};
 use crate::time::clock::Clock;
@@ -71,6 +74,9 @@ pub enum ExchangeError {
         /// How long it waited.
         within: Duration,
     },
+    /// The caller's `Cancel` was set: cut short, says nothing of the device.
+    #[error("cut short: the caller stopped waiting")]
+    Cancelled,
 }
 
 /// Which way a traced frame went.
@@ -87,6 +93,8 @@ pub type Tracer = Box<dyn FnMut(Direction, &[u8]) + Send>;
 
 /// Sends `request` and, when `expect_answer`, collects the answer: `frame` looks at everything
 /// received so far and returns the answer once it holds a whole one (leading noise cut off).
+/// Once `cancel` is set it ends in `Cancelled` within a `CANCEL_SLICE`, and sends nothing.
+#[allow(clippy::too_many_arguments)]
 pub fn exchange(
     link: &mut dyn ByteLink,
     clock: &dyn Clock,
@@ -95,6 +103,7 @@ pub fn exchange(
     timing: Timing,
     frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     tracer: &mut Option<Tracer>,
+    cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
     let mut line = link.line().copied().unwrap_or_default();
     let outcome = send_and_collect(
@@ -106,6 +115,7 @@ pub fn exchange(
         &timing,
         frame,
         tracer,
+        cancel,
     );
     if let Some(kept) = link.line() {
         *kept = line;
@@ -123,8 +133,9 @@ fn send_and_collect(
     timing: &Timing,
     mut frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     tracer: &mut Option<Tracer>,
+    cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
-    keep_silence(link, clock, line, timing)?;
+    keep_silence(link, clock, line, timing, cancel)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
     }
@@ -153,9 +164,18 @@ fn send_and_collect(
             trace_received(tracer, &received);
             return Err(ExchangeError::Timeout { received });
         }
+        if cancel.is_cancelled() {
+            // The module may still answer, as after a timeout: the next request (the end's
+            // safe state) waits for the line to settle.
+            line.quiet_since = Some(now);
+            line.settle = Some(timing.timeout);
+            trace_received(tracer, &received);
+            return Err(ExchangeError::Cancelled);
+        }
         let wait = match timing.gap {
+            // At most 29 ms (t3.5 at 1200 baud): shorter than a slice.
             Some(gap) if !received.is_empty() => gap.min(left),
-            _ => left,
+            _ => cancel.slice(left),
         };
         let n = link.read(&mut chunk, wait)?;
         let Some(bytes) = chunk.get(..n).filter(|b| !b.is_empty()) else {
@@ -193,12 +213,16 @@ fn keep_silence(
     clock: &dyn Clock,
     line: &mut LineState,
     timing: &Timing,
+    cancel: &Cancel,
 ) -> Result<(), ExchangeError> {
     let gap = timing.silence_on(line);
     let started = clock.now();
     let mut heard = 0usize;
     let mut scratch = [0u8; 256];
     loop {
+        if cancel.is_cancelled() {
+            return Err(ExchangeError::Cancelled);
+        }
         let needed = line.settle.map_or(gap, |settle| settle.max(gap));
         let now = clock.now();
         let waited = now.saturating_sub(started);
@@ -210,15 +234,16 @@ fn keep_silence(
         }
         let quiet_at = line.quiet_since.map_or(now, |t| t.saturating_add(needed));
         if now < quiet_at {
+            let wait = cancel.slice(quiet_at.saturating_sub(now));
             if line.settle.is_some() {
                 // Listen rather than sleep: a late answer's arrival restarts the count.
-                let n = link.read(&mut scratch, quiet_at.saturating_sub(now))?;
+                let n = link.read(&mut scratch, wait)?;
                 if n > 0 {
                     heard = heard.saturating_add(n);
                     line.quiet_since = Some(clock.now());
                 }
             } else {
-                clock.sleep_until(quiet_at);
+                clock.sleep_until(now.saturating_add(wait));
             }
             continue;
         }
@@ -382,6 +407,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
     }
 
@@ -404,6 +430,7 @@ mod tests {
             timing(None),
             line_end,
             &mut tracer,
+            &Cancel::never(),
         )
         .unwrap();
         assert_eq!(got, b"!01\r");
@@ -430,6 +457,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap_err();
         match err {
@@ -452,6 +480,7 @@ mod tests {
             timing(Some(2)),
             |_| None,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         assert_eq!(got, vec![1, 0xC6, 0]);
@@ -474,7 +503,8 @@ mod tests {
             false,
             timing(None),
             line_end,
-            &mut None
+            &mut None,
+            &Cancel::never(),
         )
         .unwrap()
         .is_empty());
@@ -525,6 +555,7 @@ mod tests {
             other,
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         assert_eq!(heard_at.lock().unwrap()[1], end + Duration::from_millis(5));
@@ -568,6 +599,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         );
         assert_eq!(second.unwrap(), b"!01\r");
         let heard = heard_at.lock().unwrap().clone();
@@ -648,6 +680,7 @@ mod tests {
                 timing(Some(2)),
                 |_| None,
                 tracer,
+                &Cancel::never(),
             )
         };
         match ask(&mut tracer) {
@@ -686,6 +719,7 @@ mod tests {
             timing(None),
             line_end,
             &mut None,
+            &Cancel::never(),
         )
         .unwrap();
         clock.advance(Duration::from_millis(100));

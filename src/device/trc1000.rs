@@ -1,6 +1,9 @@
 //! TRC1000 driver: relay selection, switch and rotary reads over any packet link, matching each
-//! answer to its request by its first byte and dropping stale packets (NOTES.md, TRC1000).
+//! answer to its request by its first byte and dropping stale packets (NOTES.md, TRC1000). A
+//! `Cancel` cuts a request short: nothing is sent once it is set, and the wait for an answer
+//! looks at it between slices.
 
+use crate::device::cancel::Cancel;
 use crate::link::{LinkError, PacketLink};
 use crate::protocol::trc1000::{
     rotary_delta, Command, InvalidRelay, Relay, Response, Rotary, RotaryValues, SwitchSet,
@@ -41,6 +44,15 @@ pub enum Trc1000Error {
     /// A relay number outside 0-7; nothing was sent.
     #[error(transparent)]
     InvalidRelay(#[from] InvalidRelay),
+    /// The caller's `Cancel` cut the request short (a run stopping): it says nothing of the
+    /// board.
+    #[error("{request} to {board} was cut short: the caller stopped waiting")]
+    Cancelled {
+        /// The board, as its link describes it.
+        board: String,
+        /// The request in words.
+        request: String,
+    },
 }
 
 fn discarded_note(n: usize) -> String {
@@ -72,6 +84,7 @@ pub struct Trc1000<L: PacketLink> {
     clock: SharedClock,
     timeout: Duration,
     discarded: u64,
+    cancel: Cancel,
 }
 
 impl<L: PacketLink> Trc1000<L> {
@@ -87,7 +100,14 @@ impl<L: PacketLink> Trc1000<L> {
             clock,
             timeout: DEFAULT_TIMEOUT,
             discarded: 0,
+            cancel: Cancel::never(),
         }
+    }
+
+    /// Cuts requests short once `cancel` is set (`Trc1000Error::Cancelled`); `Cancel::never()`
+    /// lets each wait its full timeout.
+    pub fn set_cancel(&mut self, cancel: Cancel) {
+        self.cancel = cancel;
     }
 
     /// Sets how long each request waits for its answer.
@@ -122,10 +142,34 @@ impl<L: PacketLink> Trc1000<L> {
 
     /// Selects relay `relay` (0-7); the board does not answer this command.
     pub fn select_relay(&mut self, relay: u8) -> Result<(), Trc1000Error> {
-        let relay = Relay::new(relay)?;
-        self.link
-            .send(&Command::SelectRelay(relay).encode(), self.timeout)?;
+        let command = Command::SelectRelay(Relay::new(relay)?);
+        self.unless_cancelled(command)?;
+        self.link.send(&command.encode(), self.timeout)?;
         Ok(())
+    }
+
+    /// Selects relay `relay` (0-7) and confirms that a board took it: the selection gets no
+    /// answer, and an OUT transfer can be taken without a board that acts on it (a host
+    /// controller or hub may accept it for a board that hangs; a simulated board that is gone
+    /// takes it silently), so a request input (41) follows and only its answer confirms the
+    /// selection. Returns the switches that answer read.
+    pub fn select_relay_confirmed(&mut self, relay: u8) -> Result<SwitchSet, Trc1000Error> {
+        let selection = Command::SelectRelay(Relay::new(relay)?).describe();
+        self.select_relay(relay)?;
+        self.read_switches().map_err(|e| match e {
+            Trc1000Error::Timeout {
+                board,
+                request,
+                timeout,
+                discarded,
+            } => Trc1000Error::Timeout {
+                board,
+                request: format!("{request} after {selection}, so the selection is unconfirmed"),
+                timeout,
+                discarded,
+            },
+            other => other,
+        })
     }
 
     /// Reads the 45 switches.
@@ -149,22 +193,45 @@ impl<L: PacketLink> Trc1000<L> {
         Ok(RotaryValues::from_packets(r0, r1))
     }
 
+    /// `Cancelled` for `command` if the cancel is set.
+    fn unless_cancelled(&self, command: Command) -> Result<(), Trc1000Error> {
+        if self.cancel.is_cancelled() {
+            return Err(Trc1000Error::Cancelled {
+                board: self.link.describe(),
+                request: command.describe(),
+            });
+        }
+        Ok(())
+    }
+
     /// Sends `command` and waits for the first packet `accept` takes, dropping others.
     fn request<T>(
         &mut self,
         command: Command,
         accept: impl Fn(Response) -> Option<T>,
     ) -> Result<T, Trc1000Error> {
+        self.unless_cancelled(command)?;
         self.link.send(&command.encode(), self.timeout)?;
         let deadline = self.clock.now().saturating_add(self.timeout);
         let mut discarded = 0usize;
         let mut wait = self.timeout;
-        while let Some(packet) = self.link.receive(wait)? {
-            if let Some(value) = Response::decode(&packet).ok().and_then(&accept) {
-                return Ok(value);
+        loop {
+            let asked = self.cancel.slice(wait);
+            let before = self.clock.now();
+            match self.link.receive(asked)? {
+                Some(packet) => {
+                    if let Some(value) = Response::decode(&packet).ok().and_then(&accept) {
+                        return Ok(value);
+                    }
+                    discarded = discarded.saturating_add(1);
+                    self.discarded = self.discarded.saturating_add(1);
+                }
+                // Nothing in all the time left (or on a link that does not wait: no time to
+                // slice).
+                None if asked == wait || self.clock.now() == before => break,
+                None => {}
             }
-            discarded = discarded.saturating_add(1);
-            self.discarded = self.discarded.saturating_add(1);
+            self.unless_cancelled(command)?;
             wait = deadline.saturating_sub(self.clock.now());
             if wait.is_zero() || discarded >= MAX_DISCARDED {
                 break;
@@ -273,6 +340,63 @@ mod tests {
         fn receive(&mut self, _: &[u8; 8]) -> Option<[u8; 8]> {
             self.0
         }
+    }
+
+    #[test]
+    fn a_confirmed_selection_fails_when_no_board_answers_after_it() {
+        let mut d = driver(Trc1000Sim::default());
+        let switches = d.select_relay_confirmed(5).unwrap();
+        assert_eq!(d.link_mut().device().relay().number(), 5);
+        assert_eq!(switches, SwitchSet::default());
+
+        let mut gone = driver(Answers(None));
+        gone.select_relay(5)
+            .expect("an OUT packet is taken, board or not");
+        match gone.select_relay_confirmed(5) {
+            Err(e @ Trc1000Error::Timeout { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains(
+                        "did not answer request input (41) after select relay 5 (05), so the \
+                         selection is unconfirmed"
+                    ),
+                    "{text}"
+                );
+            }
+            other => panic!("expected no confirmation, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_stop_cuts_the_wait_for_a_silent_board_within_a_slice_and_sends_nothing_after() {
+        use crate::device::cancel::CANCEL_SLICE;
+        use crate::time::clock::Clock;
+        use std::sync::atomic::AtomicUsize;
+        let clock = VirtualClock::at_epoch();
+        let link = Injecting {
+            inner: MemoryPacketLink::new(Answers(None), "TRC1000 unit 0")
+                .with_clock(Arc::new(clock.clone())),
+            extra: VecDeque::new(),
+            sent: Vec::new(),
+        };
+        let mut d = Trc1000::with_clock(link, Arc::new(clock.clone()));
+        d.set_timeout(Duration::from_secs(1));
+        let flag = Arc::new(AtomicUsize::new(0));
+        d.set_cancel(Cancel::when_set(Arc::clone(&flag)));
+        let signal = Duration::from_millis(350);
+        clock.set_at(signal, flag, 15);
+        match d.read_switches() {
+            Err(e @ Trc1000Error::Cancelled { .. }) => {
+                assert!(e.to_string().contains("cut short"), "{e}");
+            }
+            other => panic!("expected a cut request, got {other:?}"),
+        }
+        assert!(clock.now() <= signal + CANCEL_SLICE, "{:?}", clock.now());
+        assert!(matches!(
+            d.select_relay(3),
+            Err(Trc1000Error::Cancelled { .. })
+        ));
+        assert_eq!(d.link_mut().sent.len(), 1, "nothing sent after the stop");
     }
 
     /// A link that streams garbage forever and never advances time.

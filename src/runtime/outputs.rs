@@ -110,7 +110,7 @@ impl<H: Clone> Runtime<H> {
                 Ok(None) => {}
                 Err(e) if e.is_safe_mode() => self.regain_control(idx),
                 Err(e) => {
-                    if !e.is_comm_failure() {
+                    if !e.is_comm_failure() && !e.is_cancelled() {
                         let name = self.device_name(idx);
                         self.log.repeating(
                             &refusal,

@@ -3,6 +3,7 @@
 
 use super::devices::{C29uDevice, Device, DeviceError, TrcDevice};
 use super::state::Runtime;
+use crate::device::cancel::Cancel;
 use std::time::Duration;
 
 impl<H: Clone> Runtime<H> {
@@ -30,6 +31,15 @@ impl<H: Clone> Runtime<H> {
     /// The TRP-C29U at `idx`.
     pub fn c29u(&mut self, idx: usize) -> Option<&mut C29uDevice> {
         self.devices.get_mut(idx).and_then(Device::as_c29u)
+    }
+
+    /// Cuts every device's exchanges short once `cancel` is set (the run's stop flag);
+    /// `Cancel::never()` lets them run their course (the end's writes).
+    pub fn set_cancel(&mut self, cancel: &Cancel) {
+        self.cancel = cancel.clone();
+        for d in &mut self.devices {
+            d.set_cancel(cancel);
+        }
     }
 
     /// Whether the device at `idx` answers.

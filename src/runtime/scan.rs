@@ -16,6 +16,7 @@ use super::stats::Stats;
 use super::subscriptions::Call;
 use super::wake_latency;
 use crate::config::{ErrorPolicy, WakeLatency};
+use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use signal_hook::consts::{SIGINT, SIGTERM};
 use std::cell::RefCell;
@@ -80,7 +81,8 @@ pub struct RunOptions {
     /// End the run normally after this long (`--for`).
     pub end_after: Option<Duration>,
     /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
-    /// the signal handler or a scenario test: stop at once, outputs safe.
+    /// the signal handler or a scenario test: stop at once, outputs safe. It also cuts the
+    /// exchange under way short (`device::cancel`), within a `CANCEL_SLICE`.
     pub stop_flag: Arc<AtomicUsize>,
     /// What `run` asks of the CPUs' idle states while it runs in real time (`auto`: a 0 µs
     /// request while the loop ticks every 20 ms or faster, re-evaluated as handlers come
@@ -134,8 +136,11 @@ pub struct Runner<P: Program> {
 }
 
 impl<P: Program> Runner<P> {
-    /// A runner for `program` over `rt`; the first tick is due at once.
+    /// A runner for `program` over `rt`; the first tick is due at once. From now on the stop
+    /// flag cuts the devices' exchanges short.
     pub fn new(rt: Shared<P::Handler>, program: P, options: RunOptions) -> Self {
+        rt.borrow_mut()
+            .set_cancel(&Cancel::when_set(Arc::clone(&options.stop_flag)));
         let clock = Arc::clone(&rt.borrow().clock);
         let now = clock.now();
         Self {
@@ -658,6 +663,9 @@ impl<P: Program> Runner<P> {
                 EndReason::Violated(_) => {}
             }
         }
+        // What follows comes after the stop and is not cut: `on_stop` handlers as the script
+        // wrote them, the end's writes with their own bounded tries.
+        self.rt.borrow_mut().set_cancel(&Cancel::never());
         if was_running {
             let calls = self.rt.borrow().stop_calls();
             for call in calls {
@@ -684,7 +692,7 @@ impl<P: Program> Runner<P> {
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
-        rt.end_safe(why, true);
+        self.trouble.unreached_at_end = rt.end_safe(why, true);
         let failed = rt.records.failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
@@ -728,12 +736,17 @@ pub struct Trouble {
     pub on_stop_failed: u64,
     /// Devices lost and not back when the run ended.
     pub lost_at_end: Vec<String>,
+    /// Devices the end's safe state did not reach (no answer confirmed it).
+    pub unreached_at_end: Vec<String>,
 }
 
 impl Trouble {
     /// Whether nothing went wrong.
     pub fn is_empty(&self) -> bool {
-        self.recovered_errors == 0 && self.on_stop_failed == 0 && self.lost_at_end.is_empty()
+        self.recovered_errors == 0
+            && self.on_stop_failed == 0
+            && self.lost_at_end.is_empty()
+            && self.unreached_at_end.is_empty()
     }
 
     /// What went wrong, in words.
@@ -752,6 +765,12 @@ impl Trouble {
             parts.push(format!(
                 "{} lost and not back at the end",
                 self.lost_at_end.join(", ")
+            ));
+        }
+        if !self.unreached_at_end.is_empty() {
+            parts.push(format!(
+                "the safe state did not reach {}",
+                self.unreached_at_end.join(", ")
             ));
         }
         parts.join("; ")
@@ -823,9 +842,11 @@ fn describe(fault: &Fault, label: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::device::cancel::CANCEL_SLICE;
     use crate::runtime::devices::links::TransactionCounter;
     use crate::runtime::log::Logger;
     use crate::runtime::records::Records;
+    use crate::runtime::safety::END_TRIES;
     use crate::time::clock::{Clock, VirtualClock};
     use crate::time::zone::Zone;
 
@@ -1146,69 +1167,76 @@ mod tests {
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
     }
 
-    /// A program whose first timer plays a SIGTERM arriving mid-tick and whose others read a
-    /// module's inputs.
+    /// A program whose timer reads a module's inputs.
     struct Reader {
         rt: Shared<&'static str>,
-        flag: Arc<AtomicUsize>,
     }
 
     impl Program for Reader {
         type Handler = &'static str;
         fn start(&mut self) -> Result<(), Fault> {
-            let mut rt = self.rt.borrow_mut();
-            for h in ["signal", "read", "read"] {
-                rt.every(Duration::from_millis(100), h).unwrap();
-            }
+            self.rt
+                .borrow_mut()
+                .every(Duration::from_millis(100), "read")
+                .unwrap();
             Ok(())
         }
         fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
             // This program states no invariants.
             Ok(true)
         }
-        fn call(&mut self, call: &Call<&'static str>) -> Result<(), Fault> {
-            if call.handler == "signal" {
-                self.flag.store(SIGTERM as usize, Ordering::SeqCst);
-            } else {
-                self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
-            }
+        fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+            self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
             Ok(())
         }
     }
 
     #[test]
-    fn a_sigterm_with_a_silent_module_is_honoured_in_a_bounded_time() {
+    fn a_sigterm_while_a_silent_module_is_waited_for_is_honoured_within_a_slice() {
         // A module that waits 1 s for each answer and tries 11 times: each exchange with it,
-        // silent, would take 11 s.
+        // silent, would take 21 s (every try after the first waits out a settling second).
         let rig = crate::runtime::testing::RIG
             .replace("watchdog = \"1s\"\n", "timeout = \"1s\"\nretries = 10\n");
         let mut r = crate::runtime::testing::TestRig::new(&rig);
         r.rt.start_devices().unwrap();
         let rt = r.shared_runtime();
         let flag: Arc<AtomicUsize> = Arc::default();
-        let program = Reader {
-            rt: Rc::clone(&rt),
-            flag: Arc::clone(&flag),
-        };
+        let program = Reader { rt: Rc::clone(&rt) };
         let options = RunOptions {
             period: Duration::from_millis(20),
             policy: ErrorPolicy::Stop,
             end_after: None,
-            stop_flag: flag,
+            stop_flag: Arc::clone(&flag),
             wake_latency: WakeLatency::Off,
         };
         let mut runner = Runner::new(rt, program, options);
         runner.start();
         r.sim.set_gone("io", true).unwrap();
-        let signalled = Duration::from_millis(100);
-        runner.advance(signalled);
-        assert_eq!(runner.status(), Some(exit::signal(SIGTERM)));
-        // No exchange after the signal but the end's: two tries of 1 s with the silent module,
-        // each after the line has been silent a timeout more (a late answer's chance).
+        // The first read starts at 100 ms; the signal comes 350 ms into its first wait.
+        let signalled = Duration::from_millis(450);
+        r.clock.set_at(signalled, flag, SIGTERM as usize);
+        runner.advance(Duration::from_secs(1));
+        // Stopped by the signal, and the safe state did not reach the silent module.
+        assert_eq!(runner.status(), Some(exit::TROUBLE));
+        // The wait is cut within a slice; then only the end's writes: END_TRIES tries of 1 s
+        // with the silent module, each after the line has been silent a timeout more (the
+        // cut request's answer could still come). The exchange it cut would have gone on for
+        // 20 s more.
         let took = r.clock.now() - signalled;
-        assert!(took <= Duration::from_millis(4500), "{took:?}");
+        let tries = END_TRIES * 2;
+        let bound = CANCEL_SLICE + Duration::from_secs(1) * tries;
+        assert!(took <= bound, "{took:?}, more than {bound:?}");
         let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("stopping: SIGTERM received"), "{log}");
         assert!(log.contains("io: the safe state did not reach it"), "{log}");
+        assert!(
+            !log.contains("io: lost"),
+            "a cut exchange is no loss: {log}"
+        );
+        assert!(
+            log.contains("the safe state did not reach io: exit status 5"),
+            "{log}"
+        );
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
     }
 }

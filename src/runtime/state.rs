@@ -11,6 +11,7 @@ use super::invariants::Invariant;
 use super::log::Logger;
 use super::records::Records;
 use super::subscriptions::Subscriptions;
+use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::sync::atomic::Ordering;
@@ -52,6 +53,9 @@ pub struct Runtime<H> {
     pub transactions: TransactionCounter,
     /// How long a device may be lost before everything goes safe.
     pub grace: Duration,
+    /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
+    /// runs; supervision also stops trying lost devices once it is set.
+    pub cancel: Cancel,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -83,6 +87,7 @@ impl<H: Clone> Runtime<H> {
             held_safe: false,
             transactions,
             grace,
+            cancel: Cancel::never(),
         }
     }
 

@@ -193,7 +193,12 @@ fn rotary(dev: &str, name: &str) -> R<Rotary> {
     )
 }
 
+/// A device operation's failure as a script error; one that a stop cut short ends the handler
+/// at once, as `stop()` does (the run is ending, and that is no fault of the script's).
 fn device_error<T>(dev: &str, e: &DeviceError) -> R<T> {
+    if e.is_cancelled() {
+        return end_handler();
+    }
     let text = e.to_string();
     if text.starts_with(dev) {
         fail(text)
@@ -732,6 +737,11 @@ fn stop(rt: &Rt, code: i64) -> R<()> {
     if r.stop_request.is_none() {
         r.stop_request = Some(code);
     }
+    end_handler()
+}
+
+/// Ends the handler under way at once, without a fault (`STOP_MARKER`).
+fn end_handler<T>() -> R<T> {
     Err(
         EvalAltResult::ErrorTerminated(Dynamic::from(STOP_MARKER.to_string()), Position::NONE)
             .into(),

@@ -6,7 +6,8 @@ use super::engine::{Breach, LIMIT_MARKER, MAX_ARRAY, MAX_CALL_LEVELS, MAX_MAP, M
 use crate::runtime::scan::Fault;
 use rhai::{EvalAltResult, ParseError, Position};
 
-/// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once.
+/// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once (and a device
+/// operation a stop cut short).
 pub const STOP_MARKER: &str = "rigscript: stop()";
 
 /// `file:line:column` of `pos`, or `None` when Rhai has no position.

@@ -460,6 +460,7 @@ impl Clock for EventClock {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::device::cancel::Cancel;
     use crate::device::exchange::{exchange, ExchangeError, Timing};
     use crate::link::line::FrameGap;
     use std::sync::atomic::{AtomicU32, Ordering};
@@ -500,7 +501,16 @@ mod tests {
             let end = r.iter().position(|&b| b == b'!')?;
             Some(r[..=end].to_vec())
         };
-        match exchange(link, clock, req, true, timing, frame, &mut None) {
+        match exchange(
+            link,
+            clock,
+            req,
+            true,
+            timing,
+            frame,
+            &mut None,
+            &Cancel::never(),
+        ) {
             Ok(a) => Some(a),
             Err(ExchangeError::Timeout { .. }) => None,
             Err(e) => panic!("{e}"),

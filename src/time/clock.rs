@@ -4,6 +4,7 @@
 //! that tests move forward; wall time (for records and cron) comes from the same clock.
 
 use chrono::{DateTime, Utc};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -146,6 +147,21 @@ mod linux {
 struct VirtualState {
     now: Duration,
     wall_origin: DateTime<Utc>,
+    /// Flags to set once time reaches a moment (`set_at`), soonest last.
+    alarms: Vec<(Duration, Arc<AtomicUsize>, usize)>,
+}
+
+impl VirtualState {
+    fn move_to(&mut self, to: Duration) {
+        self.now = to;
+        while let Some((at, flag, value)) = self.alarms.pop() {
+            if at > to {
+                self.alarms.push((at, flag, value));
+                break;
+            }
+            flag.store(value, Ordering::SeqCst);
+        }
+    }
 }
 
 /// Virtual time for tests: it only moves when told to, and sleeping jumps straight to the deadline.
@@ -161,6 +177,7 @@ impl VirtualClock {
             state: Arc::new(Mutex::new(VirtualState {
                 now: Duration::ZERO,
                 wall_origin,
+                alarms: Vec::new(),
             })),
         }
     }
@@ -173,15 +190,29 @@ impl VirtualClock {
     /// Moves time forward by `by`.
     pub fn advance(&self, by: Duration) {
         let mut s = self.lock();
-        s.now = s.now.saturating_add(by);
+        let to = s.now.saturating_add(by);
+        s.move_to(to);
     }
 
     /// Moves time forward to `to` (never backwards).
     pub fn advance_to(&self, to: Duration) {
         let mut s = self.lock();
         if to > s.now {
-            s.now = to;
+            s.move_to(to);
         }
+    }
+
+    /// Stores `value` in `flag` once time reaches `at`, whoever moves it there: a signal that
+    /// arrives in the middle of a wait (a sleep that jumps past `at` sets it on the way, as a
+    /// real wait would see it only when it ends).
+    pub fn set_at(&self, at: Duration, flag: Arc<AtomicUsize>, value: usize) {
+        let mut s = self.lock();
+        if at <= s.now {
+            flag.store(value, Ordering::SeqCst);
+            return;
+        }
+        s.alarms.push((at, flag, value));
+        s.alarms.sort_by_key(|a| std::cmp::Reverse(a.0));
     }
 
     /// Steps the wall clock by `by` (forward or back) while monotonic time stays: an NTP step,
@@ -240,6 +271,30 @@ mod tests {
         c.step_wall(chrono::TimeDelta::hours(-1));
         assert_eq!(c.wall().timestamp(), 2 - 3600, "the wall clock steps back");
         assert_eq!(c.now(), Duration::from_secs(2), "monotonic time does not");
+    }
+
+    #[test]
+    fn a_flag_set_at_a_moment_is_set_by_whatever_moves_time_past_it() {
+        let c = VirtualClock::at_epoch();
+        let flag = Arc::new(AtomicUsize::new(0));
+        c.set_at(Duration::from_millis(300), Arc::clone(&flag), 15);
+        c.set_at(Duration::from_millis(100), Arc::clone(&flag), 2);
+        c.advance(Duration::from_millis(99));
+        assert_eq!(flag.load(Ordering::SeqCst), 0, "not yet");
+        c.sleep_until(Duration::from_millis(250));
+        assert_eq!(
+            flag.load(Ordering::SeqCst),
+            2,
+            "a sleep past the moment sets it"
+        );
+        c.advance_to(Duration::from_millis(300));
+        assert_eq!(flag.load(Ordering::SeqCst), 15, "at the moment itself");
+        c.set_at(Duration::ZERO, Arc::clone(&flag), 7);
+        assert_eq!(
+            flag.load(Ordering::SeqCst),
+            7,
+            "a moment passed already: at once"
+        );
     }
 
     #[cfg(target_os = "linux")]

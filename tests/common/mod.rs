@@ -3,10 +3,15 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader, Write};
+use rigscript::link::serial::SerialLink;
+use rigscript::link::ByteLink;
+use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
+use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::UnixDatagram;
 use std::path::PathBuf;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Output, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Path of the rigscript binary under test.
@@ -197,4 +202,58 @@ pub fn receive_notifications(
         }
     }
     got
+}
+
+/// Relays each accepted connection to the serial port at `path`, one at a time, until the
+/// client hangs up (what a serial device server or ser2net does); returns the listening port.
+pub fn start_relay(path: &str) -> u16 {
+    start_switchable_relay(path, Arc::default())
+}
+
+/// `start_relay` whose line goes silent while `silent` holds: bytes either way are dropped and
+/// the connection stays up, as with a module that stopped answering behind a working server.
+pub fn start_switchable_relay(path: &str, silent: Arc<AtomicBool>) -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let path = path.to_string();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(stream) = stream else { break };
+            let Ok(serial) = SerialLink::open(&path, 9600) else {
+                break;
+            };
+            relay(stream, serial, &silent);
+        }
+    });
+    port
+}
+
+fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) {
+    socket
+        .set_read_timeout(Some(Duration::from_millis(1)))
+        .unwrap();
+    let mut buf = [0u8; 512];
+    loop {
+        match socket.read(&mut buf) {
+            Ok(0) => return,
+            Ok(_) if silent.load(Ordering::SeqCst) => {}
+            Ok(n) => {
+                if serial.write_all(&buf[..n]).is_err() {
+                    return;
+                }
+            }
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(_) => return,
+        }
+        match serial.read(&mut buf, Duration::from_millis(1)) {
+            Ok(0) => {}
+            Ok(_) if silent.load(Ordering::SeqCst) => {}
+            Ok(n) => {
+                if socket.write_all(&buf[..n]).is_err() {
+                    return;
+                }
+            }
+            Err(_) => return,
+        }
+    }
 }

@@ -10,6 +10,7 @@ pub use crate::protocol::c29u::{CounterEdge, Protocol, WatchdogTimeout};
 pub use crate::protocol::c29u_ascii::Preset;
 pub use transport::{ascii_frame_gap, auto_frame_gap, share, SharedLink};
 
+use crate::device::cancel::Cancel;
 use crate::device::exchange::{format_frame, ExchangeError, Tracer};
 use crate::link::{serial::SerialLink, tcp::TcpLink, LinkError};
 use crate::protocol::c29u_modbus::SLAVE_IDS;
@@ -137,6 +138,17 @@ pub enum C29uError {
     /// A caller's argument is out of range.
     #[error("{0}")]
     InvalidArgument(String),
+    /// The caller's `Cancel` cut the exchange short (a run stopping): it says nothing of the
+    /// module, which may or may not have acted on the request.
+    #[error("{request} to TRP-C29U ID {id} on {port} was cut short: the caller stopped waiting")]
+    Cancelled {
+        /// The link.
+        port: String,
+        /// The module's ID.
+        id: u8,
+        /// The request in words.
+        request: String,
+    },
 }
 
 /// How many received bytes an error message shows.
@@ -404,6 +416,12 @@ impl C29u {
     /// Sends every frame and answer to `tracer` (`--trace`).
     pub fn set_tracer(&mut self, tracer: Option<Tracer>) {
         self.transport.set_tracer(tracer);
+    }
+
+    /// Cuts exchanges short once `cancel` is set (`C29uError::Cancelled`, never retried);
+    /// `Cancel::never()` lets every exchange run its course.
+    pub fn set_cancel(&mut self, cancel: Cancel) {
+        self.transport.set_cancel(cancel);
     }
 
     /// The options in force (they follow configuration changes).
@@ -692,6 +710,11 @@ pub(crate) fn exchange_fault(
             detail: format!(
                 "the line never fell silent to let the request out ({heard} bytes in {within:?} from something else on it)"
             ),
+        }),
+        ExchangeError::Cancelled => Fault::Final(C29uError::Cancelled {
+            port: port.to_string(),
+            id,
+            request: request.to_string(),
         }),
     }
 }

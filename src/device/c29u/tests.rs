@@ -609,3 +609,76 @@ fn modbus_counters_are_read_from_channel_00() {
         vec![seal(&[1, 0x04, 0, 0, 0, 4]), seal(&[1, 0x04, 0, 0, 0, 1])]
     );
 }
+
+#[test]
+fn a_stop_cuts_the_wait_for_a_silent_module_within_a_slice_and_sends_nothing_after() {
+    use crate::device::cancel::{Cancel, CANCEL_SLICE};
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    for protocol in [Protocol::Ascii, Protocol::Modbus] {
+        // Signals in the first try's wait, and in the settling before the second.
+        for signal_after in [Duration::from_millis(350), Duration::from_millis(1300)] {
+            let clock = VirtualClock::at_epoch();
+            let mut line = MultiDrop::default();
+            line.attach(Box::new(model(protocol, &clock, 1, false)));
+            let heard = Arc::new(AtomicUsize::new(0));
+            let line = Heard {
+                inner: line,
+                bytes: Arc::clone(&heard),
+            };
+            let link = share(Box::new(
+                MemoryByteLink::new(line, "bus").with_clock(Arc::new(clock.clone())),
+            ));
+            let opts = |id| C29uOptions {
+                protocol,
+                id,
+                timeout: Duration::from_secs(1),
+                retries: 5,
+                ..C29uOptions::default()
+            };
+            // ID 9 is not on the line: silent, while the line itself works.
+            let mut silent = C29u::new(link.clone(), Arc::new(clock.clone()), opts(9)).unwrap();
+            let mut other = C29u::new(link, Arc::new(clock.clone()), opts(1)).unwrap();
+            let flag = Arc::new(AtomicUsize::new(0));
+            silent.set_cancel(Cancel::when_set(Arc::clone(&flag)));
+            let start = clock.now();
+            clock.set_at(start + signal_after, Arc::clone(&flag), 15);
+            match silent.read_inputs() {
+                Err(e @ C29uError::Cancelled { .. }) => {
+                    assert!(e.to_string().contains("ID 9"), "{e}");
+                }
+                other => panic!("{protocol:?}: expected a cut exchange, got {other:?}"),
+            }
+            let took = clock.now() - start;
+            assert!(
+                took <= signal_after + CANCEL_SLICE,
+                "{protocol:?}: {took:?} for a signal after {signal_after:?} (the retries: 11 s)"
+            );
+            let seen = heard.load(Ordering::SeqCst);
+            assert!(
+                matches!(silent.read_inputs(), Err(C29uError::Cancelled { .. })),
+                "a cut driver sends nothing more"
+            );
+            assert_eq!(heard.load(Ordering::SeqCst), seen);
+            // The line settles (the cut request's late answer could still come), then works.
+            assert_eq!(other.read_outputs().unwrap(), 0);
+        }
+    }
+}
+
+/// A line that counts the bytes sent on it.
+struct Heard<D> {
+    inner: D,
+    bytes: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl<D: ByteDevice> ByteDevice for Heard<D> {
+    fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+        self.bytes
+            .fetch_add(bytes.len(), std::sync::atomic::Ordering::SeqCst);
+        self.inner.receive(bytes)
+    }
+
+    fn line_idle(&mut self) -> Vec<u8> {
+        self.inner.line_idle()
+    }
+}

@@ -1,6 +1,8 @@
 //! The shared serial line under a TRP-C29U driver: one request at a time, the silence before
-//! each, per-request timeout, retries, and `--trace` output.
+//! each, per-request timeout, retries, `--trace` output, and the caller's `Cancel` (a stop cuts
+//! the exchange under way short, and no retry follows).
 
+use crate::device::cancel::Cancel;
 use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
 use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
@@ -55,7 +57,7 @@ pub(crate) enum Fault {
     Final(C29uError),
 }
 
-/// One driver's view of the line: its link, clock, timing and trace.
+/// One driver's view of the line: its link, clock, timing, trace and cancellation.
 pub(crate) struct Transport {
     link: SharedLink,
     clock: SharedClock,
@@ -66,6 +68,7 @@ pub(crate) struct Transport {
     protocol: Protocol,
     frame_gap: FrameGap,
     tracer: Option<Tracer>,
+    cancel: Cancel,
 }
 
 impl Transport {
@@ -85,11 +88,16 @@ impl Transport {
             protocol,
             frame_gap,
             tracer: None,
+            cancel: Cancel::never(),
         }
     }
 
     pub fn set_tracer(&mut self, tracer: Option<Tracer>) {
         self.tracer = tracer;
+    }
+
+    pub fn set_cancel(&mut self, cancel: Cancel) {
+        self.cancel = cancel;
     }
 
     /// The link in words, for messages.
@@ -108,7 +116,8 @@ impl Transport {
     }
 
     /// One exchange; the line is held for exactly this long, so one dead module costs the
-    /// others at most its own timeout (and, at the next request, the settling after it).
+    /// others at most its own timeout (and, at the next request, the settling after it). Once
+    /// the cancel is set it is cut short within a slice (`ExchangeError::Cancelled`).
     pub fn exchange(
         &mut self,
         request: &[u8],
@@ -136,10 +145,12 @@ impl Transport {
             timing,
             frame,
             &mut self.tracer,
+            &self.cancel,
         )
     }
 
-    /// Runs `attempt` until it succeeds, fails finally, or the retries are used up.
+    /// Runs `attempt` until it succeeds, fails finally, or the retries are used up; a cut
+    /// exchange fails finally (`exchange_fault`), so a stop is never retried.
     pub fn with_retries<T>(
         &mut self,
         mut attempt: impl FnMut(&mut Self) -> Result<T, Fault>,

@@ -6,6 +6,7 @@ use super::{DeviceError, Health, Snapshot};
 use crate::config::feeding::{FeedTiming, MOST_FEEDS_PER_TIMEOUT};
 use crate::config::C29uConfig;
 use crate::device::c29u::{C29u, C29uError, Latches, SharedLink, WatchdogTimeout};
+use crate::device::cancel::Cancel;
 use crate::link::{ByteLink, LinkError};
 use std::time::Duration;
 
@@ -123,6 +124,12 @@ impl C29uDevice {
         self.driver.write_outputs(value)?;
         self.outputs_written = Some(value);
         Ok(())
+    }
+
+    /// Cuts the exchanges of both its drivers short once `cancel` is set.
+    pub fn set_cancel(&mut self, cancel: &Cancel) {
+        self.driver.set_cancel(cancel.clone());
+        self.probe.set_cancel(cancel.clone());
     }
 
     /// A cheap request without retries that tells whether the module answers.

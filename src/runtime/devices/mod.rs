@@ -19,6 +19,7 @@ pub use takeover::{ControlNotes, Takeover};
 pub use trc::TrcDevice;
 
 use crate::device::c29u::C29uError;
+use crate::device::cancel::Cancel;
 use crate::device::trc1000::Trc1000Error;
 use std::time::Duration;
 
@@ -67,6 +68,16 @@ impl DeviceError {
         matches!(
             self,
             DeviceError::Trc(Trc1000Error::Link(_)) | DeviceError::C29u(C29uError::Link(_))
+        )
+    }
+
+    /// Whether a stop cut the operation short: nothing is known of the device, which is not
+    /// lost for it.
+    pub fn is_cancelled(&self) -> bool {
+        matches!(
+            self,
+            DeviceError::C29u(C29uError::Cancelled { .. })
+                | DeviceError::Trc(Trc1000Error::Cancelled { .. })
         )
     }
 
@@ -229,6 +240,14 @@ impl Device {
         match self {
             Device::Trc(_) => "TRC1000",
             Device::C29u(_) => "TRP-C29U",
+        }
+    }
+
+    /// Cuts the device's exchanges short once `cancel` is set (see `device::cancel`).
+    pub fn set_cancel(&mut self, cancel: &Cancel) {
+        match self {
+            Device::Trc(d) => d.driver.set_cancel(cancel.clone()),
+            Device::C29u(d) => d.set_cancel(cancel),
         }
     }
 

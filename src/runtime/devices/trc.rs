@@ -81,6 +81,16 @@ impl TrcDevice {
         Ok(())
     }
 
+    /// Selects `relay` and confirms a board took it (`Trc1000::select_relay_confirmed`): the
+    /// safe state's selection, which must not be counted as reached on the word of an OUT
+    /// transfer alone. Unconfirmed, the relay on the board is unknown (selected again later).
+    pub fn select_relay_confirmed(&mut self, relay: u8) -> Result<(), DeviceError> {
+        self.relay_written = None;
+        self.driver.select_relay_confirmed(relay)?;
+        self.relay_written = Some(relay);
+        Ok(())
+    }
+
     /// A cheap request that tells whether the board answers.
     pub fn probe(&mut self) -> Result<(), DeviceError> {
         self.driver.read_switches()?;

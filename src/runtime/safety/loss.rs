@@ -40,9 +40,14 @@ impl<H: Clone> Runtime<H> {
 
     /// Tries lost devices whose retry time has come (one try each, without retries, so a
     /// lost device costs at most one timeout a second), takes control of those that are back,
-    /// and holds every output safe while a device has been lost beyond the grace time.
+    /// and holds every output safe while a device has been lost beyond the grace time. Once
+    /// the run is stopping (`cancel`), no further device is tried: each try of a lost one can
+    /// cost a reconnection (up to its timeout), and the end tries them all anyway.
     pub fn supervise(&mut self) {
         for idx in 0..self.devices.len() {
+            if self.cancel.is_cancelled() {
+                break;
+            }
             let now = self.now();
             let due = self
                 .devices

@@ -10,3 +10,4 @@ mod upkeep;
 
 pub use control::Unavailable;
 pub use loss::RETRY_INTERVAL;
+pub use safe_state::END_TRIES;

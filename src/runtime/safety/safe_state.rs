@@ -3,6 +3,7 @@
 //! included, each in a bounded time; then the host watchdogs the runner turned on turned off
 //! again where the safe state got through.
 
+use crate::device::cancel::Cancel;
 use crate::runtime::devices::{C29uDevice, Device, DeviceError};
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
@@ -27,7 +28,7 @@ impl<H: Clone> Runtime<H> {
                 Some(Device::C29u(d)) => d.write_safe().map(|()| Some(safe_words(d))),
                 Some(Device::Trc(d)) => match d.config.safe_relay {
                     Some(r) => d
-                        .select_relay(r)
+                        .select_relay_confirmed(r)
                         .map(|()| Some(format!("{} relay {r}", d.name))),
                     None => Ok(None),
                 },
@@ -36,6 +37,8 @@ impl<H: Clone> Runtime<H> {
             match result {
                 Ok(Some(s)) => done.push(s),
                 Ok(None) => {}
+                // A stop cut it short: the end writes it.
+                Err(e) if e.is_cancelled() => {}
                 Err(e) => {
                     let name = self.device_name(idx);
                     self.log
@@ -55,8 +58,14 @@ impl<H: Clone> Runtime<H> {
     /// retries (one for a lost device), so a silent module costs a bounded time. With
     /// `release`, the host watchdogs the runner turned on are then turned off where the safe
     /// state got through; where it did not, the watchdog stays on and drives the module safe.
-    pub fn end_safe(&mut self, why: &str, release: bool) {
+    /// The stop that ended the run does not cut these writes: they come after it. A write
+    /// counts as reached only on an answer from the device (a TRC1000's relay selection gets
+    /// none of its own: a request after it confirms it). Returns the names of the devices it
+    /// did not reach.
+    pub fn end_safe(&mut self, why: &str, release: bool) -> Vec<String> {
+        self.set_cancel(&Cancel::never());
         let mut done = Vec::new();
+        let mut unreached = Vec::new();
         for idx in 0..self.devices.len() {
             let was_lost = !self.online(idx);
             match self.write_safe_at_end(idx, was_lost) {
@@ -86,6 +95,7 @@ impl<H: Clone> Runtime<H> {
                         d.health_mut().lose(now, &e, Duration::ZERO);
                     }
                     done.push(format!("{name} not reached"));
+                    unreached.push(name);
                 }
             }
         }
@@ -93,6 +103,7 @@ impl<H: Clone> Runtime<H> {
             self.log
                 .info(&format!("safe state ({why}): {}", done.join(", ")));
         }
+        unreached
     }
 
     /// Writes the safe state of the device at `idx` at the end; what was written, in words.
@@ -110,7 +121,7 @@ impl<H: Clone> Runtime<H> {
                 Device::C29u(c) => c.write_safe_once().map(|()| Some(safe_words(c))),
                 Device::Trc(t) => match t.config.safe_relay {
                     Some(r) => t
-                        .select_relay(r)
+                        .select_relay_confirmed(r)
                         .map(|()| Some(format!("{} relay {r}", t.name))),
                     None => return Ok(None),
                 },
@@ -138,7 +149,7 @@ impl<H: Clone> Runtime<H> {
                 ),
                 None => "it has no host watchdog: its outputs stay as they are".into(),
             },
-            None => "it keeps its relay".into(),
+            None => "the relay it holds is not known".into(),
         }
     }
 
@@ -248,8 +259,8 @@ mod tests {
         // END_TRIES tries without retries, 100 ms each; nothing more is sent to it.
         assert_eq!(
             r.requests() - requests,
-            2 + 1,
-            "two to io, one to the panel"
+            2 + 2,
+            "two to io, two to the panel (the selection and the request that confirms it)"
         );
         assert!(r.rt.now() - before < Duration::from_millis(500));
         let log = r.log();
