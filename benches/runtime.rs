@@ -12,19 +12,28 @@
 //! may write /dev/cpu_dma_latency; the first jitter line says); the last line is interlock.rhai
 //! without it.
 //!
-//! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name). CPU while
+//! Many timers: work per tick with 20,000 and 150,000 `every` timers (one set that never fires
+//! in the run, one spread over 1-2 s periods so that a share fires every tick), to show the
+//! cost grows with the timers that fire, not with the timers there are.
+//!
+//! Run: `cargo bench --bench runtime` (a filter argument picks scripts by name; `timers` picks
+//! the many-timer cases). CPU while
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
 
-use rigscript::config::{RigConfig, WakeLatency};
+use rigscript::config::{RigConfig, ScriptLimits, WakeLatency};
 use rigscript::runtime::devices::SimRig;
+use rigscript::runtime::log::LogFormat;
 use rigscript::runtime::stats::Histogram;
 use rigscript::runtime::wake_latency;
-use rigscript::script::engine::DEFAULT_BUDGET;
 use rigscript::script::rig::{start, Rig, RigSetup};
 use rigscript::time::clock::{Clock, SharedClock, SystemClock, VirtualClock};
 use rigscript::time::zone::Zone;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// Counts the heap as `rigscript` does (its memory limit), so its cost is in the figures.
+#[global_allocator]
+static HEAP: rigscript::heap::CountingAlloc = rigscript::heap::CountingAlloc;
 
 /// Where virtual wall time starts (as in the scenario tests).
 const START: &str = "2026-03-28T00:00:30Z";
@@ -47,6 +56,10 @@ struct Sizes {
     ticks: u64,
     jitter_run: Duration,
     day: Duration,
+    /// Timer counts of the many-timer cases.
+    timers: &'static [u32],
+    /// Ticks measured in each many-timer case.
+    timer_ticks: u64,
 }
 
 const FULL: Sizes = Sizes {
@@ -54,6 +67,8 @@ const FULL: Sizes = Sizes {
     ticks: 20_000,
     jitter_run: Duration::from_secs(5),
     day: Duration::from_secs(24 * 3600),
+    timers: &[20_000, 150_000],
+    timer_ticks: 50,
 };
 
 /// `cargo test --all-targets` runs this without `--bench`: just check that it still works.
@@ -62,6 +77,8 @@ const SMOKE: Sizes = Sizes {
     ticks: 50,
     jitter_run: Duration::from_millis(100),
     day: Duration::from_secs(3600),
+    timers: &[2_000],
+    timer_ticks: 5,
 };
 
 fn cases() -> Vec<Case> {
@@ -139,9 +156,31 @@ fn rig(
 ) -> Rig {
     let path = format!("{}/scripts/{file}", env!("CARGO_MANIFEST_DIR"));
     let source = std::fs::read_to_string(&path).expect("read the script");
+    rig_from_source(
+        &source,
+        &path,
+        clock,
+        period,
+        end,
+        wake_latency,
+        ScriptLimits::default(),
+    )
+}
+
+/// The run of `source` (called `path` in messages) on the simulated rig, on `clock`.
+fn rig_from_source(
+    source: &str,
+    path: &str,
+    clock: SharedClock,
+    period: Option<Duration>,
+    end: Option<Duration>,
+    wake_latency: WakeLatency,
+    limits: ScriptLimits,
+) -> Rig {
     let setup = RigSetup {
         config: RigConfig {
             wake_latency,
+            limits,
             ..RigConfig::simulated_default()
         },
         simulate: true,
@@ -153,13 +192,13 @@ fn rig(
         log_to_stderr: false,
         quiet: false,
         keep_log: false,
-        budget: DEFAULT_BUDGET,
+        log_format: LogFormat::Text,
         stop_flag: Arc::default(),
     };
-    let rig = start(&source, &path, setup).expect("start the script");
+    let rig = start(source, path, setup).expect("start the script");
     assert!(
         rig.runner.status().is_none(),
-        "{file} ended at its top level"
+        "{path} ended at its top level"
     );
     rig
 }
@@ -272,6 +311,46 @@ fn cron_day(sizes: &Sizes) -> (Duration, u64, usize) {
     (wall, rig.runner.stats.ticks, records)
 }
 
+/// A script with `count` `every` timers whose periods are spread over `periods_ms` (first ..
+/// last, one millisecond apart, round robin), each with an empty handler.
+fn many_timers(count: u32, periods_ms: (u32, u32)) -> String {
+    let (first, last) = periods_ms;
+    let spread = last - first + 1;
+    format!("for i in 0..{count} {{ every({first} + i % {spread}, || {{ }}); }}")
+}
+
+/// Real time per tick (mean and worst) over `ticks` ticks in virtual time of a script with
+/// `count` timers, after the first two seconds (every timer of 1-2 s has fired once by then).
+fn timer_ticks(count: u32, periods_ms: (u32, u32), ticks: u64) -> (Duration, Duration) {
+    let clock = virtual_clock();
+    let source = many_timers(count, periods_ms);
+    let mut rig = rig_from_source(
+        &source,
+        "many_timers.rhai",
+        Arc::new(clock),
+        None,
+        None,
+        WakeLatency::Auto,
+        ScriptLimits {
+            // The top level adds every timer in one call.
+            operations: u64::from(count) * 20,
+            timers: count as usize,
+            ..ScriptLimits::default()
+        },
+    );
+    rig.runner.advance(Duration::from_secs(2));
+    let (mut total, mut worst) = (Duration::ZERO, Duration::ZERO);
+    for _ in 0..ticks {
+        let t = Instant::now();
+        rig.runner.step();
+        let spent = t.elapsed();
+        total += spent;
+        worst = worst.max(spent);
+        assert!(rig.runner.status().is_none(), "many_timers stopped");
+    }
+    (total / u32::try_from(ticks).unwrap(), worst)
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let sizes = if args.iter().any(|a| a == "--bench") {
@@ -327,6 +406,28 @@ fn main() {
             "interlock, latency off",
             jitter(case, sizes, WakeLatency::Off)
         );
+    }
+    if wanted("timers") {
+        println!(
+            "many timers: real time per tick over {} ticks ({} s) in virtual time, mean and worst",
+            sizes.timer_ticks,
+            sizes.timer_ticks as f64 * 0.02
+        );
+        let kinds = [
+            ("none firing (1-2 h)", (3_600_000, 7_199_999)),
+            ("spread over 1-2 s", (1000, 1999)),
+            ("all every 1 s", (1000, 1000)),
+        ];
+        for &count in sizes.timers {
+            for (what, periods) in kinds {
+                let (mean, worst) = timer_ticks(count, periods, sizes.timer_ticks);
+                println!(
+                    "  {count:>7} timers, {what:20} mean {:10.1} µs/tick, worst {:10.1} µs",
+                    mean.as_secs_f64() * 1e6,
+                    worst.as_secs_f64() * 1e6
+                );
+            }
+        }
     }
     if wanted("cron_rig.rhai") {
         let (wall, ticks, records) = cron_day(sizes);

@@ -12,10 +12,15 @@
 //! `cargo test --all-targets` runs it at a tiny size, to check that it still works.
 
 use rigscript::config::RigConfig;
+use rigscript::heap::CountingAlloc;
 use rigscript::script::engine::DEFAULT_BUDGET;
 use rigscript::verify::exec::Target;
 use rigscript::verify::{search, Options, SHRINK_BUDGET};
 use std::time::{Duration, Instant};
+
+// As the `rigscript` binary has it: the heap counted for the script's memory limit.
+#[global_allocator]
+static HEAP: CountingAlloc = CountingAlloc;
 
 /// How much work the benchmark does.
 struct Sizes {

@@ -52,6 +52,7 @@
 pub mod cli;
 pub mod config;
 pub mod device;
+pub mod heap;
 pub mod link;
 pub mod protocol;
 pub mod report;

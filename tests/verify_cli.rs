@@ -342,3 +342,64 @@ fn in_run_a_false_invariant_ends_the_run_with_1_and_the_safe_state_recorded() {
     assert!(rec.contains("\"invariant_violated\""), "{rec}");
     assert!(rec.contains("\"at most one output\""), "{rec}");
 }
+
+#[test]
+fn a_call_over_the_scripts_limits_is_a_finding_that_names_the_limit() {
+    // (what, [limits] in rig.toml, the handler, the check, what the detail says)
+    let big = "let big = \"0123456789abcdef\"; for i in 0..11 { big += big; }";
+    let cases = [
+        (
+            "memory",
+            "memory = \"32MiB\"",
+            format!("{big} for i in 0..50 {{ let a = big + i; after(\"1h\", || a.len()); }}"),
+            "no handler over its budget",
+            "--memory-limit",
+        ),
+        (
+            "timers",
+            "timers = 50",
+            "for i in 0..10 { after(\"1h\", || {}); }".to_string(),
+            "no script error",
+            "--max-timers",
+        ),
+    ];
+    for (what, limit, body, check, says) in cases {
+        let (dir, s) = script(
+            &format!("verify-limit-{what}"),
+            "grows.rhai",
+            &format!("let io = device(\"io\");\nevery(\"100ms\", || {{ {body} }});\n"),
+        );
+        let toml = dir.join("rig.toml");
+        std::fs::write(
+            &toml,
+            format!(
+                "period = \"20ms\"\n\n[limits]\n{limit}\n\n[devices.io]\nkind = \"trp-c29u\"\n\
+                 port = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n"
+            ),
+        )
+        .unwrap();
+        let (status, doc) = verify_json(
+            &[
+                &s,
+                "--config",
+                &toml.to_string_lossy(),
+                "--runs",
+                "2",
+                "--jobs",
+                "1",
+                "--for",
+                "10s",
+                "--seed",
+                "1",
+                "--no-faults",
+            ],
+            &dir.join("out"),
+        );
+        assert_eq!(status, 1, "{what}: {doc:#}");
+        let c = &doc["counterexample"];
+        assert_eq!(c["name"], check, "{what}: {c:#}");
+        let detail = c.to_string();
+        assert!(detail.contains("grows.rhai:2:"), "{what}: placed: {c:#}");
+        assert!(detail.contains(says), "{what}: {c:#}");
+    }
+}

@@ -8,9 +8,9 @@
 //! measurements as JUnit XML.
 
 use super::run_outputs::RunOutputs;
-use crate::config::{RigConfig, WakeLatency};
+use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
 use crate::runtime::exit;
-use crate::script::engine::DEFAULT_BUDGET;
+use crate::runtime::log::LogFormat;
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
@@ -55,9 +55,26 @@ pub struct RunArgs {
     /// /dev/cpu_dma_latency; idle CPUs poll instead of sleeping while it is held.
     #[arg(long, value_name = "auto|off|DURATION", value_parser = WakeLatency::parse)]
     pub wake_latency: Option<WakeLatency>,
-    /// Operations each handler call may take before it is stopped as a runaway.
-    #[arg(long, default_value_t = DEFAULT_BUDGET)]
-    pub budget: u64,
+    /// Operations each handler call may take before it is stopped as a runaway (default
+    /// 1000000; `operations` under `[limits]` in rig.toml).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub budget: Option<u64>,
+    /// How long each handler call may run, device exchanges included, before it is stopped as
+    /// a runaway ("1s", "250ms"; default 1s; `handler_time` under `[limits]` in rig.toml).
+    #[arg(long, value_name = "DURATION", value_parser = time_limit)]
+    pub handler_time: Option<Duration>,
+    /// The most heap memory the run may hold before the script is stopped ("256MiB",
+    /// "1GiB", "512MB"; default 256MiB; `memory` under `[limits]` in rig.toml).
+    #[arg(long, value_name = "SIZE", value_parser = memory_limit)]
+    pub memory_limit: Option<u64>,
+    /// The most timers (every, after, cron) armed at once; arming one more is a script error
+    /// (default 10000; `timers` under `[limits]` in rig.toml).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_timers: Option<u32>,
+    /// Log lines as text, or as one JSON object a line (time, level, source, message,
+    /// device) for journald and Loki.
+    #[arg(long, value_enum, value_name = "FORMAT", default_value_t = LogFormat::Text)]
+    pub log_format: LogFormat,
     /// Also write the measurements as JUnit XML to FILE (Jenkins, GitLab): each `measure` a
     /// test case with its value and limits, plus one for the run itself.
     #[arg(long, value_name = "FILE")]
@@ -66,6 +83,17 @@ pub struct RunArgs {
 
 fn dur(text: &str) -> Result<Duration, String> {
     parse_duration(text).map_err(|e| e.to_string())
+}
+
+fn time_limit(text: &str) -> Result<Duration, String> {
+    match dur(text)? {
+        d if d.is_zero() => Err("a time limit must be above zero".into()),
+        d => Ok(d),
+    }
+}
+
+fn memory_limit(text: &str) -> Result<u64, String> {
+    parse_memory_limit(text).map_err(|e| e.to_string())
 }
 
 fn period(text: &str) -> Result<Duration, String> {
@@ -97,6 +125,11 @@ pub fn run(args: RunArgs) -> i32 {
     if let Some(w) = args.wake_latency {
         config.wake_latency = w;
     }
+    let limits = &mut config.limits;
+    limits.operations = args.budget.unwrap_or(limits.operations);
+    limits.handler_time = args.handler_time.unwrap_or(limits.handler_time);
+    limits.memory = args.memory_limit.unwrap_or(limits.memory);
+    limits.timers = args.max_timers.map_or(limits.timers, |n| n as usize);
     let file = args.script.display().to_string();
     let mut outputs = match RunOutputs::new(&file, args.junit) {
         Ok(o) => o,
@@ -131,8 +164,8 @@ pub fn run(args: RunArgs) -> i32 {
         records: args.records,
         log_to_stderr: true,
         quiet: args.quiet,
+        log_format: args.log_format,
         keep_log: outputs.keeps_log(),
-        budget: args.budget,
         stop_flag,
     };
     let mut rig = match start(&source, &file, setup) {
@@ -145,6 +178,13 @@ pub fn run(args: RunArgs) -> i32 {
     outputs.started(&mut rig);
     let status = rig.runner.run();
     let status = outputs.finished(&mut rig, status);
+    let dropped = {
+        // The last lines out (at most a second's wait for a stderr nobody reads).
+        let mut rt = rig.runner.runtime().borrow_mut();
+        rt.log.close();
+        rt.log.dropped()
+    };
+    rig.runner.stats.log_dropped = dropped;
     if args.stats {
         println!("{}", rig.runner.stats);
     }

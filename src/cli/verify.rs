@@ -8,7 +8,6 @@
 
 use crate::config::RigConfig;
 use crate::script::check::check;
-use crate::script::engine::DEFAULT_BUDGET;
 use crate::time::duration::{format_duration, parse_duration};
 use crate::verify::exec::Target;
 use crate::verify::{report, search, Options, SHRINK_BUDGET};
@@ -49,9 +48,10 @@ pub struct VerifyArgs {
     /// Print one JSON document instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Operations each handler call (and invariant) may take.
-    #[arg(long, default_value_t = DEFAULT_BUDGET)]
-    pub budget: u64,
+    /// Operations each handler call (and invariant) may take (default: `operations` under
+    /// `[limits]` in rig.toml, else 1000000). The other limits are rig.toml's.
+    #[arg(long)]
+    pub budget: Option<u64>,
 }
 
 fn run_for(text: &str) -> Result<Duration, String> {
@@ -130,8 +130,8 @@ pub fn run(args: VerifyArgs) -> i32 {
     let target = Target {
         source,
         file: file.clone(),
+        budget: args.budget.unwrap_or(config.limits.operations),
         config,
-        budget: args.budget,
         run_for: args.run_for,
     };
     if !args.json {

@@ -1,5 +1,5 @@
-//! `rig.toml`: the named devices, the scan period, the error policy, the records file and the
-//! CPU wake-up latency the run asks for.
+//! `rig.toml`: the named devices, the scan period, the error policy, the records file, the
+//! CPU wake-up latency the run asks for, and the script's limits (`[limits]`).
 //!
 //! Every key is optional except a device's `kind` and a TRP-C29U's `port`; unknown keys and
 //! bad values are errors naming the file, the line and the key, all of them at once:
@@ -10,6 +10,7 @@ mod clash;
 mod device;
 mod error;
 pub mod feeding;
+mod limits;
 mod reader;
 pub mod script_may_change;
 #[cfg(test)]
@@ -21,6 +22,10 @@ pub use device::{
     Trc1000Config, WatchdogTimeout,
 };
 pub use error::{ConfigError, Problem, ProblemKind};
+pub use limits::{
+    parse_memory_limit, parse_size, ScriptLimits, SizeError, DEFAULT_HANDLER_TIME, DEFAULT_MEMORY,
+    DEFAULT_OPERATIONS, DEFAULT_TIMERS, MIN_MEMORY, SIZE_FORMS,
+};
 pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
@@ -43,6 +48,7 @@ const TOP_KEYS: &[&str] = &[
     "records",
     "grace",
     "wake_latency",
+    "limits",
     "devices",
 ];
 
@@ -83,6 +89,8 @@ pub struct RigConfig {
     pub grace: Duration,
     /// What the run asks of the CPUs' idle states (default auto).
     pub wake_latency: WakeLatency,
+    /// What the script may use (`[limits]`; defaults when absent).
+    pub limits: ScriptLimits,
     /// Devices by the name scripts use.
     pub devices: BTreeMap<String, DeviceConfig>,
 }
@@ -96,6 +104,7 @@ impl Default for RigConfig {
             records: None,
             grace: DEFAULT_GRACE,
             wake_latency: WakeLatency::Auto,
+            limits: ScriptLimits::default(),
             devices: BTreeMap::new(),
         }
     }
@@ -164,6 +173,30 @@ impl RigConfig {
                 })
             })
             .unwrap_or(defaults.wake_latency);
+        let limits = match root.get("limits") {
+            None => ScriptLimits::default(),
+            Some(value) => match value.get_ref() {
+                DeValue::Table(table) => limits::read_limits(
+                    &mut r,
+                    &TableRef {
+                        path: "limits".into(),
+                        span: value.span(),
+                        table,
+                    },
+                ),
+                other => {
+                    r.report(
+                        &value.span(),
+                        "limits".into(),
+                        ProblemKind::WrongType {
+                            expected: "a table ([limits])",
+                            found: reader::type_name(other),
+                        },
+                    );
+                    ScriptLimits::default()
+                }
+            },
+        };
         let devices = match root.get("devices") {
             None => BTreeMap::new(),
             Some(value) => match value.get_ref() {
@@ -201,6 +234,7 @@ impl RigConfig {
             records,
             grace,
             wake_latency,
+            limits,
             devices,
         })
     }

@@ -118,6 +118,7 @@ fn the_example_reads_as_written() {
             records: Some("records.jsonl".into()),
             grace: Duration::from_secs(2),
             wake_latency: WakeLatency::Limit(Duration::from_micros(50)),
+            limits: ScriptLimits::default(),
             devices,
         }
     );
@@ -560,11 +561,11 @@ fn missing_and_unknown_kinds() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, wake_latency, devices"]
+        vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key; known keys here: period, on_error, records, grace, wake_latency, devices"]
+        vec!["rig.toml:1: device: unknown key; known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
     );
 }
 
@@ -763,6 +764,54 @@ proptest! {
             }
         }
     }
+}
+
+#[test]
+fn limits_default_and_read() {
+    assert_eq!(parse("").unwrap().limits, ScriptLimits::default());
+    let c = parse(
+        "[limits]\noperations = 5000\nhandler_time = \"250ms\"\nmemory = \"64MiB\"\ntimers = 200\n",
+    )
+    .unwrap();
+    assert_eq!(
+        c.limits,
+        ScriptLimits {
+            operations: 5000,
+            handler_time: Duration::from_millis(250),
+            memory: 64 << 20,
+            timers: 200,
+        }
+    );
+    // A key left out keeps its default.
+    let c = parse("[limits]\nmemory = \"1GB\"\n").unwrap();
+    assert_eq!(c.limits.memory, 1_000_000_000);
+    assert_eq!(c.limits.timers, DEFAULT_TIMERS);
+    assert_eq!(c.limits.operations, DEFAULT_OPERATIONS);
+    assert_eq!(c.limits.handler_time, DEFAULT_HANDLER_TIME);
+}
+
+#[test]
+fn bad_limits_name_line_and_key() {
+    assert_eq!(
+        problems(
+            "[limits]\noperations = 0\nhandler_time = \"0s\"\nmemory = 256\ntimers = -1\nram = 1\n"
+        ),
+        vec![
+            "rig.toml:2: limits.operations: 0 is not an operation budget; use 1 or more",
+            "rig.toml:3: limits.handler_time: \"0s\" is not a time limit; it must be above zero",
+            r#"rig.toml:4: limits.memory: 256 is not a size; use "256MiB", "1GiB", "512MB" (KiB/MiB/GiB count in 1024s, KB/MB/GB in 1000s)"#,
+            "rig.toml:5: limits.timers: -1 is not a timer count; use 1 or more",
+            "rig.toml:6: limits.ram: unknown key; known keys here: operations, handler_time, memory, timers",
+        ]
+    );
+    assert_eq!(
+        problems("[limits]\nmemory = \"1MiB\"\n"),
+        vec!["rig.toml:2: limits.memory: \"1MiB\" is too little memory for a run; use at least 16 MiB"]
+    );
+    assert_eq!(
+        problems("limits = 3\n"),
+        vec!["rig.toml:1: limits: expected a table ([limits]), found an integer"]
+    );
 }
 
 #[test]

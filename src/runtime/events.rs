@@ -1,12 +1,19 @@
 //! What fires handlers in a tick: edges between this tick's readings and the last ones
 //! (press/release, turn, rise/fall), counters reaching their thresholds and due timers, in
-//! that order, one log line per event handled.
+//! that order, one log line per device event handled. Timers are logged the first time they
+//! fire, then in a summary at most once per `TIMER_LOG_INTERVAL` (a 20 ms timer fires 4.3
+//! million times a day), and when one ends for want of a later time.
 
 use super::devices::Device;
+use super::schedule::Fired;
 use super::state::Runtime;
-use super::subscriptions::{Arg, Call, Source};
+use super::subscriptions::{Arg, Call, Firings, Source};
 use crate::device::trc1000::rotary_changes;
+use crate::time::duration::format_duration;
 use std::time::Duration;
+
+/// The longest a firing timer goes without a line in the log.
+pub const TIMER_LOG_INTERVAL: Duration = Duration::from_secs(3600);
 
 /// The inputs a device must be read for, by what its handlers wait for.
 #[derive(Debug, Clone, Copy, Default)]
@@ -23,7 +30,7 @@ impl<H: Clone> Runtime<H> {
     /// input, counter), then timers (deadline order). Logs one line per event handled.
     pub fn collect_calls(&mut self) -> Vec<Call<H>> {
         let mut needs = vec![Needs::default(); self.devices.len()];
-        for s in &self.handlers.list {
+        for s in &self.handlers.events {
             let Some(n) = source_device(&s.source).and_then(|dev| needs.get_mut(dev)) else {
                 continue;
             };
@@ -68,7 +75,7 @@ impl<H: Clone> Runtime<H> {
         let before = calls.len();
         calls.extend(
             self.handlers
-                .list
+                .events
                 .iter()
                 .filter(|s| s.source == *event)
                 .map(|s| s.call(args.to_vec())),
@@ -94,7 +101,7 @@ impl<H: Clone> Runtime<H> {
                 _ => None,
             })
             .collect();
-        for s in &mut self.handlers.list {
+        for s in &mut self.handlers.events {
             let Source::Counter {
                 dev,
                 ch,
@@ -129,45 +136,72 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
-    /// Fires the timers that are due; logs each firing (at most once a second per timer, so
-    /// a fast `every` does not flood the log).
+    /// Fires the timers that are due, each found by its timer (a tick costs the timers that
+    /// fire, not the timers there are); a spent timer's handler goes with it.
     fn timer_calls(&mut self, calls: &mut Vec<Call<H>>) {
         let now = self.now();
         let fired = self.handlers.schedule.due(now, self.clock.wall());
         let mut lines = Vec::new();
         for f in fired {
-            let Some(s) = self
-                .handlers
-                .list
-                .iter_mut()
-                .find(|s| s.source == Source::Timer(f.id))
-            else {
-                continue;
-            };
-            calls.push(s.call(vec![Arg::Int(i64::try_from(f.missed).unwrap_or(i64::MAX))]));
-            let quiet = s
-                .last_logged
-                .is_some_and(|t| now.saturating_sub(t) < Duration::from_secs(1));
-            if !quiet {
-                s.last_logged = Some(now);
-                let missed = if f.missed > 0 {
-                    format!(" ({} missed)", f.missed)
-                } else {
-                    String::new()
+            let args = vec![Arg::Int(i64::try_from(f.missed).unwrap_or(i64::MAX))];
+            let (call, line) = if f.last {
+                let Some(mut sub) = self.handlers.remove_timer(f.id) else {
+                    continue;
                 };
-                lines.push(format!("{} fired{missed}", s.label));
-            }
+                let cron_ends = sub.firings.cron;
+                let line = firing_line(&sub.label, &mut sub.firings, &f, cron_ends, now);
+                (sub.call(args), line)
+            } else {
+                let Some(sub) = self.handlers.timers.get_mut(&f.id) else {
+                    continue;
+                };
+                let line = firing_line(&sub.label, &mut sub.firings, &f, false, now);
+                (sub.call(args), line)
+            };
+            calls.push(call);
+            lines.extend(line);
         }
-        // Spent `after` timers go with their handlers.
-        let schedule = &self.handlers.schedule;
-        self.handlers.list.retain(|s| match s.source {
-            Source::Timer(t) => schedule.contains(t),
-            _ => true,
-        });
         for l in lines {
             self.log.activity(&l);
         }
     }
+}
+
+/// The log line of a timer firing, if this one is to be told: the first, a summary once
+/// `TIMER_LOG_INTERVAL` has passed since the last line, and the last of a cron timer.
+fn firing_line(
+    label: &str,
+    log: &mut Firings,
+    f: &Fired,
+    cron_ends: bool,
+    now: Duration,
+) -> Option<String> {
+    log.count = log.count.saturating_add(1);
+    log.missed = log.missed.saturating_add(f.missed);
+    let due = match log.logged_at {
+        None => true,
+        Some(at) => now.saturating_sub(at) >= TIMER_LOG_INTERVAL,
+    };
+    if !due && !cron_ends {
+        return None;
+    }
+    let mut line = match (log.logged_at, log.count) {
+        (Some(at), n) if n > 1 => format!(
+            "{label} fired {n} times in the last {}",
+            format_duration(Duration::from_secs(now.saturating_sub(at).as_secs()))
+        ),
+        _ => format!("{label} fired"),
+    };
+    if log.missed > 0 {
+        line.push_str(&format!(" ({} missed)", log.missed));
+    }
+    if cron_ends {
+        line.push_str("; no later time matches it, so it ends");
+    }
+    log.logged_at = Some(now);
+    log.count = 0;
+    log.missed = 0;
+    Some(line)
 }
 
 /// The device a source waits on, if it is a device event.
@@ -379,7 +413,7 @@ mod tests {
     #[test]
     fn device_events_come_first_by_device_then_counters_then_timers() {
         let mut r = TestRig::started();
-        r.rt.after(TICK, "timer");
+        r.rt.after(TICK, "timer").unwrap();
         let s1 = Switch::from_name("S1").unwrap();
         let counter = Source::Counter {
             dev: IO,
@@ -410,7 +444,7 @@ mod tests {
     fn due_timers_fire_with_what_they_missed_and_spent_ones_go() {
         let mut r = TestRig::started();
         r.rt.every(Duration::from_millis(100), "every").unwrap();
-        r.rt.after(Duration::from_millis(250), "after");
+        r.rt.after(Duration::from_millis(250), "after").unwrap();
         r.clock.advance(Duration::from_millis(280));
         let fired = tick(&mut r);
         assert_eq!(
@@ -418,27 +452,70 @@ mod tests {
             [("every", vec![Arg::Int(2)]), ("after", vec![Arg::Int(0)])],
             "every: due at 100 ms, 200 and 300 missed at 300 ms"
         );
-        assert_eq!(r.rt.handlers.list().len(), 1, "the spent `after` went");
+        assert_eq!(r.rt.handlers.len(), 1, "the spent `after` went");
         let log = r.log();
         assert!(log.contains("every 100ms fired (2 missed)"), "{log}");
         assert!(log.contains("after 250ms fired"), "{log}");
     }
 
     #[test]
-    fn a_fast_timer_is_logged_at_most_once_a_second() {
+    fn a_fast_timer_is_logged_once_then_once_an_hour() {
         let mut r = TestRig::started();
         r.rt.every(TICK, "fast").unwrap();
         let mut fired = 0;
-        for _ in 0..100 {
+        // Two hours and a bit of 20 ms ticks.
+        for _ in 0..(2 * 180_000 + 10) {
             fired += tick(&mut r).len();
         }
-        assert_eq!(fired, 100);
-        assert_eq!(
-            r.log().matches("every 20ms fired").count(),
-            2,
+        assert_eq!(fired, 2 * 180_000 + 10);
+        let log = r.log();
+        let lines: Vec<&str> = log.lines().filter(|l| l.contains("every 20ms")).collect();
+        assert_eq!(lines.len(), 3, "{lines:?}");
+        assert!(lines[0].ends_with("every 20ms fired"), "{lines:?}");
+        assert!(
+            lines[1].ends_with("every 20ms fired 180000 times in the last 1h"),
+            "{lines:?}"
+        );
+    }
+
+    #[test]
+    fn a_cron_timer_that_ends_says_so() {
+        let mut r = TestRig::started();
+        // The rig's clock starts at the epoch; this matches one time only.
+        r.rt.cron("0 0 0 1 1 * 1971", "once").unwrap();
+        r.clock.advance(Duration::from_secs(365 * 86_400));
+        assert_eq!(tick(&mut r).len(), 1);
+        assert!(!r.rt.has_work());
+        assert!(
+            r.log()
+                .contains("cron \"0 0 0 1 1 * 1971\" fired; no later time matches it, so it ends"),
             "{}",
             r.log()
         );
+    }
+
+    #[test]
+    fn many_timers_fire_each_their_own_handler() {
+        let mut r = TestRig::started();
+        r.rt.handlers.set_max_timers(50_000);
+        let names: Vec<&'static str> = (0..5_000)
+            .map(|i| &*Box::leak(format!("t{i}").into_boxed_str()))
+            .collect();
+        for (i, name) in names.iter().enumerate() {
+            r.rt.every(Duration::from_millis(20 * (1 + i as u64 % 50)), name)
+                .unwrap();
+        }
+        let mut seen = std::collections::HashMap::new();
+        for _ in 0..50 {
+            for (h, _) in tick(&mut r) {
+                *seen.entry(h).or_insert(0u32) += 1;
+            }
+        }
+        // Over 50 ticks of 20 ms, the timer of period 20 ms * k fires 50 / k times.
+        for (i, name) in names.iter().enumerate() {
+            let k = 1 + i as u32 % 50;
+            assert_eq!(seen.get(name).copied().unwrap_or(0), 50 / k, "{name}");
+        }
     }
 
     #[test]

@@ -36,7 +36,7 @@ pub const TABLE: &str = "\
 Exit status (the first that applies):
    70  a bug in rigscript (a panic): safe state written, host watchdogs left on
     1  a script or runtime error ended the run (on_error = \"stop\", the top level
-       failed, a handler over its budget, an invariant found false)
+       failed, a handler over one of its limits, an invariant found false)
     N  the script called stop(N) with N from 1 to 255
     5  the run ended, but something failed on the way: script errors recovered
        (on_error = \"restart\" or \"skip\"), a device lost and not back at the end,

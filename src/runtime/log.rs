@@ -1,13 +1,37 @@
 //! What the runner tells the operator as it runs: one timestamped line per event handled,
 //! output written, timer fired, script message, warning or error; to stderr, and kept in
 //! memory for scenario tests.
+//!
+//! Writing never blocks a tick: lines go through a bounded queue to a writer thread, and
+//! when stderr is not being read (a full pipe) and the queue is full, lines are dropped and
+//! counted; the log says how many once it can be written again, and `--stats` gives the
+//! total. Lines are text, or one JSON object a line (`--log-format json`: time, level,
+//! source, message, device) for journald and Loki. A problem that repeats (a write the
+//! module keeps refusing) is logged once and then counted (`repeating`).
 
 use crate::time::clock::SharedClock;
+use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
+use std::collections::{HashMap, VecDeque};
 use std::io::Write;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::Duration;
 
 /// Lines kept in memory at most (the oldest go first), so a long run cannot grow without bound.
 pub const MAX_KEPT_LINES: usize = 10_000;
+
+/// Bytes of log lines waiting for the writer at most; past it lines are dropped and counted.
+pub const QUEUE_BYTES: usize = 256 * 1024;
+
+/// The longest line written, in bytes: longer ones are cut, saying how much was left out.
+pub const MAX_LINE: usize = 4096;
+
+/// How long closing the log waits for the writer to write what is queued (stderr may never
+/// be read again).
+pub const CLOSE_WAIT: Duration = Duration::from_secs(1);
+
+/// The longest a repeating problem goes without a line (`Logger::repeating`).
+pub const REPEAT_SUMMARY: Duration = Duration::from_secs(3600);
 
 /// How much a line matters.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -22,25 +46,73 @@ pub enum Level {
     Error,
 }
 
+impl Level {
+    /// The level's name in JSON lines, as syslog and journald name them.
+    pub fn syslog_name(self) -> &'static str {
+        match self {
+            Level::Activity => "info",
+            Level::Info => "notice",
+            Level::Warn => "warning",
+            Level::Error => "error",
+        }
+    }
+}
+
+/// How lines are written.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// `12:00:00.020 io: outputs 0x00 -> 0x05 (top level)`.
+    #[default]
+    Text,
+    /// One JSON object a line: time (RFC 3339), level (info, notice, warning, error), source
+    /// (script or runner), message, device (the device it is about, or null).
+    Json,
+}
+
 /// The runner's log.
 pub struct Logger {
     clock: SharedClock,
     zone: Zone,
-    to_stderr: bool,
     quiet: bool,
+    format: LogFormat,
+    devices: Vec<String>,
+    writer: Option<Writer>,
+    /// Lines the writer dropped, once it is closed.
+    dropped_before_close: u64,
     kept: Option<Vec<String>>,
+    repeats: HashMap<String, Repeat>,
+}
+
+/// A problem being counted instead of logged.
+struct Repeat {
+    message: String,
+    level: Level,
+    since_line: u64,
+    line_at: Duration,
 }
 
 impl Logger {
     /// A log stamped with `clock`'s wall time in `zone`, written to stderr if `to_stderr`.
     pub fn new(clock: SharedClock, zone: Zone, to_stderr: bool) -> Self {
+        let writer = to_stderr.then(|| Writer::spawn(|| Box::new(std::io::stderr())));
         Self {
             clock,
             zone,
-            to_stderr,
             quiet: false,
+            format: LogFormat::Text,
+            devices: Vec::new(),
+            writer,
+            dropped_before_close: 0,
             kept: None,
+            repeats: HashMap::new(),
         }
+    }
+
+    /// Writes to `out` (instead of stderr) through the same bounded queue and writer thread.
+    pub fn with_output(clock: SharedClock, zone: Zone, out: impl Write + Send + 'static) -> Self {
+        let mut log = Self::new(clock, zone, false);
+        log.writer = Some(Writer::spawn(move || Box::new(out)));
+        log
     }
 
     /// Leaves out activity lines (warnings, errors and script messages still show).
@@ -48,7 +120,18 @@ impl Logger {
         self.quiet = quiet;
     }
 
-    /// Keeps lines in memory too (scenario tests read them back).
+    /// Writes lines as text or as JSON objects.
+    pub fn set_format(&mut self, format: LogFormat) {
+        self.format = format;
+    }
+
+    /// The rig's device names: a line that starts with one (`io: ...`) is about that device
+    /// (the `device` field of JSON lines).
+    pub fn set_devices(&mut self, names: impl IntoIterator<Item = String>) {
+        self.devices = names.into_iter().collect();
+    }
+
+    /// Keeps lines in memory too (scenario tests read them back), always as text.
     pub fn keep_lines(&mut self) {
         if self.kept.is_none() {
             self.kept = Some(Vec::new());
@@ -60,27 +143,39 @@ impl Logger {
         self.kept.as_deref().unwrap_or(&[])
     }
 
+    /// Lines dropped so far because the output was not being read.
+    pub fn dropped(&self) -> u64 {
+        self.writer
+            .as_ref()
+            .map_or(self.dropped_before_close, Writer::dropped)
+    }
+
     /// Writes one line at `level`.
     pub fn line(&mut self, level: Level, message: &str) {
         if level == Level::Activity && self.quiet {
             return;
         }
-        let stamp = self.zone.at(self.clock.wall()).format("%H:%M:%S%.3f");
-        let line = match level {
-            Level::Activity | Level::Info => format!("{stamp} {message}"),
-            Level::Warn => format!("{stamp} warning: {message}"),
-            Level::Error => format!("{stamp} error: {message}"),
-        };
-        if self.to_stderr {
-            // A closed stderr must not stop the rig; the line is simply lost.
-            let _ = writeln!(std::io::stderr().lock(), "{line}");
-        }
+        let wall = self.zone.at(self.clock.wall());
+        let message = cut(message);
         if let Some(kept) = &mut self.kept {
             if kept.len() >= MAX_KEPT_LINES {
                 kept.remove(0);
             }
-            kept.push(line);
+            kept.push(text_line(&wall, level, &message));
         }
+        let Some(writer) = &self.writer else { return };
+        let format = self.format;
+        let devices = &self.devices;
+        let render = |level: Level, message: &str| match format {
+            LogFormat::Text => text_line(&wall, level, message),
+            LogFormat::Json => json_line(&wall, level, message, devices),
+        };
+        writer.push(&render(level, &message), |dropped| {
+            render(
+                Level::Warn,
+                &format!("{dropped} log lines dropped: stderr not being read"),
+            )
+        });
     }
 
     /// An activity line.
@@ -102,6 +197,267 @@ impl Logger {
     pub fn error(&mut self, message: &str) {
         self.line(Level::Error, message);
     }
+
+    /// A problem that may come back every tick (a write the module keeps refusing): logged
+    /// the first time `key` reports it (or when its message changes), then only counted,
+    /// with a line saying how often at most every `REPEAT_SUMMARY`, until `settled(key)`.
+    pub fn repeating(&mut self, key: &str, level: Level, message: &str) {
+        let now = self.clock.now();
+        match self.repeats.get_mut(key) {
+            Some(r) if r.message == message => {
+                r.since_line = r.since_line.saturating_add(1);
+                if now.saturating_sub(r.line_at) < REPEAT_SUMMARY {
+                    return;
+                }
+                let line = format!(
+                    "{message} (again {} times in the last {})",
+                    r.since_line,
+                    format_duration(Duration::from_secs(now.saturating_sub(r.line_at).as_secs()))
+                );
+                r.since_line = 0;
+                r.line_at = now;
+                self.line(level, &line);
+            }
+            _ => {
+                self.repeats.insert(
+                    key.to_string(),
+                    Repeat {
+                        message: message.to_string(),
+                        level,
+                        since_line: 0,
+                        line_at: now,
+                    },
+                );
+                self.line(level, message);
+            }
+        }
+    }
+
+    /// The problem under `key` is over: if it repeated since its last line, says how often,
+    /// with `outcome` (`io: outputs written again`).
+    pub fn settled(&mut self, key: &str, outcome: &str) {
+        if let Some(r) = self.repeats.remove(key) {
+            if r.since_line > 0 {
+                let line = format!(
+                    "{outcome} (the problem above came back {} more times)",
+                    r.since_line
+                );
+                self.line(r.level.max_info(), &line);
+            } else {
+                self.line(Level::Info, outcome);
+            }
+        }
+    }
+
+    /// Writes what is queued, waiting at most `CLOSE_WAIT` for the output to take it; lines
+    /// logged afterwards go nowhere but the kept lines.
+    pub fn close(&mut self) {
+        if let Some(w) = self.writer.take() {
+            w.close(CLOSE_WAIT);
+            self.dropped_before_close = w.dropped();
+        }
+    }
+}
+
+impl Level {
+    fn max_info(self) -> Level {
+        match self {
+            Level::Activity => Level::Info,
+            other => other,
+        }
+    }
+}
+
+impl Drop for Logger {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// `message` cut to `MAX_LINE` bytes (at a character boundary), saying how much was left out.
+fn cut(message: &str) -> std::borrow::Cow<'_, str> {
+    if message.len() <= MAX_LINE {
+        return message.into();
+    }
+    let mut end = MAX_LINE;
+    while !message.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!(
+        "{}... ({} more bytes not shown)",
+        &message[..end],
+        message.len() - end
+    )
+    .into()
+}
+
+type Wall = chrono::DateTime<Zone>;
+
+fn text_line(wall: &Wall, level: Level, message: &str) -> String {
+    let stamp = wall.format("%H:%M:%S%.3f");
+    match level {
+        Level::Activity | Level::Info => format!("{stamp} {message}"),
+        Level::Warn => format!("{stamp} warning: {message}"),
+        Level::Error => format!("{stamp} error: {message}"),
+    }
+}
+
+/// A line as one JSON object; the source and device are read off the message's conventions
+/// (`script: ...` from the script's `print`, `log` and `warn`; `NAME: ...` about a device).
+fn json_line(wall: &Wall, level: Level, message: &str, devices: &[String]) -> String {
+    let (source, device, text) = if let Some(rest) = message.strip_prefix("script: ") {
+        ("script", None, rest)
+    } else {
+        let device = message.split_once(": ").and_then(|(head, rest)| {
+            devices
+                .iter()
+                .find(|d| d.as_str() == head)
+                .map(|d| (d.as_str(), rest))
+        });
+        match device {
+            Some((d, rest)) => ("runner", Some(d), rest),
+            None => ("runner", None, message),
+        }
+    };
+    serde_json::json!({
+        "time": wall.to_rfc3339_opts(chrono::SecondsFormat::Millis, false),
+        "level": level.syslog_name(),
+        "source": source,
+        "message": text,
+        "device": device,
+    })
+    .to_string()
+}
+
+/// The queue between the scan loop and the thread that writes the log out.
+struct Writer {
+    shared: Arc<Shared>,
+}
+
+struct Shared {
+    queue: Mutex<Queue>,
+    /// Signalled when lines are queued or the log closes (to the writer), and when the writer
+    /// has written everything after closing (to `close`).
+    changed: Condvar,
+}
+
+#[derive(Default)]
+struct Queue {
+    lines: VecDeque<String>,
+    /// Bytes queued or being written.
+    bytes: usize,
+    /// Dropped since the last notice of it.
+    unreported: u64,
+    /// Dropped in all.
+    dropped: u64,
+    closing: bool,
+    done: bool,
+}
+
+impl Writer {
+    /// Starts the writer thread; `open` makes its output (on that thread).
+    fn spawn(open: impl FnOnce() -> Box<dyn Write> + Send + 'static) -> Self {
+        let shared = Arc::new(Shared {
+            queue: Mutex::new(Queue::default()),
+            changed: Condvar::new(),
+        });
+        let theirs = Arc::clone(&shared);
+        let spawned = std::thread::Builder::new()
+            .name("rigscript-log".into())
+            .spawn(move || write_out(&theirs, open()));
+        if spawned.is_err() {
+            // No thread, no output: lines are counted as dropped rather than block the loop.
+            lock(&shared).closing = true;
+        }
+        Self { shared }
+    }
+
+    /// Queues `line`, or drops and counts it when the queue is full; after drops, queues the
+    /// notice `notice(count)` first once there is room for it.
+    fn push(&self, line: &str, notice: impl FnOnce(u64) -> String) {
+        let mut q = lock(&self.shared);
+        if q.closing {
+            q.dropped = q.dropped.saturating_add(1);
+            return;
+        }
+        if q.unreported > 0 {
+            let text = notice(q.unreported);
+            if q.bytes + text.len() + line.len() + 2 > QUEUE_BYTES {
+                q.unreported += 1;
+                q.dropped = q.dropped.saturating_add(1);
+                return;
+            }
+            q.unreported = 0;
+            q.bytes += text.len() + 1;
+            q.lines.push_back(text);
+        }
+        if q.bytes + line.len() + 1 > QUEUE_BYTES {
+            q.unreported += 1;
+            q.dropped = q.dropped.saturating_add(1);
+            return;
+        }
+        q.bytes += line.len() + 1;
+        q.lines.push_back(line.to_string());
+        drop(q);
+        self.shared.changed.notify_all();
+    }
+
+    fn dropped(&self) -> u64 {
+        lock(&self.shared).dropped
+    }
+
+    /// Asks the writer to finish and waits up to `wait` for it to write what is queued.
+    fn close(&self, wait: Duration) {
+        let mut q = lock(&self.shared);
+        q.closing = true;
+        self.shared.changed.notify_all();
+        let deadline = std::time::Instant::now() + wait;
+        while !q.done {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            q = match self.shared.changed.wait_timeout(q, left) {
+                Ok((g, _)) => g,
+                Err(e) => e.into_inner().0,
+            };
+        }
+    }
+}
+
+/// The writer thread: writes batches of queued lines as they come, until closed and empty.
+fn write_out(shared: &Shared, mut out: Box<dyn Write>) {
+    let mut batch = String::new();
+    loop {
+        let mut q = lock(shared);
+        while q.lines.is_empty() && !q.closing {
+            q = match shared.changed.wait(q) {
+                Ok(g) => g,
+                Err(e) => e.into_inner(),
+            };
+        }
+        if q.lines.is_empty() {
+            q.done = true;
+            drop(q);
+            shared.changed.notify_all();
+            return;
+        }
+        batch.clear();
+        for line in q.lines.drain(..) {
+            batch.push_str(&line);
+            batch.push('\n');
+        }
+        drop(q);
+        // A closed output must not stop the rig: what it refuses is simply lost.
+        let _ = out.write_all(batch.as_bytes()).and_then(|()| out.flush());
+        let mut q = lock(shared);
+        q.bytes = q.bytes.saturating_sub(batch.len());
+    }
+}
+
+fn lock(shared: &Shared) -> MutexGuard<'_, Queue> {
+    // A panic on the other side leaves the queue usable: it only holds lines and counts.
+    shared.queue.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 #[cfg(test)]
@@ -109,15 +465,20 @@ mod tests {
     use super::*;
     use crate::time::clock::VirtualClock;
     use chrono::{TimeZone, Utc};
-    use std::sync::Arc;
-    use std::time::Duration;
+    use std::io::Read;
+    use std::os::fd::{FromRawFd, OwnedFd};
+    use std::sync::mpsc;
+
+    fn clock() -> VirtualClock {
+        let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 1).unwrap());
+        clock.advance(Duration::from_millis(20));
+        clock
+    }
 
     #[test]
     fn lines_carry_the_wall_time_in_the_zone_and_quiet_drops_only_activity() {
-        let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 1).unwrap());
-        clock.advance(Duration::from_millis(20));
         let mut log = Logger::new(
-            Arc::new(clock),
+            Arc::new(clock()),
             Zone::parse("Europe/Amsterdam").unwrap(),
             false,
         );
@@ -135,5 +496,150 @@ mod tests {
                 "13:00:01.020 error: broken"
             ]
         );
+    }
+
+    /// A pipe: (read end, write end).
+    fn pipe() -> (std::fs::File, std::fs::File) {
+        let mut fds = [0; 2];
+        // SAFETY: `fds` has room for the two descriptors pipe() writes.
+        assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+        // SAFETY: both descriptors are fresh and owned by nothing else.
+        unsafe {
+            (
+                std::fs::File::from(OwnedFd::from_raw_fd(fds[0])),
+                std::fs::File::from(OwnedFd::from_raw_fd(fds[1])),
+            )
+        }
+    }
+
+    #[test]
+    fn a_pipe_nobody_reads_never_blocks_the_logger_and_the_drops_are_told() {
+        let (mut reader, writer) = pipe();
+        let (done, finished) = mpsc::channel();
+        let logging = std::thread::spawn(move || {
+            let mut log = Logger::with_output(Arc::new(clock()), Zone::utc(), writer);
+            // Far more than a pipe (64 KiB) and the queue (256 KiB) together hold.
+            for n in 0..20_000 {
+                log.info(&format!("line {n} {}", "x".repeat(100)));
+            }
+            done.send(log.dropped()).unwrap();
+            log
+        });
+        // Nobody reads yet: the loop must still get through all of its lines.
+        let dropped = finished
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the logger blocked on a pipe nobody reads");
+        assert!(dropped > 10_000, "{dropped} dropped");
+        let mut log = logging.join().unwrap();
+        // Someone reads again: the next line comes after a notice of what was lost.
+        let reading = std::thread::spawn(move || {
+            let mut all = String::new();
+            let _ = reader.read_to_string(&mut all);
+            all
+        });
+        std::thread::sleep(Duration::from_millis(200));
+        log.info("after");
+        log.close();
+        drop(log);
+        let text = reading.join().unwrap();
+        let notice = format!("warning: {dropped} log lines dropped: stderr not being read");
+        let at = text
+            .find(&notice)
+            .unwrap_or_else(|| panic!("no notice in {text:.500}"));
+        assert!(text[at..].contains("after"), "the notice comes first");
+        assert!(text.starts_with("12:00:01.020 line 0 "), "{:.100}", text);
+    }
+
+    #[test]
+    fn json_lines_give_time_level_source_message_and_device() {
+        let (mut reader, writer) = pipe();
+        let mut log = Logger::with_output(Arc::new(clock()), Zone::utc(), writer);
+        log.set_format(LogFormat::Json);
+        log.set_devices(["io".to_string(), "panel".to_string()]);
+        log.activity("io: outputs 0x00 -> 0x05 (top level)");
+        log.info("script: hello \"there\"");
+        log.error("in every 1s: boom");
+        log.close();
+        drop(log);
+        let mut text = String::new();
+        reader.read_to_string(&mut text).unwrap();
+        let lines: Vec<serde_json::Value> = text
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(
+            lines,
+            [
+                serde_json::json!({"time": "2026-03-28T12:00:01.020+00:00", "level": "info",
+                    "source": "runner", "message": "outputs 0x00 -> 0x05 (top level)",
+                    "device": "io"}),
+                serde_json::json!({"time": "2026-03-28T12:00:01.020+00:00", "level": "notice",
+                    "source": "script", "message": "hello \"there\"", "device": null}),
+                serde_json::json!({"time": "2026-03-28T12:00:01.020+00:00", "level": "error",
+                    "source": "runner", "message": "in every 1s: boom", "device": null}),
+            ]
+        );
+    }
+
+    #[test]
+    fn a_repeating_problem_is_logged_once_then_counted_and_summed_up() {
+        let clock = clock();
+        let mut log = Logger::new(Arc::new(clock.clone()), Zone::utc(), false);
+        log.keep_lines();
+        for _ in 0..50 {
+            log.repeating(
+                "io/write",
+                Level::Error,
+                "io: writing outputs failed: refused",
+            );
+            clock.advance(Duration::from_millis(20));
+        }
+        assert_eq!(log.lines().len(), 1);
+        // An hour of it: one summary line.
+        clock.advance(REPEAT_SUMMARY);
+        log.repeating(
+            "io/write",
+            Level::Error,
+            "io: writing outputs failed: refused",
+        );
+        log.repeating(
+            "io/write",
+            Level::Error,
+            "io: writing outputs failed: other",
+        );
+        log.repeating(
+            "io/write",
+            Level::Error,
+            "io: writing outputs failed: other",
+        );
+        log.settled("io/write", "io: outputs written again");
+        log.settled("io/write", "said once only");
+        let lines = log.lines().join("\n");
+        assert_eq!(log.lines().len(), 4, "{lines}");
+        assert!(
+            lines.contains(
+                "error: io: writing outputs failed: refused (again 50 times in the last 1h1s)"
+            ),
+            "{lines}"
+        );
+        assert!(
+            lines.contains(
+                "error: io: outputs written again (the problem above came back 1 more times)"
+            ),
+            "{lines}"
+        );
+    }
+
+    #[test]
+    fn long_lines_are_cut() {
+        let mut log = Logger::new(Arc::new(clock()), Zone::utc(), false);
+        log.keep_lines();
+        log.info(&"é".repeat(5000));
+        let line = &log.lines()[0];
+        assert!(
+            line.ends_with("... (5904 more bytes not shown)"),
+            "{line:.80}"
+        );
+        assert!(line.len() < MAX_LINE + 100);
     }
 }

@@ -1,8 +1,10 @@
 //! Outputs: what the script wants (the DO byte, the relay), noted during the tick and written
 //! at its end, one transaction per device, only where it changed; the safe state instead
-//! while everything is held safe.
+//! while everything is held safe. The log tells changes only (a relay selected again after
+//! the periodic check is not one), and a write the device keeps refusing once, then counted.
 
 use super::devices::Device;
+use super::log::Level;
 use super::state::Runtime;
 
 impl<H: Clone> Runtime<H> {
@@ -62,14 +64,20 @@ impl<H: Clone> Runtime<H> {
                     };
                     match target {
                         Some(relay) if d.relay_written != Some(relay) => {
-                            let before = d.relay_written;
-                            let line = format!(
-                                "{}: relay {} -> {relay} ({})",
-                                d.name,
-                                before.map_or("?".to_string(), |r| r.to_string()),
-                                if held { "held safe" } else { &d.relay_cause }
-                            );
-                            d.select_relay(relay).map(|()| Some(line))
+                            let before = d.relay_last;
+                            let cause = match (held, d.relay_cause.as_str()) {
+                                (true, _) => "held safe",
+                                (false, "") => "start",
+                                (false, cause) => cause,
+                            };
+                            let line = (before != Some(relay)).then(|| {
+                                format!(
+                                    "{}: relay {} -> {relay} ({cause})",
+                                    d.name,
+                                    before.map_or("?".to_string(), |r| r.to_string()),
+                                )
+                            });
+                            d.select_relay(relay).map(|()| line)
                         }
                         _ => Ok(None),
                     }
@@ -91,15 +99,24 @@ impl<H: Clone> Runtime<H> {
                 }
                 None => Ok(None),
             };
+            let refusal = format!("{}/write", self.device_name(idx));
             match result {
-                Ok(Some(line)) => self.log.activity(&line),
+                Ok(Some(line)) => {
+                    self.log.activity(&line);
+                    let name = self.device_name(idx);
+                    self.log
+                        .settled(&refusal, &format!("{name}: outputs written again"));
+                }
                 Ok(None) => {}
                 Err(e) if e.is_safe_mode() => self.regain_control(idx),
                 Err(e) => {
                     if !e.is_comm_failure() && !e.is_cancelled() {
                         let name = self.device_name(idx);
-                        self.log
-                            .error(&format!("{name}: writing outputs failed: {e}"));
+                        self.log.repeating(
+                            &refusal,
+                            Level::Error,
+                            &format!("{name}: writing outputs failed: {e}"),
+                        );
                     }
                     self.note_failure(idx, &e);
                 }
@@ -216,5 +233,23 @@ mod tests {
         r.rt.reset_outputs();
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
         assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+    }
+
+    #[test]
+    fn a_relay_selected_again_after_the_check_is_not_logged_again() {
+        let mut r = TestRig::started();
+        r.rt.flush_outputs();
+        let lines = r.rt.log.lines().len();
+        for _ in 0..10 {
+            // What the periodic check does: the board may have forgotten its relay.
+            r.rt.trc(PANEL).unwrap().relay_written = None;
+            let before = r.requests();
+            r.rt.flush_outputs();
+            assert_eq!(r.requests(), before + 1, "selected again");
+        }
+        assert_eq!(r.rt.log.lines().len(), lines, "{}", r.log());
+        r.rt.set_relay(PANEL, 5);
+        r.rt.flush_outputs();
+        assert!(r.log().contains("panel: relay 3 -> 5 ("), "{}", r.log());
     }
 }

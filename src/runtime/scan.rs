@@ -54,7 +54,8 @@ pub struct Fault {
     pub location: Option<String>,
     /// What went wrong.
     pub cause: String,
-    /// The handler ran over its operation budget (a runaway loop).
+    /// The handler ran over a limit that running it again would hit again (operations or
+    /// time per call, memory): a runaway, never skipped.
     pub over_budget: bool,
 }
 
@@ -207,10 +208,7 @@ impl<P: Program> Runner<P> {
 
     /// Runs until the run ends, sleeping between ticks; returns the exit status.
     pub fn run(&mut self) -> i32 {
-        // Without these hints a tick starts 100-150 µs late as a rule and milliseconds late
-        // when other processes keep the CPUs busy; they are hints only, so a refusal (an old
-        // kernel, a sandbox) leaves the loop as it was.
-        let _ = crate::time::clock::prefer_prompt_wakeups();
+        self.note_prompt_wakeups(crate::time::clock::prefer_prompt_wakeups());
         self.stats.wake_latency = Some(wake_latency::describe(&None));
         loop {
             if let Some(status) = self.status() {
@@ -221,6 +219,25 @@ impl<P: Program> Runner<P> {
             self.sleep_to_deadline();
             self.tick();
         }
+    }
+
+    /// Notes how the request to wake the loop promptly went (`time::clock::prefer_prompt_wakeups`,
+    /// asked once a run). Without these hints a tick starts 100-150 µs late as a rule and
+    /// milliseconds late when other processes keep the CPUs busy; they are hints only, so a
+    /// refusal (an old kernel, a sandbox) is logged once and the run goes on.
+    fn note_prompt_wakeups(&mut self, outcome: std::io::Result<()>) {
+        let text = match outcome {
+            Ok(()) => "granted".to_string(),
+            Err(e) => {
+                let text = format!("refused ({e})");
+                self.rt.borrow_mut().log.info(&format!(
+                    "prompt wake-ups (1 ns timer slack, short scheduler slice) {text}: ticks \
+                     may start later under load"
+                ));
+                text
+            }
+        };
+        self.stats.prompt_wakeups = Some(text);
     }
 
     /// Holds the CPU wake-up latency the setting asks for while the loop ticks as fast as it
@@ -486,6 +503,8 @@ impl<P: Program> Runner<P> {
         Some(next)
     }
 
+    /// Runs the tick's handlers one by one; a signal that comes meanwhile ends the run before
+    /// the next one (a tick with thousands of timers due must not delay SIGTERM).
     fn run_handlers(&mut self) {
         let calls = self.rt.borrow_mut().collect_calls();
         for call in calls {
@@ -705,7 +724,7 @@ struct LatencyRequest {
     /// The OS refused it once: not asked again.
     refused: bool,
     /// The handlers it was last worked out for.
-    seen: Option<(usize, Option<u64>)>,
+    seen: Option<(usize, u64)>,
 }
 
 /// What went wrong during a run that still went on to its end (exit status 5).
@@ -812,16 +831,11 @@ fn boundary_at_or_after(start: Duration, period: Duration, t: Duration) -> Durat
     start.saturating_add(period.saturating_mul(skip))
 }
 
-/// `file:line:col: handler: cause`.
+/// `file:line:col: in handler: cause` (a limit's cause says which limit and how to raise it).
 fn describe(fault: &Fault, label: &str) -> String {
-    let budget = if fault.over_budget {
-        " (over its operation budget: a runaway loop?)"
-    } else {
-        ""
-    };
     match &fault.location {
-        Some(at) => format!("{at}: in {label}: {}{budget}", fault.cause),
-        None => format!("in {label}: {}{budget}", fault.cause),
+        Some(at) => format!("{at}: in {label}: {}", fault.cause),
+        None => format!("in {label}: {}", fault.cause),
     }
 }
 
@@ -971,6 +985,98 @@ mod tests {
         let log = r.runtime().borrow().log.lines().join("\n");
         assert!(log.contains("x.rhai:1:1: in every 100ms: boom"), "{log}");
         assert!(clock.now() >= Duration::from_millis(3300));
+    }
+
+    /// A program with `timers` timers all due at 1 s, whose third call "receives" SIGTERM.
+    struct Signalled {
+        rt: Shared<()>,
+        timers: usize,
+        flag: Arc<AtomicUsize>,
+        calls: usize,
+    }
+
+    impl Program for Signalled {
+        type Handler = ();
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            rt.handlers.set_max_timers(self.timers + 1);
+            for _ in 0..self.timers {
+                rt.every(Duration::from_secs(1), ()).unwrap();
+            }
+            Ok(())
+        }
+        fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
+        fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+            self.calls += 1;
+            if self.calls == 3 {
+                self.flag.store(SIGTERM as usize, Ordering::SeqCst);
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_signal_during_a_tick_of_many_timers_ends_the_run_before_the_next_handler() {
+        let (r, _clock) = runner(Duration::from_secs(3600), Duration::ZERO, ErrorPolicy::Stop);
+        let rt = Rc::clone(r.runtime());
+        let flag: Arc<AtomicUsize> = Arc::default();
+        let program = Signalled {
+            rt: Rc::clone(&rt),
+            timers: 10_000,
+            flag: Arc::clone(&flag),
+            calls: 0,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Stop,
+            end_after: None,
+            stop_flag: flag,
+            wake_latency: WakeLatency::Off,
+        };
+        let mut r = Runner::new(rt, program, options);
+        r.start();
+        r.advance(Duration::from_secs(2));
+        assert_eq!(r.program().calls, 3, "no handler after the signal");
+        assert_eq!(r.status(), Some(exit::signal(SIGTERM)));
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("stopping: SIGTERM received"), "{log}");
+    }
+
+    #[test]
+    fn a_refused_prompt_wakeup_request_is_logged_once_and_shown_by_stats() {
+        let (mut r, _clock) = runner(Duration::from_secs(3600), Duration::ZERO, ErrorPolicy::Stop);
+        let denied = std::io::Error::from_raw_os_error(libc::EPERM);
+        r.note_prompt_wakeups(Err(denied));
+        r.advance(Duration::from_secs(2));
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert_eq!(
+            log.matches("prompt wake-ups (1 ns timer slack, short scheduler slice) refused (")
+                .count(),
+            1,
+            "{log}"
+        );
+        let stats = r.stats.prompt_wakeups.clone().unwrap_or_default();
+        assert!(stats.starts_with("refused ("), "{stats}");
+    }
+
+    #[test]
+    fn a_limits_cause_is_not_repeated_by_the_message() {
+        let fault = Fault {
+            location: Some("s.rhai:3:5".into()),
+            cause: "ran over its operation budget of 10 operations in one call (a runaway \
+                    loop?); a call that needs more can have it with --budget"
+                .into(),
+            over_budget: true,
+        };
+        let message = describe(&fault, "every 1s");
+        assert!(
+            message.starts_with("s.rhai:3:5: in every 1s: ran over"),
+            "{message}"
+        );
+        assert_eq!(message.matches("budget").count(), 2, "{message}");
     }
 
     #[test]

@@ -29,13 +29,17 @@
 use chrono::{DateTime, Local, TimeZone, Utc};
 use croner::parser::{CronParser, Seconds};
 use croner::Cron;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::time::Duration;
 
 /// How many skipped occurrences of a cron timer are counted after a wall-clock jump before
 /// the count stops (it then reads as this value: "at least").
 pub const MAX_COUNTED_CRON_MISSES: u64 = 10_000;
+
+/// How many timers may be armed at once unless the schedule is told otherwise
+/// (`set_max_timers`).
+pub const DEFAULT_MAX_TIMERS: usize = 10_000;
 
 /// Identifies one timer of a schedule; never reused within a schedule.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -55,6 +59,9 @@ pub struct Fired {
     /// Deadlines (periods or cron occurrences) that passed without firing because the tick
     /// came late; 0 when on time.
     pub missed: u64,
+    /// This was the timer's last firing (an `after`, or a cron expression that matches no
+    /// later time): it is gone from the schedule.
+    pub last: bool,
 }
 
 /// What a timer was made from, for messages.
@@ -87,6 +94,16 @@ pub enum ScheduleError {
     NeverFires {
         /// The expression as given.
         expr: String,
+    },
+    /// As many timers are armed as the run allows.
+    #[error(
+        "too many timers: {limit} are armed, the most this run allows; cancel() timers that \
+         are no longer needed, or raise the limit (`timers` under [limits] in rig.toml, or \
+         --max-timers)"
+    )]
+    TooManyTimers {
+        /// The limit.
+        limit: usize,
     },
 }
 
@@ -125,16 +142,42 @@ enum Trigger<Tz: TimeZone> {
     },
 }
 
+/// Where a timer waits in the schedule's queues: monotonic timers by deadline, cron timers by
+/// wall-clock deadline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Slot {
+    Mono(Duration),
+    Wall(DateTime<Utc>),
+}
+
+impl<Tz: TimeZone> Trigger<Tz> {
+    fn slot(&self) -> Slot {
+        match self {
+            Trigger::Every { next, .. } => Slot::Mono(*next),
+            Trigger::After { at } => Slot::Mono(*at),
+            Trigger::Cron { next, .. } => Slot::Wall(next.with_timezone(&Utc)),
+        }
+    }
+}
+
 struct Timer<Tz: TimeZone> {
     kind: TimerKind,
     trigger: Trigger<Tz>,
 }
 
-/// The timers of one script run.
+/// The timers of one script run. Timers wait in two queues ordered by deadline (monotonic
+/// time for `every` and `after`, wall time for `cron`), so finding the due ones, re-arming
+/// them and cancelling one cost O(log n) each whatever the number of timers.
 pub struct Schedule<Tz: TimeZone = Local> {
     tz: Tz,
     next_id: u64,
     timers: BTreeMap<TimerId, Timer<Tz>>,
+    by_mono: BTreeSet<(Duration, TimerId)>,
+    by_wall: BTreeSet<(DateTime<Utc>, TimerId)>,
+    /// No cron timer was searched from a wall time later than this: a poll before it means
+    /// the wall clock stepped back.
+    latest_search: Option<DateTime<Utc>>,
+    max_timers: usize,
     missed_total: u64,
 }
 
@@ -168,14 +211,37 @@ impl<Tz: TimeZone> fmt::Debug for Schedule<Tz> {
 }
 
 impl<Tz: TimeZone> Schedule<Tz> {
-    /// An empty schedule whose cron timers follow `tz`.
+    /// An empty schedule whose cron timers follow `tz`, holding at most `DEFAULT_MAX_TIMERS`.
     pub fn with_time_zone(tz: Tz) -> Self {
         Self {
             tz,
             next_id: 1,
             timers: BTreeMap::new(),
+            by_mono: BTreeSet::new(),
+            by_wall: BTreeSet::new(),
+            latest_search: None,
+            max_timers: DEFAULT_MAX_TIMERS,
             missed_total: 0,
         }
+    }
+
+    /// How many timers may be armed at once; adding one more is refused
+    /// (`ScheduleError::TooManyTimers`). Timers already armed stay.
+    pub fn set_max_timers(&mut self, max: usize) {
+        self.max_timers = max;
+    }
+
+    /// The most timers that may be armed at once.
+    pub fn max_timers(&self) -> usize {
+        self.max_timers
+    }
+
+    /// Forgets every timer (ids are still never reused; the limit stays).
+    pub fn clear(&mut self) {
+        self.timers.clear();
+        self.by_mono.clear();
+        self.by_wall.clear();
+        self.latest_search = None;
     }
 
     /// A timer that fires every `period`, first at `now_mono + period`.
@@ -188,11 +254,11 @@ impl<Tz: TimeZone> Schedule<Tz> {
             return Err(ScheduleError::ZeroPeriod);
         }
         let next = now_mono.saturating_add(period);
-        Ok(self.insert(TimerKind::Every(period), Trigger::Every { period, next }))
+        self.insert(TimerKind::Every(period), Trigger::Every { period, next })
     }
 
     /// A timer that fires once at `now_mono + delay` (at the next tick when `delay` is zero).
-    pub fn after(&mut self, delay: Duration, now_mono: Duration) -> TimerId {
+    pub fn after(&mut self, delay: Duration, now_mono: Duration) -> Result<TimerId, ScheduleError> {
         let at = now_mono.saturating_add(delay);
         self.insert(TimerKind::After(delay), Trigger::After { at })
     }
@@ -200,6 +266,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
     /// A timer that fires at each wall-clock time after `now_wall` that `expr` matches in the
     /// schedule's time zone. Five fields (minute first) or six (second first).
     pub fn cron(&mut self, expr: &str, now_wall: DateTime<Utc>) -> Result<TimerId, ScheduleError> {
+        self.check_room()?;
         let cron = parse_cron(expr)?;
         let from = now_wall.with_timezone(&self.tz);
         let next =
@@ -212,12 +279,19 @@ impl<Tz: TimeZone> Schedule<Tz> {
             next,
             searched_from: now_wall,
         };
-        Ok(self.insert(TimerKind::Cron(expr.to_string()), trigger))
+        self.note_search(now_wall);
+        self.insert(TimerKind::Cron(expr.to_string()), trigger)
     }
 
     /// Removes a timer; false if it was not there (already cancelled, or a spent `after`).
     pub fn cancel(&mut self, id: TimerId) -> bool {
-        self.timers.remove(&id).is_some()
+        match self.timers.remove(&id) {
+            Some(timer) => {
+                self.unqueue(timer.trigger.slot(), id);
+                true
+            }
+            None => false,
+        }
     }
 
     /// Whether a timer is still armed.
@@ -246,71 +320,70 @@ impl<Tz: TimeZone> Schedule<Tz> {
     }
 
     /// The timers due at this tick, earliest deadline first (ties in creation order), each
-    /// once. Repeating timers are re-armed, spent `after` timers removed.
+    /// once. Repeating timers are re-armed; spent ones (`Fired::last`) removed.
     pub fn due(&mut self, now_mono: Duration, now_wall: DateTime<Utc>) -> Vec<Fired> {
-        // (how late, id, missed): the latest deadline passed is the one that fires first.
-        let mut fired: Vec<(Duration, TimerId, u64)> = Vec::new();
-        let mut spent: Vec<TimerId> = Vec::new();
-        for (id, timer) in &mut self.timers {
+        if self.latest_search.is_some_and(|l| now_wall < l) {
+            self.search_again_after_step_back(now_wall);
+        }
+        // (how late, id, missed, last): the latest deadline passed is the one that fires first.
+        let mut fired: Vec<(Duration, TimerId, u64, bool)> = Vec::new();
+        let mut searched = false;
+        for (deadline, id) in take_due(&mut self.by_mono, now_mono) {
+            let late = now_mono.saturating_sub(deadline);
+            let Some(timer) = self.timers.get_mut(&id) else {
+                continue;
+            };
             match &mut timer.trigger {
                 Trigger::Every { period, next } => {
-                    if now_mono >= *next {
-                        let late = now_mono.saturating_sub(*next);
-                        let (missed, rearmed) = rearm_every(*next, *period, now_mono);
-                        *next = rearmed;
-                        fired.push((late, *id, missed));
-                    }
+                    let (missed, rearmed) = rearm_every(*next, *period, now_mono);
+                    *next = rearmed;
+                    self.by_mono.insert((rearmed, id));
+                    fired.push((late, id, missed, false));
                 }
-                Trigger::After { at } => {
-                    if now_mono >= *at {
-                        fired.push((now_mono.saturating_sub(*at), *id, 0));
-                        spent.push(*id);
-                    }
+                Trigger::After { .. } => {
+                    self.timers.remove(&id);
+                    fired.push((late, id, 0, true));
                 }
-                Trigger::Cron {
-                    cron,
-                    next,
-                    searched_from,
-                } => {
-                    if now_wall < *searched_from {
-                        // The wall clock stepped back: search again from the new wall time.
-                        match cron.find_next_occurrence(&now_wall.with_timezone(&self.tz), false) {
-                            Ok(n) => {
-                                *next = n;
-                                *searched_from = now_wall;
-                            }
-                            Err(_) => spent.push(*id),
-                        }
-                        continue;
-                    }
-                    if now_wall < next.with_timezone(&Utc) {
-                        continue;
-                    }
-                    let late = (now_wall - next.with_timezone(&Utc))
-                        .to_std()
-                        .unwrap_or(Duration::ZERO);
-                    let (missed, rearmed) =
-                        rearm_cron(cron, next, &now_wall.with_timezone(&self.tz));
-                    fired.push((late, *id, missed));
-                    match rearmed {
-                        Some(n) => {
-                            *next = n;
-                            *searched_from = now_wall;
-                        }
-                        None => spent.push(*id),
-                    }
+                Trigger::Cron { .. } => {}
+            }
+        }
+        for (deadline, id) in take_due(&mut self.by_wall, now_wall) {
+            let late = (now_wall - deadline).to_std().unwrap_or(Duration::ZERO);
+            let Some(timer) = self.timers.get_mut(&id) else {
+                continue;
+            };
+            let Trigger::Cron {
+                cron,
+                next,
+                searched_from,
+            } = &mut timer.trigger
+            else {
+                continue;
+            };
+            let (missed, rearmed) = rearm_cron(cron, next, &now_wall.with_timezone(&self.tz));
+            match rearmed {
+                Some(n) => {
+                    self.by_wall.insert((n.with_timezone(&Utc), id));
+                    *next = n;
+                    *searched_from = now_wall;
+                    searched = true;
+                    fired.push((late, id, missed, false));
+                }
+                None => {
+                    self.timers.remove(&id);
+                    fired.push((late, id, missed, true));
                 }
             }
         }
-        for id in spent {
-            self.timers.remove(&id);
+        if searched {
+            self.note_search(now_wall);
         }
         fired.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
         fired
             .into_iter()
-            .map(|(_, id, missed)| {
+            .map(|(_, id, missed, last)| {
                 self.missed_total = self.missed_total.saturating_add(missed);
-                Fired { id, missed }
+                Fired { id, missed, last }
             })
             .collect()
     }
@@ -318,27 +391,87 @@ impl<Tz: TimeZone> Schedule<Tz> {
     /// The monotonic time at which the earliest timer is due (possibly already past), or
     /// `None` when no timer is armed. Cron deadlines are converted from wall time at `now_wall`.
     pub fn next_deadline(&self, now_mono: Duration, now_wall: DateTime<Utc>) -> Option<Duration> {
-        self.timers
-            .values()
-            .map(|t| match &t.trigger {
-                Trigger::Every { next, .. } => *next,
-                Trigger::After { at } => *at,
-                Trigger::Cron { next, .. } => {
-                    let ahead = (next.with_timezone(&Utc) - now_wall)
-                        .to_std()
-                        .unwrap_or(Duration::ZERO);
-                    now_mono.saturating_add(ahead)
-                }
-            })
-            .min()
+        let mono = self.by_mono.first().map(|(at, _)| *at);
+        let wall = self.by_wall.first().map(|(at, _)| {
+            let ahead = (*at - now_wall).to_std().unwrap_or(Duration::ZERO);
+            now_mono.saturating_add(ahead)
+        });
+        match (mono, wall) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 
-    fn insert(&mut self, kind: TimerKind, trigger: Trigger<Tz>) -> TimerId {
+    /// The wall clock stepped back: every cron timer searched from a later wall time searches
+    /// again from `now_wall`, so wall times that come round again fire again. Costs a pass
+    /// over the timers, once per step back. (A search from an earlier time finds at least the
+    /// occurrences the last one found; should it fail all the same, the timer keeps its
+    /// deadline rather than vanish.)
+    fn search_again_after_step_back(&mut self, now_wall: DateTime<Utc>) {
+        let from = now_wall.with_timezone(&self.tz);
+        for (id, timer) in &mut self.timers {
+            let Trigger::Cron {
+                cron,
+                next,
+                searched_from,
+            } = &mut timer.trigger
+            else {
+                continue;
+            };
+            if now_wall >= *searched_from {
+                continue;
+            }
+            if let Ok(n) = cron.find_next_occurrence(&from, false) {
+                self.by_wall.remove(&(next.with_timezone(&Utc), *id));
+                self.by_wall.insert((n.with_timezone(&Utc), *id));
+                *next = n;
+            }
+            *searched_from = now_wall;
+        }
+        // Every cron timer left was searched from `now_wall` or before.
+        self.latest_search = Some(now_wall);
+    }
+
+    fn note_search(&mut self, wall: DateTime<Utc>) {
+        if self.latest_search.map_or(true, |l| wall > l) {
+            self.latest_search = Some(wall);
+        }
+    }
+
+    fn check_room(&self) -> Result<(), ScheduleError> {
+        if self.timers.len() >= self.max_timers {
+            return Err(ScheduleError::TooManyTimers {
+                limit: self.max_timers,
+            });
+        }
+        Ok(())
+    }
+
+    fn insert(&mut self, kind: TimerKind, trigger: Trigger<Tz>) -> Result<TimerId, ScheduleError> {
+        self.check_room()?;
         let id = TimerId(self.next_id);
         self.next_id = self.next_id.saturating_add(1);
+        match trigger.slot() {
+            Slot::Mono(at) => self.by_mono.insert((at, id)),
+            Slot::Wall(at) => self.by_wall.insert((at, id)),
+        };
         self.timers.insert(id, Timer { kind, trigger });
-        id
+        Ok(id)
     }
+
+    fn unqueue(&mut self, slot: Slot, id: TimerId) {
+        match slot {
+            Slot::Mono(at) => self.by_mono.remove(&(at, id)),
+            Slot::Wall(at) => self.by_wall.remove(&(at, id)),
+        };
+    }
+}
+
+/// Takes the entries of `queue` due at or before `now`, earliest first (each is put back by
+/// its timer once re-armed, so a poll fires a timer at most once).
+fn take_due<K: Ord + Copy>(queue: &mut BTreeSet<(K, TimerId)>, now: K) -> Vec<(K, TimerId)> {
+    let later = queue.split_off(&(now, TimerId(u64::MAX)));
+    std::mem::replace(queue, later).into_iter().collect()
 }
 
 /// For an `every` timer due at `next` and polled at `now >= next`: how many further deadlines
@@ -449,7 +582,14 @@ mod tests {
         let id = s.every(ms(20), clock.now()).unwrap();
         assert_eq!(s.next_deadline(clock.now(), clock.wall()), Some(ms(25)));
         assert!(s.due(ms(24), clock.wall()).is_empty());
-        assert_eq!(s.due(ms(25), clock.wall()), vec![Fired { id, missed: 0 }]);
+        assert_eq!(
+            s.due(ms(25), clock.wall()),
+            vec![Fired {
+                id,
+                missed: 0,
+                last: false
+            }]
+        );
         assert!(s.due(ms(25), clock.wall()).is_empty(), "once per deadline");
         assert_eq!(s.next_deadline(ms(25), clock.wall()), Some(ms(45)));
         let fired = run(&mut s, &clock, ms(1005));
@@ -464,7 +604,14 @@ mod tests {
         let wall = utc(2024, 1, 1, 0, 0, 0);
         let id = s.every(ms(20), Duration::ZERO).unwrap();
         // Due at 20; the tick comes at 95: deadlines 20, 40, 60, 80 have passed.
-        assert_eq!(s.due(ms(95), wall), vec![Fired { id, missed: 3 }]);
+        assert_eq!(
+            s.due(ms(95), wall),
+            vec![Fired {
+                id,
+                missed: 3,
+                last: false
+            }]
+        );
         assert_eq!(
             s.next_deadline(ms(95), wall),
             Some(ms(100)),
@@ -472,7 +619,14 @@ mod tests {
         );
         assert_eq!(s.missed_total(), 3);
         // Exactly on a boundary: that boundary is the one that fires.
-        assert_eq!(s.due(ms(140), wall), vec![Fired { id, missed: 2 }]);
+        assert_eq!(
+            s.due(ms(140), wall),
+            vec![Fired {
+                id,
+                missed: 2,
+                last: false
+            }]
+        );
         assert_eq!(s.next_deadline(ms(140), wall), Some(ms(160)));
         assert_eq!(s.missed_total(), 5);
     }
@@ -493,7 +647,14 @@ mod tests {
         let wall = utc(2024, 1, 1, 0, 0, 0);
         let id = s.every(Duration::MAX, Duration::ZERO).unwrap();
         assert_eq!(s.next_deadline(Duration::ZERO, wall), Some(Duration::MAX));
-        assert_eq!(s.due(Duration::MAX, wall), vec![Fired { id, missed: 0 }]);
+        assert_eq!(
+            s.due(Duration::MAX, wall),
+            vec![Fired {
+                id,
+                missed: 0,
+                last: false
+            }]
+        );
         assert_eq!(s.next_deadline(Duration::MAX, wall), Some(Duration::MAX));
     }
 
@@ -501,11 +662,18 @@ mod tests {
     fn after_fires_once_then_is_gone() {
         let clock = VirtualClock::at_epoch();
         let mut s = Schedule::with_time_zone(Utc);
-        let id = s.after(ms(1500), clock.now());
+        let id = s.after(ms(1500), clock.now()).unwrap();
         assert_eq!(s.kind(id), Some(&TimerKind::After(ms(1500))));
         let fired = run(&mut s, &clock, Duration::from_secs(10));
         assert_eq!(fired.len(), 1);
-        assert_eq!(fired[0].1, Fired { id, missed: 0 });
+        assert_eq!(
+            fired[0].1,
+            Fired {
+                id,
+                missed: 0,
+                last: true
+            }
+        );
         assert_eq!(fired[0].0.timestamp_millis(), 1500);
         assert!(!s.contains(id));
         assert!(!s.cancel(id), "a spent after cannot be cancelled");
@@ -516,8 +684,15 @@ mod tests {
     fn after_zero_fires_at_the_next_tick() {
         let mut s = Schedule::with_time_zone(Utc);
         let wall = utc(2024, 1, 1, 0, 0, 0);
-        let id = s.after(Duration::ZERO, ms(7));
-        assert_eq!(s.due(ms(7), wall), vec![Fired { id, missed: 0 }]);
+        let id = s.after(Duration::ZERO, ms(7)).unwrap();
+        assert_eq!(
+            s.due(ms(7), wall),
+            vec![Fired {
+                id,
+                missed: 0,
+                last: true
+            }]
+        );
     }
 
     #[test]
@@ -525,7 +700,7 @@ mod tests {
         let clock = VirtualClock::new(utc(2024, 1, 1, 0, 0, 0));
         let mut s = Schedule::with_time_zone(Utc);
         let every = s.every(ms(100), clock.now()).unwrap();
-        let after = s.after(ms(250), clock.now());
+        let after = s.after(ms(250), clock.now()).unwrap();
         let cron = s.cron("* * * * * *", clock.wall()).unwrap();
         let kept = s.every(ms(1000), clock.now()).unwrap();
         assert_eq!(s.len(), 4);
@@ -543,10 +718,10 @@ mod tests {
     fn due_timers_come_in_deadline_order_not_creation_order() {
         let mut s = Schedule::with_time_zone(Utc);
         let wall = utc(2024, 1, 1, 0, 0, 0);
-        let late = s.after(ms(30), Duration::ZERO);
-        let early = s.after(ms(10), Duration::ZERO);
+        let late = s.after(ms(30), Duration::ZERO).unwrap();
+        let early = s.after(ms(10), Duration::ZERO).unwrap();
         let every = s.every(ms(20), Duration::ZERO).unwrap();
-        let tie = s.after(ms(20), Duration::ZERO);
+        let tie = s.after(ms(20), Duration::ZERO).unwrap();
         let ids: Vec<TimerId> = s.due(ms(35), wall).into_iter().map(|f| f.id).collect();
         assert_eq!(ids, vec![early, every, tie, late]);
     }
@@ -554,9 +729,9 @@ mod tests {
     #[test]
     fn ids_are_never_reused() {
         let mut s = Schedule::with_time_zone(Utc);
-        let a = s.after(ms(1), Duration::ZERO);
+        let a = s.after(ms(1), Duration::ZERO).unwrap();
         assert!(s.cancel(a));
-        let b = s.after(ms(1), Duration::ZERO);
+        let b = s.after(ms(1), Duration::ZERO).unwrap();
         assert_ne!(a, b);
         assert!(b > a);
     }
@@ -594,15 +769,27 @@ mod tests {
         // Exactly at an occurrence when made: that one is not "after now", the next is.
         let at = utc(2024, 6, 1, 10, 0, 5);
         let other = s.cron("*/5 * * * * *", at).unwrap();
-        assert_eq!(s.due(Duration::ZERO, at), vec![Fired { id, missed: 0 }]);
+        assert_eq!(
+            s.due(Duration::ZERO, at),
+            vec![Fired {
+                id,
+                missed: 0,
+                last: false
+            }]
+        );
         assert!(s.due(Duration::ZERO, at).is_empty());
         assert_eq!(
             s.due(ms(5000), at + chrono::Duration::seconds(5)),
             vec![
-                Fired { id, missed: 0 },
+                Fired {
+                    id,
+                    missed: 0,
+                    last: false
+                },
                 Fired {
                     id: other,
-                    missed: 0
+                    missed: 0,
+                    last: false
                 }
             ]
         );
@@ -766,7 +953,14 @@ mod tests {
         let id = s.cron("*/5 * * * *", t0).unwrap();
         // The machine slept from 10:00 to 10:31:30: 10:05 .. 10:30 passed (6 occurrences).
         let woke = utc(2024, 6, 1, 10, 31, 30);
-        assert_eq!(s.due(ms(1), woke), vec![Fired { id, missed: 5 }]);
+        assert_eq!(
+            s.due(ms(1), woke),
+            vec![Fired {
+                id,
+                missed: 5,
+                last: false
+            }]
+        );
         assert_eq!(s.missed_total(), 5);
         assert_eq!(
             s.next_deadline(ms(1), woke),
@@ -784,7 +978,8 @@ mod tests {
             s.due(Duration::ZERO, woke),
             vec![Fired {
                 id,
-                missed: MAX_COUNTED_CRON_MISSES
+                missed: MAX_COUNTED_CRON_MISSES,
+                last: false
             }]
         );
         assert_eq!(s.next_deadline(Duration::ZERO, woke), Some(ms(500)));
@@ -797,7 +992,11 @@ mod tests {
         let id = s.cron("0 * * * *", t0).unwrap();
         assert_eq!(
             s.due(ms(1), utc(2024, 6, 1, 11, 0, 0)),
-            vec![Fired { id, missed: 0 }]
+            vec![Fired {
+                id,
+                missed: 0,
+                last: false
+            }]
         );
         // Stepped back to 09:30: 10:00 comes round again and fires again, not 12:00.
         let back = utc(2024, 6, 1, 9, 30, 0);
@@ -808,7 +1007,11 @@ mod tests {
         );
         assert_eq!(
             s.due(ms(3), utc(2024, 6, 1, 10, 0, 0)),
-            vec![Fired { id, missed: 0 }]
+            vec![Fired {
+                id,
+                missed: 0,
+                last: false
+            }]
         );
     }
 
@@ -820,7 +1023,59 @@ mod tests {
         let fired = run(&mut s, &clock, Duration::from_secs(400 * 86_400));
         assert_eq!(fired.len(), 1);
         assert_eq!(fired[0].0, utc(2030, 1, 1, 12, 0, 0));
+        assert!(fired[0].1.last, "the firing says it was the last");
         assert!(!s.contains(id));
+        assert!(s.is_empty());
+    }
+
+    #[test]
+    fn timers_past_the_limit_are_refused_until_one_goes() {
+        let wall = utc(2024, 1, 1, 0, 0, 0);
+        let mut s = Schedule::with_time_zone(Utc);
+        assert_eq!(s.max_timers(), DEFAULT_MAX_TIMERS);
+        s.set_max_timers(3);
+        let every = s.every(ms(10), Duration::ZERO).unwrap();
+        s.after(ms(10), Duration::ZERO).unwrap();
+        s.cron("* * * * * *", wall).unwrap();
+        let full = ScheduleError::TooManyTimers { limit: 3 };
+        assert_eq!(s.every(ms(10), Duration::ZERO), Err(full.clone()));
+        assert_eq!(s.after(ms(10), Duration::ZERO), Err(full.clone()));
+        assert_eq!(s.cron("* * * * * *", wall), Err(full.clone()));
+        assert_eq!(s.len(), 3);
+        let text = full.to_string();
+        assert!(
+            text.contains("3 are armed") && text.contains("--max-timers"),
+            "{text}"
+        );
+        // A cancelled timer or a spent `after` makes room.
+        assert!(s.cancel(every));
+        s.every(ms(10), Duration::ZERO).unwrap();
+        assert_eq!(s.due(ms(10), wall).len(), 2);
+        s.after(ms(10), ms(10)).unwrap();
+        // Clearing forgets the timers, not the limit, and ids go on.
+        s.clear();
+        assert!(s.is_empty());
+        assert_eq!(s.next_deadline(ms(10), wall), None);
+        assert_eq!(s.max_timers(), 3);
+        let fresh = s.after(ms(1), ms(10)).unwrap();
+        assert!(fresh > every);
+    }
+
+    #[test]
+    fn polls_cost_the_due_timers_not_all_timers() {
+        // 100,000 timers of which one fires per poll: each poll is a handful of queue
+        // operations (the old linear scan touched every timer; this would take minutes).
+        let wall = utc(2024, 1, 1, 0, 0, 0);
+        let mut s = Schedule::with_time_zone(Utc);
+        s.set_max_timers(200_000);
+        for i in 0..100_000u64 {
+            s.after(ms(1 + i), Duration::ZERO).unwrap();
+        }
+        for i in 1..=100_000u64 {
+            let fired = s.due(ms(i), wall);
+            assert_eq!(fired.len(), 1);
+            assert!(fired[0].last);
+        }
         assert!(s.is_empty());
     }
 
@@ -882,6 +1137,60 @@ mod tests {
         #[test]
         fn cron_like_text_never_panics(expr in "[0-9*/,LW#?+ -]{0,30}") {
             let _ = validate_cron(&expr);
+        }
+
+        #[test]
+        fn the_queues_fire_what_a_scan_of_every_timer_would(
+            timers in proptest::collection::vec((any::<bool>(), 1u64..200), 1..40),
+            cancels in proptest::collection::vec(any::<prop::sample::Index>(), 0..10),
+            polls in proptest::collection::vec(0u64..150, 1..30),
+        ) {
+            // The model: each timer's deadline, scanned in full at every poll.
+            let wall = utc(2024, 1, 1, 0, 0, 0);
+            let mut s = Schedule::with_time_zone(Utc);
+            let mut model: Vec<(TimerId, bool, u64, u64)> = Vec::new(); // id, repeats, period, next
+            for (repeats, period) in &timers {
+                let id = if *repeats {
+                    s.every(ms(*period), Duration::ZERO).unwrap()
+                } else {
+                    s.after(ms(*period), Duration::ZERO).unwrap()
+                };
+                model.push((id, *repeats, *period, *period));
+            }
+            for c in cancels {
+                let i = c.index(model.len());
+                let id = model[i].0;
+                prop_assert_eq!(s.cancel(id), model.iter().any(|m| m.0 == id && m.3 != u64::MAX));
+                model[i].3 = u64::MAX;
+            }
+            let mut now = 0u64;
+            for step in polls {
+                now += step;
+                let mut expected: Vec<(u64, TimerId, u64, bool)> = Vec::new();
+                for m in &mut model {
+                    if m.3 == u64::MAX || m.3 > now {
+                        continue;
+                    }
+                    let late = now - m.3;
+                    if m.1 {
+                        let missed = late / m.2;
+                        expected.push((late, m.0, missed, false));
+                        m.3 += (missed + 1) * m.2;
+                    } else {
+                        expected.push((late, m.0, 0, true));
+                        m.3 = u64::MAX;
+                    }
+                }
+                expected.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+                let expected: Vec<Fired> = expected
+                    .into_iter()
+                    .map(|(_, id, missed, last)| Fired { id, missed, last })
+                    .collect();
+                prop_assert_eq!(s.due(ms(now), wall), expected);
+                let next = model.iter().map(|m| m.3).filter(|n| *n != u64::MAX).min();
+                prop_assert_eq!(s.next_deadline(ms(now), wall), next.map(ms));
+                prop_assert_eq!(s.len(), model.iter().filter(|m| m.3 != u64::MAX).count());
+            }
         }
 
         #[test]

@@ -10,8 +10,7 @@ use super::devices::Device;
 use super::invariants::Invariant;
 use super::log::Logger;
 use super::records::Records;
-use super::schedule::TimerKind;
-use super::subscriptions::{Source, Subscriptions};
+use super::subscriptions::Subscriptions;
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
@@ -141,23 +140,12 @@ impl<H: Clone> Runtime<H> {
         if self.handlers.polls_inputs() {
             return Some(period);
         }
-        self.handlers
-            .list()
-            .iter()
-            .filter_map(|s| match s.source {
-                Source::Timer(id) => match self.handlers.timer_kind(id) {
-                    Some(TimerKind::Every(every)) => Some((*every).max(period)),
-                    _ => None,
-                },
-                _ => None,
-            })
-            .min()
+        self.handlers.fastest_every().map(|every| every.max(period))
     }
 
-    /// Something that changes when handlers come or go (their count and the newest id).
-    pub fn handlers_signature(&self) -> (usize, Option<u64>) {
-        let list = self.handlers.list();
-        (list.len(), list.last().map(|s| s.id))
+    /// Something that changes when handlers come or go (their count and the next id).
+    pub fn handlers_signature(&self) -> (usize, u64) {
+        self.handlers.signature()
     }
 
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
@@ -192,7 +180,7 @@ mod tests {
             Some(Duration::MAX),
             "nothing to do: watchdogs are fed between ticks"
         );
-        r.rt.after(Duration::from_millis(100), "soon");
+        r.rt.after(Duration::from_millis(100), "soon").unwrap();
         assert_eq!(
             r.rt.idle_until(),
             Some(Duration::from_millis(100)),
@@ -216,7 +204,7 @@ mod tests {
         let period = Duration::from_millis(20);
         assert_eq!(r.rt.tick_interval(period), None, "nothing to do");
         r.rt.cron("0 0 * * * *", "hourly").unwrap();
-        r.rt.after(Duration::from_millis(5), "once");
+        r.rt.after(Duration::from_millis(5), "once").unwrap();
         assert_eq!(r.rt.tick_interval(period), None, "only now and then");
         let slow = r.rt.every(Duration::from_secs(1), "slow").unwrap();
         assert_eq!(r.rt.tick_interval(period), Some(Duration::from_secs(1)));
@@ -248,7 +236,7 @@ mod tests {
         r.rt.set_outputs(IO, 0x99);
         r.rt.set_relay(PANEL, 7);
         r.rt.reset_program();
-        assert!(r.rt.handlers.list().is_empty());
+        assert!(r.rt.handlers.is_empty());
         assert!(!r.rt.has_work());
         assert_eq!(r.rt.stop_request, None);
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);

@@ -122,6 +122,10 @@ pub struct Stats {
     pub max_transactions: u64,
     /// How the run's CPU wake-up latency request went (real-time runs only).
     pub wake_latency: Option<String>,
+    /// How the request for prompt wake-ups (timer slack, scheduler slice) went.
+    pub prompt_wakeups: Option<String>,
+    /// Log lines dropped because stderr was not being read.
+    pub log_dropped: u64,
 }
 
 impl Stats {
@@ -160,6 +164,16 @@ impl fmt::Display for Stats {
             ms(self.work.max())
         )?;
         writeln!(f, "overruns: {}", self.overruns)?;
+        if let Some(p) = &self.prompt_wakeups {
+            writeln!(f, "prompt wake-ups: {p}")?;
+        }
+        if self.log_dropped > 0 {
+            writeln!(
+                f,
+                "log lines dropped: {} (stderr not being read)",
+                self.log_dropped
+            )?;
+        }
         write!(
             f,
             "transactions per tick: {:.2} (max {})",

@@ -1,5 +1,9 @@
 //! The script's handlers and what each waits for (device events, counter thresholds, timers,
 //! the end of the run), with the ids `cancel` takes.
+//!
+//! Timer handlers are kept by their timer, so a firing finds its handler in O(1) and a tick
+//! costs the timers that fire, not the timers there are (a script may arm tens of thousands).
+//! Device-event and `on_stop` handlers are kept in the order they were added.
 
 use super::schedule::{Schedule, ScheduleError, TimerId, TimerKind};
 use super::state::Runtime;
@@ -7,6 +11,7 @@ use crate::protocol::trc1000::{Rotary, Switch};
 use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
 use chrono::{DateTime, Utc};
+use std::collections::{BTreeMap, HashMap};
 use std::time::Duration;
 
 /// What a handler is subscribed to.
@@ -76,8 +81,22 @@ pub struct Subscription<H> {
     pub handler: H,
     /// The handler in words for the log and error messages: `panel.on_press S1`.
     pub label: String,
-    /// When a timer's firing was last logged (a fast `every` is logged once a second).
-    pub(super) last_logged: Option<Duration>,
+    /// What a timer's firings have been since its last log line.
+    pub(super) firings: Firings,
+}
+
+/// A timer's firings as the log tells them: the first one, then a summary at most every
+/// `TIMER_LOG_INTERVAL`.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Firings {
+    /// When its last line was logged (`None` before the first firing).
+    pub(super) logged_at: Option<Duration>,
+    /// Firings since that line.
+    pub(super) count: u64,
+    /// Deadlines missed since that line.
+    pub(super) missed: u64,
+    /// A cron timer (its last firing is told: no later time matched).
+    pub(super) cron: bool,
 }
 
 /// A value passed to a handler.
@@ -113,36 +132,60 @@ impl<H: Clone> Subscription<H> {
 
 /// Every handler of the script, and the schedule of its timers.
 pub struct Subscriptions<H> {
-    /// In the order they were added.
-    pub(super) list: Vec<Subscription<H>>,
+    /// Device-event handlers, in the order they were added.
+    pub(super) events: Vec<Subscription<H>>,
+    /// `on_stop` handlers, in the order they were added.
+    stops: Vec<Subscription<H>>,
+    /// Timer handlers, by their timer.
+    pub(super) timers: HashMap<TimerId, Subscription<H>>,
+    /// The timer of each timer handler, by handler id (for `cancel`).
+    timer_of: HashMap<u64, TimerId>,
+    /// How many `every` timers there are of each period (the fastest sets the tick).
+    every_periods: BTreeMap<Duration, usize>,
     next_id: u64,
     /// The timers of `Source::Timer` handlers.
     pub(super) schedule: Schedule<Zone>,
-    zone: Zone,
 }
 
 impl<H: Clone> Subscriptions<H> {
     /// No handlers; timers keep time in `zone`.
     pub fn new(zone: Zone) -> Self {
         Self {
-            list: Vec::new(),
+            events: Vec::new(),
+            stops: Vec::new(),
+            timers: HashMap::new(),
+            timer_of: HashMap::new(),
+            every_periods: BTreeMap::new(),
             next_id: 1,
             schedule: Schedule::with_time_zone(zone),
-            zone,
         }
+    }
+
+    /// How many timers may be armed at once (`timers` under `[limits]`); arming one more is
+    /// a script error.
+    pub fn set_max_timers(&mut self, max: usize) {
+        self.schedule.set_max_timers(max);
     }
 
     /// Adds a handler; returns its id.
     pub fn add(&mut self, source: Source, handler: H, label: String) -> u64 {
         let id = self.next_id;
         self.next_id = self.next_id.saturating_add(1);
-        self.list.push(Subscription {
+        let sub = Subscription {
             id,
             source,
             handler,
             label,
-            last_logged: None,
-        });
+            firings: Firings::default(),
+        };
+        match sub.source {
+            Source::Timer(t) => {
+                self.timer_of.insert(id, t);
+                self.timers.insert(t, sub);
+            }
+            Source::Stop => self.stops.push(sub),
+            _ => self.events.push(sub),
+        }
         id
     }
 
@@ -155,14 +198,20 @@ impl<H: Clone> Subscriptions<H> {
     ) -> Result<u64, ScheduleError> {
         let id = self.schedule.every(period, now)?;
         let label = format!("every {}", format_duration(period));
+        *self.every_periods.entry(period).or_default() += 1;
         Ok(self.add(Source::Timer(id), handler, label))
     }
 
     /// `after(delay, fn)`, counted from monotonic `now`.
-    pub fn after(&mut self, delay: Duration, now: Duration, handler: H) -> u64 {
-        let id = self.schedule.after(delay, now);
+    pub fn after(
+        &mut self,
+        delay: Duration,
+        now: Duration,
+        handler: H,
+    ) -> Result<u64, ScheduleError> {
+        let id = self.schedule.after(delay, now)?;
         let label = format!("after {}", format_duration(delay));
-        self.add(Source::Timer(id), handler, label)
+        Ok(self.add(Source::Timer(id), handler, label))
     }
 
     /// `cron(expr, fn)`, next firing after wall time `wall`.
@@ -174,51 +223,102 @@ impl<H: Clone> Subscriptions<H> {
     ) -> Result<u64, ScheduleError> {
         let id = self.schedule.cron(expr, wall)?;
         let label = format!("cron {expr:?}");
-        Ok(self.add(Source::Timer(id), handler, label))
+        let sub = self.add(Source::Timer(id), handler, label);
+        if let Some(s) = self.timers.get_mut(&id) {
+            s.firings.cron = true;
+        }
+        Ok(sub)
     }
 
     /// Removes a handler or timer; false if there is none with that id.
     pub fn cancel(&mut self, id: u64) -> bool {
-        let Some(pos) = self.list.iter().position(|s| s.id == id) else {
-            return false;
-        };
-        let sub = self.list.remove(pos);
-        if let Source::Timer(t) = sub.source {
+        if let Some(t) = self.timer_of.remove(&id) {
+            if let Some(TimerKind::Every(period)) = self.schedule.kind(t) {
+                let period = *period;
+                if let Some(n) = self.every_periods.get_mut(&period) {
+                    *n -= 1;
+                    if *n == 0 {
+                        self.every_periods.remove(&period);
+                    }
+                }
+            }
+            self.timers.remove(&t);
             self.schedule.cancel(t);
+            return true;
         }
-        true
+        for list in [&mut self.events, &mut self.stops] {
+            if let Some(pos) = list.iter().position(|s| s.id == id) {
+                list.remove(pos);
+                return true;
+            }
+        }
+        false
     }
 
-    /// Forgets every handler and timer (ids go on counting, so an old id cancels nothing).
+    /// The handler of a timer that fired for the last time: it goes with its timer.
+    pub(super) fn remove_timer(&mut self, t: TimerId) -> Option<Subscription<H>> {
+        let sub = self.timers.remove(&t)?;
+        self.timer_of.remove(&sub.id);
+        Some(sub)
+    }
+
+    /// Forgets every handler and timer (ids go on counting, so an old id cancels nothing;
+    /// the limit on timers stays).
     pub fn clear(&mut self) {
-        self.list.clear();
-        self.schedule = Schedule::with_time_zone(self.zone);
+        self.events.clear();
+        self.stops.clear();
+        self.timers.clear();
+        self.timer_of.clear();
+        self.every_periods.clear();
+        self.schedule.clear();
+    }
+
+    /// The period of the fastest `every` timer, if there is one.
+    pub fn fastest_every(&self) -> Option<Duration> {
+        self.every_periods.keys().next().copied()
+    }
+
+    /// Something that changes when handlers come or go: their count and the next id.
+    pub fn signature(&self) -> (usize, u64) {
+        (self.len(), self.next_id)
     }
 
     /// Whether the script still waits for anything (handlers other than `on_stop`, timers).
     pub fn has_work(&self) -> bool {
-        self.list.iter().any(|s| s.source != Source::Stop)
+        !self.events.is_empty() || !self.timers.is_empty()
     }
 
     /// Whether some handler waits for device inputs (then every tick polls them).
     pub fn polls_inputs(&self) -> bool {
-        self.list
-            .iter()
-            .any(|s| !matches!(s.source, Source::Timer(_) | Source::Stop))
+        !self.events.is_empty()
     }
 
-    /// The handlers, for inspection.
-    pub fn list(&self) -> &[Subscription<H>] {
-        &self.list
+    /// How many handlers there are, of every kind.
+    pub fn len(&self) -> usize {
+        self.events.len() + self.stops.len() + self.timers.len()
+    }
+
+    /// Whether there are no handlers at all.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Every handler in the order it was added, for inspection (sorts the timers: not for
+    /// every tick).
+    pub fn list(&self) -> Vec<&Subscription<H>> {
+        let mut all: Vec<&Subscription<H>> = self
+            .events
+            .iter()
+            .chain(&self.stops)
+            .chain(self.timers.values())
+            .collect();
+        all.sort_by_key(|s| s.id);
+        all
     }
 
     /// The `on_stop` handlers, in the order they were added.
     pub fn stop_calls(&self) -> Vec<Call<H>> {
-        self.list
-            .iter()
-            .filter(|s| s.source == Source::Stop)
-            .map(|s| s.call(Vec::new()))
-            .collect()
+        self.stops.iter().map(|s| s.call(Vec::new())).collect()
     }
 
     /// When the next timer is due, if any.
@@ -246,7 +346,7 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// `after(delay, fn)`.
-    pub fn after(&mut self, delay: Duration, handler: H) -> u64 {
+    pub fn after(&mut self, delay: Duration, handler: H) -> Result<u64, ScheduleError> {
         let now = self.now();
         self.handlers.after(delay, now, handler)
     }
@@ -288,7 +388,9 @@ mod tests {
         let clock = VirtualClock::at_epoch();
         let mut s = store();
         let a = s.every(Duration::from_secs(1), clock.now(), "a").unwrap();
-        let b = s.after(Duration::from_millis(500), clock.now(), "b");
+        let b = s
+            .after(Duration::from_millis(500), clock.now(), "b")
+            .unwrap();
         let c = s.cron("0 * * * * *", clock.wall(), "c").unwrap();
         let d = s.add(Source::Stop, "d", "on_stop".into());
         assert_eq!((a, b, c, d), (1, 2, 3, 4));
@@ -328,7 +430,8 @@ mod tests {
     #[test]
     fn timers_remember_what_they_were_made_from() {
         let mut s = store();
-        s.after(Duration::from_secs(2), Duration::ZERO, "x");
+        s.after(Duration::from_secs(2), Duration::ZERO, "x")
+            .unwrap();
         let Source::Timer(t) = s.list()[0].source else {
             panic!("a timer")
         };
@@ -344,7 +447,8 @@ mod tests {
         s.add(Source::Stop, "bye", "on_stop".into());
         assert!(!s.has_work());
         assert!(!s.polls_inputs());
-        s.after(Duration::from_secs(1), Duration::ZERO, "later");
+        s.after(Duration::from_secs(1), Duration::ZERO, "later")
+            .unwrap();
         assert!(s.has_work());
         assert!(!s.polls_inputs(), "timers do not poll");
         s.add(
@@ -388,7 +492,7 @@ mod tests {
             .unwrap();
         s.add(Source::Stop, "y", "on_stop".into());
         s.clear();
-        assert!(s.list().is_empty());
+        assert!(s.is_empty());
         assert!(s.schedule.is_empty());
         assert!(!s.cancel(old));
         let new = s
@@ -397,5 +501,81 @@ mod tests {
         assert!(new > old, "ids go on counting");
         assert!(!s.cancel(old));
         assert!(s.has_work());
+    }
+
+    #[test]
+    fn timers_past_the_limit_are_refused_and_cancel_makes_room_again() {
+        let mut s = store();
+        s.set_max_timers(2);
+        let a = s
+            .every(Duration::from_secs(1), Duration::ZERO, "a")
+            .unwrap();
+        s.after(Duration::from_secs(1), Duration::ZERO, "b")
+            .unwrap();
+        let full = s.after(Duration::from_secs(1), Duration::ZERO, "c");
+        assert_eq!(full, Err(ScheduleError::TooManyTimers { limit: 2 }));
+        assert_eq!(s.len(), 2, "the refused one added nothing");
+        assert!(s.cancel(a));
+        s.cron("0 * * * * *", DateTime::<Utc>::UNIX_EPOCH, "d")
+            .unwrap();
+        s.clear();
+        s.every(Duration::from_secs(1), Duration::ZERO, "e")
+            .unwrap();
+        s.every(Duration::from_secs(1), Duration::ZERO, "f")
+            .unwrap();
+        assert!(
+            s.every(Duration::from_secs(1), Duration::ZERO, "g")
+                .is_err(),
+            "clear keeps the limit"
+        );
+    }
+
+    #[test]
+    fn cancel_finds_each_kind_of_handler() {
+        let mut s = store();
+        let rise = s.add(Source::Rise { dev: 0, ch: 1 }, "r", "r".into());
+        let stop = s.add(Source::Stop, "s", "s".into());
+        let timer = s
+            .every(Duration::from_secs(1), Duration::ZERO, "t")
+            .unwrap();
+        assert_eq!(s.len(), 3);
+        assert!(s.cancel(timer) && s.cancel(stop) && s.cancel(rise));
+        assert!(s.is_empty());
+        assert!(!s.has_work());
+        assert!(s.schedule.is_empty());
+    }
+
+    #[test]
+    fn the_fastest_every_follows_timers_as_they_come_and_go() {
+        let mut s = store();
+        assert_eq!(s.fastest_every(), None);
+        let sig = s.signature();
+        let slow = s
+            .every(Duration::from_secs(1), Duration::ZERO, "s")
+            .unwrap();
+        let fast = s
+            .every(Duration::from_millis(20), Duration::ZERO, "f")
+            .unwrap();
+        let twin = s
+            .every(Duration::from_millis(20), Duration::ZERO, "t")
+            .unwrap();
+        s.after(Duration::from_millis(1), Duration::ZERO, "a")
+            .unwrap();
+        assert_ne!(s.signature(), sig);
+        assert_eq!(s.fastest_every(), Some(Duration::from_millis(20)));
+        assert!(s.cancel(fast));
+        assert_eq!(
+            s.fastest_every(),
+            Some(Duration::from_millis(20)),
+            "its twin"
+        );
+        assert!(s.cancel(twin));
+        assert_eq!(s.fastest_every(), Some(Duration::from_secs(1)));
+        assert!(s.cancel(slow));
+        assert_eq!(s.fastest_every(), None);
+        s.every(Duration::from_millis(5), Duration::ZERO, "x")
+            .unwrap();
+        s.clear();
+        assert_eq!(s.fastest_every(), None);
     }
 }

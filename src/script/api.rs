@@ -9,6 +9,7 @@
 //! are done at once. A bad device name, switch name or channel is a script error at the
 //! call's line and column.
 
+use super::engine::Guard;
 use super::error::STOP_MARKER;
 use super::reads::{Item, ReadTracker, ALL_COUNTERS, ALL_INPUTS, ALL_SWITCHES};
 use super::values::to_json;
@@ -222,8 +223,9 @@ fn c29u_op<T>(
     r.or_else(|e| device_error(&io.name, &e))
 }
 
-/// Registers the whole script API on `engine` over `rt`, noting what the script reads from
-/// its devices in `reads` (when that tracks) and placing invariants in `file`.
+/// Registers the whole script API on `engine` over `rt` (with `resolve_variables` for a run),
+/// noting what the script reads from its devices in `reads` (when that tracks) and placing
+/// invariants in `file`.
 pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities, reads: &ReadTracker, file: &str) {
     register_device(engine, rt, reads);
     register_panel(engine, arities);
@@ -280,6 +282,12 @@ fn register_device(engine: &mut Engine, rt: &Rt, reads: &ReadTracker) {
             )),
         }
     });
+}
+
+/// Resolves the script's variables as a run needs them: each is checked by `guard` as it is
+/// used (`engine::Guard::check_var`), and each device is a variable of its name (its reads
+/// noted in `reads`).
+pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads: &ReadTracker) {
     // Each device is also a variable of its name. And a variable holding a device handle is
     // read as a plain copy of it: a handler that uses the device it is registered on
     // (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and locks while
@@ -293,17 +301,22 @@ fn register_device(engine: &mut Engine, rt: &Rt, reads: &ReadTracker) {
             .map(|(i, d)| (d.name().to_string(), i))
             .collect()
     };
+    let guard = Rc::clone(guard);
     // Rhai marks on_var "volatile" (it may change in a later release), not deprecated.
     #[allow(deprecated)]
-    engine.on_var(move |name, _index, ctx| match ctx.scope().get(name) {
-        Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
-            Ok(Some(v.flatten_clone()))
+    engine.on_var(move |name, _index, ctx| {
+        let value = ctx.scope().get(name);
+        guard.check_var(value, &ctx)?;
+        match value {
+            Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
+                Ok(Some(v.flatten_clone()))
+            }
+            Some(_) => Ok(None),
+            None => Ok(names
+                .iter()
+                .find(|(n, _)| n == name)
+                .and_then(|(_, i)| handle(&r, *i, &t))),
         }
-        Some(_) => Ok(None),
-        None => Ok(names
-            .iter()
-            .find(|(n, _)| n == name)
-            .and_then(|(_, i)| handle(&r, *i, &t))),
     });
 }
 
@@ -647,7 +660,8 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
         a.check(&f, "after", &[])?;
-        Ok(id_value(r.borrow_mut().after(d, f)))
+        let id = r.borrow_mut().after(d, f);
+        id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {

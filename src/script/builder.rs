@@ -18,9 +18,9 @@
 //! assert_eq!(rig.sim.outputs("io").unwrap(), 3);
 //! ```
 
-use super::engine::DEFAULT_BUDGET;
 use super::rig::{start, Rig, RigError, RigSetup};
 use crate::config::{C29uConfig, DeviceConfig, ErrorPolicy, RigConfig, Trc1000Config};
+use crate::runtime::log::LogFormat;
 use crate::time::clock::{SharedClock, SystemClock, VirtualClock};
 use crate::time::zone::Zone;
 use chrono::{DateTime, Utc};
@@ -45,8 +45,8 @@ pub struct RigBuilder {
     records: Option<PathBuf>,
     log_to_stderr: bool,
     quiet: bool,
+    log_format: LogFormat,
     keep_log: bool,
-    budget: u64,
     stop_flag: Arc<AtomicUsize>,
 }
 
@@ -74,8 +74,8 @@ impl RigBuilder {
             records: None,
             log_to_stderr: true,
             quiet: false,
+            log_format: LogFormat::Text,
             keep_log: false,
-            budget: DEFAULT_BUDGET,
             stop_flag: Arc::default(),
         }
     }
@@ -159,6 +159,12 @@ impl RigBuilder {
         self
     }
 
+    /// Writes log lines as text (the default) or as one JSON object a line.
+    pub fn log_format(mut self, format: LogFormat) -> Self {
+        self.log_format = format;
+        self
+    }
+
     /// Keeps the log in memory too, for `Rig::log`.
     pub fn keep_log(mut self) -> Self {
         self.keep_log = true;
@@ -167,7 +173,7 @@ impl RigBuilder {
 
     /// Operations each handler call may take (`--budget`).
     pub fn budget(mut self, operations: u64) -> Self {
-        self.budget = operations;
+        self.config.limits.operations = operations;
         self
     }
 
@@ -196,8 +202,8 @@ impl RigBuilder {
             records: self.records,
             log_to_stderr: self.log_to_stderr,
             quiet: self.quiet,
+            log_format: self.log_format,
             keep_log: self.keep_log,
-            budget: self.budget,
             stop_flag: self.stop_flag,
         }
     }
@@ -285,7 +291,10 @@ mod tests {
         assert!(!setup.simulate);
         assert_eq!(setup.zone, Zone::Local);
         assert!(setup.log_to_stderr);
-        assert_eq!(setup.budget, DEFAULT_BUDGET);
+        assert_eq!(
+            setup.config.limits.operations,
+            crate::script::engine::DEFAULT_BUDGET
+        );
         let setup = RigBuilder::new()
             .zone(Zone::Local)
             .virtual_time_from(at_noon())

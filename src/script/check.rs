@@ -1304,8 +1304,8 @@ after("1s", || panel.set_output(1, true));
             records: None,
             log_to_stderr: false,
             quiet: true,
+            log_format: crate::runtime::log::LogFormat::Text,
             keep_log: true,
-            budget: DEFAULT_BUDGET,
             stop_flag: Arc::default(),
         };
         let mut rig = start(source, "t.rhai", setup).expect("the rig starts");

@@ -1,6 +1,8 @@
 //! Script errors for people: `file:line:column`, and the cause without Rhai's own position
 //! text; the innermost position of a nested call is the one that says where it went wrong.
+//! A call stopped by a limit says which limit and how to raise it.
 
+use super::engine::{Breach, LIMIT_MARKER, MAX_ARRAY, MAX_CALL_LEVELS, MAX_MAP, MAX_STRING};
 use crate::runtime::scan::Fault;
 use rhai::{EvalAltResult, ParseError, Position};
 
@@ -33,12 +35,40 @@ pub fn innermost(err: &EvalAltResult) -> (&EvalAltResult, Position) {
     (current, pos)
 }
 
+/// The text of an error the engine's guard raised (`engine::Guard`), without its marker.
+fn limit_text(err: &EvalAltResult) -> Option<String> {
+    match err {
+        EvalAltResult::ErrorRuntime(v, _) | EvalAltResult::ErrorTerminated(v, _)
+            if v.is_string() =>
+        {
+            v.to_string().strip_prefix(LIMIT_MARKER).map(str::to_string)
+        }
+        _ => None,
+    }
+}
+
 /// The cause of an error in words, without a position.
 pub fn cause(err: &EvalAltResult) -> String {
+    if let Some(text) = limit_text(err) {
+        return text;
+    }
     match err {
         EvalAltResult::ErrorRuntime(v, _) if v.is_string() => v.to_string(),
         EvalAltResult::ErrorTooManyOperations(_) => {
-            "too many operations in one call (the operation budget)".into()
+            "ran over its operation budget in one call (a runaway loop?); a call that needs \
+             more can have it with --budget, or `operations` under [limits] in rig.toml"
+                .into()
+        }
+        EvalAltResult::ErrorStackOverflow(_) => {
+            format!("function calls nested more than {MAX_CALL_LEVELS} deep (runaway recursion?)")
+        }
+        EvalAltResult::ErrorDataTooLarge(what, _) => {
+            let (what, max, unit) = match what.as_str() {
+                w if w.contains("string") => ("string", MAX_STRING, "bytes"),
+                w if w.contains("array") => ("array", MAX_ARRAY, "elements"),
+                _ => ("map", MAX_MAP, "entries"),
+            };
+            format!("a {what} grew over the limit of {max} {unit}")
         }
         other => {
             let text = other.to_string();
@@ -55,13 +85,35 @@ pub fn is_stop(err: &EvalAltResult) -> bool {
     matches!(innermost(err).0, EvalAltResult::ErrorTerminated(v, _) if v.to_string() == STOP_MARKER)
 }
 
-/// A runtime error as a fault for the scan loop.
-pub fn fault(file: &str, err: &EvalAltResult) -> Fault {
+/// A runtime error as a fault for the scan loop; `fallback` places it when Rhai does not (its
+/// own limit errors inside a function come out without a position): the start of the
+/// handler that was running.
+pub fn fault(file: &str, err: &EvalAltResult, fallback: Position) -> Fault {
     let (inner, pos) = innermost(err);
     Fault {
-        location: location(file, pos),
+        location: location(file, if pos.is_none() { fallback } else { pos }),
         cause: cause(inner),
         over_budget: matches!(inner, EvalAltResult::ErrorTooManyOperations(_)),
+    }
+}
+
+/// A call stopped by the guard for `breach`, placed where `result`'s error says (the
+/// variable where the guard raised it), else at `fallback`. Whatever the script did with the
+/// error (it may have caught it), the breach is what is reported.
+pub fn breach_fault(
+    file: &str,
+    breach: &Breach,
+    result: Result<(), &EvalAltResult>,
+    fallback: Position,
+) -> Fault {
+    let pos = match result {
+        Err(e) => innermost(e).1,
+        Ok(()) => Position::NONE,
+    };
+    Fault {
+        location: location(file, if pos.is_none() { fallback } else { pos }),
+        cause: breach.cause(),
+        over_budget: breach.is_runaway(),
     }
 }
 
@@ -84,7 +136,7 @@ mod tests {
         let err = e
             .run("fn f() {\n  let x = 1;\n  x.nope()\n}\nf();")
             .unwrap_err();
-        let f = fault("s.rhai", &err);
+        let f = fault("s.rhai", &err, Position::NONE);
         assert_eq!(f.location.as_deref(), Some("s.rhai:3:5"));
         assert!(f.cause.contains("nope"), "{}", f.cause);
         assert!(!f.cause.contains("line"), "{}", f.cause);

@@ -1,15 +1,19 @@
 //! A compiled script as the scan loop's program: its top level adds handlers and timers,
-//! and each handler call gets a fresh operation budget and only the arguments it takes.
+//! and each handler call gets a fresh operation budget and time limit, and only the arguments
+//! it takes. A call over a limit is a fault placed where the limit was hit.
 
-use super::api::{register, Arities, Rt};
-use super::engine::sandboxed;
-use super::error::{fault, is_stop};
+use super::api::{register, resolve_variables, Arities, Rt};
+use super::engine::{sandboxed, Guard};
+use super::error::{breach_fault, fault, is_stop};
 use super::reads::{ReadSet, ReadTracker};
+use crate::config::ScriptLimits;
 use crate::runtime::invariants::Check;
 use crate::runtime::scan::{Fault, Program};
 use crate::runtime::subscriptions::{Arg, Call};
-use rhai::{Dynamic, Engine, FnPtr, Scope, AST};
+use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
 use std::collections::BTreeMap;
+use std::rc::Rc;
+use std::sync::Arc;
 
 /// A script bound to a runtime.
 pub struct ScriptProgram {
@@ -17,6 +21,7 @@ pub struct ScriptProgram {
     ast: AST,
     file: String,
     arities: Arities,
+    guard: Rc<Guard>,
     reads: ReadTracker,
     coverage: Option<Coverage>,
 }
@@ -34,19 +39,26 @@ pub struct Coverage {
 }
 
 impl ScriptProgram {
-    /// Binds compiled `ast` (from the file called `file` in messages) to `rt`, with
-    /// `budget` operations per call.
-    pub fn new(rt: &Rt, ast: AST, file: &str, budget: u64) -> Self {
-        let mut engine = sandboxed(budget);
+    /// Binds compiled `ast` (from the file called `file` in messages) to `rt`, watched by
+    /// `limits` (operations and time per call on the runtime's clock, memory, sizes).
+    pub fn new(rt: &Rt, ast: AST, file: &str, limits: ScriptLimits) -> Self {
+        let mut engine = sandboxed(limits.operations);
+        let (clock, transactions) = {
+            let r = rt.borrow();
+            (Arc::clone(&r.clock), Arc::clone(&r.transactions))
+        };
+        let guard = Guard::install(&mut engine, limits, clock, transactions);
         let arities = Arities::default();
         let reads = ReadTracker::default();
         register(&mut engine, rt, &arities, &reads, file);
+        resolve_variables(&mut engine, rt, &guard, &reads);
         arities.learn(&ast);
         Self {
             engine,
             ast,
             file: file.to_string(),
             arities,
+            guard,
             reads,
             coverage: None,
         }
@@ -88,19 +100,52 @@ impl ScriptProgram {
     pub fn engine(&self) -> &Engine {
         &self.engine
     }
+
+    /// The limits the calls are watched by.
+    pub fn limits(&self) -> &ScriptLimits {
+        self.guard.limits()
+    }
+
+    /// How a call ended: a limit hit (whatever the script did about it), `stop()` (fine),
+    /// or an error; placed at `fallback()` when Rhai gives no place.
+    fn outcome(
+        &self,
+        result: Result<(), Box<EvalAltResult>>,
+        fallback: impl FnOnce() -> Position,
+    ) -> Result<(), Fault> {
+        let breach = self.guard.end_call();
+        match (result, breach) {
+            (result, Some(b)) => Err(breach_fault(
+                &self.file,
+                &b,
+                result.as_ref().map(|_| ()).map_err(|e| &**e),
+                fallback(),
+            )),
+            (Ok(()), None) => Ok(()),
+            (Err(e), None) if is_stop(&e) => Ok(()),
+            (Err(e), None) => Err(fault(&self.file, &e, fallback())),
+        }
+    }
+
+    /// Where the body of `handler` starts when it gets `args` arguments, if it is a function
+    /// of the script (a closure or a named function).
+    fn body_start(&self, handler: &FnPtr, args: usize) -> Position {
+        let params = handler.curry().len() + args;
+        self.ast
+            .iter_fn_def()
+            .find(|f| f.name == handler.fn_name() && f.params.len() == params)
+            .map_or(Position::NONE, |f| f.body.start_position())
+    }
 }
 
 impl Program for ScriptProgram {
     type Handler = FnPtr;
 
     fn start(&mut self) -> Result<(), Fault> {
+        self.guard.begin_call();
         let result = self.engine.run_ast_with_scope(&mut Scope::new(), &self.ast);
         self.note_reads(None);
-        match result {
-            Ok(()) => Ok(()),
-            Err(e) if is_stop(&e) => Ok(()),
-            Err(e) => Err(fault(&self.file, &e)),
-        }
+        self.outcome(result, || Position::NONE)
     }
 
     fn call(&mut self, call: &Call<FnPtr>) -> Result<(), Fault> {
@@ -114,7 +159,11 @@ impl Program for ScriptProgram {
                 Arg::Str(s) => Dynamic::from(s.clone()),
             })
             .collect();
-        let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, args);
+        self.guard.begin_call();
+        let result = call
+            .handler
+            .call::<Dynamic>(&self.engine, &self.ast, args)
+            .map(|_| ());
         if let Some(c) = self.coverage.as_mut() {
             match c.fired.get_mut(&call.label) {
                 Some(n) => *n = n.saturating_add(1),
@@ -124,17 +173,25 @@ impl Program for ScriptProgram {
             }
         }
         self.note_reads(None);
-        match result {
-            Ok(_) => Ok(()),
-            Err(e) if is_stop(&e) => Ok(()),
-            Err(e) => Err(fault(&self.file, &e)),
-        }
+        self.outcome(result, || self.body_start(&call.handler, n))
     }
 
     fn holds(&mut self, check: &Check<FnPtr>) -> Result<bool, Fault> {
         let (call, at) = (&check.call, check.at.as_deref());
+        self.guard.begin_call();
         let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, ());
         self.note_reads(Some(&check.name));
+        // Where nothing places an error (Rhai's own limits), it is the invariant's.
+        let placed = |mut f: Fault| {
+            if f.location.is_none() {
+                f.location = at.map(str::to_string);
+            }
+            f
+        };
+        if let Some(b) = self.guard.end_call() {
+            let ended = result.as_ref().map(|_| ()).map_err(|e| &**e);
+            return Err(placed(breach_fault(&self.file, &b, ended, Position::NONE)));
+        }
         match result {
             Ok(v) => v.as_bool().map_err(|_| Fault {
                 location: at.map(str::to_string),
@@ -148,14 +205,7 @@ impl Program for ScriptProgram {
             }),
             // stop() inside an invariant: the run is stopping anyway; it holds.
             Err(e) if is_stop(&e) => Ok(true),
-            Err(e) => {
-                // Limit errors (the budget) come without a position: name the invariant's.
-                let mut f = fault(&self.file, &e);
-                if f.location.is_none() {
-                    f.location = at.map(str::to_string);
-                }
-                Err(f)
-            }
+            Err(e) => Err(placed(fault(&self.file, &e, Position::NONE))),
         }
     }
 }

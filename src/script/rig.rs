@@ -7,9 +7,9 @@ use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, OpenError, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
 use crate::runtime::exit;
-use crate::runtime::log::Logger;
+use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
 use crate::runtime::scan::{panic_message, safe_after_panic, RunOptions, Runner};
@@ -26,7 +26,7 @@ use std::time::Duration;
 
 /// Everything a run needs besides the script.
 pub struct RigSetup {
-    /// The rig (devices, period, policy, grace, records file).
+    /// The rig (devices, period, policy, grace, records file, the script's limits).
     pub config: RigConfig,
     /// Replace every device by its simulator.
     pub simulate: bool,
@@ -44,10 +44,10 @@ pub struct RigSetup {
     pub log_to_stderr: bool,
     /// Leave activity lines out of the log.
     pub quiet: bool,
+    /// Log lines as text or JSON objects.
+    pub log_format: LogFormat,
     /// Keep the log in memory (scenario tests).
     pub keep_log: bool,
-    /// Operations per handler call.
-    pub budget: u64,
     /// The number of the signal that asks the run to stop (0: none).
     pub stop_flag: Arc<AtomicUsize>,
 }
@@ -110,15 +110,19 @@ pub struct Rig {
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
-    start_with(source, file, setup, |_| {})
+    start_with(source, file, setup, open_devices, |_| {})
 }
 
-/// `start`, with `prepare` given the program before its top level runs (`verify` has it keep
-/// count of what the script does from the first line on).
+/// As `start`, with the devices opened by `open` instead of `open_devices` (given the same
+/// config, clock, `simulate` flag and request counter: the fault search puts simulators behind
+/// fault-injecting links under the real drivers this way), and `prepare` given the program
+/// before its top level runs (`verify` has it keep count of what the script does from the
+/// first line on).
 pub fn start_with(
     source: &str,
     file: &str,
     setup: RigSetup,
+    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
     prepare: impl FnOnce(&mut ScriptProgram),
 ) -> Result<Rig, RigError> {
     if setup.config.devices.is_empty() {
@@ -126,7 +130,8 @@ pub fn start_with(
             simulated: setup.simulate,
         });
     }
-    let ast = sandboxed(setup.budget)
+    let limits = setup.config.limits;
+    let ast = sandboxed(limits.operations)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, &e)))?;
     let records = match setup.records.as_ref().or(setup.config.records.as_ref()) {
@@ -134,13 +139,15 @@ pub fn start_with(
         None => Records::in_memory(),
     };
     let count = TransactionCounter::default();
-    let opened = open_devices(&setup.config, &setup.clock, setup.simulate, &count)?;
+    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
     let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
     log.set_quiet(setup.quiet);
+    log.set_format(setup.log_format);
+    log.set_devices(setup.config.devices.keys().cloned());
     if setup.keep_log {
         log.keep_lines();
     }
-    let runtime = Runtime::new(
+    let mut runtime = Runtime::new(
         Arc::clone(&setup.clock),
         setup.zone,
         opened.devices,
@@ -149,6 +156,7 @@ pub fn start_with(
         count,
         setup.config.grace,
     );
+    runtime.handlers.set_max_timers(limits.timers);
     let rt = Rc::new(RefCell::new(runtime));
     let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
     let started = match started {
@@ -165,7 +173,7 @@ pub fn start_with(
         r.end_safe("a device is not available", true);
         return Err(e.into());
     }
-    let mut program = ScriptProgram::new(&rt, ast, file, setup.budget);
+    let mut program = ScriptProgram::new(&rt, ast, file, limits);
     prepare(&mut program);
     let period = setup.period.unwrap_or(setup.config.period);
     let options = RunOptions {
@@ -200,8 +208,8 @@ mod tests {
             records: None,
             log_to_stderr: false,
             quiet: false,
+            log_format: LogFormat::Text,
             keep_log: true,
-            budget: 100_000,
             stop_flag: Arc::default(),
         }
     }

@@ -32,12 +32,13 @@
 //! - `assert(cond)`, `assert(cond, msg)`, `assert_eq(a, b)`, `assert_eq(a, b, msg)`.
 
 use super::api::{duration, fail, R};
-use super::engine::{sandboxed, DEFAULT_BUDGET};
+use super::engine::sandboxed;
 use super::error::{cause, innermost, location, parse_error};
 use super::rig::{start, Rig, RigSetup};
 use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
 use crate::runtime::devices::FieldError;
+use crate::runtime::log::LogFormat;
 use crate::runtime::scan::EndReason;
 use crate::sim::answer_faults::AnswerFault;
 use crate::time::clock::VirtualClock;
@@ -147,8 +148,8 @@ fn load(
         records: None,
         log_to_stderr: false,
         quiet: false,
+        log_format: LogFormat::Text,
         keep_log: true,
-        budget: DEFAULT_BUDGET,
         stop_flag: Arc::default(),
     };
     let rig = start(&source, &path.display().to_string(), setup)

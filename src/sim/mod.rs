@@ -5,6 +5,7 @@ pub mod c29u;
 pub mod c29u_ascii;
 pub mod c29u_line;
 pub mod c29u_modbus;
+pub mod faults;
 pub mod pty;
 pub mod relay;
 pub mod trc1000;

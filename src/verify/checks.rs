@@ -1,6 +1,7 @@
 //! What `verify` looks for after every tick: the script's own invariants, and the built-in
 //! checks every script gets: no script error (a device fault counts unless the script handles
-//! it), no handler over its operation budget, every output held at its safe value while a
+//! it; so is a call stopped by one of the script's limits), no handler over its operation
+//! budget, time or memory (a runaway), every output held at its safe value while a
 //! device is lost past its grace time (as the simulators show it), and every output safe once
 //! the run has ended.
 
@@ -17,7 +18,9 @@ pub enum Check {
     Invariant(String),
     /// No script error.
     ScriptError,
-    /// No handler over its operation budget.
+    /// No handler (or invariant) over its operation budget, time or memory per call: the
+    /// limits whose breach would recur (`script::engine::Breach::is_runaway`); the other limits' breaches
+    /// (timers, sizes, call depth) are script errors.
     OverBudget,
     /// While a device is lost past its grace time, every device that answers shows its safe
     /// state.

@@ -7,7 +7,7 @@ use super::coverage::Coverage;
 use super::plan::{Action, Plan};
 use super::profile::Observed;
 use crate::config::RigConfig;
-use crate::runtime::devices::FieldError;
+use crate::runtime::devices::{open_devices, FieldError};
 use crate::runtime::scan::EndReason;
 use crate::script::builder::RigBuilder;
 use crate::script::rig::{start_with, Rig, RigError};
@@ -224,8 +224,10 @@ pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, Exec
         .quiet()
         .budget(target.budget)
         .setup();
-    let rig = start_with(&target.source, &target.file, setup, |p| p.track_coverage())
-        .map_err(|e| ExecError::Start(Box::new(e)))?;
+    let rig = start_with(&target.source, &target.file, setup, open_devices, |p| {
+        p.track_coverage()
+    })
+    .map_err(|e| ExecError::Start(Box::new(e)))?;
     let mut player = Player {
         coverage: keep.coverage.then(|| Coverage::start(&rig)),
         rig,

@@ -12,7 +12,7 @@ mod trc;
 pub mod links;
 
 pub use c29u::{C29uDevice, Stored};
-pub use open::{open_devices, OpenError, Opened};
+pub use open::{c29u_options, open_devices, OpenError, Opened};
 pub use settings::SettingRefused;
 pub use sim::{FieldError, SimDevice, SimRig};
 pub use takeover::{ControlNotes, Takeover};

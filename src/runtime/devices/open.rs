@@ -137,7 +137,8 @@ fn real_trc(
     Ok(TrcDevice::new(name, config.clone(), driver, Some(reopener)))
 }
 
-fn options(c: &C29uConfig) -> C29uOptions {
+/// The driver options a TRP-C29U entry of rig.toml asks for.
+pub fn c29u_options(c: &C29uConfig) -> C29uOptions {
     C29uOptions {
         protocol: c.protocol,
         id: c.id,
@@ -156,14 +157,14 @@ fn drivers(
     line: &SharedLink,
     clock: &SharedClock,
 ) -> Result<(C29u, C29u), OpenError> {
-    let driver = C29u::new(Arc::clone(line), Arc::clone(clock), options(c))
+    let driver = C29u::new(Arc::clone(line), Arc::clone(clock), c29u_options(c))
         .map_err(|e| open_error(name, e))?;
     let probe = C29u::new(
         Arc::clone(line),
         Arc::clone(clock),
         C29uOptions {
             retries: 0,
-            ..options(c)
+            ..c29u_options(c)
         },
     )
     .map_err(|e| open_error(name, e))?;

@@ -133,10 +133,12 @@ impl C29uDevice {
             self.driver
                 .set_watchdog(wanted.map(WatchdogTimeout::as_duration))?;
             self.stored.watchdog = Some(wanted);
+            // Setting the timeout restarts the module's countdown; an unchanged value is not
+            // sent, so it feeds nothing and the feed schedule must go on as it was.
+            self.last_feed = now;
         }
         self.watchdog = wanted;
         self.watchdog_ours = wanted.is_some();
-        self.last_feed = now;
         Ok(())
     }
 }

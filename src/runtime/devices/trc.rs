@@ -29,6 +29,9 @@ pub struct TrcDevice {
     pub relay: u8,
     /// The relay last selected on the board (`None`: unknown, select again).
     pub relay_written: Option<u8>,
+    /// The relay last selected, even when no longer trusted: selecting it again (after the
+    /// periodic check, or a return) is not news for the log.
+    pub relay_last: Option<u8>,
     /// The handler that last changed `relay`, for the log.
     pub relay_cause: String,
 }
@@ -51,6 +54,7 @@ impl TrcDevice {
             switches: Snapshot::default(),
             rotaries: Snapshot::default(),
             relay_written: None,
+            relay_last: None,
             relay_cause: String::new(),
         }
     }
@@ -73,6 +77,7 @@ impl TrcDevice {
     pub fn select_relay(&mut self, relay: u8) -> Result<(), DeviceError> {
         self.driver.select_relay(relay)?;
         self.relay_written = Some(relay);
+        self.relay_last = Some(relay);
         Ok(())
     }
 

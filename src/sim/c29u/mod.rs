@@ -26,6 +26,7 @@
 
 mod config;
 mod eeprom;
+mod history;
 mod view;
 
 #[cfg(test)]
@@ -33,6 +34,7 @@ mod tests;
 
 pub use config::{baud_rate, CounterEdge, ModuleConfig, Protocol};
 pub use eeprom::{validate_led_mode, validate_name, Eeprom, DEFAULT_NAME};
+pub use history::{OutputCause, OutputChange, OutputHistory};
 pub use view::{SimState, WatchdogState, WatchdogStatus, FIRMWARE_DATE, FIRMWARE_MODEL};
 
 use crate::protocol::c29u_ascii::{SynchronizedData, WatchdogReading};
@@ -96,6 +98,9 @@ pub struct C29uModel {
     reset_flag: bool,
     /// What the last `#**` made the module remember (8-25).
     synchronized: Option<SynchronizedData>,
+    history: OutputHistory,
+    /// EEPROM writes that stored what was there already.
+    eeprom_rewrites: u64,
 }
 
 impl std::fmt::Debug for C29uModel {
@@ -133,8 +138,10 @@ impl C29uModel {
             deadline: None,
             reset_flag: true,
             synchronized: None,
+            history: OutputHistory::default(),
+            eeprom_rewrites: 0,
         };
-        m.boot();
+        m.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
         m
     }
 
@@ -234,7 +241,7 @@ impl C29uModel {
     /// watchdog starts counting again.
     pub fn power_cycle(&mut self) {
         self.tick();
-        self.boot();
+        self.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
     }
 
     // ---- host side --------------------------------------------------------------------------
@@ -254,7 +261,7 @@ impl C29uModel {
         if self.eeprom.safe_mode {
             return Err(C29uModelError::SafeMode);
         }
-        self.outputs = value;
+        self.drive(self.clock.now(), value, OutputCause::HostWrite);
         Ok(())
     }
 
@@ -265,11 +272,12 @@ impl C29uModel {
         if self.eeprom.safe_mode {
             return Err(C29uModelError::SafeMode);
         }
-        if on {
-            self.outputs |= bit;
+        let value = if on {
+            self.outputs | bit
         } else {
-            self.outputs &= !bit;
-        }
+            self.outputs & !bit
+        };
+        self.drive(self.clock.now(), value, OutputCause::HostWrite);
         Ok(())
     }
 
@@ -440,7 +448,8 @@ impl C29uModel {
 
     /// Software reset (`$IDRS`, `46 09`): the same as a power cycle.
     pub fn reset(&mut self) {
-        self.power_cycle();
+        self.tick();
+        self.boot(|in_safe_mode| OutputCause::Reset { in_safe_mode });
     }
 
     /// LED operating mode, 0 or 1 (8-18, 10-10).
@@ -518,6 +527,24 @@ impl C29uModel {
         &self.clock
     }
 
+    /// Starts keeping the output history (every DO setting and its cause), up to `capacity`
+    /// entries; what was kept before is dropped.
+    pub fn record_outputs(&mut self, capacity: usize) {
+        self.history = OutputHistory::with_capacity(capacity);
+    }
+
+    /// How many EEPROM writes stored what was there already (each wears the EEPROM for
+    /// nothing; a host should read before it writes).
+    pub fn eeprom_rewrites(&self) -> u64 {
+        self.eeprom_rewrites
+    }
+
+    /// The output history, as of the last call that brought the model up to date (a
+    /// watchdog due since shows once any host-side call or `state` has been made).
+    pub fn output_history(&self) -> &OutputHistory {
+        &self.history
+    }
+
     /// Writes the EEPROM image to the state file if a best-effort write (the watchdog firing)
     /// failed earlier; a no-op otherwise.
     pub fn flush(&mut self) -> Result<(), C29uModelError> {
@@ -533,18 +560,21 @@ impl C29uModel {
 
     // ---- internals --------------------------------------------------------------------------
 
-    /// Power-on sequence shared by `new`, `power_cycle` and `reset`.
-    fn boot(&mut self) {
+    /// Power-on sequence shared by `new`, `power_cycle` and `reset`; `cause` names it in the
+    /// output history.
+    fn boot(&mut self, cause: fn(bool) -> OutputCause) {
         self.counters = self.eeprom.saved_counters;
         self.latched_low = 0;
         self.latched_high = 0;
         self.synchronized = None;
         self.reset_flag = true;
-        self.outputs = if self.eeprom.safe_mode {
+        let in_safe_mode = self.eeprom.safe_mode;
+        let value = if in_safe_mode {
             self.eeprom.safe_value
         } else {
             self.eeprom.power_on_value
         };
+        self.drive(self.clock.now(), value, cause(in_safe_mode));
         self.restart_countdown();
     }
 
@@ -566,14 +596,25 @@ impl C29uModel {
         self.deadline.is_some_and(|d| self.clock.now() >= d)
     }
 
+    /// Sets the DO byte and notes it in the history.
+    fn drive(&mut self, at: Duration, value: u8, cause: OutputCause) {
+        self.history.note(OutputChange {
+            at,
+            before: self.outputs,
+            after: value,
+            cause,
+        });
+        self.outputs = value;
+    }
+
     /// Brings the watchdog up to date: fires it if its deadline has passed.
     fn tick(&mut self) {
-        if !self.fires_now() {
+        let Some(fired_at) = self.deadline.filter(|_| self.fires_now()) else {
             return;
-        }
+        };
         self.deadline = None;
         self.eeprom.safe_mode = true;
-        self.outputs = self.eeprom.safe_value;
+        self.drive(fired_at, self.eeprom.safe_value, OutputCause::WatchdogFired);
         // Best effort: the caller may not be able to report an error; `flush` or the next
         // EEPROM write retries, since each write stores the whole image.
         if let Some(path) = &self.state_file {
@@ -584,6 +625,9 @@ impl C29uModel {
     /// Makes `next` the EEPROM image, writing the state file first; on a write error nothing
     /// changes.
     fn commit(&mut self, next: Eeprom) -> Result<(), C29uModelError> {
+        if next == self.eeprom {
+            self.eeprom_rewrites = self.eeprom_rewrites.saturating_add(1);
+        }
         if let Some(path) = &self.state_file {
             next.save(path)?;
         }
