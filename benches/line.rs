@@ -3,11 +3,13 @@
 //! `modbus_read_bits`, with and without t3.5 of silence before each request, all against the
 //! same simulator (served in this process on a pty) in the same run.
 //!
-//! Through a baud-accurate line (`sim::relay`, each byte held 10 bit times) at 9600 and 115200
-//! baud it reports polls per second (and the share of what a compliant master can reach: 14
-//! characters and t3.5 a poll) and the 2nd, 50th and 99th percentiles of the silence each master
-//! leaves before its requests; straight on the pty (at 115200 baud settings) how fast each
-//! goes. The masters of a setup take turns, 5 rounds of 3 s, and the table shows medians (and
+//! Through a baud-accurate line (`sim::relay`: each byte handed over when its stop bit ends,
+//! the module answering in the relay's thread as the request's last byte is in) at 9600 and
+//! 115200 baud it reports polls per second (and the share of what a compliant master can reach:
+//! 14 characters and t3.5 a poll), the 2nd, 50th and 99th percentiles of the silence each master
+//! leaves before its requests, and where a poll's time goes (request, turnaround, answer,
+//! silence); straight on the pty (at 115200 baud settings, the module served by a thread of its
+//! own) how fast each goes. The masters of a setup take turns, 5 rounds of 3 s, and the table shows medians (and
 //! percentiles of every silence seen). Every row shows CPU time per poll of the polling process
 //! (user + system, from the scheduler's accounting, start-up excluded).
 //!
@@ -17,7 +19,7 @@
 
 mod common;
 
-use common::Served;
+use common::{counting_module, idle_after, Served};
 use rigscript::link::line::wire_time;
 use rigscript::protocol::c29u::Protocol;
 use rigscript::protocol::c29u_modbus::silence_gap;
@@ -25,6 +27,7 @@ use rigscript::sim::relay::LineRelay;
 use rigscript::sim::wire::{Frame, Side};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 /// Who polls.
@@ -137,6 +140,22 @@ struct Run {
     silences: Vec<Duration>,
     /// Requests that got no answer (lost on a loaded machine), through a relay.
     unanswered: usize,
+    /// Where each answered poll's time went, through a relay.
+    polls: Vec<Parts>,
+}
+
+/// One poll on the line, as the relay saw it.
+#[derive(Clone, Copy)]
+struct Parts {
+    /// The request on the wire, first start bit to last stop bit.
+    request: Duration,
+    /// From the request's end to the answer's start (the module's and the relay's work).
+    turnaround: Duration,
+    /// The answer on the wire.
+    answer: Duration,
+    /// From the answer's end to the next request's start (the master's silence, with the
+    /// hops from the relay to the master's pty and back).
+    silence: Duration,
 }
 
 /// `master` polling for `window` after `warm_up`, through a relay at `baud` or (`relayed`
@@ -149,17 +168,30 @@ fn measure(
     c_loop: &Path,
     dir: &Path,
 ) -> Run {
-    let served = Served::start(Protocol::Modbus, baud);
-    let relay = relayed.then(|| LineRelay::start(&served.path, baud).expect("start the relay"));
-    let port = relay
-        .as_ref()
-        .map_or(served.path.clone(), |r| r.path().to_string());
+    // Through the line the module answers in the relay's thread; on the bare pty a thread of
+    // its own serves it.
+    let (served, relay, answered) = if relayed {
+        let (module, answered) = counting_module(Protocol::Modbus, baud);
+        let relay =
+            LineRelay::with_device(module, baud, idle_after(baud)).expect("start the relay");
+        (None, Some(relay), answered)
+    } else {
+        let served = Served::start(Protocol::Modbus, baud);
+        let answered = served.counter();
+        (Some(served), None, answered)
+    };
+    let port = match (&relay, &served) {
+        (Some(r), _) => r.path().to_string(),
+        (None, Some(s)) => s.path.clone(),
+        (None, None) => unreachable!("a line or a pty"),
+    };
+    let polls = || answered.load(Ordering::Relaxed);
     let child = start(master, &port, baud, c_loop, dir);
     std::thread::sleep(warm_up);
-    let (cpu0, polls0, at0) = (cpu_time(child.id()), served.answered(), Instant::now());
+    let (cpu0, polls0, at0) = (cpu_time(child.id()), polls(), Instant::now());
     let mark0 = relay.as_ref().map(LineRelay::now);
     std::thread::sleep(window);
-    let (cpu1, polls1, elapsed) = (cpu_time(child.id()), served.answered(), at0.elapsed());
+    let (cpu1, polls1, elapsed) = (cpu_time(child.id()), polls(), at0.elapsed());
     let mark1 = relay.as_ref().map(LineRelay::now);
     let _ = Command::new("kill")
         .arg("-TERM")
@@ -177,13 +209,28 @@ fn measure(
     assert!(polls > 0, "{} made no poll in {window:?}", master.name());
     let rate = polls as f64 / elapsed.as_secs_f64();
     let cpu_us = cpu1.saturating_sub(cpu0).as_secs_f64() * 1e6 / polls as f64;
-    let (silences, unanswered) = match (relay, mark0, mark1) {
+    let (silences, unanswered, polls) = match (relay, mark0, mark1) {
         (Some(relay), Some(from), Some(to)) => {
             let frames: Vec<Frame> = relay
                 .stop()
                 .expect("stop the relay")
                 .into_iter()
                 .filter(|f| f.start >= from && f.start <= to)
+                .collect();
+            // Each answered poll: request, answer, and the request after it.
+            let polls = frames
+                .windows(3)
+                .filter(|w| {
+                    w.iter()
+                        .map(|f| f.side)
+                        .eq([Side::Master, Side::Slave, Side::Master])
+                })
+                .map(|w| Parts {
+                    request: w[0].end - w[0].start,
+                    turnaround: w[1].start.saturating_sub(w[0].end),
+                    answer: w[1].end - w[1].start,
+                    silence: w[2].start.saturating_sub(w[1].end),
+                })
                 .collect();
             let silences = frames
                 .iter()
@@ -195,15 +242,16 @@ fn measure(
                 .windows(2)
                 .filter(|w| w.iter().all(|f| f.side == Side::Master))
                 .count();
-            (silences, unanswered)
+            (silences, unanswered, polls)
         }
-        _ => (Vec::new(), 0),
+        _ => (Vec::new(), 0, Vec::new()),
     };
     Run {
         rate,
         cpu_us,
         silences,
         unanswered,
+        polls,
     }
 }
 
@@ -233,6 +281,42 @@ fn print_row(setup: &str, master: Master, baud: u32, relayed: bool, runs: &[Run]
         at(99.0),
         t35.as_secs_f64() * 1e3,
     );
+}
+
+/// Where the polls of one master went through the line: means over every answered poll, in
+/// ms, beside what a compliant master on an ideal line takes.
+fn breakdown_row(setup: &str, master: Master, baud: u32, runs: &[Run]) -> Option<String> {
+    let polls: Vec<Parts> = runs.iter().flat_map(|r| r.polls.iter().copied()).collect();
+    if polls.is_empty() {
+        return None;
+    }
+    let mean = |part: fn(&Parts) -> Duration| {
+        polls.iter().map(part).sum::<Duration>().as_secs_f64() * 1e3 / polls.len() as f64
+    };
+    let parts = [
+        mean(|p| p.request),
+        mean(|p| p.turnaround),
+        mean(|p| p.answer),
+        mean(|p| p.silence),
+    ];
+    let t35 = silence_gap(baud).as_secs_f64() * 1e3;
+    let ideal = (wire_time(14, baud) + silence_gap(baud)).as_secs_f64() * 1e3;
+    let late = polls
+        .iter()
+        .filter(|p| p.silence > silence_gap(baud) * 2)
+        .count() as f64
+        / polls.len() as f64
+        * 100.0;
+    Some(format!(
+        "| {setup} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {late:.1}% | {:.3} | {ideal:.3} |",
+        master.name(),
+        parts[0],
+        parts[1],
+        parts[2],
+        parts[3],
+        parts[3] - t35,
+        parts.iter().sum::<f64>(),
+    ))
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -281,6 +365,7 @@ fn main() {
         ("115200 baud line", 115_200, true, &on_a_line[..]),
         ("raw pty", 115_200, false, &on_the_pty[..]),
     ];
+    let mut breakdown = Vec::new();
     for (setup, baud, relayed, masters) in setups {
         let masters: Vec<Master> = masters
             .iter()
@@ -295,6 +380,20 @@ fn main() {
         }
         for (&master, seen) in masters.iter().zip(runs) {
             print_row(setup, master, baud, relayed, &seen);
+            breakdown.extend(breakdown_row(setup, master, baud, &seen));
+        }
+    }
+    if !breakdown.is_empty() {
+        println!(
+            "\nWhere a poll's time goes on the line (means, ms; silences over 2 x t3.5 are the \
+             machine waking someone late):\n"
+        );
+        println!(
+            "| setup | master | request | turnaround | answer | silence | silence - t3.5 | silences > 2 x t3.5 | poll | ideal poll |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|");
+        for row in breakdown {
+            println!("{row}");
         }
     }
     let _ = std::fs::remove_dir_all(dir);

@@ -32,6 +32,32 @@ impl<D: ByteDevice> ByteDevice for Counting<D> {
     }
 }
 
+/// A simulated module (ID 1, configured for `baud`) that counts the requests it answers in
+/// the counter returned with it.
+pub fn counting_module(protocol: Protocol, baud: u32) -> (Box<dyn ByteDevice>, Arc<AtomicU64>) {
+    let eeprom = Eeprom {
+        config: ModuleConfig {
+            baud_code: baud_code(baud).expect("a baud rate of the module"),
+            ..ModuleConfig::factory()
+        },
+        ..Eeprom::factory()
+    };
+    let answered = Arc::new(AtomicU64::new(0));
+    let device = Counting {
+        inner: SimulatedC29u::new(Model::new(protocol, SystemClock::shared(), eeprom)),
+        answered: Arc::clone(&answered),
+    };
+    (Box::new(device), answered)
+}
+
+/// The silence after which a served module hears the line idle: requests end on their CRC,
+/// and a pause inside one (a loaded machine stalling the test line for milliseconds) must not
+/// cut it short, as silence_gap alone would.
+#[allow(dead_code)]
+pub fn idle_after(baud: u32) -> Duration {
+    silence_gap(baud).max(Duration::from_millis(20))
+}
+
 /// A simulated module (ID 1, configured for `baud`) on a pty; stops when dropped.
 pub struct Served {
     /// The pty clients open.
@@ -47,27 +73,13 @@ impl Served {
         let mut server = PtyServer::open(None).expect("create a pty");
         let path = server.path().to_string();
         let stop = Arc::new(AtomicBool::new(false));
-        let answered = Arc::new(AtomicU64::new(0));
-        let (stop2, answered2) = (Arc::clone(&stop), Arc::clone(&answered));
+        let (mut device, answered) = counting_module(protocol, baud);
+        let stop2 = Arc::clone(&stop);
         let thread = std::thread::spawn(move || {
             // A module answers at once: keep the simulator's own delays out of the timings.
             rigscript::sim::pty::prefer_realtime();
-            let eeprom = Eeprom {
-                config: ModuleConfig {
-                    baud_code: baud_code(baud).expect("a baud rate of the module"),
-                    ..ModuleConfig::factory()
-                },
-                ..Eeprom::factory()
-            };
-            let mut device = Counting {
-                inner: SimulatedC29u::new(Model::new(protocol, SystemClock::shared(), eeprom)),
-                answered: answered2,
-            };
-            // Requests end on their CRC; a pause inside one (a loaded machine stalling the
-            // test line for milliseconds) must not cut it short, as silence_gap alone would.
-            let idle = silence_gap(baud).max(Duration::from_millis(20));
             server
-                .serve(&mut device, &Faults::default(), idle, &stop2)
+                .serve(&mut *device, &Faults::default(), idle_after(baud), &stop2)
                 .expect("serve the simulator");
         });
         Self {
@@ -78,10 +90,10 @@ impl Served {
         }
     }
 
-    /// Requests answered so far.
+    /// The counter of requests answered.
     #[allow(dead_code)]
-    pub fn answered(&self) -> u64 {
-        self.answered.load(Ordering::Relaxed)
+    pub fn counter(&self) -> Arc<AtomicU64> {
+        Arc::clone(&self.answered)
     }
 }
 

@@ -34,6 +34,20 @@ pub struct Timing {
     pub auto_gap: fn(u32) -> Duration,
     /// The longest answer the protocol has; more bytes than this are not an answer.
     pub max_answer: usize,
+    /// How long the answer can be, when the protocol tells: on a timed line the rest of it
+    /// cannot be in before its bytes have crossed the wire, so the exchange sleeps until then
+    /// instead of waking for every byte.
+    pub answer_len: Option<AnswerLen>,
+}
+
+/// The lengths an answer to a request can have.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AnswerLen {
+    /// The shortest answer that can come (an exception): until it could be whole, the
+    /// exchange cannot tell which answer is coming.
+    pub shortest: usize,
+    /// The answer the request normally gets.
+    pub normal: usize,
 }
 
 impl Timing {
@@ -178,6 +192,8 @@ fn send_and_collect(
             _ => cancel.slice(left),
         };
         let n = link.read(&mut chunk, wait)?;
+        // On a wire the answer has ended when its last byte is in: stamped before parsing.
+        let read_at = clock.now();
         let Some(bytes) = chunk.get(..n).filter(|b| !b.is_empty()) else {
             if timing.gap.is_some() && !received.is_empty() && wait < left {
                 // The line fell silent after an answer the protocol could not end itself:
@@ -191,16 +207,30 @@ fn send_and_collect(
         let room = timing.max_answer.saturating_sub(received.len());
         if bytes.len() > room {
             received.extend_from_slice(bytes.get(..room).unwrap_or_default());
-            line.quiet_since = Some(clock.now());
+            line.quiet_since = Some(read_at);
             trace_received(tracer, &received);
             return Err(ExchangeError::Overflow { received });
         }
         received.extend_from_slice(bytes);
         if let Some(answer) = frame(&received) {
-            // On a wire the answer has ended when its last byte is in.
-            line.quiet_since = Some(clock.now());
+            line.quiet_since = Some(read_at);
             trace_received(tracer, &answer);
             return Ok(answer);
+        }
+        // Two or more characters still to come (one costs a wake-up either way): one sleep for
+        // them, then one look, where waiting for bytes would wake once a character. Until the
+        // shortest answer could be whole, only that much is certain to come; past it (no
+        // shorter answer ended) the normal answer is.
+        if let (Some(len), Some(_)) = (timing.answer_len, line.baud) {
+            let expected = if received.len() < len.shortest {
+                len.shortest
+            } else {
+                len.normal
+            };
+            let rest = expected.saturating_sub(received.len());
+            if rest >= 2 {
+                clock.sleep_until(read_at.saturating_add(line.wire_time(rest)).min(deadline));
+            }
         }
     }
 }
@@ -234,20 +264,26 @@ fn keep_silence(
         }
         let quiet_at = line.quiet_since.map_or(now, |t| t.saturating_add(needed));
         if now < quiet_at {
+            // Listen rather than sleep: bytes that arrive restart the count, and a wait that
+            // hears nothing has shown the line silent, so no look is needed after it (one
+            // system call for the silence and the check for stale input).
             let wait = cancel.slice(quiet_at.saturating_sub(now));
-            if line.settle.is_some() {
-                // Listen rather than sleep: a late answer's arrival restarts the count.
-                let n = link.read(&mut scratch, wait)?;
-                if n > 0 {
-                    heard = heard.saturating_add(n);
-                    line.quiet_since = Some(clock.now());
-                }
-            } else {
-                clock.sleep_until(now.saturating_add(wait));
+            let n = link.read(&mut scratch, wait)?;
+            if n > 0 {
+                heard = heard.saturating_add(n);
+                line.quiet_since = Some(clock.now());
+                continue;
             }
+            if clock.now() >= quiet_at {
+                line.settle = None;
+                return Ok(());
+            }
+            // A slice of the wait ended, or a link that cannot wait (memory without a clock)
+            // came back early.
+            clock.sleep_until(now.saturating_add(wait));
             continue;
         }
-        // One look at what came meanwhile; usually nothing, and the request goes out.
+        // Already late: one look at what came meanwhile; usually nothing, and the request goes.
         match link.read(&mut scratch, Duration::ZERO)? {
             0 => {
                 line.settle = None;
@@ -327,6 +363,7 @@ mod tests {
     use crate::link::memory::MemoryByteLink;
     use crate::sim::ByteDevice;
     use crate::time::clock::VirtualClock;
+    use std::collections::VecDeque;
     use std::sync::{Arc, Mutex};
 
     /// Answers with a fixed reply, recording what it heard.
@@ -354,6 +391,7 @@ mod tests {
             frame_gap: FrameGap::Auto,
             auto_gap: t35,
             max_answer: 64,
+            answer_len: None,
         }
     }
 
@@ -704,6 +742,186 @@ mod tests {
             clock.now() - before <= Duration::from_millis(201),
             "given up after a timeout"
         );
+    }
+
+    /// A link that notes the timeout of every read: each is one wait (or one look) on a port.
+    struct Reads<L> {
+        inner: L,
+        timeouts: Vec<Duration>,
+    }
+    impl<L: ByteLink> ByteLink for Reads<L> {
+        fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+            self.inner.write_all(bytes)
+        }
+        fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+            self.timeouts.push(timeout);
+            self.inner.read(buf, timeout)
+        }
+        fn set_baud(&mut self, baud: u32) -> Result<(), LinkError> {
+            self.inner.set_baud(baud)
+        }
+        fn describe(&self) -> String {
+            self.inner.describe()
+        }
+        fn line(&mut self) -> Option<&mut LineState> {
+            self.inner.line()
+        }
+    }
+
+    #[test]
+    fn the_silence_is_one_wait_that_also_checks_for_stale_input() {
+        let (clock, heard_at, link) = stamped(b"!01\r");
+        let mut link = Reads {
+            inner: link.with_line(115_200),
+            timeouts: Vec::new(),
+        };
+        ask(&mut link, &clock, true).unwrap();
+        link.timeouts.clear();
+        ask(&mut link, &clock, true).unwrap();
+        // The wait for the silence, then the wait for the answer: no separate look (no
+        // zero-timeout read), no sleep besides.
+        assert_eq!(link.timeouts.len(), 2, "{:?}", link.timeouts);
+        assert_eq!(link.timeouts[0], t35(115_200));
+        assert!(link.timeouts.iter().all(|t| !t.is_zero()));
+        let heard = heard_at.lock().unwrap().clone();
+        let answer_end = crate::link::line::wire_time(8, 115_200);
+        assert_eq!(heard[1], answer_end + t35(115_200));
+    }
+
+    #[test]
+    fn bytes_heard_during_the_silence_restart_it_from_their_arrival() {
+        let (clock, heard_at, link) = stamped(b"!02\r");
+        let mut link = link.with_line(9600);
+        let wire = |n| crate::link::line::wire_time(n, 9600);
+        // Sent without waiting for an answer, which comes anyway while the next request waits
+        // for the silence: its last byte is in at 4 + 4 characters.
+        exchange(
+            &mut link,
+            &clock,
+            b"x\r\r\r",
+            false,
+            timing(None),
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+        .unwrap();
+        let got = ask(&mut link, &clock, true).unwrap();
+        assert_eq!(got, b"!02\r", "the stray answer was dropped");
+        let heard = heard_at.lock().unwrap().clone();
+        assert_eq!(
+            heard[1],
+            wire(4) + wire(4) + t35(9600),
+            "t3.5 from the stray answer's end, not from when the wait would have ended"
+        );
+    }
+
+    /// A wire at `baud` in virtual time: the answer's bytes come one a character time after
+    /// the request has left; every read is noted.
+    struct Trickle {
+        clock: VirtualClock,
+        line: LineState,
+        answer: Vec<u8>,
+        due: VecDeque<(Duration, u8)>,
+        reads: usize,
+    }
+    impl ByteLink for Trickle {
+        fn write_all(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+            let start = self.clock.now() + self.line.wire_time(bytes.len());
+            let char_time = self.line.wire_time(1);
+            for (k, &b) in (1u32..).zip(&self.answer) {
+                self.due.push_back((start + char_time * k, b));
+            }
+            Ok(())
+        }
+        fn read(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, LinkError> {
+            self.reads += 1;
+            if let Some(&(at, _)) = self.due.front() {
+                if at > self.clock.now() && !timeout.is_zero() {
+                    let until = at.min(self.clock.now() + timeout);
+                    self.clock.sleep_until(until);
+                }
+            } else {
+                self.clock.advance(timeout);
+            }
+            let mut n = 0;
+            while let Some(&(at, b)) = self.due.front() {
+                if at > self.clock.now() || n == buf.len() {
+                    break;
+                }
+                buf[n] = b;
+                n += 1;
+                self.due.pop_front();
+            }
+            Ok(n)
+        }
+        fn set_baud(&mut self, _baud: u32) -> Result<(), LinkError> {
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "trickle".into()
+        }
+        fn line(&mut self) -> Option<&mut LineState> {
+            Some(&mut self.line)
+        }
+    }
+
+    #[test]
+    fn an_answer_of_known_length_is_slept_for_not_woken_for_byte_by_byte() {
+        let clock = VirtualClock::at_epoch();
+        let answer = b"abcde\r".to_vec();
+        let mut link = Trickle {
+            clock: clock.clone(),
+            line: LineState::serial(9600),
+            answer: answer.clone(),
+            due: VecDeque::new(),
+            reads: 0,
+        };
+        let mut known = timing(None);
+        known.frame_gap = FrameGap::Fixed(Duration::ZERO);
+        known.answer_len = Some(AnswerLen {
+            shortest: 5,
+            normal: 6,
+        });
+        let got = exchange(
+            &mut link,
+            &clock,
+            b"q\r",
+            true,
+            known,
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+        .unwrap();
+        assert_eq!(got, answer);
+        let wire = |n| crate::link::line::wire_time(n, 9600);
+        // The bytes come a character apart after the request.
+        let done = wire(2) + wire(1) * 6;
+        assert_eq!(clock.now(), done, "done as the last byte is in");
+        // A look for stale input, the wait for the first byte, a look after sleeping until the
+        // shortest answer could be in, a look after sleeping for the last byte.
+        assert_eq!(link.reads, 4, "one read a byte would be 7");
+        assert_eq!(link.line.quiet_since, Some(done));
+
+        // The shortest answer is whole as soon as it is in.
+        link.answer = b"abcd\r".to_vec();
+        link.reads = 0;
+        let start = clock.now();
+        let got = exchange(
+            &mut link,
+            &clock,
+            b"q\r",
+            true,
+            known,
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+        .unwrap();
+        assert_eq!(got, b"abcd\r");
+        assert_eq!(clock.now(), start + wire(2) + wire(1) + wire(4));
+        assert_eq!(link.reads, 3);
     }
 
     #[test]

@@ -496,6 +496,7 @@ mod tests {
             frame_gap: FrameGap::Auto,
             auto_gap: |_| Duration::ZERO,
             max_answer: 64,
+            answer_len: None,
         };
         let frame = |r: &[u8]| {
             let end = r.iter().position(|&b| b == b'!')?;

@@ -53,7 +53,7 @@ impl AsciiBackend {
             *refusal = None;
             let timeout = t.timeout;
             let answer = t
-                .exchange(&frame, expects, None, line_frame)
+                .exchange(&frame, expects, None, None, line_frame)
                 .map_err(|e| exchange_fault(e, &t.port(), id, &name(), timeout, true))?;
             if !expects {
                 return Ok(Answer::Done);
@@ -435,7 +435,7 @@ impl Backend for AsciiBackend {
         let expects = !(body.starts_with(b"~**") || body.starts_with(b"#**"));
         t.with_retries(|t| {
             let timeout = t.timeout;
-            t.exchange(&frame, expects, None, line_frame)
+            t.exchange(&frame, expects, None, None, line_frame)
                 .map_err(|e| exchange_fault(e, &port, id, &name, timeout, true))
         })
     }

@@ -5,6 +5,7 @@ use super::{
     exchange_fault, Backend, C29uError, ConfigChange, Firmware, Preset, PresetWrite, Protocol,
     Settings, SynchronizedIo, WatchdogInfo,
 };
+use crate::device::exchange::AnswerLen;
 use crate::protocol::c29u::{baud_code, baud_rate};
 use crate::protocol::c29u_modbus::{
     model_name, parse_response, seal, silence_gap, BitArea, CoilCommand, FrameReader, ModbusError,
@@ -59,7 +60,7 @@ impl ModbusBackend {
             reader.expect_answer(id, request);
             let mut fed = 0;
             let answer = t
-                .exchange(&frame, expects, gap, |received| {
+                .exchange(&frame, expects, gap, answer_len(request), |received| {
                     let fresh = received.get(fed..).unwrap_or_default();
                     fed = received.len();
                     reader.push(fresh).into_iter().next()
@@ -105,6 +106,16 @@ impl ModbusBackend {
     fn write(&mut self, t: &mut Transport, request: Request) -> Result<(), C29uError> {
         self.call(t, &request).map(|_| ())
     }
+}
+
+/// How long the answer to `request` can be: an exception (ID, function, code, CRC) or the
+/// normal answer.
+fn answer_len(request: &Request) -> Option<AnswerLen> {
+    const EXCEPTION_LEN: usize = 5;
+    request.answer_len().map(|normal| AnswerLen {
+        shortest: EXCEPTION_LEN.min(normal),
+        normal,
+    })
 }
 
 /// A request in words for messages: its bytes in hex, as section 10 writes them.
@@ -413,7 +424,7 @@ impl Backend for ModbusBackend {
             let timeout = t.timeout;
             let mut reader = FrameReader::for_answers();
             let mut fed = 0;
-            t.exchange(&frame, expects, gap, |received| {
+            t.exchange(&frame, expects, gap, None, |received| {
                 let fresh = received.get(fed..).unwrap_or_default();
                 fed = received.len();
                 reader.push(fresh).into_iter().next()

@@ -3,7 +3,7 @@
 //! the exchange under way short, and no retry follows).
 
 use crate::device::cancel::Cancel;
-use crate::device::exchange::{exchange, ExchangeError, Timing, Tracer};
+use crate::device::exchange::{exchange, AnswerLen, ExchangeError, Timing, Tracer};
 use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
 use crate::protocol::c29u::Protocol;
@@ -118,11 +118,13 @@ impl Transport {
     /// One exchange; the line is held for exactly this long, so one dead module costs the
     /// others at most its own timeout (and, at the next request, the settling after it). Once
     /// the cancel is set it is cut short within a slice (`ExchangeError::Cancelled`).
+    /// `answer_len`: how long the answer can be, where the protocol tells.
     pub fn exchange(
         &mut self,
         request: &[u8],
         expect_answer: bool,
         gap: Option<Duration>,
+        answer_len: Option<AnswerLen>,
         frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     ) -> Result<Vec<u8>, ExchangeError> {
         let (auto_gap, max_answer): (fn(u32) -> Duration, usize) = match self.protocol {
@@ -135,6 +137,7 @@ impl Transport {
             frame_gap: self.frame_gap,
             auto_gap,
             max_answer,
+            answer_len,
         };
         let mut link = self.link.lock().unwrap_or_else(|e| e.into_inner());
         exchange(
