@@ -178,3 +178,49 @@ fn the_license_file_is_the_license_cargo_toml_names() {
     assert!(license.starts_with("MIT License\n"), "{license}");
     assert!(license.contains("Permission is hereby granted, free of charge"));
 }
+
+/// Standard output whose reader has already gone, as `rigscript ... | head -0` leaves it.
+fn closed_stdout() -> Stdio {
+    let mut fds = [0; 2];
+    // SAFETY: pipe() fills the two descriptors; the read end is closed at once and the write
+    // end is owned by the Stdio from then on.
+    unsafe {
+        assert_eq!(libc::pipe(fds.as_mut_ptr()), 0);
+        libc::close(fds[0]);
+        Stdio::from(<std::os::fd::OwnedFd as std::os::fd::FromRawFd>::from_raw_fd(fds[1]))
+    }
+}
+
+#[test]
+fn a_report_whose_reader_went_away_ends_as_grep_would_and_a_run_keeps_its_status() {
+    use std::os::unix::process::ExitStatusExt;
+    let d = TempDir::new("closed-stdout");
+    let script = d.file("s.rhai", "after(\"50ms\", || stop());\n");
+    let reports: [&[&str]; 3] = [
+        &["completions", "bash"],
+        &["man"],
+        &["check", script.as_str()],
+    ];
+    for args in reports {
+        let o = Command::new(rigscript())
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(closed_stdout())
+            .output()
+            .unwrap();
+        let err = stderr(&o);
+        assert_eq!(o.status.signal(), Some(libc::SIGPIPE), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    // A run goes to its end whatever became of standard output: its status is the run's.
+    let o = Command::new(rigscript())
+        .args(["run", "--sim", "--stats", &script])
+        .stdin(Stdio::null())
+        .stdout(closed_stdout())
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(err.contains("safe state (stop())"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

@@ -63,6 +63,23 @@ pub fn usage_error(message: String) -> clap::Error {
     .with_cmd(&Cli::command())
 }
 
+/// Whether `command` only reports (its output may go to `head` or `grep -q`), so it may end the
+/// moment its reader goes away. `run` and `sim` end their own way whatever happens to standard
+/// output: a run writes the safe state, a simulator removes its link.
+fn reports_only(command: &Command) -> bool {
+    !matches!(command, Command::Run(_) | Command::Sim { .. })
+}
+
+/// Ends the process as `cat` or `grep` end when the reader of their output goes away (SIGPIPE,
+/// status 141 in the shell) instead of a panic in the middle of printing: Rust ignores SIGPIPE
+/// by default.
+fn die_quietly_when_stdout_closes() {
+    // SAFETY: setting a signal's disposition to its default touches no Rust state.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 /// Runs the command line and returns the process exit status.
 pub fn main() -> i32 {
     let cli = match Cli::try_parse() {
@@ -72,6 +89,9 @@ pub fn main() -> i32 {
             return if e.use_stderr() { 2 } else { 0 };
         }
     };
+    if reports_only(&cli.command) {
+        die_quietly_when_stdout_closes();
+    }
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Check(args) => check::run(args),

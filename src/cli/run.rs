@@ -186,7 +186,11 @@ pub fn run(args: RunArgs) -> i32 {
     };
     rig.runner.stats.log_dropped = dropped;
     if args.stats {
-        println!("{}", rig.runner.stats);
+        // After the end: a reader that went away costs the figures, never the status.
+        let _ = std::io::Write::write_fmt(
+            &mut std::io::stdout(),
+            format_args!("{}\n", rig.runner.stats),
+        );
     }
     status
 }
