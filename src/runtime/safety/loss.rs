@@ -1,5 +1,5 @@
 //! Losing devices and getting them back: a communication failure marks a device lost; it is
-//! tried again once a second without retries and taken control of again when it answers;
+//! tried again (first before its host watchdog is due, then once a second) without retries and taken control of again when it answers;
 //! past the grace time every output is held safe until all devices are back.
 
 use crate::runtime::devices::{Device, DeviceError};
@@ -10,6 +10,21 @@ use std::time::Duration;
 /// How often a lost device is tried again.
 pub const RETRY_INTERVAL: Duration = Duration::from_secs(1);
 
+/// How soon a device just lost is tried the first time: at its host watchdog's feed interval
+/// when the runner feeds one and that is sooner than `RETRY_INTERVAL`. One lost answer (noise
+/// on the line, with `retries = 0`) would otherwise leave the watchdog unfed for a second, past
+/// a short timeout, and the module would drop the script's outputs to the safe value for
+/// nothing; a try that gets an answer takes control again, which feeds it. Later tries come
+/// once a second, so a device that is really gone costs one timeout a second.
+fn first_retry(d: &Device) -> Duration {
+    match d {
+        Device::C29u(c) if c.controlled => c
+            .feed_interval()
+            .map_or(RETRY_INTERVAL, |feed| feed.min(RETRY_INTERVAL)),
+        _ => RETRY_INTERVAL,
+    }
+}
+
 impl<H: Clone> Runtime<H> {
     /// Notes a failed operation: a communication failure marks the device lost.
     pub fn note_failure(&mut self, idx: usize, error: &DeviceError) {
@@ -19,11 +34,23 @@ impl<H: Clone> Runtime<H> {
         let now = self.now();
         if let Some(d) = self.devices.get_mut(idx) {
             let name = d.name().to_string();
-            if d.health_mut().lose(now, error, RETRY_INTERVAL) {
-                self.log.warn(&format!(
-                    "{name}: lost: {error}; trying again every {}",
-                    format_duration(RETRY_INTERVAL)
-                ));
+            let first_try = if d.health().online() {
+                first_retry(d)
+            } else {
+                RETRY_INTERVAL
+            };
+            if d.health_mut().lose(now, error, first_try) {
+                let when = if first_try < RETRY_INTERVAL {
+                    format!(
+                        "in {} (before its host watchdog is due), then every {}",
+                        format_duration(first_try),
+                        format_duration(RETRY_INTERVAL)
+                    )
+                } else {
+                    format!("every {}", format_duration(RETRY_INTERVAL))
+                };
+                self.log
+                    .warn(&format!("{name}: lost: {error}; trying again {when}"));
             }
         }
     }
@@ -138,17 +165,38 @@ mod tests {
     }
 
     #[test]
-    fn a_lost_device_is_tried_once_a_second_and_taken_control_of_when_back() {
+    fn a_lost_device_is_tried_before_its_watchdog_is_due_then_once_a_second() {
         let mut r = TestRig::started();
+        let feed = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        assert!(
+            feed < RETRY_INTERVAL,
+            "the rig's watchdog is fed more often"
+        );
         r.sim.set_gone("io", true).unwrap();
         poll(&mut r);
         assert!(!r.rt.online(IO));
         assert_eq!(r.log().matches("io: lost: ").count(), 1);
+        assert!(
+            r.log().contains("then every 1s"),
+            "the first try comes sooner: {}",
+            r.log()
+        );
         let before = r.requests();
-        r.clock.advance(RETRY_INTERVAL - TICK);
+        r.clock.advance(feed - TICK);
         r.rt.supervise();
-        assert_eq!(r.requests(), before, "not before its retry time");
+        assert_eq!(r.requests(), before, "not before its first try");
         r.clock.advance(TICK);
+        let tried_at = r.rt.now();
+        r.rt.supervise();
+        assert_eq!(r.requests(), before + 1, "one try, no retries");
+        assert!(!r.rt.online(IO));
+        assert_eq!(
+            r.rt.next_retry(),
+            Some(tried_at + RETRY_INTERVAL),
+            "then once a second"
+        );
+        let before = r.requests();
+        r.clock.advance(tried_at + RETRY_INTERVAL - r.rt.now());
         r.rt.supervise();
         assert_eq!(r.requests(), before + 1, "one try, no retries");
         assert!(!r.rt.online(IO));
@@ -164,7 +212,7 @@ mod tests {
             0x0C,
             "the script's outputs again"
         );
-        assert!(r.log().contains("io: back after 2"), "{}", r.log());
+        assert!(r.log().contains("io: back after"), "{}", r.log());
         assert_eq!(r.log().matches("io: lost: ").count(), 1, "lost once");
     }
 
