@@ -784,4 +784,16 @@ fn one_lost_answer_does_not_let_a_short_watchdog_fire() {
     };
     assert_keeps_promises(&case(false));
     assert_keeps_promises(&case(true));
+    // With a period longer than the watchdog the retry must not wait for the next tick.
+    assert_keeps_promises(&Case {
+        rig: bare(2000, 12_001, plain(Proto::Modbus, Some(10), 0x00)),
+        script: vec![every(100, vec![])],
+        faults: vec![(
+            6001,
+            Fault::Drop {
+                line: 0,
+                answers: 1,
+            },
+        )],
+    });
 }

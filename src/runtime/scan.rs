@@ -298,9 +298,9 @@ impl<P: Program> Runner<P> {
         self.wait_until(self.next_deadline, true);
     }
 
-    /// Waits until `target`, feeding the host watchdogs as their feeds fall due (a feed keeps
-    /// its own deadline whatever the period); with `watch_stop`, in slices that look at the
-    /// stop flag.
+    /// Waits until `target`, feeding the host watchdogs as their feeds fall due and trying lost
+    /// devices as their retries do (each keeps its own deadline whatever the period); with
+    /// `watch_stop`, in slices that look at the stop flag.
     fn wait_until(&mut self, target: Duration, watch_stop: bool) {
         loop {
             let now = self.clock.now();
@@ -313,15 +313,24 @@ impl<P: Program> Runner<P> {
             {
                 return;
             }
-            let feed = self.rt.borrow().next_feed();
+            let (feed, retry) = {
+                let rt = self.rt.borrow();
+                // A retry already overdue waits for the tick (or was skipped while stopping).
+                (rt.next_feed(), rt.next_retry().filter(|&due| due > now))
+            };
             let mut until = target;
             if watch_stop {
                 until = until.min(now.saturating_add(SLEEP_SLICE));
             }
-            if let Some(due) = feed {
+            for due in [feed, retry].into_iter().flatten() {
                 until = until.min(due);
             }
             self.clock.sleep_until(until);
+            // A lost device is tried when its time comes, not at the next tick: with a long
+            // period its watchdog would go unfed past its timeout.
+            if retry.is_some_and(|due| self.clock.now() >= due) {
+                self.guarded(|r| r.rt.borrow_mut().supervise());
+            }
             if feed.is_some_and(|due| self.clock.now() >= due) {
                 self.guarded(|r| r.rt.borrow_mut().feed_watchdogs());
             }
