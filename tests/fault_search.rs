@@ -797,3 +797,30 @@ fn one_lost_answer_does_not_let_a_short_watchdog_fire() {
         )],
     });
 }
+
+/// Found by the soak (`FAULT_SEARCH_SEED=4242 FAULT_SEARCH_CASES=3000`): an ASCII answer 1 s late
+/// (timeout 200 ms, retries 2) answered the third try, and the answers to the tries still on
+/// the wire were read as the counters.
+#[test]
+fn the_answers_to_earlier_tries_are_never_taken_for_the_next_request() {
+    assert_keeps_promises(&Case {
+        rig: bare(
+            100,
+            9_301,
+            Module {
+                timeout_ms: 200,
+                retries: 2,
+                ..plain(Proto::Ascii, None, 0x00)
+            },
+        ),
+        script: vec![
+            every(100, vec![Stmt::RecordCounters { dev: 0 }]),
+            Stmt::OnRise {
+                dev: 0,
+                ch: 0,
+                body: vec![],
+            },
+        ],
+        faults: vec![(1, Fault::Late { line: 0, ms: 1000 })],
+    });
+}

@@ -149,6 +149,8 @@ fn send_and_collect(
     tracer: &mut Option<Tracer>,
     cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
+    // A try after a timeout: the answers to the tries before it may still be on their way.
+    let retrying = line.unanswered;
     keep_silence(link, clock, line, timing, cancel)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
@@ -175,6 +177,7 @@ fn send_and_collect(
             // silent for one more timeout.
             line.quiet_since = Some(now);
             line.settle = Some(timing.timeout);
+            line.unanswered = true;
             trace_received(tracer, &received);
             return Err(ExchangeError::Timeout { received });
         }
@@ -183,6 +186,7 @@ fn send_and_collect(
             // safe state) waits for the line to settle.
             line.quiet_since = Some(now);
             line.settle = Some(timing.timeout);
+            line.unanswered = true;
             trace_received(tracer, &received);
             return Err(ExchangeError::Cancelled);
         }
@@ -214,6 +218,13 @@ fn send_and_collect(
         received.extend_from_slice(bytes);
         if let Some(answer) = frame(&received) {
             line.quiet_since = Some(read_at);
+            if retrying {
+                // This answer may be a late one to an earlier try, with the answers to the
+                // later tries still to come (same shape, and ASCII says not whose): the next
+                // request waits until the line has been silent for a timeout, as after one.
+                line.settle = Some(timing.timeout);
+                line.unanswered = false;
+            }
             trace_received(tracer, &answer);
             return Ok(answer);
         }

@@ -57,6 +57,9 @@ pub struct LineState {
     /// After a timeout: the silence the line must keep before the next request, so that a late
     /// answer is heard and dropped instead of taken for the answer to that request.
     pub settle: Option<Duration>,
+    /// A request went unanswered (timed out or cut short) and no answer has come since: the
+    /// next answer may be a late one, with the answers to the requests after it still to come.
+    pub unanswered: bool,
 }
 
 impl LineState {
