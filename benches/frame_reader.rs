@@ -2,6 +2,9 @@
 //! in one piece and in 16-byte pieces, on both sides. Linear parsing shows as a flat time per
 //! byte across sizes. Run: `cargo bench --bench frame_reader`.
 
+#[path = "common/args.rs"]
+mod args;
+use args::BenchArgs;
 use rigscript::protocol::c29u_modbus::{
     encode_response, BitArea, FrameReader, Request, Response, MAX_FRAME_LEN,
 };
@@ -83,7 +86,7 @@ fn main() {
             &answer,
         ),
     ];
-    let sizes: &[usize] = if std::env::args().any(|a| a == "--bench") {
+    let sizes: &[usize] = if BenchArgs::from_env().full {
         &SIZES
     } else {
         &SMOKE

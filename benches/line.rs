@@ -19,6 +19,9 @@
 
 mod common;
 
+#[path = "common/args.rs"]
+mod args;
+use args::BenchArgs;
 use common::{counting_module, idle_after, Served};
 use rigscript::link::line::wire_time;
 use rigscript::protocol::c29u::Protocol;
@@ -325,10 +328,8 @@ fn median(mut values: Vec<f64>) -> f64 {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let full = args.iter().any(|a| a == "--bench");
+    let BenchArgs { full, words } = BenchArgs::from_env();
     // Words given (`cargo bench --bench line -- 9600 libmodbus`) pick rows by setup or master.
-    let words: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
     let wanted = |setup: &str, master: Master| {
         words.is_empty()
             || words

@@ -4,6 +4,9 @@
 
 mod common;
 
+#[path = "common/args.rs"]
+mod args;
+use args::BenchArgs;
 use common::Served;
 use rigscript::device::c29u::{share, C29u, C29uOptions, FrameGap, Protocol};
 use rigscript::link::serial::SerialLink;
@@ -41,15 +44,10 @@ fn measure(protocol: Protocol, count: u32, request: fn(&mut C29u)) -> f64 {
 fn main() {
     // `cargo bench` passes `--bench`; `cargo test --all-targets` runs this without it, and then
     // a few round trips only check that the benchmark still works.
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let count = if args.iter().any(|a| a == "--bench") {
-        ROUND_TRIPS
-    } else {
-        20
-    };
-    // A filter argument selects protocols by name.
-    let filter: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
-    let wanted = |name: &str| filter.is_empty() || filter.iter().any(|f| name.contains(f.as_str()));
+    let args = BenchArgs::from_env();
+    let count = if args.full { ROUND_TRIPS } else { 20 };
+    // A word selects protocols by name.
+    let wanted = |name: &str| args.picks(name);
     if wanted("modbus") {
         let rate = measure(Protocol::Modbus, count, |d| {
             d.read_outputs().expect("read_outputs");

@@ -20,6 +20,9 @@
 //! the many-timer cases). CPU while
 //! idling and resident memory of a real `rigscript run` process: `benches/process.sh`.
 
+#[path = "common/args.rs"]
+mod args;
+use args::BenchArgs;
 use rigscript::config::{RigConfig, ScriptLimits, WakeLatency};
 use rigscript::runtime::devices::SimRig;
 use rigscript::runtime::log::LogFormat;
@@ -352,14 +355,9 @@ fn timer_ticks(count: u32, periods_ms: (u32, u32), ticks: u64) -> (Duration, Dur
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let sizes = if args.iter().any(|a| a == "--bench") {
-        &FULL
-    } else {
-        &SMOKE
-    };
-    let filter: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
-    let wanted = |name: &str| filter.is_empty() || filter.iter().any(|f| name.contains(f.as_str()));
+    let args = BenchArgs::from_env();
+    let sizes = if args.full { &FULL } else { &SMOKE };
+    let wanted = |name: &str| args.picks(name);
     println!(
         "tick work: mean real time per tick over {} ticks in virtual time (target <= 20 µs)",
         sizes.ticks

@@ -11,6 +11,9 @@
 //! Run: `cargo bench --bench verify` (a filter argument, `throughput` or `search`, picks one).
 //! `cargo test --all-targets` runs it at a tiny size, to check that it still works.
 
+#[path = "common/args.rs"]
+mod args;
+use args::BenchArgs;
 use rigscript::config::RigConfig;
 use rigscript::heap::CountingAlloc;
 use rigscript::script::engine::DEFAULT_BUDGET;
@@ -128,14 +131,9 @@ fn search_planted(sizes: &Sizes, file: &str) {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let sizes = if args.iter().any(|a| a == "--bench") {
-        &FULL
-    } else {
-        &SMOKE
-    };
-    let filter: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
-    let wanted = |name: &str| filter.is_empty() || filter.iter().any(|f| name.contains(f.as_str()));
+    let args = BenchArgs::from_env();
+    let sizes = if args.full { &FULL } else { &SMOKE };
+    let wanted = |name: &str| args.picks(name);
     if wanted("throughput") {
         throughput(sizes, true);
         throughput(sizes, false);

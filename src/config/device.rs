@@ -337,26 +337,25 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
     if let Some(n) = r.read(t, "safe_value", byte) {
         c.safe_value = n;
     }
-    let by_hand = format!(
-        "rigscript c29 --port {} --protocol ascii --id {}{}",
-        port.as_ref().map_or("PORT".to_string(), Port::to_string),
-        c.id,
-        if c.checksum { " --checksum" } else { "" }
-    );
-    let (proto, safe) = (c.protocol, c.safe_value);
+    let (proto, safe, id, checksum) = (c.protocol, c.safe_value, c.id, c.checksum);
     c.power_on_value = r
         .read(t, "power_on_value", |v| match byte(v)? {
             // Storing it would drive the outputs to it: refused before anything starts.
-            n if proto == Protocol::Ascii && n != safe => Err(bad(
-                v,
-                format!(
-                    "differs from safe_value {safe:#04x}: an ASCII module stores only its \
-                     current outputs as its power-on value (manual 8-24), so the runner would \
-                     have to drive the outputs to it; store it once by hand, when the outputs \
-                     may take that value (`{by_hand} power-on-value {n:#04x} --drive-outputs`), \
-                     and leave it out of rig.toml, or make it equal to safe_value"
-                ),
-            )),
+            n if proto == Protocol::Ascii && n != safe => {
+                let port = port.as_ref().map_or("PORT".to_string(), Port::to_string);
+                let checksum = if checksum { " --checksum" } else { "" };
+                Err(bad(
+                    v,
+                    format!(
+                        "differs from safe_value {safe:#04x}: an ASCII module stores only its \
+                         current outputs as its power-on value (manual 8-24), so the runner \
+                         would have to drive the outputs to it; store it once by hand, when the \
+                         outputs may take that value (`rigscript c29 --port {port} --protocol \
+                         ascii --id {id}{checksum} power-on-value {n:#04x} --drive-outputs`), \
+                         and leave it out of rig.toml, or make it equal to safe_value"
+                    ),
+                ))
+            }
             n => Ok(n),
         })
         .or(c.power_on_value);
