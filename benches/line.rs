@@ -13,7 +13,14 @@
 //! percentiles of every silence seen). Every row shows CPU time per poll of the polling process
 //! (user + system, from the scheduler's accounting, start-up excluded).
 //!
+//! Each setup runs rigscript as shipped (`--wake-latency auto`, which holds a 0 µs PM QoS
+//! request at this tick rate) beside the C loop making the same request, then both without
+//! (`--wake-latency off`), as the C loop runs by itself.
+//!
 //! Run: `cargo bench --bench line [WORDS]` (words pick rows: `9600`, `raw`, `libmodbus`...).
+//! `LINE_BENCH_ROUNDS=N` takes N rounds instead of 5; `LINE_BENCH_BASELINE=PATH` adds the
+//! gap-keeping rows run by another rigscript build (say, main's, copied aside) to compare a
+//! change with in the same rounds.
 //! `cargo test` runs it for half a second a row, so the comparison never silently drops out;
 //! it needs gcc and libmodbus-dev.
 
@@ -36,20 +43,51 @@ use std::time::{Duration, Instant};
 /// Who polls.
 #[derive(Clone, Copy)]
 enum Master {
-    /// `rigscript run`, with `frame_gap = "auto"` (t3.5) or `"0s"`.
-    Rigscript { gap: bool },
-    /// The C loop over libmodbus, sleeping t3.5 before each request or not at all.
-    Libmodbus { gap: bool },
+    /// `rigscript run`, with `frame_gap = "auto"` (t3.5) or `"0s"`; `held`: with its default
+    /// `--wake-latency auto` (a 0 µs PM QoS request at this period) instead of `off`;
+    /// `baseline`: the build `LINE_BENCH_BASELINE` names (say, main's) instead of this one, to
+    /// measure a change against it in the same rounds.
+    Rigscript {
+        gap: bool,
+        held: bool,
+        baseline: bool,
+    },
+    /// The C loop over libmodbus, sleeping t3.5 before each request or not at all; `held`:
+    /// making the same PM QoS request as rigscript does by default.
+    Libmodbus { gap: bool, held: bool },
 }
 
 impl Master {
-    fn name(self) -> &'static str {
-        match self {
-            Master::Rigscript { gap: true } => "rigscript",
-            Master::Rigscript { gap: false } => "rigscript, frame_gap 0s",
-            Master::Libmodbus { gap: true } => "libmodbus + t3.5 sleep",
-            Master::Libmodbus { gap: false } => "libmodbus back to back",
+    /// Whether it holds the CPU wake-up latency.
+    fn holds(self) -> bool {
+        matches!(
+            self,
+            Master::Rigscript { held: true, .. } | Master::Libmodbus { held: true, .. }
+        )
+    }
+
+    fn name(self) -> String {
+        let (base, gap, held, baseline) = match self {
+            Master::Rigscript {
+                gap,
+                held,
+                baseline,
+            } => ("rigscript", gap, held, baseline),
+            Master::Libmodbus { gap, held } => ("libmodbus", gap, held, false),
+        };
+        let mut name = match (base, gap) {
+            ("libmodbus", true) => "libmodbus + t3.5 sleep".to_string(),
+            ("libmodbus", false) => "libmodbus back to back".to_string(),
+            (_, true) => "rigscript".to_string(),
+            (_, false) => "rigscript, frame_gap 0s".to_string(),
+        };
+        if baseline {
+            name.push_str(", baseline build");
         }
+        if held {
+            name.push_str(", wake latency held");
+        }
+        name
     }
 }
 
@@ -76,7 +114,16 @@ fn build_c_loop() -> PathBuf {
 fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Child {
     let t35 = silence_gap(baud);
     let mut command = match master {
-        Master::Rigscript { gap } => {
+        Master::Rigscript {
+            gap,
+            held,
+            baseline: from_baseline,
+        } => {
+            let binary = if from_baseline {
+                baseline().expect("LINE_BENCH_BASELINE names a build")
+            } else {
+                PathBuf::from(env!("CARGO_BIN_EXE_rigscript"))
+            };
             let config = dir.join(format!("rig-{baud}-{gap}.toml"));
             let frame_gap = if gap { "auto" } else { "0s" };
             std::fs::write(
@@ -89,18 +136,22 @@ fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Ch
             .expect("write rig.toml");
             let script = dir.join("poll.rhai");
             std::fs::write(&script, "io.on_rise(0, || {});\n").expect("write the script");
-            let mut c = Command::new(env!("CARGO_BIN_EXE_rigscript"));
+            let mut c = Command::new(binary);
             c.arg("run")
                 .arg(&script)
                 .arg("--config")
                 .arg(&config)
-                .args(["--period", "1us", "--wake-latency", "off", "--quiet"]);
+                .args(["--period", "1us", "--quiet", "--wake-latency"])
+                .arg(if held { "auto" } else { "off" });
             c
         }
-        Master::Libmodbus { gap } => {
+        Master::Libmodbus { gap, held } => {
             let gap_us = if gap { t35.as_micros() } else { 0 };
             let mut c = Command::new(c_loop);
-            c.arg(port).arg(baud.to_string()).arg(gap_us.to_string());
+            c.arg(port)
+                .arg(baud.to_string())
+                .arg(gap_us.to_string())
+                .arg(if held { "0" } else { "-1" });
             c
         }
     };
@@ -110,6 +161,21 @@ fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Ch
         .stderr(Stdio::piped())
         .spawn()
         .unwrap_or_else(|e| panic!("cannot start {}: {e}", master.name()))
+}
+
+/// Whether this process may hold a CPU wake-up latency, as the `held` rows do: a sandbox
+/// without `/dev/cpu_dma_latency` (or the right to write it) shows the rows without.
+fn can_hold_wake_latency() -> Result<(), String> {
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(rigscript::runtime::wake_latency::PM_QOS_DEVICE)
+        .map(drop)
+        .map_err(|e| format!("{}: {e}", rigscript::runtime::wake_latency::PM_QOS_DEVICE))
+}
+
+/// The rigscript build `LINE_BENCH_BASELINE` names, if any.
+fn baseline() -> Option<PathBuf> {
+    std::env::var_os("LINE_BENCH_BASELINE").map(PathBuf::from)
 }
 
 /// CPU time of every thread of `pid` (user + system), from the scheduler's accounting.
@@ -339,7 +405,13 @@ fn main() {
     // The masters of a setup take turns, round after round, and the table shows medians, so
     // load that comes and goes on the machine falls on all of them alike.
     let (times, rounds) = if full {
-        ((Duration::from_millis(500), Duration::from_secs(3)), 5)
+        (
+            (Duration::from_millis(500), Duration::from_secs(3)),
+            std::env::var("LINE_BENCH_ROUNDS")
+                .ok()
+                .and_then(|r| r.parse().ok())
+                .unwrap_or(5),
+        )
     } else {
         ((Duration::from_millis(300), Duration::from_millis(500)), 1)
     };
@@ -350,16 +422,28 @@ fn main() {
         "| setup | master | polls/s | of 14 chars + t3.5 | silence p2 ms | p50 ms | p99 ms | unanswered | t3.5 ms | CPU µs/poll |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
+    let rig = |gap, held| Master::Rigscript {
+        gap,
+        held,
+        baseline: false,
+    };
+    let c = |gap, held| Master::Libmodbus { gap, held };
+    // Masters holding the wake latency (rigscript's default) go first, then as the C loop
+    // runs by itself; rigscript's own hold is system wide, so theirs are rows of their own.
     let on_a_line = [
-        Master::Rigscript { gap: true },
-        Master::Libmodbus { gap: true },
-        Master::Libmodbus { gap: false },
+        rig(true, true),
+        c(true, true),
+        rig(true, false),
+        c(true, false),
+        c(false, false),
     ];
     let on_the_pty = [
-        Master::Rigscript { gap: true },
-        Master::Libmodbus { gap: true },
-        Master::Rigscript { gap: false },
-        Master::Libmodbus { gap: false },
+        rig(true, true),
+        c(true, true),
+        rig(true, false),
+        c(true, false),
+        rig(false, false),
+        c(false, false),
     ];
     let setups = [
         ("9600 baud line", 9600, true, &on_a_line[..]),
@@ -367,16 +451,36 @@ fn main() {
         ("raw pty", 115_200, false, &on_the_pty[..]),
     ];
     let mut breakdown = Vec::new();
+    let baseline: Vec<Master> = baseline()
+        .map(|_| {
+            [true, false]
+                .map(|held| Master::Rigscript {
+                    gap: true,
+                    held,
+                    baseline: true,
+                })
+                .to_vec()
+        })
+        .unwrap_or_default();
+    let can_hold = can_hold_wake_latency();
+    if let Err(why) = &can_hold {
+        println!("(rows holding the wake latency left out: {why})\n");
+    }
     for (setup, baud, relayed, masters) in setups {
         let masters: Vec<Master> = masters
             .iter()
             .copied()
-            .filter(|&m| wanted(setup, m))
+            .chain(baseline.iter().copied())
+            .filter(|&m| wanted(setup, m) && (can_hold.is_ok() || !m.holds()))
             .collect();
         let mut runs: Vec<Vec<Run>> = masters.iter().map(|_| Vec::new()).collect();
-        for _ in 0..rounds {
-            for (&master, seen) in masters.iter().zip(runs.iter_mut()) {
-                seen.push(measure(master, baud, relayed, times, &c_loop, &dir));
+        for round in 0..rounds {
+            // Each round starts one master further on, so none always runs after the same one.
+            for i in 0..masters.len() {
+                let at = (i + round) % masters.len();
+                if let (Some(&master), Some(seen)) = (masters.get(at), runs.get_mut(at)) {
+                    seen.push(measure(master, baud, relayed, times, &c_loop, &dir));
+                }
             }
         }
         for (&master, seen) in masters.iter().zip(runs) {

@@ -156,9 +156,10 @@ fn send_and_collect(
         trace(Direction::Sent, request);
     }
     link.write_all(request)?;
+    let mut now = clock.now();
     // A USB-serial adapter returns from the write before the bytes are out: they are on the
     // wire until `request_end` at the earliest.
-    let request_end = clock.now().saturating_add(line.wire_time(request.len()));
+    let request_end = now.saturating_add(line.wire_time(request.len()));
     if !expect_answer {
         // No answer will say when the request really ended: allow for its leaving late.
         let latency = line.baud.map_or(Duration::ZERO, |_| ADAPTER_LATENCY);
@@ -170,7 +171,6 @@ fn send_and_collect(
     let mut received = Vec::new();
     let mut chunk = [0u8; 256];
     loop {
-        let now = clock.now();
         let left = deadline.saturating_sub(now);
         if left.is_zero() {
             // The module may still answer: the next request waits until the line has been
@@ -198,11 +198,12 @@ fn send_and_collect(
         let n = link.read(&mut chunk, wait)?;
         // On a wire the answer has ended when its last byte is in: stamped before parsing.
         let read_at = clock.now();
+        now = read_at;
         let Some(bytes) = chunk.get(..n).filter(|b| !b.is_empty()) else {
             if timing.gap.is_some() && !received.is_empty() && wait < left {
                 // The line fell silent after an answer the protocol could not end itself:
                 // hand it over whole, the parser judges it.
-                line.quiet_since = Some(clock.now());
+                line.quiet_since = Some(read_at);
                 trace_received(tracer, &received);
                 return Ok(received);
             }
@@ -241,6 +242,7 @@ fn send_and_collect(
             let rest = expected.saturating_sub(received.len());
             if rest >= 2 {
                 clock.sleep_until(read_at.saturating_add(line.wire_time(rest)).min(deadline));
+                now = clock.now();
             }
         }
     }
@@ -258,6 +260,7 @@ fn keep_silence(
 ) -> Result<(), ExchangeError> {
     let gap = timing.silence_on(line);
     let started = clock.now();
+    let mut now = started;
     let mut heard = 0usize;
     let mut scratch = [0u8; 256];
     loop {
@@ -265,7 +268,6 @@ fn keep_silence(
             return Err(ExchangeError::Cancelled);
         }
         let needed = line.settle.map_or(gap, |settle| settle.max(gap));
-        let now = clock.now();
         let waited = now.saturating_sub(started);
         if heard > 0 && waited > timing.timeout.saturating_add(needed) {
             return Err(ExchangeError::Busy {
@@ -280,18 +282,21 @@ fn keep_silence(
             // system call for the silence and the check for stale input).
             let wait = cancel.slice(quiet_at.saturating_sub(now));
             let n = link.read(&mut scratch, wait)?;
+            let after = clock.now();
             if n > 0 {
                 heard = heard.saturating_add(n);
-                line.quiet_since = Some(clock.now());
+                line.quiet_since = Some(after);
+                now = after;
                 continue;
             }
-            if clock.now() >= quiet_at {
+            if after >= quiet_at {
                 line.settle = None;
                 return Ok(());
             }
             // A slice of the wait ended, or a link that cannot wait (memory without a clock)
             // came back early.
             clock.sleep_until(now.saturating_add(wait));
+            now = clock.now();
             continue;
         }
         // Already late: one look at what came meanwhile; usually nothing, and the request goes.
@@ -302,7 +307,8 @@ fn keep_silence(
             }
             n => {
                 heard = heard.saturating_add(n);
-                line.quiet_since = Some(clock.now());
+                now = clock.now();
+                line.quiet_since = Some(now);
             }
         }
     }

@@ -55,14 +55,17 @@ pub fn read_now(fd: RawFd, buf: &mut [u8]) -> io::Result<Read> {
 }
 
 /// Waits up to `timeout` for bytes, then reads what is there. Costs one `poll` and one `read`
-/// when bytes come; a `timeout` of zero only looks (one `read`).
+/// when bytes come; a `timeout` of zero only looks (one `read`). Only a descriptor that polls
+/// readable and then has nothing (another reader was first) makes it wait again, for
+/// `timeout` from then at most.
 pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<Read> {
     if timeout.is_zero() {
         return read_now(fd, buf);
     }
-    let deadline = Instant::now().checked_add(timeout);
+    // The clock is read only if the wait has to be taken up again: most reads wait once.
+    let mut deadline = None;
+    let mut left = timeout;
     loop {
-        let left = deadline.map_or(timeout, |d| d.saturating_duration_since(Instant::now()));
         match wait(fd, libc::POLLIN, left)? {
             Ready::Yes => {}
             Ready::Hangup => {
@@ -75,7 +78,13 @@ pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<R
         }
         match read_now(fd, buf)? {
             // Readable but nothing to read: another reader took it; wait out the rest.
-            Read::Nothing if !left.is_zero() => continue,
+            Read::Nothing => {
+                let end = *deadline.get_or_insert_with(|| Instant::now() + timeout);
+                left = end.saturating_duration_since(Instant::now());
+                if left.is_zero() {
+                    return Ok(Read::Nothing);
+                }
+            }
             other => return Ok(other),
         }
     }

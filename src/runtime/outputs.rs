@@ -99,13 +99,14 @@ impl<H: Clone> Runtime<H> {
                 }
                 None => Ok(None),
             };
-            let refusal = format!("{}/write", self.device_name(idx));
+            // The key of the repeated-problem log line; built only when there is a line.
+            let refusal = |name: &str| format!("{name}/write");
             match result {
                 Ok(Some(line)) => {
                     self.log.activity(&line);
                     let name = self.device_name(idx);
                     self.log
-                        .settled(&refusal, &format!("{name}: outputs written again"));
+                        .settled(&refusal(&name), &format!("{name}: outputs written again"));
                 }
                 Ok(None) => {}
                 Err(e) if e.is_safe_mode() => self.regain_control(idx),
@@ -113,7 +114,7 @@ impl<H: Clone> Runtime<H> {
                     if !e.is_comm_failure() && !e.is_cancelled() {
                         let name = self.device_name(idx);
                         self.log.repeating(
-                            &refusal,
+                            &refusal(&name),
                             Level::Error,
                             &format!("{name}: writing outputs failed: {e}"),
                         );

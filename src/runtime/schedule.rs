@@ -320,8 +320,18 @@ impl<Tz: TimeZone> Schedule<Tz> {
     }
 
     /// The timers due at this tick, earliest deadline first (ties in creation order), each
-    /// once. Repeating timers are re-armed; spent ones (`Fired::last`) removed.
-    pub fn due(&mut self, now_mono: Duration, now_wall: DateTime<Utc>) -> Vec<Fired> {
+    /// once. Repeating timers are re-armed; spent ones (`Fired::last`) removed. The wall clock
+    /// is read only while cron timers are (or were) armed: most ticks of most scripts have none.
+    pub fn due(
+        &mut self,
+        now_mono: Duration,
+        now_wall: impl FnOnce() -> DateTime<Utc>,
+    ) -> Vec<Fired> {
+        let mono_due = self.by_mono.first().is_some_and(|(at, _)| *at <= now_mono);
+        if !mono_due && self.by_wall.is_empty() && self.latest_search.is_none() {
+            return Vec::new();
+        }
+        let now_wall = now_wall();
         if self.latest_search.is_some_and(|l| now_wall < l) {
             self.search_again_after_step_back(now_wall);
         }
@@ -470,6 +480,9 @@ impl<Tz: TimeZone> Schedule<Tz> {
 /// Takes the entries of `queue` due at or before `now`, earliest first (each is put back by
 /// its timer once re-armed, so a poll fires a timer at most once).
 fn take_due<K: Ord + Copy>(queue: &mut BTreeSet<(K, TimerId)>, now: K) -> Vec<(K, TimerId)> {
+    if queue.first().map_or(true, |(at, _)| *at > now) {
+        return Vec::new();
+    }
     let later = queue.split_off(&(now, TimerId(u64::MAX)));
     std::mem::replace(queue, later).into_iter().collect()
 }
@@ -556,7 +569,7 @@ mod tests {
                 break;
             }
             clock.advance_to(deadline);
-            let fired = s.due(clock.now(), clock.wall());
+            let fired = s.due(clock.now(), || clock.wall());
             assert!(!fired.is_empty(), "a deadline came and nothing fired");
             out.extend(fired.into_iter().map(|f| (clock.wall(), f)));
         }
@@ -581,16 +594,19 @@ mod tests {
         clock.advance(ms(5));
         let id = s.every(ms(20), clock.now()).unwrap();
         assert_eq!(s.next_deadline(clock.now(), clock.wall()), Some(ms(25)));
-        assert!(s.due(ms(24), clock.wall()).is_empty());
+        assert!(s.due(ms(24), || clock.wall()).is_empty());
         assert_eq!(
-            s.due(ms(25), clock.wall()),
+            s.due(ms(25), || clock.wall()),
             vec![Fired {
                 id,
                 missed: 0,
                 last: false
             }]
         );
-        assert!(s.due(ms(25), clock.wall()).is_empty(), "once per deadline");
+        assert!(
+            s.due(ms(25), || clock.wall()).is_empty(),
+            "once per deadline"
+        );
         assert_eq!(s.next_deadline(ms(25), clock.wall()), Some(ms(45)));
         let fired = run(&mut s, &clock, ms(1005));
         assert_eq!(fired.len(), 49, "45, 65, .. 985, 1005");
@@ -605,7 +621,7 @@ mod tests {
         let id = s.every(ms(20), Duration::ZERO).unwrap();
         // Due at 20; the tick comes at 95: deadlines 20, 40, 60, 80 have passed.
         assert_eq!(
-            s.due(ms(95), wall),
+            s.due(ms(95), || wall),
             vec![Fired {
                 id,
                 missed: 3,
@@ -620,7 +636,7 @@ mod tests {
         assert_eq!(s.missed_total(), 3);
         // Exactly on a boundary: that boundary is the one that fires.
         assert_eq!(
-            s.due(ms(140), wall),
+            s.due(ms(140), || wall),
             vec![Fired {
                 id,
                 missed: 2,
@@ -648,7 +664,7 @@ mod tests {
         let id = s.every(Duration::MAX, Duration::ZERO).unwrap();
         assert_eq!(s.next_deadline(Duration::ZERO, wall), Some(Duration::MAX));
         assert_eq!(
-            s.due(Duration::MAX, wall),
+            s.due(Duration::MAX, || wall),
             vec![Fired {
                 id,
                 missed: 0,
@@ -686,7 +702,7 @@ mod tests {
         let wall = utc(2024, 1, 1, 0, 0, 0);
         let id = s.after(Duration::ZERO, ms(7)).unwrap();
         assert_eq!(
-            s.due(ms(7), wall),
+            s.due(ms(7), || wall),
             vec![Fired {
                 id,
                 missed: 0,
@@ -722,7 +738,7 @@ mod tests {
         let early = s.after(ms(10), Duration::ZERO).unwrap();
         let every = s.every(ms(20), Duration::ZERO).unwrap();
         let tie = s.after(ms(20), Duration::ZERO).unwrap();
-        let ids: Vec<TimerId> = s.due(ms(35), wall).into_iter().map(|f| f.id).collect();
+        let ids: Vec<TimerId> = s.due(ms(35), || wall).into_iter().map(|f| f.id).collect();
         assert_eq!(ids, vec![early, every, tie, late]);
     }
 
@@ -770,16 +786,16 @@ mod tests {
         let at = utc(2024, 6, 1, 10, 0, 5);
         let other = s.cron("*/5 * * * * *", at).unwrap();
         assert_eq!(
-            s.due(Duration::ZERO, at),
+            s.due(Duration::ZERO, || at),
             vec![Fired {
                 id,
                 missed: 0,
                 last: false
             }]
         );
-        assert!(s.due(Duration::ZERO, at).is_empty());
+        assert!(s.due(Duration::ZERO, || at).is_empty());
         assert_eq!(
-            s.due(ms(5000), at + chrono::Duration::seconds(5)),
+            s.due(ms(5000), || at + chrono::Duration::seconds(5)),
             vec![
                 Fired {
                     id,
@@ -954,7 +970,7 @@ mod tests {
         // The machine slept from 10:00 to 10:31:30: 10:05 .. 10:30 passed (6 occurrences).
         let woke = utc(2024, 6, 1, 10, 31, 30);
         assert_eq!(
-            s.due(ms(1), woke),
+            s.due(ms(1), || woke),
             vec![Fired {
                 id,
                 missed: 5,
@@ -975,7 +991,7 @@ mod tests {
         let id = s.cron("* * * * * *", t0).unwrap();
         let woke = utc(2024, 6, 2, 0, 0, 0) + chrono::Duration::milliseconds(500);
         assert_eq!(
-            s.due(Duration::ZERO, woke),
+            s.due(Duration::ZERO, || woke),
             vec![Fired {
                 id,
                 missed: MAX_COUNTED_CRON_MISSES,
@@ -991,7 +1007,7 @@ mod tests {
         let mut s = Schedule::with_time_zone(Utc);
         let id = s.cron("0 * * * *", t0).unwrap();
         assert_eq!(
-            s.due(ms(1), utc(2024, 6, 1, 11, 0, 0)),
+            s.due(ms(1), || utc(2024, 6, 1, 11, 0, 0)),
             vec![Fired {
                 id,
                 missed: 0,
@@ -1000,13 +1016,13 @@ mod tests {
         );
         // Stepped back to 09:30: 10:00 comes round again and fires again, not 12:00.
         let back = utc(2024, 6, 1, 9, 30, 0);
-        assert!(s.due(ms(2), back).is_empty());
+        assert!(s.due(ms(2), || back).is_empty());
         assert_eq!(
             s.next_deadline(ms(2), back),
             Some(ms(2) + Duration::from_secs(1800))
         );
         assert_eq!(
-            s.due(ms(3), utc(2024, 6, 1, 10, 0, 0)),
+            s.due(ms(3), || utc(2024, 6, 1, 10, 0, 0)),
             vec![Fired {
                 id,
                 missed: 0,
@@ -1050,7 +1066,7 @@ mod tests {
         // A cancelled timer or a spent `after` makes room.
         assert!(s.cancel(every));
         s.every(ms(10), Duration::ZERO).unwrap();
-        assert_eq!(s.due(ms(10), wall).len(), 2);
+        assert_eq!(s.due(ms(10), || wall).len(), 2);
         s.after(ms(10), ms(10)).unwrap();
         // Clearing forgets the timers, not the limit, and ids go on.
         s.clear();
@@ -1072,7 +1088,7 @@ mod tests {
             s.after(ms(1 + i), Duration::ZERO).unwrap();
         }
         for i in 1..=100_000u64 {
-            let fired = s.due(ms(i), wall);
+            let fired = s.due(ms(i), || wall);
             assert_eq!(fired.len(), 1);
             assert!(fired[0].last);
         }
@@ -1186,7 +1202,7 @@ mod tests {
                     .into_iter()
                     .map(|(_, id, missed, last)| Fired { id, missed, last })
                     .collect();
-                prop_assert_eq!(s.due(ms(now), wall), expected);
+                prop_assert_eq!(s.due(ms(now), || wall), expected);
                 let next = model.iter().map(|m| m.3).filter(|n| *n != u64::MAX).min();
                 prop_assert_eq!(s.next_deadline(ms(now), wall), next.map(ms));
                 prop_assert_eq!(s.len(), model.iter().filter(|m| m.3 != u64::MAX).count());
@@ -1205,7 +1221,7 @@ mod tests {
             let mut fired_plus_missed = 0u64;
             for step in polls {
                 now += ms(step);
-                for f in s.due(now, wall) {
+                for f in s.due(now, || wall) {
                     prop_assert_eq!(f.id, id);
                     fired_plus_missed += 1 + f.missed;
                 }

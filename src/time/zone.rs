@@ -164,7 +164,7 @@ mod tests {
             let next = s.next_deadline(mono, wall).unwrap();
             mono = next;
             let wall = start + chrono::Duration::from_std(mono).unwrap();
-            if !s.due(mono, wall).is_empty() {
+            if !s.due(mono, || wall).is_empty() {
                 fired.push(ams.at(wall).to_rfc3339());
             }
         }
