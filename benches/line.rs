@@ -30,14 +30,18 @@ mod common;
 mod args;
 use args::BenchArgs;
 use common::{counting_module, idle_after, Served};
+use rigscript::device::c29u::{C29u, C29uOptions};
 use rigscript::link::line::wire_time;
 use rigscript::protocol::c29u::Protocol;
 use rigscript::protocol::c29u_modbus::silence_gap;
 use rigscript::sim::relay::LineRelay;
 use rigscript::sim::wire::{Frame, Side};
+use rigscript::time::clock::SystemClock;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 /// Who polls.
@@ -55,6 +59,10 @@ enum Master {
     /// The C loop over libmodbus, sleeping t3.5 before each request or not at all; `held`:
     /// making the same PM QoS request as rigscript does by default.
     Libmodbus { gap: bool, held: bool },
+    /// rigscript's driver without the script runtime (`C29u::read_inputs_raw` in a loop on a
+    /// thread of this process, keeping the gap): what the exchange costs, so that the
+    /// difference to the `rigscript` row is what the scan loop's tick adds.
+    Driver,
 }
 
 impl Master {
@@ -74,6 +82,7 @@ impl Master {
                 baseline,
             } => ("rigscript", gap, held, baseline),
             Master::Libmodbus { gap, held } => ("libmodbus", gap, held, false),
+            Master::Driver => return "rigscript's driver alone (no scan loop)".into(),
         };
         let mut name = match (base, gap) {
             ("libmodbus", true) => "libmodbus + t3.5 sleep".to_string(),
@@ -110,10 +119,100 @@ fn build_c_loop() -> PathBuf {
     binary
 }
 
+/// A master at work: a process, or the driver on a thread of this process.
+enum Poller {
+    Process(Child),
+    Thread {
+        stop: Arc<AtomicBool>,
+        /// Its thread id, for its CPU time (0 until it has started).
+        tid: Arc<AtomicI32>,
+        done: JoinHandle<Result<(), String>>,
+    },
+}
+
+impl Poller {
+    /// User + system time it has used so far, from the scheduler's accounting.
+    fn cpu_time(&self) -> Duration {
+        match self {
+            Poller::Process(child) => {
+                let tasks = std::fs::read_dir(format!("/proc/{}/task", child.id()))
+                    .expect("the master is running");
+                tasks.flatten().map(|t| scheduled(&t.path())).sum()
+            }
+            Poller::Thread { tid, .. } => scheduled(Path::new(&format!(
+                "/proc/self/task/{}",
+                tid.load(Ordering::SeqCst)
+            ))),
+        }
+    }
+
+    /// Stops it (SIGTERM to a process); panics, naming `name`, if it failed.
+    fn stop(self, name: &str) {
+        match self {
+            Poller::Process(child) => {
+                let _ = Command::new("kill")
+                    .arg("-TERM")
+                    .arg(child.id().to_string())
+                    .status();
+                let output = child.wait_with_output().expect("the master ends");
+                // `rigscript run` ends on SIGTERM with 128 + 15, the C loop with 0.
+                assert!(
+                    matches!(output.status.code(), Some(0 | 143)),
+                    "{name} failed: {}",
+                    String::from_utf8_lossy(&output.stderr)
+                );
+            }
+            Poller::Thread { stop, done, .. } => {
+                stop.store(true, Ordering::SeqCst);
+                let outcome = done.join().expect("the driver's thread ends");
+                if let Err(e) = outcome {
+                    panic!("{name} failed: {e}");
+                }
+            }
+        }
+    }
+}
+
+/// CPU time of the task whose /proc directory is `task` (its `schedstat`'s first field).
+fn scheduled(task: &Path) -> Duration {
+    let nanos = std::fs::read_to_string(task.join("schedstat"))
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .unwrap_or(0);
+    Duration::from_nanos(nanos)
+}
+
+/// rigscript's driver polling the inputs on `port` until stopped, on a thread of its own.
+fn start_driver(port: &str, baud: u32) -> Poller {
+    let stop = Arc::new(AtomicBool::new(false));
+    let tid = Arc::new(AtomicI32::new(0));
+    let (port, stopped, own_tid) = (port.to_string(), Arc::clone(&stop), Arc::clone(&tid));
+    let done = std::thread::spawn(move || {
+        // SAFETY: gettid has no arguments and cannot fail.
+        own_tid.store(unsafe { libc::gettid() }, Ordering::SeqCst);
+        let options = C29uOptions {
+            baud,
+            timeout: Duration::from_millis(200),
+            ..C29uOptions::default()
+        };
+        let mut module =
+            C29u::open(&port, SystemClock::shared(), options).map_err(|e| e.to_string())?;
+        while !stopped.load(Ordering::Relaxed) {
+            module.read_inputs_raw().map_err(|e| e.to_string())?;
+        }
+        Ok(())
+    });
+    while tid.load(Ordering::SeqCst) == 0 {
+        std::thread::yield_now();
+    }
+    Poller::Thread { stop, tid, done }
+}
+
 /// Starts `master` polling `port` at `baud`.
-fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Child {
+fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Poller {
     let t35 = silence_gap(baud);
     let mut command = match master {
+        Master::Driver => return start_driver(port, baud),
         Master::Rigscript {
             gap,
             held,
@@ -155,12 +254,13 @@ fn start(master: Master, port: &str, baud: u32, c_loop: &Path, dir: &Path) -> Ch
             c
         }
     };
-    command
+    let child = command
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {}: {e}", master.name()))
+        .unwrap_or_else(|e| panic!("cannot start {}: {e}", master.name()));
+    Poller::Process(child)
 }
 
 /// Whether this process may hold a CPU wake-up latency, as the `held` rows do: a sandbox
@@ -176,17 +276,6 @@ fn can_hold_wake_latency() -> Result<(), String> {
 /// The rigscript build `LINE_BENCH_BASELINE` names, if any.
 fn baseline() -> Option<PathBuf> {
     std::env::var_os("LINE_BENCH_BASELINE").map(PathBuf::from)
-}
-
-/// CPU time of every thread of `pid` (user + system), from the scheduler's accounting.
-fn cpu_time(pid: u32) -> Duration {
-    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).expect("the master is running");
-    let nanos: u64 = tasks
-        .flatten()
-        .filter_map(|t| std::fs::read_to_string(t.path().join("schedstat")).ok())
-        .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
-        .sum();
-    Duration::from_nanos(nanos)
 }
 
 fn percentile(sorted: &[Duration], p: f64) -> Option<Duration> {
@@ -255,25 +344,14 @@ fn measure(
         (None, None) => unreachable!("a line or a pty"),
     };
     let polls = || answered.load(Ordering::Relaxed);
-    let child = start(master, &port, baud, c_loop, dir);
+    let poller = start(master, &port, baud, c_loop, dir);
     std::thread::sleep(warm_up);
-    let (cpu0, polls0, at0) = (cpu_time(child.id()), polls(), Instant::now());
+    let (cpu0, polls0, at0) = (poller.cpu_time(), polls(), Instant::now());
     let mark0 = relay.as_ref().map(LineRelay::now);
     std::thread::sleep(window);
-    let (cpu1, polls1, elapsed) = (cpu_time(child.id()), polls(), at0.elapsed());
+    let (cpu1, polls1, elapsed) = (poller.cpu_time(), polls(), at0.elapsed());
     let mark1 = relay.as_ref().map(LineRelay::now);
-    let _ = Command::new("kill")
-        .arg("-TERM")
-        .arg(child.id().to_string())
-        .status();
-    let output = child.wait_with_output().expect("the master ends");
-    // `rigscript run` ends on SIGTERM with 128 + 15, the C loop with 0.
-    assert!(
-        matches!(output.status.code(), Some(0 | 143)),
-        "{} failed: {}",
-        master.name(),
-        String::from_utf8_lossy(&output.stderr)
-    );
+    poller.stop(&master.name());
     let polls = polls1.saturating_sub(polls0);
     assert!(polls > 0, "{} made no poll in {window:?}", master.name());
     let rate = polls as f64 / elapsed.as_secs_f64();
@@ -434,6 +512,7 @@ fn main() {
         rig(true, true),
         c(true, true),
         rig(true, false),
+        Master::Driver,
         c(true, false),
         c(false, false),
     ];
@@ -441,6 +520,7 @@ fn main() {
         rig(true, true),
         c(true, true),
         rig(true, false),
+        Master::Driver,
         c(true, false),
         rig(false, false),
         c(false, false),

@@ -168,8 +168,9 @@ fn send_and_collect(
     }
     line.quiet_since = Some(request_end);
     let deadline = request_end.saturating_add(timing.timeout);
-    let mut received = Vec::new();
     let mut chunk = [0u8; 256];
+    // Room for a whole answer of the longest kind at once: no regrowth as bytes come.
+    let mut received = Vec::with_capacity(timing.max_answer.min(chunk.len()));
     loop {
         let left = deadline.saturating_sub(now);
         if left.is_zero() {

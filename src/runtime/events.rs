@@ -91,6 +91,14 @@ impl<H: Clone> Runtime<H> {
 
     /// Fires counter handlers whose count reached their threshold in this tick's reading.
     fn counter_calls(&mut self, calls: &mut Vec<Call<H>>) {
+        if !self
+            .handlers
+            .events
+            .iter()
+            .any(|s| matches!(s.source, Source::Counter { .. }))
+        {
+            return;
+        }
         let tick = self.tick;
         let mut lines = Vec::new();
         let fresh: Vec<Option<[u16; 8]>> = self
@@ -252,14 +260,14 @@ fn device_events(idx: usize, device: &Device, tick: u64) -> Vec<(Source, Vec<Arg
             }
         }
         Device::C29u(d) => {
-            if let Some((old, new)) = d.inputs.change_at(tick) {
+            if let Some((old, new)) = d.inputs.change_at(tick).filter(|(o, n)| o != n) {
                 for ch in 0..8u8 {
                     let bit = 1u8 << ch;
-                    let args = vec![Arg::Int(i64::from(ch))];
+                    let args = || vec![Arg::Int(i64::from(ch))];
                     if old & bit == 0 && new & bit != 0 {
-                        events.push((Source::Rise { dev: idx, ch }, args));
+                        events.push((Source::Rise { dev: idx, ch }, args()));
                     } else if old & bit != 0 && new & bit == 0 {
-                        events.push((Source::Fall { dev: idx, ch }, args));
+                        events.push((Source::Fall { dev: idx, ch }, args()));
                     }
                 }
             }

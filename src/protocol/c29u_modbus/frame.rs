@@ -20,8 +20,14 @@ pub fn crc16(bytes: &[u8]) -> u16 {
 pub fn seal(body: &[u8]) -> Vec<u8> {
     let mut frame = Vec::with_capacity(body.len().saturating_add(2));
     frame.extend_from_slice(body);
-    frame.extend_from_slice(&crc16(body).to_le_bytes());
-    frame
+    seal_in_place(frame)
+}
+
+/// `body` with its CRC appended, in the same buffer.
+pub fn seal_in_place(mut body: Vec<u8>) -> Vec<u8> {
+    let crc = crc16(&body);
+    body.extend_from_slice(&crc.to_le_bytes());
+    body
 }
 
 /// The body of `frame` (without its CRC) when it is long enough and its CRC is right.

@@ -4,7 +4,7 @@
 //! command acts on, so `05 02 NN` clears counter NN rather than writing coil 0x02NN.
 
 use super::error::{ExceptionCode, RequestError};
-use super::frame::{open_frame, seal};
+use super::frame::{open_frame, seal_in_place};
 use super::{
     FC_READ_BITS, FC_READ_HOLDING, FC_READ_INPUT, FC_VENDOR, FC_WRITE_COIL, FC_WRITE_COILS,
 };
@@ -366,7 +366,10 @@ impl Request {
 
     /// The frame for slave `id`, CRC included.
     pub fn encode(&self, id: u8) -> Vec<u8> {
-        let mut body = vec![id, self.function()];
+        // Room for the longest request (a vendor write) and its CRC: one allocation, sealed in
+        // place.
+        let mut body = Vec::with_capacity(10);
+        body.extend_from_slice(&[id, self.function()]);
         match *self {
             Self::ReadBits(area) => body.extend_from_slice(&[0x00, area.address(), 0x00, 0x08]),
             Self::ReadCounters { count, .. } => body.extend_from_slice(&[0x00, 0x00, 0x00, count]),
@@ -382,7 +385,7 @@ impl Request {
                 body.extend_from_slice(&v.payload());
             }
         }
-        seal(&body)
+        seal_in_place(body)
     }
 }
 
@@ -492,6 +495,7 @@ pub fn decode_request(frame: &[u8]) -> Result<(u8, Request), RequestError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::protocol::c29u_modbus::frame::seal;
 
     fn refused(frame_body: &[u8]) -> ExceptionCode {
         match decode_request(&seal(frame_body)) {
