@@ -318,7 +318,25 @@ impl Facts<'_> {
             .unwrap_or_default()
     }
 
-    /// The faults that could keep a watchdog from being fed around `t`.
+    /// When the last answer that answer fault `fault`, planned for `start`, acted on was
+    /// given (`None`: it acted on none).
+    fn last_hit(&self, start: u64, fault: Fault) -> Option<Duration> {
+        let (line, planned) = super::harness::answer_fault(fault)?;
+        self.run
+            .hits
+            .get(&self.case.line(line))?
+            .iter()
+            .filter(|h| h.planned == ms(start) && h.fault == planned)
+            .map(|h| h.at)
+            .max()
+    }
+
+    /// The faults that could keep a watchdog from being fed around `t`. An answer fault counts
+    /// from its start to the last answer it took, which can be long after its start: it acts
+    /// on the next exchange that is answered (a Modbus feed gets no answer, so in an idle loop
+    /// that is the output check every 5 s), and each answer it takes from a module already lost
+    /// costs a retry a second. Until the module answers again it is left to its own watchdog
+    /// (DESIGN.md, "The fault search").
     fn explains(&self, t: Duration, watchdog: Duration) -> Option<(u64, Fault)> {
         let slow = self.slowest_exchange();
         let tail = ms(1000) + watchdog + ms(2 * self.case.rig.period_ms) + slow * 4;
@@ -335,8 +353,9 @@ impl Facts<'_> {
                 Fault::Drop { answers, .. } => slow * u32::from(answers),
                 Fault::Garble { .. } | Fault::Panic { .. } => slow,
             };
-            let start = ms(start);
-            start <= t && t <= start + lasts + tail
+            let from = ms(start);
+            let until = self.last_hit(start, f).map_or(from, |hit| hit.max(from));
+            from <= t && t <= until + lasts + tail
         })
     }
 
