@@ -963,3 +963,39 @@ fn overlapping_line_faults_keep_the_line_down_until_the_longest_ends() {
         assert_keeps_promises(&case);
     }
 }
+
+/// Found by a soak (`FAULT_SEARCH_SEED=121064 FAULT_SEARCH_CASES=3000`, case 2076), reported as
+/// `end-not-safe`: a script error ended the run at 0.6 s in a 1.5 s silence, and the end's one
+/// try at the lost module timed out at 1.6 s. The oracle took the end's own "did not reach it"
+/// error for the start of the end, so it thought the line was up all through the end. It was
+/// not: the run says so (status 1, "not reached"), and owes nothing more.
+#[test]
+fn an_end_that_an_error_began_counts_from_that_error() {
+    let case = Case {
+        rig: bare(
+            100,
+            5501,
+            Module {
+                timeout_ms: 500,
+                ..plain(Proto::Modbus, None, 0x00)
+            },
+        ),
+        script: vec![
+            set(0x30),
+            every(
+                100,
+                vec![
+                    Stmt::RecordInputs { dev: 0 },
+                    Stmt::PowerOnValue {
+                        dev: 0,
+                        value: 0xE5,
+                    },
+                ],
+            ),
+        ],
+        faults: vec![(1, Fault::Silence { line: 0, ms: 1500 })],
+    };
+    let run = harness::run(&case);
+    assert_eq!(run.at_end[0].outputs, 0x30, "{}", describe(&case, &run));
+    assert_keeps_promises(&case);
+}

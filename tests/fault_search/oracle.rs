@@ -31,6 +31,10 @@ use std::collections::BTreeSet;
 
 /// The signal the search sends (SIGTERM).
 pub const SIGTERM: i32 = 15;
+
+/// How the end's safe state reports a device it did not reach (`safety::safe_state`): part of
+/// the end, not what began it.
+const END_NOT_REACHED: &str = ": the safe state did not reach it: ";
 use std::fmt;
 use std::time::Duration;
 
@@ -460,15 +464,16 @@ impl Facts<'_> {
     }
 
     /// When the run began to end: its "stopping" line, else its last error (an error end, a
-    /// caught panic), else when it returned.
+    /// caught panic) before the end's own reports, else when it returned.
     fn end_began(&self) -> Duration {
         let End::Ran { log, .. } = &self.run.end else {
             return self.run.ended_at;
         };
+        let ending = |l: &&String| l.contains(" error: ") && !l.contains(END_NOT_REACHED);
         log.iter()
             .rev()
             .find(|l| l.contains(" stopping: "))
-            .or_else(|| log.iter().rev().find(|l| l.contains(" error: ")))
+            .or_else(|| log.iter().rev().find(ending))
             .and_then(|l| log_time(l))
             .unwrap_or(self.run.ended_at)
     }
