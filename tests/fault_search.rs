@@ -999,3 +999,38 @@ fn an_end_that_an_error_began_counts_from_that_error() {
     assert_eq!(run.at_end[0].outputs, 0x30, "{}", describe(&case, &run));
     assert_keeps_promises(&case);
 }
+
+/// Found by soaks (`FAULT_SEARCH_CASES=3000`, seed 147441 case 1300, seed 26081 case 2224),
+/// reported as `wrong-input`: a garbled byte of an ASCII answer (no checksum) turned one hex
+/// digit of the DI byte into another (0x01 read as 0x02, 0x00 as 0x20). Nothing on the line
+/// can tell such an answer from a good one (rig.toml's `checksum = true` would), so the oracle
+/// does not hold a reading from an answer a garble took against the runner over ASCII.
+#[test]
+fn an_ascii_answer_garbled_into_another_well_formed_one_is_not_held_against_the_runner() {
+    let case = |garble_at: u64, at: u8, xor: u8, input: Option<u8>, run_for_ms: u64| Case {
+        rig: bare(100, run_for_ms, plain(Proto::Ascii, None, 0x00)),
+        script: vec![every(100, vec![Stmt::RecordInputs { dev: 0 }])],
+        faults: input
+            .map(|value| (0, Fault::Input { dev: 0, value }))
+            .into_iter()
+            .chain([(garble_at, Fault::Garble { line: 0, at, xor })])
+            .collect(),
+    };
+    for (case, wrong) in [
+        (case(12_701, 110, 33, Some(1), 19_201), 0x02),
+        (case(1, 237, 2, None, 4101), 0x20),
+    ] {
+        let run = harness::run(&case);
+        let harness::End::Ran { records, .. } = &run.end else {
+            panic!("{}", describe(&case, &run));
+        };
+        assert!(
+            records
+                .iter()
+                .any(|r| r.get("value").and_then(serde_json::Value::as_i64) == Some(wrong)),
+            "the garbled answer is read as {wrong:#04x}: {}",
+            describe(&case, &run)
+        );
+        assert_keeps_promises(&case);
+    }
+}

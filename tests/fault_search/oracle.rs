@@ -20,13 +20,13 @@
 //! - nothing is written to a module's EEPROM that it holds already, unless an answer on its
 //!   line was lost (`eeprom-rewrite`).
 
-use super::case::{Case, Fault, Stmt};
+use super::case::{Case, Fault, Proto, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
 use super::render;
 use rigscript::runtime::exit;
 use rigscript::sim::c29u::{OutputCause, OutputChange};
 use rigscript::sim::c29u_line::lock;
-use rigscript::sim::faults::Connection;
+use rigscript::sim::faults::{Connection, LinkFault};
 use std::collections::BTreeSet;
 
 /// The signal the search sends (SIGTERM).
@@ -745,8 +745,29 @@ impl Facts<'_> {
         }
     }
 
+    /// Whether a reading of module `i` recorded at `t` may have come from an answer a `Garble`
+    /// took, on a protocol that cannot tell: ASCII without checksums (the search's modules have
+    /// none) reads a hex digit flipped into another hex digit as a well-formed value. Such an
+    /// answer was given in the tick that recorded the reading, at most a tick's exchanges before.
+    fn garbled_unchecked(&self, i: usize, t: Duration) -> bool {
+        let m = &self.run.modules[i];
+        let ascii = m
+            .entries
+            .iter()
+            .any(|e| self.case.rig.modules[*e].protocol == Proto::Ascii);
+        let tick = ms(self.case.rig.period_ms) + self.slowest_exchange() * 4;
+        ascii
+            && self.run.hits.get(&m.line).is_some_and(|hits| {
+                hits.iter().any(|h| {
+                    matches!(h.fault, LinkFault::Garble { .. }) && h.at <= t && h.at + tick >= t
+                })
+            })
+    }
+
     /// What the script recorded of the inputs must be what the field put on them by then, and
-    /// no counter may show more edges than the field made on its channel.
+    /// no counter may show more edges than the field made on its channel; a reading from an
+    /// answer garbled into another well-formed one is not held against the runner where the
+    /// protocol has no check to catch it.
     fn inputs(&mut self) {
         let End::Ran { records, .. } = &self.run.end else {
             return;
@@ -777,6 +798,9 @@ impl Facts<'_> {
                 continue;
             };
             let t = (t.to_utc() - origin).to_std().unwrap_or_default() + ms(1);
+            if self.garbled_unchecked(i, t) {
+                continue;
+            }
             let field: Vec<u8> = self.run.modules[i]
                 .inputs
                 .iter()
