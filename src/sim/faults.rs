@@ -12,8 +12,12 @@
 //!   request at a time.
 //! - `Disconnect` makes every write and read fail as an unplugged USB-serial adapter does;
 //!   `Silence` keeps the link but the device hears and says nothing (a cut RS-485 pair, a
-//!   module without power); `Reconnect` ends either. Powering the module off and on again is
-//!   the model's business (`C29u::power_cycle`), not the link's.
+//!   module without power); each lasts the time it is given. Overlapping ones nest: the line
+//!   is back only when every one holding it down has ended, and while a `Disconnect` holds it
+//!   the calls fail whatever else does. Powering the module off and on again is the model's
+//!   business (`C29u::power_cycle`), not the link's.
+//! - The plan records each answer an answer fault acted on, and when (`FaultPlan::hits`): a
+//!   fault armed at one time can act much later, at the next exchange that is answered.
 //! - `Stall` blocks the next link call for a while (flow control, a hung driver): virtual time
 //!   passes inside the call.
 //! - `Panic` makes the next link call panic: a bug anywhere under the runner, to test that a
@@ -53,12 +57,10 @@ pub enum LinkFault {
     },
     /// The next answer arrives this much later than the device gave it.
     Late(Duration),
-    /// Writes and reads fail as on an unplugged adapter, until `Reconnect`.
-    Disconnect,
-    /// The device hears and says nothing, until `Reconnect`.
-    Silence,
-    /// Ends `Disconnect` or `Silence`.
-    Reconnect,
+    /// Writes and reads fail as on an unplugged adapter, for this long.
+    Disconnect(Duration),
+    /// The device hears and says nothing, for this long.
+    Silence(Duration),
     /// The next link call takes this much longer.
     Stall(Duration),
     /// The next link call panics.
@@ -71,9 +73,8 @@ impl fmt::Display for LinkFault {
             LinkFault::Drop { answers } => write!(f, "drop {answers} answer(s)"),
             LinkFault::Garble { at, xor } => write!(f, "garble byte {at} (xor {xor:#04x})"),
             LinkFault::Late(d) => write!(f, "next answer {d:?} late"),
-            LinkFault::Disconnect => f.write_str("disconnect"),
-            LinkFault::Silence => f.write_str("silence"),
-            LinkFault::Reconnect => f.write_str("reconnect"),
+            LinkFault::Disconnect(d) => write!(f, "disconnect for {d:?}"),
+            LinkFault::Silence(d) => write!(f, "silence for {d:?}"),
             LinkFault::Stall(d) => write!(f, "stall the next call {d:?}"),
             LinkFault::Panic => f.write_str("panic in the next call"),
         }
@@ -92,12 +93,24 @@ pub enum Connection {
     Silent,
 }
 
-/// Faults that have come due and wait for the answer or the call they act on.
+/// An answer fault's act: the answer it dropped, garbled or delayed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FaultHit {
+    /// When the fault was planned for.
+    pub planned: Duration,
+    /// The fault.
+    pub fault: LinkFault,
+    /// When the answer it acted on was given.
+    pub at: Duration,
+}
+
+/// Faults that have come due and wait for the answer or the call they act on; each answer
+/// fault with its index in `PlanState::applied`, taken in the order they came due.
 #[derive(Debug, Default)]
 struct Armed {
-    drop: u32,
-    garble: VecDeque<(u8, u8)>,
-    late: VecDeque<Duration>,
+    drop: VecDeque<(usize, u32)>,
+    garble: VecDeque<(usize, u8, u8)>,
+    late: VecDeque<(usize, Duration)>,
     stall: Duration,
     panic: bool,
 }
@@ -107,11 +120,14 @@ struct PlanState {
     /// Faults not yet due, by time (stable for equal times).
     schedule: VecDeque<(Duration, LinkFault)>,
     armed: Armed,
-    state: Connection,
+    /// The `Disconnect`s and `Silence`s that came due, each with the time it ends.
+    holds: Vec<(Duration, Connection)>,
     /// The host is gone (killed): nothing it sends arrives, whatever else is planned.
     cut: bool,
     /// Faults that came due, with their times.
     applied: Vec<(Duration, LinkFault)>,
+    /// The answers the answer faults acted on: when, and the fault's index in `applied`.
+    hits: Vec<(Duration, usize)>,
 }
 
 /// The faults of one line on the virtual clock, shared between the `FaultyLink` that suffers
@@ -154,14 +170,31 @@ impl FaultPlan {
     pub fn applied(&self) -> Vec<(Duration, LinkFault)> {
         self.lock().applied.clone()
     }
+
+    /// Every answer the answer faults (`Drop`, `Garble`, `Late`) have acted on so far, in
+    /// order.
+    pub fn hits(&self) -> Vec<FaultHit> {
+        let p = self.lock();
+        p.hits
+            .iter()
+            .filter_map(|&(at, i)| {
+                let &(planned, fault) = p.applied.get(i)?;
+                Some(FaultHit { planned, fault, at })
+            })
+            .collect()
+    }
 }
 
 impl PlanState {
-    /// The state the host sees.
+    /// The state the host sees: a disconnect held wins over a silence held.
     fn current(&self) -> Connection {
-        match self.state {
-            Connection::Up if self.cut => Connection::Silent,
-            s => s,
+        let held = |c| self.holds.iter().any(|&(_, h)| h == c);
+        if held(Connection::Disconnected) {
+            Connection::Disconnected
+        } else if self.cut || held(Connection::Silent) {
+            Connection::Silent
+        } else {
+            Connection::Up
         }
     }
 
@@ -170,19 +203,27 @@ impl PlanState {
             let Some((at, fault)) = self.schedule.pop_front() else {
                 break;
             };
+            let i = self.applied.len();
             let a = &mut self.armed;
             match fault {
-                LinkFault::Drop { answers } => a.drop = a.drop.saturating_add(answers.into()),
-                LinkFault::Garble { at, xor } => a.garble.push_back((at, xor)),
-                LinkFault::Late(d) => a.late.push_back(d),
-                LinkFault::Disconnect => self.state = Connection::Disconnected,
-                LinkFault::Silence => self.state = Connection::Silent,
-                LinkFault::Reconnect => self.state = Connection::Up,
+                LinkFault::Drop { answers } if answers > 0 => {
+                    a.drop.push_back((i, answers.into()));
+                }
+                LinkFault::Drop { .. } => {}
+                LinkFault::Garble { at, xor } => a.garble.push_back((i, at, xor)),
+                LinkFault::Late(d) => a.late.push_back((i, d)),
+                LinkFault::Disconnect(d) => self
+                    .holds
+                    .push((at.saturating_add(d), Connection::Disconnected)),
+                LinkFault::Silence(d) => {
+                    self.holds.push((at.saturating_add(d), Connection::Silent));
+                }
                 LinkFault::Stall(d) => a.stall = a.stall.saturating_add(d),
                 LinkFault::Panic => a.panic = true,
             }
             self.applied.push((at, fault));
         }
+        self.holds.retain(|&(end, _)| end > now);
     }
 }
 
@@ -262,18 +303,25 @@ impl<D: ByteDevice> FaultyLink<D> {
         let mut arrives = now;
         {
             let mut p = self.plan.lock();
+            let p = &mut *p;
             let a = &mut p.armed;
-            if a.drop > 0 {
-                a.drop -= 1;
+            if let Some((i, left)) = a.drop.front_mut() {
+                p.hits.push((now, *i));
+                *left -= 1;
+                if *left == 0 {
+                    a.drop.pop_front();
+                }
                 return;
             }
-            if let Some((at, xor)) = a.garble.pop_front() {
+            if let Some((i, at, xor)) = a.garble.pop_front() {
+                p.hits.push((now, i));
                 let i = usize::from(at) % answer.len();
                 if let Some(b) = answer.get_mut(i) {
                     *b ^= if xor == 0 { 1 } else { xor };
                 }
             }
-            if let Some(d) = a.late.pop_front() {
+            if let Some((i, d)) = a.late.pop_front() {
+                p.hits.push((now, i));
                 arrives = now.saturating_add(d);
             }
         }
@@ -582,11 +630,10 @@ mod tests {
     }
 
     #[test]
-    fn disconnect_fails_calls_silence_deafens_and_reconnect_ends_both() {
+    fn disconnect_fails_calls_and_silence_deafens_for_their_time() {
         let (mut link, plan, clock, heard) = rig();
-        plan.add(MS(10), LinkFault::Disconnect);
-        plan.add(MS(20), LinkFault::Silence);
-        plan.add(MS(30), LinkFault::Reconnect);
+        plan.add(MS(10), LinkFault::Disconnect(MS(10)));
+        plan.add(MS(20), LinkFault::Silence(MS(10)));
         clock.advance(MS(10));
         assert!(matches!(
             link.write_all(b"a"),
@@ -604,13 +651,66 @@ mod tests {
         );
         assert_eq!(plan.state_at(clock.now()), Connection::Up);
         assert_eq!(ask(&mut link, &clock, b"c").as_deref(), Some(&b"c!"[..]));
-        // A killed host: nothing gets through, and a planned reconnect does not change that.
+        // A killed host: nothing gets through, and the end of a planned fault does not
+        // change that.
         plan.cut_off();
-        plan.add(MS(40), LinkFault::Reconnect);
+        plan.add(clock.now(), LinkFault::Silence(MS(10)));
         clock.advance(MS(20));
         assert_eq!(ask(&mut link, &clock, b"d"), None);
         assert_eq!(plan.state_at(clock.now()), Connection::Silent);
         assert_eq!(heard.load(Ordering::SeqCst), 1);
+    }
+
+    #[test]
+    fn overlapping_line_faults_nest_and_the_line_is_back_when_the_last_one_ends() {
+        let (_link, plan, _clock, _) = rig();
+        // An 8 s silence and a 1.5 s one from the same moment (the fault search, seed 777
+        // case 1079): the shorter one's end must not bring the line back.
+        plan.add(MS(1), LinkFault::Silence(MS(8000)));
+        plan.add(MS(1), LinkFault::Silence(MS(1500)));
+        assert_eq!(plan.state_at(MS(1)), Connection::Silent);
+        assert_eq!(plan.state_at(MS(1501)), Connection::Silent);
+        assert_eq!(plan.state_at(MS(8000)), Connection::Silent);
+        assert_eq!(plan.state_at(MS(8001)), Connection::Up);
+        // An unplug with a shorter silence inside it (seed 31337 case 968): unplugged
+        // throughout; and a silence that outlasts an unplug keeps the line silent after it.
+        let (_link, plan, _clock, _) = rig();
+        plan.add(MS(0), LinkFault::Disconnect(MS(8000)));
+        plan.add(MS(0), LinkFault::Silence(MS(1500)));
+        plan.add(MS(7000), LinkFault::Silence(MS(2000)));
+        assert_eq!(plan.state_at(MS(0)), Connection::Disconnected);
+        assert_eq!(plan.state_at(MS(1500)), Connection::Disconnected);
+        assert_eq!(plan.state_at(MS(7500)), Connection::Disconnected);
+        assert_eq!(plan.state_at(MS(8000)), Connection::Silent);
+        assert_eq!(plan.state_at(MS(9000)), Connection::Up);
+    }
+
+    #[test]
+    fn the_plan_records_when_each_answer_fault_acted() {
+        let (mut link, plan, clock, _) = rig();
+        plan.add(MS(0), LinkFault::Drop { answers: 2 });
+        plan.add(MS(0), LinkFault::Late(MS(50)));
+        plan.add(MS(0), LinkFault::Drop { answers: 1 });
+        assert!(plan.hits().is_empty(), "armed, but no answer yet");
+        clock.advance(MS(1000));
+        // Faults armed at 0 act on the answers given from 1 s on, in the order they came due.
+        for _ in 0..4 {
+            ask(&mut link, &clock, b"a");
+        }
+        let hits: Vec<(Duration, LinkFault, Duration)> = plan
+            .hits()
+            .iter()
+            .map(|h| (h.planned, h.fault, h.at))
+            .collect();
+        assert_eq!(
+            hits,
+            [
+                (MS(0), LinkFault::Drop { answers: 2 }, MS(1000)),
+                (MS(0), LinkFault::Drop { answers: 2 }, MS(1400)),
+                (MS(0), LinkFault::Drop { answers: 1 }, MS(1800)),
+                (MS(0), LinkFault::Late(MS(50)), MS(2200)),
+            ]
+        );
     }
 
     #[test]

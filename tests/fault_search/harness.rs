@@ -15,7 +15,7 @@ use rigscript::script::rig::{start_with, RigError, RigSetup};
 use rigscript::sim::answer_faults::AnswerFaults;
 use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig, Protocol, WatchdogStatus};
 use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use rigscript::sim::faults::{Connection, EventClock, FaultPlan, FaultyLink, LinkFault};
+use rigscript::sim::faults::{Connection, EventClock, FaultHit, FaultPlan, FaultyLink, LinkFault};
 use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
 use rigscript::time::zone::Zone;
 use std::collections::BTreeMap;
@@ -139,6 +139,8 @@ pub struct Run {
     pub modules: Vec<ModuleView>,
     /// Each line's state at the end of the run.
     pub lines_at_end: BTreeMap<u8, Connection>,
+    /// The answers each line's answer faults acted on, and when.
+    pub hits: BTreeMap<u8, Vec<FaultHit>>,
     /// Each module at the end of the run.
     pub at_end: Vec<ModuleState>,
     /// Each module after `AFTER_END_WAIT` on its own.
@@ -350,6 +352,10 @@ pub fn run(case: &Case) -> Run {
         .iter()
         .map(|(line, plan)| (*line, plan.state_at(ended_at)))
         .collect();
+    let hits = plans
+        .iter()
+        .map(|(line, plan)| (*line, plan.hits()))
+        .collect();
     // Left alone: unplugged adapters go back in (their modules boot), and time passes.
     for (line, state) in &lines_at_end {
         if *state == Connection::Disconnected {
@@ -375,6 +381,7 @@ pub fn run(case: &Case) -> Run {
         panics,
         modules,
         lines_at_end,
+        hits,
         at_end,
         after_wait,
         bound,
@@ -393,6 +400,7 @@ fn refused(message: String) -> Run {
         panics: Vec::new(),
         modules: Vec::new(),
         lines_at_end: BTreeMap::new(),
+        hits: BTreeMap::new(),
         at_end: Vec::new(),
         after_wait: Vec::new(),
         bound: Duration::ZERO,
@@ -413,6 +421,17 @@ fn states(modules: &[ModuleView]) -> Vec<ModuleState> {
             }
         })
         .collect()
+}
+
+/// The plan's fault for one of the case's answer faults, with the line (as the case numbers
+/// it) whose answers it acts on.
+pub fn answer_fault(fault: Fault) -> Option<(u8, LinkFault)> {
+    match fault {
+        Fault::Drop { line, answers } => Some((line, LinkFault::Drop { answers })),
+        Fault::Garble { line, at, xor } => Some((line, LinkFault::Garble { at, xor })),
+        Fault::Late { line, ms: d } => Some((line, LinkFault::Late(ms(d)))),
+        _ => None,
+    }
 }
 
 /// Puts the case's faults on the plans and the clock.
@@ -461,18 +480,15 @@ fn schedule(
                     flag.store(SIGTERM, Ordering::SeqCst);
                 });
             }
-            Fault::Drop { line, answers } => plan(line).add(t, LinkFault::Drop { answers }),
-            Fault::Garble { line, at, xor } => plan(line).add(t, LinkFault::Garble { at, xor }),
-            Fault::Late { line, ms: d } => plan(line).add(t, LinkFault::Late(ms(d))),
-            Fault::LinkStall { line, ms: d } => plan(line).add(t, LinkFault::Stall(ms(d))),
-            Fault::Silence { line, ms: d } => {
-                let p = plan(line);
-                p.add(t, LinkFault::Silence);
-                p.add(t + ms(d), LinkFault::Reconnect);
+            Fault::Drop { .. } | Fault::Garble { .. } | Fault::Late { .. } => {
+                if let Some((line, f)) = answer_fault(fault) {
+                    plan(line).add(t, f);
+                }
             }
+            Fault::LinkStall { line, ms: d } => plan(line).add(t, LinkFault::Stall(ms(d))),
+            Fault::Silence { line, ms: d } => plan(line).add(t, LinkFault::Silence(ms(d))),
             Fault::Unplug { line, ms: d } => {
-                let p = plan(line);
-                p.add(t, LinkFault::Disconnect);
+                plan(line).add(t, LinkFault::Disconnect(ms(d)));
                 let on_line: Vec<SharedModel> = modules
                     .iter()
                     .filter(|m| m.line == case.line(line))
@@ -484,7 +500,6 @@ fn schedule(
                         lock(m).power_cycle();
                     }
                 });
-                p.add(t + ms(d), LinkFault::Reconnect);
             }
             Fault::ModuleReset { dev } => {
                 if let Some(i) = module_of(modules, dev) {

@@ -20,17 +20,21 @@
 //! - nothing is written to a module's EEPROM that it holds already, unless an answer on its
 //!   line was lost (`eeprom-rewrite`).
 
-use super::case::{Case, Fault, Stmt};
+use super::case::{Case, Fault, Proto, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
 use super::render;
 use rigscript::runtime::exit;
 use rigscript::sim::c29u::{OutputCause, OutputChange};
 use rigscript::sim::c29u_line::lock;
-use rigscript::sim::faults::Connection;
+use rigscript::sim::faults::{Connection, LinkFault};
 use std::collections::BTreeSet;
 
 /// The signal the search sends (SIGTERM).
 pub const SIGTERM: i32 = 15;
+
+/// How the end's safe state reports a device it did not reach (`safety::safe_state`): part of
+/// the end, not what began it.
+const END_NOT_REACHED: &str = ": the safe state did not reach it: ";
 use std::fmt;
 use std::time::Duration;
 
@@ -318,7 +322,25 @@ impl Facts<'_> {
             .unwrap_or_default()
     }
 
-    /// The faults that could keep a watchdog from being fed around `t`.
+    /// When the last answer that answer fault `fault`, planned for `start`, acted on was
+    /// given (`None`: it acted on none).
+    fn last_hit(&self, start: u64, fault: Fault) -> Option<Duration> {
+        let (line, planned) = super::harness::answer_fault(fault)?;
+        self.run
+            .hits
+            .get(&self.case.line(line))?
+            .iter()
+            .filter(|h| h.planned == ms(start) && h.fault == planned)
+            .map(|h| h.at)
+            .max()
+    }
+
+    /// The faults that could keep a watchdog from being fed around `t`. An answer fault counts
+    /// from its start to the last answer it took, which can be long after its start: it acts
+    /// on the next exchange that is answered (a Modbus feed gets no answer, so in an idle loop
+    /// that is the output check every 5 s), and each answer it takes from a module already lost
+    /// costs a retry a second. Until the module answers again it is left to its own watchdog
+    /// (DESIGN.md, "The fault search").
     fn explains(&self, t: Duration, watchdog: Duration) -> Option<(u64, Fault)> {
         let slow = self.slowest_exchange();
         let tail = ms(1000) + watchdog + ms(2 * self.case.rig.period_ms) + slow * 4;
@@ -335,8 +357,9 @@ impl Facts<'_> {
                 Fault::Drop { answers, .. } => slow * u32::from(answers),
                 Fault::Garble { .. } | Fault::Panic { .. } => slow,
             };
-            let start = ms(start);
-            start <= t && t <= start + lasts + tail
+            let from = ms(start);
+            let until = self.last_hit(start, f).map_or(from, |hit| hit.max(from));
+            from <= t && t <= until + lasts + tail
         })
     }
 
@@ -441,15 +464,16 @@ impl Facts<'_> {
     }
 
     /// When the run began to end: its "stopping" line, else its last error (an error end, a
-    /// caught panic), else when it returned.
+    /// caught panic) before the end's own reports, else when it returned.
     fn end_began(&self) -> Duration {
         let End::Ran { log, .. } = &self.run.end else {
             return self.run.ended_at;
         };
+        let ending = |l: &&String| l.contains(" error: ") && !l.contains(END_NOT_REACHED);
         log.iter()
             .rev()
             .find(|l| l.contains(" stopping: "))
-            .or_else(|| log.iter().rev().find(|l| l.contains(" error: ")))
+            .or_else(|| log.iter().rev().find(ending))
             .and_then(|l| log_time(l))
             .unwrap_or(self.run.ended_at)
     }
@@ -721,8 +745,29 @@ impl Facts<'_> {
         }
     }
 
+    /// Whether a reading of module `i` recorded at `t` may have come from an answer a `Garble`
+    /// took, on a protocol that cannot tell: ASCII without checksums (the search's modules have
+    /// none) reads a hex digit flipped into another hex digit as a well-formed value. Such an
+    /// answer was given in the tick that recorded the reading, at most a tick's exchanges before.
+    fn garbled_unchecked(&self, i: usize, t: Duration) -> bool {
+        let m = &self.run.modules[i];
+        let ascii = m
+            .entries
+            .iter()
+            .any(|e| self.case.rig.modules[*e].protocol == Proto::Ascii);
+        let tick = ms(self.case.rig.period_ms) + self.slowest_exchange() * 4;
+        ascii
+            && self.run.hits.get(&m.line).is_some_and(|hits| {
+                hits.iter().any(|h| {
+                    matches!(h.fault, LinkFault::Garble { .. }) && h.at <= t && h.at + tick >= t
+                })
+            })
+    }
+
     /// What the script recorded of the inputs must be what the field put on them by then, and
-    /// no counter may show more edges than the field made on its channel.
+    /// no counter may show more edges than the field made on its channel; a reading from an
+    /// answer garbled into another well-formed one is not held against the runner where the
+    /// protocol has no check to catch it.
     fn inputs(&mut self) {
         let End::Ran { records, .. } = &self.run.end else {
             return;
@@ -753,6 +798,9 @@ impl Facts<'_> {
                 continue;
             };
             let t = (t.to_utc() - origin).to_std().unwrap_or_default() + ms(1);
+            if self.garbled_unchecked(i, t) {
+                continue;
+            }
             let field: Vec<u8> = self.run.modules[i]
                 .inputs
                 .iter()
