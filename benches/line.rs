@@ -1,5 +1,6 @@
 //! Polling a TRP-C29U's inputs (FC01) as fast as the line allows: rigscript (`run` with
-//! `--period 1us` and one `io.on_rise` handler) against a C loop over libmodbus's
+//! `--period 1us` and one `io.on_rise` handler), rigscript's driver alone (a loop on a thread of
+//! this process: what the exchange costs without the scan loop) and a C loop over libmodbus's
 //! `modbus_read_bits`, with and without t3.5 of silence before each request, all against the
 //! same simulator (served in this process on a pty) in the same run.
 //!
