@@ -15,8 +15,8 @@
 //!   `unbounded-work`), its exit status
 //!   matches why it ended (`exit-status`), and what the script reads of the inputs is what
 //!   the field put on them (`wrong-input`; not where ASCII cannot tell: an answer garbled into
-//!   another well-formed one, or one later than twice the timeout); a clean status after a failure is
-//!   `exit-hides-failure` (the statuses are `runtime::exit`'s);
+//!   another well-formed one, or one later than twice the timeout); a clean status after a
+//!   failure is `exit-hides-failure` (the statuses are `runtime::exit`'s);
 //! - a script error says where in the script it happened (`error-without-location`);
 //! - nothing is written to a module's EEPROM that it holds already, unless an answer on its
 //!   line was lost (`eeprom-rewrite`).
