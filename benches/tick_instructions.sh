@@ -1,0 +1,35 @@
+#!/bin/sh
+# Instructions a scan tick runs (callgrind's count, exact and free of a virtual machine's noise)
+# when `rigscript run` polls a simulated TRP-C29U's inputs as fast as the line allows (Modbus
+# RTU at 115200 baud on a pty, frame gap kept, one `io.on_rise` handler that never fires): the
+# steady-state cost of a tick, exchange included, system calls excluded. Start-up is measured by
+# a run of one tick and taken off.
+#
+# Run from the crate root: sh benches/tick_instructions.sh [BINARY]
+# (default target/release/rigscript; give another build to compare). Needs valgrind
+# (apt-get install valgrind).
+set -eu
+binary=${1:-target/release/rigscript}
+if ! command -v valgrind >/dev/null; then
+    echo "tick_instructions.sh: needs valgrind (apt-get install valgrind)" >&2
+    exit 2
+fi
+[ "$binary" != target/release/rigscript ] || cargo build --release --quiet
+dir=$(mktemp -d)
+trap 'kill "$sim" 2>/dev/null; rm -rf "$dir"' EXIT
+target/release/rigscript sim c29u --baud 115200 --link "$dir/pty" >/dev/null 2>&1 &
+sim=$!
+for _ in 1 2 3 4 5 6 7 8 9 10; do [ -e "$dir/pty" ] && break; sleep 0.2; done
+printf '[devices.io]\nkind = "trp-c29u"\nport = "%s"\nbaud = 115200\n' "$dir/pty" >"$dir/rig.toml"
+echo 'io.on_rise(0, || {});' >"$dir/poll.rhai"
+# Prints "TICKS INSTRUCTIONS" for a run of DURATION.
+count() {
+    valgrind --tool=callgrind --callgrind-out-file=/dev/null "$binary" run "$dir/poll.rhai" \
+        --config "$dir/rig.toml" --period 1us --wake-latency off --quiet --stats --for "$1" 2>&1 |
+        awk '/^ticks:/ { t = $2 } /Collected :/ { gsub(",", "", $NF); i = $NF } END { print t, i }'
+}
+set -- $(count 10ms) $(count 4s)
+awk -v t0="$1" -v i0="$2" -v t1="$3" -v i1="$4" 'BEGIN {
+    printf "%d ticks, %.0f instructions a tick (start-up of %.1f M taken off)\n",
+        t1 - t0, (i1 - i0) / (t1 - t0), i0 / 1e6
+}'
