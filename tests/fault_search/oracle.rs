@@ -14,8 +14,9 @@
 //! - the run ends in time, within bounded memory and work (`hang`, `memory`,
 //!   `unbounded-work`), its exit status
 //!   matches why it ended (`exit-status`), and what the script reads of the inputs is what
-//!   the field put on them (`wrong-input`); a clean status after a failure is
-//!   `exit-hides-failure` (the statuses are `runtime::exit`'s);
+//!   the field put on them (`wrong-input`; not where ASCII cannot tell: an answer garbled into
+//!   another well-formed one, or one later than twice the timeout); a clean status after a
+//!   failure is `exit-hides-failure` (the statuses are `runtime::exit`'s);
 //! - a script error says where in the script it happened (`error-without-location`);
 //! - nothing is written to a module's EEPROM that it holds already, unless an answer on its
 //!   line was lost (`eeprom-rewrite`).
@@ -764,10 +765,40 @@ impl Facts<'_> {
             })
     }
 
+    /// Whether a reading of module `i` recorded at `t` may have come from an answer that a
+    /// `Late` made later than the module's timeout and the settling silence after it (one
+    /// timeout) together, over ASCII: such an answer gets past the settle and lands in a later
+    /// exchange, and an ASCII counter or latch answer does not say which channel it is for, so
+    /// nothing on the line can tell it from that exchange's own (README "Line timing"). It
+    /// arrives at the hit plus its delay, and is read in the tick that recorded the reading.
+    fn answered_too_late(&self, i: usize, t: Duration) -> bool {
+        let m = &self.run.modules[i];
+        let Some(timeout) = m
+            .entries
+            .iter()
+            .map(|e| &self.case.rig.modules[*e])
+            .filter(|e| e.protocol == Proto::Ascii)
+            .map(|e| ms(e.timeout_ms))
+            .min()
+        else {
+            return false;
+        };
+        let tick = ms(self.case.rig.period_ms) + self.slowest_exchange() * 4;
+        self.run.hits.get(&m.line).is_some_and(|hits| {
+            hits.iter().any(|h| match h.fault {
+                LinkFault::Late(d) if d > timeout * 2 => {
+                    let arrives = h.at + d;
+                    arrives <= t && t <= arrives + tick
+                }
+                _ => false,
+            })
+        })
+    }
+
     /// What the script recorded of the inputs must be what the field put on them by then, and
     /// no counter may show more edges than the field made on its channel; a reading from an
-    /// answer garbled into another well-formed one is not held against the runner where the
-    /// protocol has no check to catch it.
+    /// answer garbled into another well-formed one, or from one later than the timeout and the
+    /// settle together, is not held against the runner where the protocol cannot tell.
     fn inputs(&mut self) {
         let End::Ran { records, .. } = &self.run.end else {
             return;
@@ -798,7 +829,7 @@ impl Facts<'_> {
                 continue;
             };
             let t = (t.to_utc() - origin).to_std().unwrap_or_default() + ms(1);
-            if self.garbled_unchecked(i, t) {
+            if self.garbled_unchecked(i, t) || self.answered_too_late(i, t) {
                 continue;
             }
             let field: Vec<u8> = self.run.modules[i]
