@@ -24,15 +24,17 @@ thread_local! {
     static THREAD_LIVE: Cell<isize> = const { Cell::new(0) };
 }
 
-fn count(grown: usize, shrunk: usize) {
-    if grown >= shrunk {
-        LIVE.fetch_add(grown - shrunk, Ordering::Relaxed);
-    } else {
-        LIVE.fetch_sub(shrunk - grown, Ordering::Relaxed);
-    }
-    // A `Layout`'s size fits an isize. `try_with` and wrapping: the allocator must never panic.
-    let delta = (grown as isize).wrapping_sub(shrunk as isize);
+/// Counts `delta` bytes more (fewer, when negative) in use, on the process and on this thread.
+fn count(delta: isize) {
+    // Two's complement: adding a negative delta's bit pattern subtracts, with no branch.
+    LIVE.fetch_add(delta as usize, Ordering::Relaxed);
+    // `try_with` and wrapping: the allocator must never panic.
     let _ = THREAD_LIVE.try_with(|c| c.set(c.get().wrapping_add(delta)));
+}
+
+/// A `Layout`'s size, which always fits an isize.
+fn signed(size: usize) -> isize {
+    size as isize
 }
 
 /// The system allocator, counting the bytes in use (the process's and each thread's).
@@ -45,7 +47,7 @@ unsafe impl GlobalAlloc for CountingAlloc {
         // SAFETY: as the caller promised for `layout`.
         let p = unsafe { System.alloc(layout) };
         if !p.is_null() {
-            count(layout.size(), 0);
+            count(signed(layout.size()));
         }
         p
     }
@@ -54,7 +56,7 @@ unsafe impl GlobalAlloc for CountingAlloc {
         // SAFETY: as the caller promised for `layout`.
         let p = unsafe { System.alloc_zeroed(layout) };
         if !p.is_null() {
-            count(layout.size(), 0);
+            count(signed(layout.size()));
         }
         p
     }
@@ -62,14 +64,14 @@ unsafe impl GlobalAlloc for CountingAlloc {
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         // SAFETY: `ptr` was allocated by this allocator (that is, by `System`) with `layout`.
         unsafe { System.dealloc(ptr, layout) };
-        count(0, layout.size());
+        count(-signed(layout.size()));
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         // SAFETY: as the caller promised for `ptr`, `layout` and `new_size`.
         let p = unsafe { System.realloc(ptr, layout, new_size) };
         if !p.is_null() {
-            count(new_size, layout.size());
+            count(signed(new_size) - signed(layout.size()));
         }
         p
     }
