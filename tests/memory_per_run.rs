@@ -1,9 +1,10 @@
 //! The memory limit is each run's own: runs that share a process (`verify --jobs N`, runs on
 //! parallel threads) are held to their own heap, so one run's growth never stops a neighbour.
-//! This test binary counts its heap as `rigscript` does.
+//! And a run gives its heap back when it ends. This test binary counts its heap as `rigscript`
+//! does.
 
 use rigscript::config::{RigConfig, ScriptLimits};
-use rigscript::heap::CountingAlloc;
+use rigscript::heap::{self, CountingAlloc};
 use rigscript::{Rig, RigBuilder};
 use std::sync::mpsc;
 use std::thread;
@@ -84,4 +85,22 @@ fn a_run_that_grows_past_its_limit_stops_alone_and_its_neighbour_runs_on() {
 
     assert_eq!(small_status, None, "{small_log}");
     assert!(!small_log.contains("memory"), "{small_log}");
+}
+
+#[test]
+fn a_run_gives_its_heap_back_when_it_is_dropped() {
+    // A handler that holds the device handle (which holds the runtime, which holds the
+    // handler), and timers that keep 10 MB. Counted on this thread: the other test's runs
+    // move the process's count.
+    let source = "let io = device(\"io\");\nevery(\"100ms\", || { let n = io.inputs; });\n\
+        let base = \"x\";\nbase.pad(60000, \"x\");\n\
+        for i in 0..100 {\n  let t = base + i;\n  after(\"1h\", || t.len());\n}\n";
+    let before = heap::thread_balance();
+    let mut rig = start(source, "holds.rhai");
+    rig.runner.advance(Duration::from_secs(1));
+    let held = heap::thread_balance() - before;
+    assert!(held > 5 << 20, "held {held}");
+    drop(rig);
+    let kept = heap::thread_balance() - before;
+    assert!(kept < 1 << 20, "kept {kept} of {held} bytes after the run");
 }

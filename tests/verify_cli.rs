@@ -403,3 +403,42 @@ fn a_call_over_the_scripts_limits_is_a_finding_that_names_the_limit() {
         assert!(detail.contains(says), "{what}: {c:#}");
     }
 }
+
+#[test]
+fn runs_played_at_once_are_each_held_to_their_own_memory_limit() {
+    // Each run keeps about 19 MB in timers that never fire: within its 32 MiB alone, over it
+    // only if two runs played at once were counted together (as when the limit was the
+    // process's, a false finding against whichever run was checked).
+    let (dir, s) = script(
+        "verify-memory-jobs",
+        "holds.rhai",
+        "let io = device(\"io\");\nlet base = \"x\";\nbase.pad(60000, \"x\");\n\
+         for i in 0..200 {\n  let t = base + i;\n  after(\"1h\", || t.len());\n}\n\
+         every(\"100ms\", || { let n = io.inputs; });\n",
+    );
+    let toml = dir.join("rig.toml");
+    std::fs::write(
+        &toml,
+        "period = \"20ms\"\n\n[limits]\nmemory = \"32MiB\"\n\n[devices.io]\nkind = \"trp-c29u\"\n\
+         port = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n",
+    )
+    .unwrap();
+    let (status, doc) = verify_json(
+        &[
+            &s,
+            "--config",
+            &toml.to_string_lossy(),
+            "--runs",
+            "40",
+            "--jobs",
+            "2",
+            "--for",
+            "10s",
+            "--seed",
+            "1",
+            "--no-faults",
+        ],
+        &dir.join("out"),
+    );
+    assert_eq!(status, 0, "{doc:#}");
+}
