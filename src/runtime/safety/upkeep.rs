@@ -74,7 +74,7 @@ impl<H: Clone> Runtime<H> {
 
     /// Checks that the modules still drive what was written (a module reset or power cycled
     /// by someone else goes back to its power-on value) and selects each relay again (a board
-    /// that was unplugged forgets it); run every few seconds.
+    /// that was unplugged forgets it), confirmed by a request after it; run every few seconds.
     pub fn verify_outputs(&mut self) {
         for idx in 0..self.devices.len() {
             if !self.ready_for_exchange(idx) {
@@ -99,10 +99,14 @@ impl<H: Clone> Runtime<H> {
                     }
                     None => Ok(None),
                 },
-                Some(Device::Trc(d)) => {
-                    d.relay_written = None;
-                    Ok(None)
-                }
+                // A selection gets no answer, so a script that only writes the relay would
+                // never learn that the board stopped answering: the check selects the relay
+                // again (a board reset behind the runner's back gets it back) and confirms it
+                // with a request after it.
+                Some(Device::Trc(d)) => match d.relay_written {
+                    Some(relay) => d.select_relay_confirmed(relay).map(|()| None),
+                    None => Ok(None),
+                },
                 None => Ok(None),
             };
             match result {
