@@ -106,8 +106,9 @@ pub fn thread_balance() -> isize {
 /// the script's values (Rhai's, `Rc`-based, neither `Send` nor `Sync`) are made and dropped on
 /// the run's thread and cannot cross to another, so what a growing script keeps is counted
 /// here; what crosses is the runtime's own bounded traffic, and a run is short while others
-/// share its process. The drift never stops a run that does not hold its limit's worth: the
-/// run is over only when the whole process is over too.
+/// share its process. Drift alone stops nothing: a run is over only when the whole process is
+/// over too. A run's count alone would not do for `rigscript run`, whose log lines, made on
+/// the run's thread and freed on the writer's, would add up over days to a false breach.
 pub struct RunHeap {
     baseline: isize,
     // The baseline is this thread's count: the run must stay on its thread.
