@@ -1,27 +1,53 @@
-//! The heap in use by the whole process, counted by a global allocator, so that a run can bound
-//! its memory (`memory` under `[limits]`) and stop a script that grows it without end.
+//! The heap in use, counted by a global allocator, so that each run can bound its memory
+//! (`memory` under `[limits]`) and stop a script that grows it without end.
 //!
-//! `CountingAlloc` wraps the system allocator and keeps one relaxed atomic count of the bytes
-//! allocated and not yet freed: a few nanoseconds an allocation, nothing per script operation.
-//! Only a program that installs it (`#[global_allocator]`, as `rigscript` does) is counted;
-//! elsewhere `in_use` answers `None` and no memory limit applies.
+//! `CountingAlloc` wraps the system allocator and keeps two counts of the bytes allocated and
+//! not yet freed: the whole process's (one relaxed atomic) and each thread's (a const
+//! thread-local integer: allocated minus freed by that thread): a few nanoseconds an
+//! allocation, nothing per script operation. A run reads them through `RunHeap`. Only a program
+//! that installs the allocator (`#[global_allocator]`, as `rigscript` does) is counted;
+//! elsewhere nothing is, and no memory limit applies.
 
 use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::marker::PhantomData;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 static LIVE: AtomicUsize = AtomicUsize::new(0);
 
-/// The system allocator, counting the bytes in use.
+/// Runs (`RunHeap`s) alive in the process.
+static RUNS: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    // Const-initialised and without a destructor: reading it never allocates (it is read inside
+    // the allocator) and it is there until the thread's last allocation.
+    static THREAD_LIVE: Cell<isize> = const { Cell::new(0) };
+}
+
+/// Counts `delta` bytes more (fewer, when negative) in use, on the process and on this thread.
+fn count(delta: isize) {
+    // Two's complement: adding a negative delta's bit pattern subtracts, with no branch.
+    LIVE.fetch_add(delta as usize, Ordering::Relaxed);
+    // `try_with` and wrapping: the allocator must never panic.
+    let _ = THREAD_LIVE.try_with(|c| c.set(c.get().wrapping_add(delta)));
+}
+
+/// A `Layout`'s size, which always fits an isize.
+fn signed(size: usize) -> isize {
+    size as isize
+}
+
+/// The system allocator, counting the bytes in use (the process's and each thread's).
 pub struct CountingAlloc;
 
-// SAFETY: every call goes straight to `System` with the caller's own arguments; the count is
-// kept beside it and never touches the memory.
+// SAFETY: every call goes straight to `System` with the caller's own arguments; the counts are
+// kept beside it and never touch the memory.
 unsafe impl GlobalAlloc for CountingAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         // SAFETY: as the caller promised for `layout`.
         let p = unsafe { System.alloc(layout) };
         if !p.is_null() {
-            LIVE.fetch_add(layout.size(), Ordering::Relaxed);
+            count(signed(layout.size()));
         }
         p
     }
@@ -30,7 +56,7 @@ unsafe impl GlobalAlloc for CountingAlloc {
         // SAFETY: as the caller promised for `layout`.
         let p = unsafe { System.alloc_zeroed(layout) };
         if !p.is_null() {
-            LIVE.fetch_add(layout.size(), Ordering::Relaxed);
+            count(signed(layout.size()));
         }
         p
     }
@@ -38,18 +64,14 @@ unsafe impl GlobalAlloc for CountingAlloc {
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         // SAFETY: `ptr` was allocated by this allocator (that is, by `System`) with `layout`.
         unsafe { System.dealloc(ptr, layout) };
-        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+        count(-signed(layout.size()));
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         // SAFETY: as the caller promised for `ptr`, `layout` and `new_size`.
         let p = unsafe { System.realloc(ptr, layout, new_size) };
         if !p.is_null() {
-            if new_size >= layout.size() {
-                LIVE.fetch_add(new_size - layout.size(), Ordering::Relaxed);
-            } else {
-                LIVE.fetch_sub(layout.size() - new_size, Ordering::Relaxed);
-            }
+            count(signed(new_size) - signed(layout.size()));
         }
         p
     }
@@ -62,6 +84,66 @@ pub fn in_use() -> Option<usize> {
     match LIVE.load(Ordering::Relaxed) {
         0 => None,
         n => Some(n),
+    }
+}
+
+/// Bytes this thread has allocated minus the bytes it has freed, if `CountingAlloc` is the
+/// global allocator (0 otherwise). Memory freed on another thread than the one that allocated
+/// it moves the two threads' counts apart (see `RunHeap`): compare readings of one thread.
+pub fn thread_balance() -> isize {
+    THREAD_LIVE.try_with(Cell::get).unwrap_or(0)
+}
+
+/// The heap one run holds, for its memory limit: made on the run's thread as the run starts,
+/// kept there (it is not `Send`) until the run ends.
+///
+/// While it is the process's only run (`rigscript run`, `verify --jobs 1`), the run holds the
+/// whole process's heap, counted exactly. While other runs share the process (`verify --jobs
+/// N`, tests on parallel threads), it holds what its thread has allocated and not freed since
+/// the run started, so that one run's growth never counts against its neighbours. That count
+/// drifts when memory crosses threads: a log line made here is freed by the log's writer
+/// thread, a buffer a device thread filled is freed here. It is a fair measure of a run still:
+/// the script's values (Rhai's, `Rc`-based, neither `Send` nor `Sync`) are made and dropped on
+/// the run's thread and cannot cross to another, so what a growing script keeps is counted
+/// here; what crosses is the runtime's own bounded traffic, and a run is short while others
+/// share its process. Drift alone stops nothing: a run is over only when the whole process is
+/// over too. A run's count alone would not do for `rigscript run`, whose log lines, made on
+/// the run's thread and freed on the writer's, would add up over days to a false breach.
+pub struct RunHeap {
+    baseline: isize,
+    // The baseline is this thread's count: the run must stay on its thread.
+    _on_this_thread: PhantomData<*const ()>,
+}
+
+impl RunHeap {
+    /// A run starts on this thread.
+    pub fn start() -> Self {
+        RUNS.fetch_add(1, Ordering::Relaxed);
+        Self {
+            baseline: thread_balance(),
+            _on_this_thread: PhantomData,
+        }
+    }
+
+    /// The bytes the run holds when they are more than `limit` (`None` when they are not, or
+    /// when the heap is not counted). Cheap while the process is under `limit`: one atomic
+    /// load.
+    pub fn over(&self, limit: u64) -> Option<u64> {
+        let process = in_use()? as u64;
+        if process <= limit {
+            return None;
+        }
+        if RUNS.load(Ordering::Relaxed) <= 1 {
+            return Some(process);
+        }
+        let grown = thread_balance().wrapping_sub(self.baseline);
+        u64::try_from(grown).ok().filter(|&g| g > limit)
+    }
+}
+
+impl Drop for RunHeap {
+    fn drop(&mut self) {
+        RUNS.fetch_sub(1, Ordering::Relaxed);
     }
 }
 
@@ -110,6 +192,53 @@ mod tests {
             a.dealloc(z, layout);
         }
         assert_eq!(LIVE.load(Ordering::Relaxed), before);
+    }
+
+    #[test]
+    fn each_thread_counts_what_it_allocated_and_freed() {
+        let a = CountingAlloc;
+        let layout = Layout::from_size_align(1 << 16, 8).unwrap();
+        let here = thread_balance();
+        // SAFETY: a valid non-zero layout; freed once with its layout (on another thread).
+        let p = unsafe { a.alloc(layout) } as usize;
+        assert_eq!(thread_balance(), here + (1 << 16));
+        let there = std::thread::spawn(move || {
+            let before = thread_balance();
+            // SAFETY: `p` came from `a.alloc(layout)` and is freed only here.
+            unsafe { a.dealloc(p as *mut u8, layout) };
+            thread_balance() - before
+        })
+        .join()
+        .unwrap();
+        // The free is the freeing thread's: the allocating thread's count stays up (drift).
+        assert_eq!(there, -(1 << 16));
+        assert_eq!(thread_balance(), here + (1 << 16));
+    }
+
+    #[test]
+    fn a_run_holds_what_its_own_thread_grew_while_another_shares_the_process() {
+        // Direct calls (this test binary's allocator is not counting), so only they move the
+        // counts: the process holds 1 MiB, all of it grown by the first run's thread.
+        let a = CountingAlloc;
+        let layout = Layout::from_size_align(1 << 20, 8).unwrap();
+        let (grown, ready) = std::sync::mpsc::channel();
+        let (done, finish) = std::sync::mpsc::channel::<()>();
+        let grower = std::thread::spawn(move || {
+            let run = RunHeap::start();
+            // SAFETY: a valid non-zero layout; freed below with it.
+            let p = unsafe { a.alloc(layout) };
+            grown.send(run.over(512 << 10)).unwrap();
+            finish.recv().unwrap();
+            // SAFETY: allocated above with `layout`.
+            unsafe { a.dealloc(p, layout) };
+        });
+        let neighbour = RunHeap::start();
+        let grower_over = ready.recv().unwrap();
+        let neighbour_over = neighbour.over(512 << 10);
+        done.send(()).unwrap();
+        grower.join().unwrap();
+        assert!(grower_over.is_some_and(|b| b >= 1 << 20), "{grower_over:?}");
+        assert_eq!(neighbour_over, None);
     }
 
     #[test]

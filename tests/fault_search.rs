@@ -32,7 +32,7 @@ use proptest::test_runner::{Config, RngSeed, TestRng, TestRunner};
 use std::collections::BTreeMap;
 
 #[global_allocator]
-static HEAP: probe::Counting = probe::Counting;
+static HEAP: rigscript::heap::CountingAlloc = rigscript::heap::CountingAlloc;
 
 fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
     std::env::var(name)

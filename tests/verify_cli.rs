@@ -47,6 +47,36 @@ fn script(tag: &str, name: &str, source: &str) -> (std::path::PathBuf, String) {
     (dir, path.to_string_lossy().into_owned())
 }
 
+/// `verify` of `script` in `dir` on one module with `limits` under `[limits]` in its rig.toml:
+/// `runs` runs of 10 s in `jobs` jobs, seed 1, no faults.
+fn verify_limited(dir: &Path, script: &str, limits: &str, runs: &str, jobs: &str) -> (i32, Value) {
+    let toml = dir.join("rig.toml");
+    std::fs::write(
+        &toml,
+        format!(
+            "period = \"20ms\"\n\n[limits]\n{limits}\n\n[devices.io]\nkind = \"trp-c29u\"\n\
+             port = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n"
+        ),
+    )
+    .unwrap();
+    let config = toml.to_string_lossy();
+    let args = [
+        script,
+        "--config",
+        &config,
+        "--runs",
+        runs,
+        "--jobs",
+        jobs,
+        "--for",
+        "10s",
+        "--seed",
+        "1",
+        "--no-faults",
+    ];
+    verify_json(&args, &dir.join("out"))
+}
+
 /// The planted-bug variants: (file, the invariant that catches them, fewest events needed).
 const PLANTED: &[(&str, &str, usize)] = &[
     (
@@ -369,32 +399,7 @@ fn a_call_over_the_scripts_limits_is_a_finding_that_names_the_limit() {
             "grows.rhai",
             &format!("let io = device(\"io\");\nevery(\"100ms\", || {{ {body} }});\n"),
         );
-        let toml = dir.join("rig.toml");
-        std::fs::write(
-            &toml,
-            format!(
-                "period = \"20ms\"\n\n[limits]\n{limit}\n\n[devices.io]\nkind = \"trp-c29u\"\n\
-                 port = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n"
-            ),
-        )
-        .unwrap();
-        let (status, doc) = verify_json(
-            &[
-                &s,
-                "--config",
-                &toml.to_string_lossy(),
-                "--runs",
-                "2",
-                "--jobs",
-                "1",
-                "--for",
-                "10s",
-                "--seed",
-                "1",
-                "--no-faults",
-            ],
-            &dir.join("out"),
-        );
+        let (status, doc) = verify_limited(&dir, &s, limit, "2", "1");
         assert_eq!(status, 1, "{what}: {doc:#}");
         let c = &doc["counterexample"];
         assert_eq!(c["name"], check, "{what}: {c:#}");
@@ -402,4 +407,20 @@ fn a_call_over_the_scripts_limits_is_a_finding_that_names_the_limit() {
         assert!(detail.contains("grows.rhai:2:"), "{what}: placed: {c:#}");
         assert!(detail.contains(says), "{what}: {c:#}");
     }
+}
+
+#[test]
+fn runs_played_at_once_are_each_held_to_their_own_memory_limit() {
+    // Each run keeps about 19 MB in timers that never fire: within its 32 MiB alone, over it
+    // only if two runs played at once were counted together (as when the limit was the
+    // process's, a false finding against whichever run was checked).
+    let (dir, s) = script(
+        "verify-memory-jobs",
+        "holds.rhai",
+        "let io = device(\"io\");\nlet base = \"x\";\nbase.pad(60000, \"x\");\n\
+         for i in 0..200 {\n  let t = base + i;\n  after(\"1h\", || t.len());\n}\n\
+         every(\"100ms\", || { let n = io.inputs; });\n",
+    );
+    let (status, doc) = verify_limited(&dir, &s, "memory = \"32MiB\"", "40", "2");
+    assert_eq!(status, 0, "{doc:#}");
 }

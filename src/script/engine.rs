@@ -89,7 +89,7 @@ pub enum Breach {
     Memory {
         /// The limit, in bytes.
         limit: u64,
-        /// Heap in use when it was noticed.
+        /// Heap the run held when it was noticed (`heap::RunHeap`).
         used: u64,
     },
     /// Function calls nested too deep.
@@ -165,11 +165,13 @@ pub struct Guard {
     seen_transactions: Cell<u64>,
     breach: std::cell::RefCell<Option<Breach>>,
     cut_off_at: Cell<u64>,
+    heap: heap::RunHeap,
 }
 
 impl Guard {
     /// Watches every call `engine` makes: time on `clock`, a clock reading after each new
-    /// request counted by `transactions`, and the heap (when `heap::CountingAlloc` counts it).
+    /// request counted by `transactions`, and the heap the run holds (when `heap::CountingAlloc`
+    /// counts it; the run is the one on this thread, starting now).
     pub fn install(
         engine: &mut Engine,
         limits: ScriptLimits,
@@ -184,6 +186,7 @@ impl Guard {
             seen_transactions: Cell::new(0),
             breach: std::cell::RefCell::new(None),
             cut_off_at: Cell::new(0),
+            heap: heap::RunHeap::start(),
         });
         guard.begin_call();
         // Rhai's own limits, beyond the guard's: a backstop for what the guard cannot see
@@ -269,14 +272,11 @@ impl Guard {
                 budget: self.limits.operations,
             });
         }
-        if let Some(used) = heap::in_use() {
-            let used = used as u64;
-            if used > self.limits.memory {
-                return Some(Breach::Memory {
-                    limit: self.limits.memory,
-                    used,
-                });
-            }
+        if let Some(used) = self.heap.over(self.limits.memory) {
+            return Some(Breach::Memory {
+                limit: self.limits.memory,
+                used,
+            });
         }
         let tx = self.transactions.load(Ordering::Relaxed);
         if ops % CLOCK_EVERY == 0 || tx != self.seen_transactions.get() {

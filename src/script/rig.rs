@@ -107,6 +107,19 @@ pub struct Rig {
     pub sim: SimRig,
 }
 
+impl Drop for Rig {
+    /// Lets go of the script's handlers and invariants first: their closures can hold device
+    /// handles, which hold the runtime that holds the closures, a cycle of `Rc`s that would
+    /// keep the run's runtime and every value its script kept alive after the run (each
+    /// `verify` run's, for as long as the process lives).
+    fn drop(&mut self) {
+        if let Ok(mut rt) = self.runner.runtime().try_borrow_mut() {
+            rt.handlers.clear();
+            rt.invariants.clear();
+        }
+    }
+}
+
 /// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
 /// its top level has run (a failing top level leaves the runner stopped with status 1).
 pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
