@@ -79,8 +79,9 @@ pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<R
         match read_now(fd, buf)? {
             // Readable but nothing to read: another reader took it; wait out the rest.
             Read::Nothing => {
-                let end = *deadline.get_or_insert_with(|| Instant::now() + timeout);
-                left = end.saturating_duration_since(Instant::now());
+                // A timeout too long for the clock (never a real one) just waits it again.
+                let end = *deadline.get_or_insert_with(|| Instant::now().checked_add(timeout));
+                left = end.map_or(timeout, |end| end.saturating_duration_since(Instant::now()));
                 if left.is_zero() {
                     return Ok(Read::Nothing);
                 }
