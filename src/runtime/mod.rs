@@ -7,6 +7,7 @@ mod events;
 pub mod exit;
 mod inputs;
 pub mod invariants;
+pub mod line_writer;
 pub mod log;
 mod outputs;
 pub mod records;
