@@ -156,7 +156,8 @@ impl Logger {
             return;
         }
         let wall = self.zone.at(self.clock.wall());
-        let message = cut(message);
+        let shown = visible(message);
+        let message = cut(&shown);
         if let Some(kept) = &mut self.kept {
             if kept.len() >= MAX_KEPT_LINES {
                 kept.remove(0);
@@ -272,6 +273,29 @@ impl Drop for Logger {
     fn drop(&mut self) {
         self.close();
     }
+}
+
+/// `message` with every control character written out (`\n`, `\r`, `\t`, `\x1b`, `\u{9b}`),
+/// so no text (a script's `log`, an error it threw) can start a line that looks like the
+/// runner's, move the cursor or recolour the terminal.
+fn visible(message: &str) -> std::borrow::Cow<'_, str> {
+    if !message.chars().any(char::is_control) {
+        return message.into();
+    }
+    let mut out = String::with_capacity(message.len() + 8);
+    for c in message.chars() {
+        match c {
+            '\n' => out.push_str("\\n"),
+            '\r' => out.push_str("\\r"),
+            '\t' => out.push_str("\\t"),
+            c if c.is_control() && u32::from(c) < 0x80 => {
+                out.push_str(&format!("\\x{:02x}", u32::from(c)));
+            }
+            c if c.is_control() => out.push_str(&format!("\\u{{{:x}}}", u32::from(c))),
+            c => out.push(c),
+        }
+    }
+    out.into()
 }
 
 /// `message` cut to `MAX_LINE` bytes (at a character boundary), saying how much was left out.
@@ -518,6 +542,40 @@ mod tests {
             ),
             "{lines}"
         );
+    }
+
+    #[test]
+    fn control_characters_in_a_message_are_written_out_in_text_and_json() {
+        let forged = "ready\n20:00:00.000 safe state (end of run): io outputs 0x00\r\x1b[2K\tdone\u{9b}\u{7f}";
+        let shown = "ready\\n20:00:00.000 safe state (end of run): io outputs 0x00\\r\\x1b[2K\\tdone\\u{9b}\\x7f";
+        for format in [LogFormat::Text, LogFormat::Json] {
+            let (mut reader, writer) = pipe();
+            let mut log = Logger::with_output(Arc::new(clock()), Zone::utc(), writer);
+            log.keep_lines();
+            log.set_format(format);
+            log.info(&format!("script: {forged}"));
+            log.warn(&format!("script: {forged}"));
+            assert_eq!(log.lines()[0], format!("12:00:01.020 script: {shown}"));
+            log.close();
+            drop(log);
+            let mut text = String::new();
+            reader.read_to_string(&mut text).unwrap();
+            assert_eq!(text.lines().count(), 2, "{format:?}: {text}");
+            assert!(
+                text.lines().all(|l| !l.chars().any(char::is_control)),
+                "{format:?}: {text:?}"
+            );
+            if format == LogFormat::Json {
+                let line: serde_json::Value =
+                    serde_json::from_str(text.lines().next().unwrap()).unwrap();
+                assert_eq!(line["message"], shown);
+            } else {
+                assert!(
+                    text.contains(&format!("warning: script: {shown}")),
+                    "{text}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -11,6 +11,7 @@ pub mod line_writer;
 pub mod log;
 mod outputs;
 pub mod records;
+mod records_file;
 mod registry;
 pub mod safety;
 pub mod scan;
