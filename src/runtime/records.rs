@@ -7,7 +7,7 @@
 //! it takes them again, and make the run's exit status 5 (`close`).
 
 use super::line_writer::{LineWriter, Pushed};
-use super::log::Logger;
+use super::log::{Level, Logger};
 pub use super::records_file::RecordError;
 use super::records_file::{open_for_appending, refusals, RecordSink, RecordTarget, SharedRefusals};
 use serde_json::{json, Map, Value};
@@ -195,31 +195,30 @@ impl Records {
         let dropped = f.writer.dropped();
         let refused = refusals(&f.refusals).total;
         let lost = dropped.saturating_add(refused).saturating_add(waiting);
+        let path = f.path.display();
+        if dropped > 0 {
+            log.warn(&format!(
+                "records file {path}: {dropped} records dropped: the file was not taking them \
+                 as fast as they came"
+            ));
+        }
+        if refused > 0 {
+            let cause = refusals(&f.refusals).cause.clone();
+            log.warn(&format!(
+                "records file {path}: {cause}, {refused} records not written"
+            ));
+        }
         if waiting > 0 {
             log.error(&format!(
-                "records file {}: {waiting} records not written at the end: the file did not \
-                 take them within {}s (a pipe nobody reads, a mount that does not answer?)",
-                f.path.display(),
+                "records file {path}: {waiting} records not written at the end: the file did \
+                 not take them within {}s (a pipe nobody reads, a mount that does not answer?)",
                 CLOSE_WAIT.as_secs()
             ));
         }
         if lost > 0 {
-            let mut parts = Vec::new();
-            if dropped > 0 {
-                parts.push(format!("{dropped} dropped while it was not taking them"));
-            }
-            if refused > 0 {
-                let cause = refusals(&f.refusals).cause.clone();
-                parts.push(format!("{refused} refused by the file ({cause})"));
-            }
-            if waiting > 0 {
-                parts.push(format!("{waiting} still waiting at the end"));
-            }
             log.warn(&format!(
-                "records file {}: {lost} of {} records not written: {}",
-                f.path.display(),
-                f.sent,
-                parts.join(", ")
+                "records file {path}: {lost} of {} records not written",
+                f.sent
             ));
         }
         lost
@@ -229,15 +228,21 @@ impl Records {
         if let Some(f) = &mut self.file {
             f.sent = f.sent.saturating_add(1);
             // One line per record: the writer writes it whole or not at all.
-            if let Pushed::Queued { dropped_before } = f.writer.push(&record.to_string(), |_| None)
-            {
+            let pushed = f.writer.push(&record.to_string(), |_| None);
+            if let Pushed::Queued { dropped_before } = pushed {
                 if dropped_before > 0 {
-                    log.warn(&format!(
-                        "records file {}: {dropped_before} records dropped: the file was not \
-                         taking them as fast as they came (a pipe nobody reads, a slow or \
-                         hung mount?)",
-                        f.path.display()
-                    ));
+                    // Once, then counted: a file a little slower than the records comes back
+                    // here every few records. The end gives the count.
+                    log.repeating(
+                        "records/dropped",
+                        Level::Warn,
+                        &format!(
+                            "records file {}: records dropped: the file is not taking them as \
+                             fast as they come (a pipe read slowly or not at all, a slow or \
+                             hung mount?); the count comes at the end",
+                            f.path.display()
+                        ),
+                    );
                 }
             }
             f.tell(log);
@@ -378,13 +383,14 @@ mod tests {
             "{lines}"
         );
         assert!(
-            lines.contains(
-                "records file r.jsonl: 48 of 50 records not written: 48 refused by the file \
-                 (disk full)"
-            ),
+            lines.contains("records file r.jsonl: disk full, 48 records not written"),
             "{lines}"
         );
-        assert!(log.lines().len() <= 3, "{lines}");
+        assert!(
+            lines.contains("records file r.jsonl: 48 of 50 records not written"),
+            "{lines}"
+        );
+        assert_eq!(log.lines().len(), 3, "{lines}");
     }
 
     #[test]
@@ -448,6 +454,14 @@ mod tests {
                 path.display()
             )),
             "{lines}"
+        );
+        assert!(
+            lines.contains("records dropped: the file was not taking them"),
+            "{lines}"
+        );
+        assert!(
+            lines.lines().count() <= 5,
+            "a few lines, not one a record: {lines}"
         );
         drop(reader);
         std::fs::remove_dir_all(&dir).unwrap();
