@@ -560,3 +560,31 @@ fn a_records_pipe_with_no_reader_is_refused_at_start_without_waiting() {
         "{err}"
     );
 }
+
+#[test]
+fn a_full_disk_for_the_records_is_told_once_with_the_count_and_the_run_ends_5() {
+    // /dev/full refuses every write with ENOSPC, as a full disk does.
+    let d = Dir::new("records-full");
+    let s = d.file(
+        "r.rhai",
+        "for n in 0..20 { record(\"n\", n); }\nmeasure(\"v\", 1.0, #{min: 0.0});\n",
+    );
+    let o = run(&["run", "--sim", "--records", "/dev/full", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert_eq!(
+        err.matches("records file /dev/full: disk full: records are not written")
+            .count(),
+        1,
+        "{err}"
+    );
+    assert!(
+        err.contains("records file /dev/full: disk full, 21 records not written"),
+        "{err}"
+    );
+    assert!(
+        err.contains("21 record(s) not written to the records file: exit status 5"),
+        "{err}"
+    );
+    assert!(!err.contains("in top level"), "not a script error: {err}");
+}
