@@ -258,23 +258,34 @@ impl RecordsFile {
     /// Tells `log` once when the file starts refusing records, and how many it refused when
     /// it takes them again (a full disk is one line each way, not one a record).
     fn tell(&mut self, log: &mut Logger) {
-        let r = refusals(&self.refusals).clone();
-        if r.refusing && !self.refusing_told {
+        let (refusing, total) = {
+            let r = refusals(&self.refusals);
+            (r.refusing, r.total)
+        };
+        let news = if refusing {
+            !self.refusing_told
+        } else {
+            self.refusing_told || total > self.refused_told
+        };
+        if !news {
+            return;
+        }
+        let cause = refusals(&self.refusals).cause.clone();
+        let path = self.path.display();
+        if refusing {
             self.refusing_told = true;
             log.error(&format!(
-                "records file {}: {}: records are not written until it takes them again \
-                 (counted)",
-                self.path.display(),
-                r.cause
+                "records file {path}: {cause}: records are not written until it takes them \
+                 again (counted)"
             ));
-        } else if !r.refusing && r.total > self.refused_told {
-            let n = r.total - self.refused_told;
-            self.refused_told = r.total;
-            self.refusing_told = false;
+            return;
+        }
+        let n = total.saturating_sub(self.refused_told);
+        self.refused_told = total;
+        self.refusing_told = false;
+        if n > 0 {
             log.warn(&format!(
-                "records file {}: {}, {n} records not written; written again since",
-                self.path.display(),
-                r.cause
+                "records file {path}: {cause}, {n} records not written; written again since"
             ));
         }
     }
@@ -391,6 +402,90 @@ mod tests {
             "{lines}"
         );
         assert_eq!(log.lines().len(), 3, "{lines}");
+    }
+
+    /// A `SmallDisk` the test keeps a hand on while the writer thread writes to it.
+    #[derive(Clone)]
+    struct SharedDisk(Arc<std::sync::Mutex<SmallDisk>>);
+
+    impl std::io::Write for SharedDisk {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().write(buf)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl RecordTarget for SharedDisk {
+        fn length(&mut self) -> Option<u64> {
+            self.0.lock().unwrap().length()
+        }
+        fn cut_to(&mut self, length: u64) -> std::io::Result<()> {
+            self.0.lock().unwrap().cut_to(length)
+        }
+    }
+
+    /// Waits until the records file's writer has done what `done` says, or 10 s.
+    fn until(
+        r: &Records,
+        what: &str,
+        done: impl Fn(&crate::runtime::records_file::Refusals) -> bool,
+    ) {
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        let f = r.file.as_ref().unwrap();
+        while !done(&refusals(&f.refusals)) {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "not within 10 s: {what}"
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    #[test]
+    fn a_disk_that_fills_and_empties_is_told_once_each_way_and_keeps_whole_lines() {
+        let disk = SharedDisk(Arc::new(std::sync::Mutex::new(SmallDisk {
+            data: Vec::new(),
+            room: 40,
+            cuttable: true,
+        })));
+        let theirs = disk.clone();
+        let mut log = log();
+        let mut r =
+            Records::to_target(Path::new("r.jsonl"), OPEN_WAIT, move |_| Ok(theirs)).unwrap();
+        r.record("t", "n", json!(0), &mut log);
+        r.record("t", "n", json!(1), &mut log);
+        until(&r, "1 refused", |f| f.total == 1);
+        r.record("t", "n", json!(2), &mut log);
+        until(&r, "2 refused", |f| f.total == 2);
+        disk.0.lock().unwrap().room = 1000;
+        r.record("t", "n", json!(3), &mut log);
+        until(&r, "written again", |f| !f.refusing);
+        r.record("t", "n", json!(4), &mut log);
+        assert_eq!(r.close(&mut log), 2);
+        let lines = log.lines().join("\n");
+        assert_eq!(
+            lines.matches("disk full: records are not written").count(),
+            1,
+            "{lines}"
+        );
+        assert!(
+            lines.contains(
+                "records file r.jsonl: disk full, 2 records not written; written again since"
+            ),
+            "{lines}"
+        );
+        assert!(
+            lines.contains("records file r.jsonl: 2 of 5 records not written"),
+            "{lines}"
+        );
+        let data = String::from_utf8(disk.0.lock().unwrap().data.clone()).unwrap();
+        let values: Vec<Value> = data
+            .lines()
+            .map(|l| serde_json::from_str::<Value>(l).unwrap()["value"].clone())
+            .collect();
+        assert_eq!(values, [json!(0), json!(3), json!(4)]);
     }
 
     #[test]
