@@ -85,7 +85,7 @@ impl LineWriter {
     /// Queues `line`, or drops and counts it when the queue is full. After drops, `notice`
     /// is given their count and may give a line to queue first, once there is room for both
     /// (then `Pushed::Queued` says 0 dropped); `None` leaves telling of them to the caller.
-    pub fn push(&self, line: &str, notice: impl FnOnce(u64) -> Option<String>) -> Pushed {
+    pub fn push(&self, line: String, notice: impl FnOnce(u64) -> Option<String>) -> Pushed {
         let mut q = lock(&self.shared);
         if q.closing {
             q.dropped = q.dropped.saturating_add(1);
@@ -101,6 +101,8 @@ impl LineWriter {
             q.dropped = q.dropped.saturating_add(1);
             return Pushed::Dropped;
         }
+        // The thread waits only for an empty queue: lines behind others need no wake-up.
+        let wake = q.lines.is_empty();
         let dropped_before = match told {
             Some(text) => {
                 q.bytes += text.len() + 1;
@@ -111,9 +113,11 @@ impl LineWriter {
         };
         q.unreported = 0;
         q.bytes += line.len() + 1;
-        q.lines.push_back(line.to_string());
+        q.lines.push_back(line);
         drop(q);
-        self.shared.changed.notify_all();
+        if wake {
+            self.shared.changed.notify_all();
+        }
         Pushed::Queued { dropped_before }
     }
 
@@ -234,19 +238,26 @@ mod tests {
         });
         // The first line goes to the (blocked) sink; the queue holds 9 bytes, the line being written included.
         assert_eq!(
-            w.push("aaaa", |_| None),
+            w.push("aaaa".into(), |_| None),
             Pushed::Queued { dropped_before: 0 }
         );
         until("the sink takes the first line", || {
             lock(&w.shared).in_flight > 0
         });
-        assert_eq!(w.push("bbbb", |_| None), Pushed::Dropped, "5 + 5 > 9");
-        assert_eq!(w.push("cccc", |_| None), Pushed::Dropped);
+        assert_eq!(
+            w.push("bbbb".into(), |_| None),
+            Pushed::Dropped,
+            "5 + 5 > 9"
+        );
+        assert_eq!(w.push("cccc".into(), |_| None), Pushed::Dropped);
         go.send(()).unwrap();
         let first = batches.recv_timeout(Duration::from_secs(10)).unwrap();
         assert_eq!(first, "aaaa\n");
         until("the first batch is written", || lock(&w.shared).bytes == 0);
-        assert_eq!(w.push("dd", |_| None), Pushed::Queued { dropped_before: 2 });
+        assert_eq!(
+            w.push("dd".into(), |_| None),
+            Pushed::Queued { dropped_before: 2 }
+        );
         assert_eq!(w.dropped(), 2);
         go.send(()).unwrap();
         assert_eq!(w.close(Duration::from_secs(10)), 0);
@@ -263,18 +274,18 @@ mod tests {
                 out: sent,
             })
         });
-        w.push("one", |_| None);
+        w.push("one".into(), |_| None);
         until("the sink takes the first line", || {
             lock(&w.shared).in_flight > 0
         });
-        w.push("two", |_| None);
-        w.push("three", |_| None);
+        w.push("two".into(), |_| None);
+        w.push("three".into(), |_| None);
         assert_eq!(
             w.close(Duration::from_millis(50)),
             3,
             "one being written, two queued"
         );
-        assert_eq!(w.push("four", |_| None), Pushed::Dropped, "closed");
+        assert_eq!(w.push("four".into(), |_| None), Pushed::Dropped, "closed");
         drop(go);
     }
 
@@ -282,7 +293,7 @@ mod tests {
     fn no_sink_drops_every_line() {
         let w = LineWriter::spawn("test-writer", 1000, || None::<Gated>);
         let _ = w.close(Duration::from_secs(10));
-        assert_eq!(w.push("x", |_| None), Pushed::Dropped);
+        assert_eq!(w.push("x".into(), |_| None), Pushed::Dropped);
         assert_eq!(w.dropped(), 1);
     }
 }

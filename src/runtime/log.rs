@@ -171,7 +171,7 @@ impl Logger {
             LogFormat::Text => text_line(&wall, level, message),
             LogFormat::Json => json_line(&wall, level, message, devices),
         };
-        writer.push(&render(level, &message), |dropped| {
+        writer.push(render(level, &message), |dropped| {
             Some(render(
                 Level::Warn,
                 &format!("{dropped} log lines dropped: stderr not being read"),

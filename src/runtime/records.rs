@@ -228,7 +228,7 @@ impl Records {
         if let Some(f) = &mut self.file {
             f.sent = f.sent.saturating_add(1);
             // One line per record: the writer writes it whole or not at all.
-            let pushed = f.writer.push(&record.to_string(), |_| None);
+            let pushed = f.writer.push(record.to_string(), |_| None);
             if let Pushed::Queued { dropped_before } = pushed {
                 if dropped_before > 0 {
                     // Once, then counted: a file a little slower than the records comes back
@@ -258,19 +258,18 @@ impl RecordsFile {
     /// Tells `log` once when the file starts refusing records, and how many it refused when
     /// it takes them again (a full disk is one line each way, not one a record).
     fn tell(&mut self, log: &mut Logger) {
-        let (refusing, total) = {
+        let (refusing, total, cause) = {
             let r = refusals(&self.refusals);
-            (r.refusing, r.total)
+            let news = if r.refusing {
+                !self.refusing_told
+            } else {
+                self.refusing_told || r.total > self.refused_told
+            };
+            if !news {
+                return;
+            }
+            (r.refusing, r.total, r.cause.clone())
         };
-        let news = if refusing {
-            !self.refusing_told
-        } else {
-            self.refusing_told || total > self.refused_told
-        };
-        if !news {
-            return;
-        }
-        let cause = refusals(&self.refusals).cause.clone();
         let path = self.path.display();
         if refusing {
             self.refusing_told = true;
