@@ -110,8 +110,8 @@ impl<H: Clone> Runtime<H> {
                             format_duration(lost_for)
                         ));
                     } else if let Some(d) = self.devices.get_mut(idx) {
-                        // A refusal (not a lost answer) leaves the retry time as it was: the
-                        // next try waits its second all the same, not the next tick.
+                        // Only a lost answer moves the retry time on (`note_failure`); after a
+                        // refusal it would stay past, and the device be tried every tick.
                         let h = d.health_mut();
                         if !h.online() && h.next_retry <= now {
                             h.next_retry = now.saturating_add(RETRY_INTERVAL);
