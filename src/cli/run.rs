@@ -41,7 +41,8 @@ pub struct RunArgs {
     /// "24h", "1h30m"); a bare number is refused.
     #[arg(long = "for", value_name = "DURATION", value_parser = dur)]
     pub run_for: Option<Duration>,
-    /// Append records and measurements to this JSON-lines file (overrides rig.toml).
+    /// Append records and measurements to this JSON-lines file (overrides rig.toml); written
+    /// off the loop, so records the file does not take in time are counted (exit status 5).
     #[arg(long)]
     pub records: Option<PathBuf>,
     /// At the end, print ticks, period jitter, tick work, overruns and transactions per tick.
