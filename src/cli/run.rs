@@ -9,6 +9,7 @@
 
 use super::run_outputs::RunOutputs;
 use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
+use crate::guardian::{guard, Guarded, GuardianLog};
 use crate::runtime::exit;
 use crate::runtime::log::LogFormat;
 use crate::script::rig::{start, RigSetup};
@@ -80,6 +81,11 @@ pub struct RunArgs {
     /// test case with its value and limits, plus one for the run itself.
     #[arg(long, value_name = "FILE")]
     pub junit: Option<PathBuf>,
+    /// Run without the guardian process (see DESIGN.md "The guardian"): a runner that dies
+    /// (kill -9, an abort, the OOM killer) then leaves the outputs as they were, but for each
+    /// module's own host watchdog.
+    #[arg(long)]
+    pub no_guardian: bool,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -102,6 +108,12 @@ fn period(text: &str) -> Result<Duration, String> {
         d if d.is_zero() => Err("a period must be above zero".into()),
         d => Ok(d),
     }
+}
+
+/// Whether the run's own end confirmed the safe state of every device (a panic's end does not
+/// confirm anything): the guardian then has nothing to do.
+fn ended_safe(rig: &crate::script::rig::Rig, status: i32) -> bool {
+    status != exit::INTERNAL && rig.runner.trouble.unreached_at_end.is_empty()
 }
 
 /// Runs `rigscript run`; returns the exit status.
@@ -169,15 +181,40 @@ pub fn run(args: RunArgs) -> i32 {
         keep_log: outputs.keeps_log(),
         stop_flag,
     };
+    let guardian = if args.no_guardian || args.sim || !setup.config.has_real_devices() {
+        None
+    } else {
+        let log = GuardianLog {
+            format: args.log_format,
+            zone: Zone::Local,
+        };
+        match guard(&setup.config, log) {
+            Ok(Guarded::Runner(confirmation)) => Some(confirmation),
+            Ok(Guarded::Guardian(status)) => return status,
+            Err(e) => {
+                eprintln!(
+                    "rigscript run: {e}; nothing was started (--no-guardian runs without it)"
+                );
+                return exit::ERROR;
+            }
+        }
+    };
     let mut rig = match start(&source, &file, setup) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("rigscript run: {e}");
+            // A run that never started drove nothing but the safe state taking control writes.
+            if let (Some(g), false) = (guardian, e.status() == exit::INTERNAL) {
+                g.confirm();
+            }
             return outputs.not_started(e.status(), &e.to_string());
         }
     };
     outputs.started(&mut rig);
     let status = rig.runner.run();
+    if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
+        g.confirm();
+    }
     let status = outputs.finished(&mut rig, status);
     let dropped = {
         // The last lines out (at most a second's wait for a stderr nobody reads).
