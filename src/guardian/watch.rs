@@ -67,6 +67,20 @@ pub enum GuardError {
     /// No pipe or no fork (the system is out of processes or descriptors).
     #[error("cannot start the guardian process: {0}")]
     Start(#[source] io::Error),
+    /// The process already runs other threads: a fork would copy it with locks they may hold.
+    #[error(
+        "cannot start the guardian process: {0} threads run already (a bug: it must fork first)"
+    )]
+    Threads(usize),
+}
+
+/// How many threads this process runs (`None` where /proc does not say).
+fn threads() -> Option<usize> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("Threads:"))
+        .and_then(|n| n.trim().parse().ok())
 }
 
 /// How the guardian speaks: the run's log format, and the zone of its times.
@@ -82,6 +96,9 @@ pub struct GuardianLog {
 /// one thread (before the log's writer or any other is started). The guardian's side returns
 /// only once the runner has ended (and the rig was made safe if it had to be).
 pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError> {
+    if let Some(n) = threads().filter(|&n| n > 1) {
+        return Err(GuardError::Threads(n));
+    }
     let (read, write) = pipe()?;
     let guardian = std::process::id();
     // SAFETY: the process has one thread (the caller's contract), so the child starts as a
