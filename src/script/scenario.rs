@@ -41,6 +41,7 @@ use crate::runtime::devices::FieldError;
 use crate::runtime::log::LogFormat;
 use crate::runtime::scan::EndReason;
 use crate::sim::answer_faults::AnswerFault;
+use crate::text_file::{read_text, TextKind};
 use crate::time::clock::VirtualClock;
 use crate::time::zone::Zone;
 use chrono::{DateTime, FixedOffset, Utc};
@@ -135,7 +136,7 @@ fn load(
         }
         None => RigConfig::simulated_default(),
     };
-    let source = std::fs::read_to_string(&path)
+    let source = read_text(&path, TextKind::Script)
         .or_else(|e| fail(format!("cannot read {}: {e}", path.display())))?;
     let clock = VirtualClock::new(start_at.with_timezone(&Utc));
     let setup = RigSetup {
@@ -472,7 +473,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
         report(&r);
         results.push(r);
     };
-    let source = match std::fs::read_to_string(path) {
+    let source = match read_text(path, TextKind::TestFile) {
         Ok(s) => s,
         Err(e) => {
             push(TestResult {
