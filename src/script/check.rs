@@ -8,13 +8,17 @@
 //! - literal arguments: device names in `device("...")` against the rig, switch and rotary
 //!   names, channels, durations and cron expressions, the number of parameters of handlers,
 //!   and invariants that are not closures taking no parameters;
+//! - literal numbers assigned to a device property that cannot hold them (`io.outputs = 300`;
+//!   the safe and power-on values 0-255, `panel.relay` 0-7), in the run's own words;
 //! - properties and methods called on a variable known to hold a device (bound once to a
 //!   `device("...")` literal, or a device's own name) that its kind does not have.
 //!
 //! A method whose name is also a key of a map in the script is left alone: Rhai calls a
 //! function stored in a map property as a method.
 
-use super::api::{register, takes_words, Arities, Io, Panel};
+use super::api::{
+    no_relay, not_a_byte, register, takes_words, Arities, Io, Panel, BYTE_PROPERTIES,
+};
 use super::engine::{sandboxed, DEFAULT_BUDGET};
 use super::reads::ReadTracker;
 use crate::config::{DeviceConfig, RigConfig};
@@ -651,7 +655,37 @@ impl Checker<'_> {
                     self.check_property(kind, &var, p.2.as_str(), *pos);
                 }
             }
+            Some(ASTNode::Stmt(Stmt::Assignment(x))) => self.check_assigned(&x.0, &x.1),
             _ => {}
+        }
+    }
+
+    /// A literal number assigned to a device property that cannot hold it (`io.outputs =
+    /// 300`, `panel.relay = 9`), in the words the run would fail with.
+    fn check_assigned(&mut self, op: &rhai::OpAssignment, bin: &rhai::BinaryExpr) {
+        let (Expr::Dot(dot, ..), Expr::IntegerConstant(n, at)) = (&bin.lhs, &bin.rhs) else {
+            return;
+        };
+        let Expr::Property(p, _) = &dot.rhs else {
+            return;
+        };
+        if op.is_op_assignment() {
+            return;
+        }
+        let Some((kind, var)) = self.kind_of(&dot.lhs) else {
+            return;
+        };
+        let property = p.2.as_str();
+        let message = match kind {
+            Kind::C29u => BYTE_PROPERTIES
+                .iter()
+                .find(|(name, _)| *name == property)
+                .filter(|_| u8::try_from(*n).is_err())
+                .map(|(_, what)| not_a_byte(what, *n)),
+            Kind::Trc => (property == "relay" && !(0..8).contains(n)).then(|| no_relay(&var, *n)),
+        };
+        if let Some(message) = message {
+            self.report(*at, message);
         }
     }
 
@@ -1321,6 +1355,9 @@ after("1s", || panel.set_output(1, true));
         "foo(1);",
         "io.set_output(1);",
         "io.outputz = 1;",
+        "io.outputs = 300;",
+        "every(\"1s\", || { panel.relay = 8; });",
+        "io.safe_value = -1;",
         "fn bar(x) { x } bar(1, 2);",
         "let a = [1]; a.psh(3);",
         "print(io.counters);",
@@ -1357,6 +1394,21 @@ after("1s", || panel.set_output(1, true));
         rig.runner.advance(Duration::from_millis(3500));
         let log = rig.runner.runtime().borrow().log.lines().join("\n");
         (rig.runner.status(), log)
+    }
+
+    #[test]
+    fn literal_numbers_a_device_property_cannot_hold_are_reported_as_the_run_would() {
+        let p = problems(
+            "io.outputs = 300;\npanel.relay = 9;\nio.outputs = 0xFF;\npanel.relay = 7;\n\
+             let x = 300;\nio.outputs = x;\nio.outputs += 300;\n",
+        );
+        assert_eq!(
+            p,
+            [
+                "1:14: 300 is not a DO byte: use 0-255 (0x00-0xFF, 0b00000000-0b11111111)",
+                "2:15: relay 9 does not exist on panel (TRC1000): use 0-7",
+            ]
+        );
     }
 
     #[test]
