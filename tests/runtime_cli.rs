@@ -367,7 +367,8 @@ fn run_help_shows_the_exit_statuses() {
         "Exit status (the first that applies):",
         "    5  the run ended, but something failed on the way: script errors recovered",
         "  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)",
-        "Before the run starts: 2 usage or rig.toml error, 3 a device not available (missing,",
+        "Before the run starts: 2 usage or rig.toml error, or a script `rigscript check`",
+        "rejects; 3 a device not available (missing, busy, no answer).",
     ] {
         assert!(out.contains(line), "{line}: {out}");
     }

@@ -45,7 +45,7 @@ use super::api::{duration, fail, R};
 use super::engine::{sandboxed, Guard};
 use super::error::{cause, innermost, location, parse_error};
 use super::rig::{start, Rig, RigSetup};
-use super::test_budget::{breach_text, test_limits, TestBudget};
+use super::test_budget::{breach_text, test_limits, TestBudget, TEST_BUDGET};
 use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
 use crate::runtime::devices::FieldError;
@@ -61,8 +61,6 @@ use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::sync::Arc;
-
-pub use super::test_budget::{TEST_BUDGET, VIRTUAL_TIME_BUDGET, WALL_TIME_BUDGET};
 
 /// Where virtual wall time starts unless a test says otherwise.
 pub const DEFAULT_START: &str = "2026-03-28T12:00:00Z";
