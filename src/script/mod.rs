@@ -13,4 +13,5 @@ pub mod program;
 pub mod reads;
 pub mod rig;
 pub mod scenario;
+pub mod test_budget;
 pub mod values;
