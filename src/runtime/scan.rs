@@ -11,6 +11,7 @@
 use super::error_log::ErrorLog;
 use super::exit;
 use super::invariants::{Check, Violation};
+use super::safety::DeviceEnd;
 use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::Call;
@@ -131,6 +132,8 @@ pub struct Runner<P: Program> {
     /// The script errors so far.
     pub errors: ErrorLog,
     violation: Option<Violation>,
+    /// How the end left each device (empty until the run has ended).
+    end_report: Vec<DeviceEnd>,
     /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
     pub service: Option<crate::service::notify::Notifier>,
 }
@@ -158,6 +161,7 @@ impl<P: Program> Runner<P> {
             stats: Stats::default(),
             errors: ErrorLog::default(),
             violation: None,
+            end_report: Vec::new(),
             service: None,
         }
     }
@@ -178,6 +182,12 @@ impl<P: Program> Runner<P> {
             State::Stopped { status } => Some(status),
             _ => None,
         }
+    }
+
+    /// How the end left each device: its safe state confirmed or not, and why (empty until
+    /// the run has ended). Whoever finishes the job reads it.
+    pub fn end_report(&self) -> &[DeviceEnd] {
+        &self.end_report
     }
 
     /// The invariant found false, if one was (the run then ended).
@@ -701,7 +711,13 @@ impl<P: Program> Runner<P> {
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
-        self.trouble.unreached_at_end = rt.end_safe(why, true);
+        self.end_report = rt.end_safe(why, true);
+        self.trouble.unreached_at_end = self
+            .end_report
+            .iter()
+            .filter(|d| d.needs_safe_state())
+            .map(|d| d.device.clone())
+            .collect();
         let failed = rt.records.failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
@@ -745,7 +761,8 @@ pub struct Trouble {
     pub on_stop_failed: u64,
     /// Devices lost and not back when the run ended.
     pub lost_at_end: Vec<String>,
-    /// Devices the end's safe state did not reach (no answer confirmed it).
+    /// Devices the end's safe state did not reach (not confirmed: no answer, or the read-back
+    /// showed another value).
     pub unreached_at_end: Vec<String>,
 }
 

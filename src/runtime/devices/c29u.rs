@@ -190,29 +190,10 @@ impl C29uDevice {
         Ok(true)
     }
 
-    /// Writes the safe value to the outputs with the configured retries; a module in safe
-    /// mode already holds it.
-    pub fn write_safe(&mut self) -> Result<(), DeviceError> {
-        let safe = self.config.safe_value;
-        Self::safe_write(&mut self.driver, safe)?;
-        self.outputs_written = Some(safe);
-        Ok(())
-    }
-
-    /// `write_safe` in one try, without retries (the end of a run: each device gets a bounded
-    /// time).
-    pub fn write_safe_once(&mut self) -> Result<(), DeviceError> {
-        let safe = self.config.safe_value;
-        Self::safe_write(&mut self.probe, safe)?;
-        self.outputs_written = Some(safe);
-        Ok(())
-    }
-
-    fn safe_write(driver: &mut C29u, safe: u8) -> Result<(), DeviceError> {
-        match driver.write_outputs(safe) {
-            Ok(()) | Err(C29uError::SafeMode { .. }) => Ok(()),
-            Err(e) => Err(e.into()),
-        }
+    /// The driver on the same line without retries: one try costs one timeout (the end of a
+    /// run gives each device a bounded time).
+    pub fn single_try_driver(&mut self) -> &mut C29u {
+        &mut self.probe
     }
 
     /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe), in

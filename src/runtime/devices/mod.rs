@@ -14,7 +14,7 @@ pub mod links;
 pub use c29u::{C29uDevice, Stored};
 pub use open::{c29u_options, open_devices, OpenError, Opened};
 pub use settings::SettingRefused;
-pub use sim::{FieldError, SimDevice, SimRig};
+pub use sim::{FieldError, SimDevice, SimRig, SwappedModule};
 pub use takeover::{ControlNotes, Takeover};
 pub use trc::TrcDevice;
 
