@@ -698,6 +698,11 @@ impl<P: Program> Runner<P> {
             }
         }
         let mut rt = self.rt.borrow_mut();
+        self.trouble.refused_writes = rt
+            .devices
+            .iter_mut()
+            .filter_map(|d| d.as_c29u().map(|c| c.refused_writes))
+            .sum();
         self.trouble.lost_at_end = rt
             .devices
             .iter()
@@ -761,6 +766,8 @@ pub struct Trouble {
     pub on_stop_failed: u64,
     /// Devices lost and not back when the run ended.
     pub lost_at_end: Vec<String>,
+    /// Output writes the modules refused during the run.
+    pub refused_writes: u64,
     /// Devices the end's safe state did not reach (not confirmed: no answer, or the read-back
     /// showed another value).
     pub unreached_at_end: Vec<String>,
@@ -772,6 +779,7 @@ impl Trouble {
         self.recovered_errors == 0
             && self.on_stop_failed == 0
             && self.lost_at_end.is_empty()
+            && self.refused_writes == 0
             && self.unreached_at_end.is_empty()
     }
 
@@ -792,6 +800,9 @@ impl Trouble {
                 "{} lost and not back at the end",
                 self.lost_at_end.join(", ")
             ));
+        }
+        if self.refused_writes > 0 {
+            parts.push(format!("{} output write(s) refused", self.refused_writes));
         }
         if !self.unreached_at_end.is_empty() {
             parts.push(format!(

@@ -52,6 +52,10 @@ pub struct C29uDevice {
     pub feed_timing: Option<FeedTiming>,
     /// What the module holds, so that unchanged values are not written again.
     pub stored: Stored,
+    /// Its last output write was refused (not for a safe mode its watchdog explains).
+    pub refusing: bool,
+    /// Output writes it refused during the run.
+    pub refused_writes: u64,
 }
 
 /// What the module holds in its EEPROM, as last read or written (`None`: not known).
@@ -95,6 +99,8 @@ impl C29uDevice {
             controlled: false,
             feed_timing: None,
             stored: Stored::default(),
+            refusing: false,
+            refused_writes: 0,
         }
     }
 
@@ -123,6 +129,7 @@ impl C29uDevice {
     pub fn write_outputs(&mut self, value: u8) -> Result<(), DeviceError> {
         self.driver.write_outputs(value)?;
         self.outputs_written = Some(value);
+        self.refusing = false;
         Ok(())
     }
 

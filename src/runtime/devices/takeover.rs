@@ -115,9 +115,9 @@ impl Takeover {
                     }
                 }
             },
-            Stage::WriteSafe => self.write(d, Write::SafeValue)?,
-            Stage::WritePowerOn => self.write(d, Write::PowerOnValue)?,
-            Stage::WriteOutputs => self.write(d, Write::Outputs)?,
+            Stage::WriteSafe => self.write(d, Write::SafeValue, now)?,
+            Stage::WritePowerOn => self.write(d, Write::PowerOnValue, now)?,
+            Stage::WriteOutputs => self.write(d, Write::Outputs, now)?,
             Stage::LeaveSafeMode { resume } => {
                 d.driver.set_watchdog(None)?;
                 d.stored.watchdog = Some(None);
@@ -138,8 +138,17 @@ impl Takeover {
         Ok(self.stage == Stage::Done)
     }
 
-    /// One write; a refusal in safe mode (the first time) leads out of it and back here.
-    fn write(&mut self, d: &mut C29uDevice, step: Write) -> Result<Stage, DeviceError> {
+    /// One write; a refusal in safe mode (the first time) leads out of it and back here. A
+    /// module that still answers "safe mode" with its watchdog off is not in safe mode but
+    /// refuses writes: its watchdog goes back on (it may yet make the module safe by itself),
+    /// and the refusal is the error, as a refusal (`refusing`: not taken for safe mode again
+    /// until a write gets through).
+    fn write(
+        &mut self,
+        d: &mut C29uDevice,
+        step: Write,
+        now: Duration,
+    ) -> Result<Stage, DeviceError> {
         let safe = d.config.safe_value;
         let result = match step {
             Write::SafeValue => store_at_safe_value(&mut d.driver, Preset::Safe, safe, safe),
@@ -152,6 +161,19 @@ impl Takeover {
         match result {
             Err(C29uError::SafeMode { .. }) if !self.notes.left_safe_mode => {
                 return Ok(Stage::LeaveSafeMode { resume: step });
+            }
+            Err(C29uError::SafeMode { port, id }) => {
+                d.refusing = true;
+                self.watchdog(d, now)?;
+                return Err(C29uError::Refused {
+                    port,
+                    id,
+                    request: "the write".into(),
+                    reason: "exception: module in safe mode (FF), with its watchdog off: it \
+                             refuses writes"
+                        .into(),
+                }
+                .into());
             }
             other => other?,
         }
