@@ -33,7 +33,7 @@ pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
 
 /// How often the modules' outputs are read back and the relays selected again (a module
 /// reset or power cycled behind the runner's back is set right within this time).
-pub const VERIFY_INTERVAL: Duration = Duration::from_secs(5);
+pub const CHECK_INTERVAL: Duration = Duration::from_secs(5);
 
 /// The first wait before a script is started again under policy `restart`; it doubles with
 /// each failure in a row, up to `MAX_BACKOFF`.
@@ -121,7 +121,7 @@ pub struct Runner<P: Program> {
     options: RunOptions,
     state: State,
     next_deadline: Duration,
-    last_verify: Duration,
+    last_check: Duration,
     failures_in_a_row: u32,
     last_start: Duration,
     /// What went wrong on the way.
@@ -153,7 +153,7 @@ impl<P: Program> Runner<P> {
             options,
             state: State::Running,
             next_deadline: now,
-            last_verify: now,
+            last_check: now,
             failures_in_a_row: 0,
             last_start: now,
             trouble: Trouble::default(),
@@ -464,9 +464,9 @@ impl<P: Program> Runner<P> {
             rt.flush_outputs();
             rt.feed_watchdogs();
             let now = rt.now();
-            if now.saturating_sub(self.last_verify) >= VERIFY_INTERVAL {
-                self.last_verify = now;
-                rt.verify_outputs();
+            if now.saturating_sub(self.last_check) >= CHECK_INTERVAL {
+                self.last_check = now;
+                rt.check_devices();
                 rt.flush_outputs();
             }
         }
@@ -512,7 +512,7 @@ impl<P: Program> Runner<P> {
     /// When the next tick has work, if no handler polls inputs (see `schedule_next`).
     fn idle_until(&self) -> Option<Duration> {
         let mut next = self.rt.borrow().idle_until()?;
-        next = next.min(self.last_verify.saturating_add(VERIFY_INTERVAL));
+        next = next.min(self.last_check.saturating_add(CHECK_INTERVAL));
         if let State::Restarting { at } = self.state {
             next = next.min(at);
         }

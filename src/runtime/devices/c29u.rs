@@ -2,6 +2,7 @@
 //! script wants and the one last written, the host watchdog the runner feeds, and what the
 //! module holds in its EEPROM.
 
+use super::identity::Found;
 use super::{DeviceError, Health, Snapshot};
 use crate::config::feeding::{FeedTiming, MOST_FEEDS_PER_TIMEOUT};
 use crate::config::C29uConfig;
@@ -52,6 +53,12 @@ pub struct C29uDevice {
     pub feed_timing: Option<FeedTiming>,
     /// What the module holds, so that unchanged values are not written again.
     pub stored: Stored,
+    /// Who it is and what it stored when last taken control of, before anything was written.
+    pub found: Option<Found>,
+    /// Which item the next periodic check reads in turn (`identity::ModuleCheck`).
+    pub check_turn: usize,
+    /// The script reset it (`.reset()`): its reset flag is no news.
+    pub reset_by_script: bool,
     /// Its last output write was refused (not for a safe mode its watchdog explains).
     pub refusing: bool,
     /// Output writes it refused during the run.
@@ -99,6 +106,9 @@ impl C29uDevice {
             controlled: false,
             feed_timing: None,
             stored: Stored::default(),
+            found: None,
+            check_turn: 0,
+            reset_by_script: false,
             refusing: false,
             refused_writes: 0,
         }
@@ -195,6 +205,19 @@ impl C29uDevice {
         self.driver.host_ok()?;
         self.last_feed = now;
         Ok(true)
+    }
+
+    /// Who the module should be and what it should store now: as taking control found it,
+    /// with the values the runner stored since (`None` before it was taken control of).
+    pub fn expected(&self) -> Option<Found> {
+        let f = self.found.as_ref()?;
+        Some(Found {
+            name: f.name.clone(),
+            firmware: f.firmware.clone(),
+            watchdog: self.stored.watchdog.unwrap_or(f.watchdog),
+            safe_value: self.stored.safe_value.unwrap_or(f.safe_value),
+            power_on_value: self.stored.power_on_value.unwrap_or(f.power_on_value),
+        })
     }
 
     /// The driver on the same line without retries: one try costs one timeout (the end of a

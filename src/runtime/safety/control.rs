@@ -132,7 +132,41 @@ impl<H: Clone> Runtime<H> {
                 break;
             }
         }
+        if let (Some(v), Some(d)) = (takeover.notes().power_on_unsafe, self.c29u(idx)) {
+            let line = format!(
+                "{}: its power-on value {v:#04x} is not its safe value {:#04x}, and rig.toml \
+                 sets none: after a power cycle it drives {v:#04x} until the runner notices \
+                 (the next output check, within 5s); set power_on_value in rig.toml",
+                d.name, d.config.safe_value
+            );
+            self.log.warn(&line);
+        }
         Ok(self.describe_findings(idx, takeover.notes()))
+    }
+
+    /// The TRP-C29U at `idx` is not the module the runner took control of (`why`: another
+    /// module behind the same link, or one reset or changed behind the runner's back): taken
+    /// control of as a new one, with what differs from the one before logged.
+    pub fn take_control_as_new(&mut self, idx: usize, why: &str) {
+        let Some(d) = self.c29u(idx) else { return };
+        let name = d.name.clone();
+        let before = d.expected();
+        self.log.warn(&format!(
+            "{name}: {why}; taking control of it as a new module"
+        ));
+        if !self.take_control(idx) {
+            return;
+        }
+        let Some(d) = self.c29u(idx) else { return };
+        if let (Some(before), Some(found)) = (before, d.found.clone()) {
+            let differs = found.differences(&before);
+            if !differs.is_empty() {
+                self.log.warn(&format!(
+                    "{name}: the module taken control of differs from the one before: {}",
+                    differs.join(", ")
+                ));
+            }
+        }
     }
 
     /// What taking control of the module at `idx` found, in log lines.
@@ -333,6 +367,29 @@ mod tests {
             !r.sim.safe_mode("io").unwrap(),
             "io was fed between the steps"
         );
+    }
+
+    #[test]
+    fn taking_control_warns_when_a_power_on_value_is_not_set_and_the_modules_is_not_safe() {
+        let rig = RIG.replace("power_on_value = 0x11\n", "");
+        let mut r = TestRig::new(&rig);
+        r.rt.start_devices().unwrap();
+        assert!(
+            r.log().contains(
+                "io: its power-on value 0x00 is not its safe value 0x05, and rig.toml sets none: \
+                 after a power cycle it drives 0x00 until the runner notices"
+            ),
+            "{}",
+            r.log()
+        );
+        let mut r = TestRig::new(&rig);
+        r.rt.c29u(IO)
+            .unwrap()
+            .driver
+            .set_power_on_value(0x05)
+            .unwrap();
+        r.rt.start_devices().unwrap();
+        assert!(!r.log().contains("power-on value"), "{}", r.log());
     }
 
     #[test]
