@@ -156,7 +156,11 @@ pub enum Fault {
     ModuleReset { dev: u8 },
     /// `dev`'s module's output stage is faulty for `ms`: output writes acknowledged and not
     /// applied (`refuse: None`), or refused with that Modbus exception code.
-    OutputStage { dev: u8, refuse: Option<u8>, ms: u64 },
+    OutputStage {
+        dev: u8,
+        refuse: Option<u8>,
+        ms: u64,
+    },
     /// The runner's process stalls for `ms` (the module's time goes on).
     Freeze { ms: u64 },
     /// The next call on the line panics.
