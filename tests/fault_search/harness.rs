@@ -509,6 +509,28 @@ fn schedule(
                     clock.at(t, move |_| lock(&model).power_cycle());
                 }
             }
+            Fault::Swap {
+                dev,
+                safe,
+                power_on,
+            } => {
+                if let Some(i) = module_of(modules, dev) {
+                    let model = Arc::clone(&modules[i].model);
+                    clock.at(t, move |_| {
+                        let mut other = Eeprom::factory();
+                        "OTHER".clone_into(&mut other.name);
+                        other.safe_value = safe;
+                        other.power_on_value = power_on;
+                        let firmware = rigscript::protocol::c29u::FirmwareDate {
+                            year: 14,
+                            month: 9,
+                            day: 1,
+                        };
+                        // A valid image by construction: the swap cannot fail.
+                        let _ = lock(&model).swap(other, firmware);
+                    });
+                }
+            }
             Fault::OutputStage { dev, refuse, ms: d } => {
                 if let Some(i) = module_of(modules, dev) {
                     let (on, off) = (Arc::clone(&modules[i].model), Arc::clone(&modules[i].model));

@@ -23,7 +23,11 @@
 //! - a module whose output stage is faulty (writes ignored or refused) cannot be made safe by
 //!   the runner: at the end it is excused from `end-not-safe` only if the end named it as not
 //!   reached (else `end-unconfirmed-not-said`), its watchdog must be left on
-//!   (`watchdog-weakened`), and a write refused during the run makes the exit status say so.
+//!   (`watchdog-weakened`), and a write refused during the run makes the exit status say so;
+//! - a module swapped for another (its own stored values, no watchdog) is found at the next
+//!   check and taken control of: only one swapped in less than a check (and its exchanges)
+//!   before the runner stopped is excused from `safe-value-changed`, `watchdog-weakened` and
+//!   `not-safe-after-end`.
 
 use super::case::{Case, Fault, Proto, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
@@ -306,6 +310,17 @@ impl Facts<'_> {
         })
     }
 
+    /// Whether module `i` was swapped for another too shortly before `t` for the runner's
+    /// periodic check to have found it (5 s, and the check's exchanges), or after it (no one
+    /// is left to take control of the new one).
+    fn swapped_unseen(&self, i: usize, t: Duration) -> bool {
+        let window = ms(5000) + ms(2 * self.case.rig.period_ms) + self.slowest_exchange() * 8;
+        self.case.faults.iter().any(|&(start, f)| match f {
+            Fault::Swap { dev, .. } => self.addresses(i, dev) && ms(start) + window >= t,
+            _ => false,
+        })
+    }
+
     /// The longest host watchdog module `i` may have: configured, or set by the script.
     fn longest_watchdog(&self, i: usize) -> Duration {
         let configured = self.run.modules[i]
@@ -365,6 +380,7 @@ impl Facts<'_> {
                 | Fault::Sigterm
                 | Fault::Kill
                 | Fault::ModuleReset { .. }
+                | Fault::Swap { .. }
                 | Fault::OutputStage { .. } => return false,
                 Fault::Freeze { ms: d }
                 | Fault::LinkStall { ms: d, .. }
@@ -528,6 +544,7 @@ impl Facts<'_> {
             let now = self.run.at_end[i];
             let later = self.run.after_wait[i];
             let faulty = self.stage_faulty(i, self.end_began(), self.run.ended_at);
+            let unseen = self.swapped_unseen(i, self.runner_gone());
             if self.reachable(m.line) {
                 let said = match &self.run.end {
                     End::Ran { log, .. } => log
@@ -576,7 +593,7 @@ impl Facts<'_> {
                         ),
                     );
                 }
-                if now.safe_value != m.safe {
+                if now.safe_value != m.safe && !unseen {
                     self.push(
                         "safe-value-changed",
                         format!(
@@ -590,6 +607,9 @@ impl Facts<'_> {
             let Some(w) = m.watchdog_tenths else {
                 continue;
             };
+            if unseen {
+                continue;
+            }
             let wd = now.watchdog;
             // Off is fine once the outputs are safe; otherwise only the watchdog can make them so.
             if (wd.enabled && wd.timeout_tenths > w) || (!wd.enabled && now.outputs != m.safe) {

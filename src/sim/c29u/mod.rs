@@ -325,7 +325,10 @@ impl C29uModel {
         self.tick();
         eeprom.config = self.eeprom.config;
         eeprom.validate()?;
-        self.commit(eeprom)?;
+        // Another module's EEPROM, not a write to this one's: no rewrite to count.
+        if eeprom != self.eeprom {
+            self.commit(eeprom)?;
+        }
         self.firmware = firmware;
         self.output_fault = None;
         self.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
