@@ -141,3 +141,68 @@ fn confirm_outputs(driver: &mut C29u, safe: u8) -> Result<SafeReading, Unconfirm
         Err(error) => Err(Unconfirmed::Refused { error, read, safe }),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use crate::sim::c29u::OutputFault;
+
+    fn confirm_io(r: &mut TestRig, tries: u32) -> Result<SafeReading, Unconfirmed> {
+        let driver = &mut r.rt.c29u(IO).unwrap().driver;
+        confirm_safe_state(
+            SafeDriver::C29u {
+                driver,
+                safe_value: 0x05,
+            },
+            tries,
+        )
+    }
+
+    #[test]
+    fn a_safe_value_counts_only_when_the_outputs_read_it_back() {
+        let mut r = TestRig::started();
+        r.rt.c29u(IO).unwrap().driver.write_outputs(0x1F).unwrap();
+        assert_eq!(confirm_io(&mut r, 1).unwrap(), SafeReading::Outputs(0x05));
+
+        r.rt.c29u(IO).unwrap().driver.write_outputs(0x1F).unwrap();
+        r.sim
+            .set_output_fault("io", Some(OutputFault::Ignore))
+            .unwrap();
+        let before = r.requests();
+        let u = confirm_io(&mut r, 2).unwrap_err();
+        assert!(
+            matches!(
+                u,
+                Unconfirmed::Ignored {
+                    read: 0x1F,
+                    safe: 0x05
+                }
+            ),
+            "{u}"
+        );
+        assert_eq!(r.requests() - before, 4, "two tries of a write and a read");
+
+        r.sim
+            .set_output_fault("io", Some(OutputFault::Refuse(0x04)))
+            .unwrap();
+        let u = confirm_io(&mut r, 1).unwrap_err();
+        assert_eq!(u.read_back(), Some(0x1F));
+        assert!(u.to_string().contains("(04)"), "{u}");
+
+        r.sim.set_gone("io", true).unwrap();
+        assert!(confirm_io(&mut r, 1).unwrap_err().is_no_answer());
+    }
+
+    #[test]
+    fn a_relay_counts_only_when_a_request_after_the_selection_is_answered() {
+        let mut r = TestRig::started();
+        let confirm = |r: &mut TestRig| {
+            let driver = &mut r.rt.trc(PANEL).unwrap().driver;
+            confirm_safe_state(SafeDriver::Trc1000 { driver, relay: 3 }, 1)
+        };
+        assert_eq!(confirm(&mut r).unwrap(), SafeReading::Relay(3));
+        r.sim.set_gone("panel", true).unwrap();
+        assert!(confirm(&mut r).unwrap_err().is_no_answer());
+    }
+}
