@@ -31,8 +31,9 @@ use std::time::Duration;
 /// SIGTERM are handled promptly whatever the period.
 pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
 
-/// How often the modules' outputs are read back and the relays selected again (a module
-/// reset or power cycled behind the runner's back is set right within this time).
+/// How often each device is checked (`Runtime::check_devices`: a module reset, swapped or
+/// changed behind the runner's back, or outputs that do not read as written, are set right
+/// within this time) and the relays selected again.
 pub const CHECK_INTERVAL: Duration = Duration::from_secs(5);
 
 /// The first wait before a script is started again under policy `restart`; it doubles with
@@ -491,8 +492,8 @@ impl<P: Program> Runner<P> {
     /// Moves the deadline one period on; past it already, counts an overrun and skips to the
     /// first period boundary after `now`. When no handler polls inputs, ticks that would have
     /// nothing to do are skipped too: the next deadline is the first period boundary at or
-    /// after the next timer, watchdog feed, output check, retry or end (idle runs cost no CPU,
-    /// and a day of a cron script in virtual time takes a moment).
+    /// after the next timer, watchdog feed, device check, retry, pending write or end (idle
+    /// runs cost no CPU, and a day of a cron script in virtual time takes a moment).
     fn schedule_next(&mut self, now: Duration) {
         let period = self.options.period.max(Duration::from_micros(1));
         self.next_deadline = self.next_deadline.saturating_add(period);

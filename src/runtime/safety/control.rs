@@ -138,7 +138,7 @@ impl<H: Clone> Runtime<H> {
             let line = format!(
                 "{}: its power-on value {v:#04x} is not its safe value {:#04x}, and rig.toml \
                  sets none: after a power cycle it drives {v:#04x} until the runner notices \
-                 (the next output check, within 5s); set power_on_value in rig.toml",
+                 (the next device check, within 5s); set power_on_value in rig.toml",
                 d.name, d.config.safe_value
             );
             self.log.warn(&line);
