@@ -231,6 +231,7 @@ impl Takeover {
             }
             Write::Outputs => {
                 d.outputs_written = Some(self.outputs);
+                d.refusing = false;
                 Stage::Watchdog
             }
         })
