@@ -323,6 +323,80 @@ fn a_run_with_recoverable_faults_keeps_every_promise() {
 }
 
 #[test]
+fn a_faulty_output_stage_is_owned_up_to_and_left_to_its_watchdog() {
+    for protocol in [Proto::Modbus, Proto::Ascii] {
+        for refuse in [None, Some(0x04), Some(0xFF)] {
+            // Faulty from before the end to past it: the end cannot confirm the safe state.
+            let case = Case {
+                rig: rig(20, vec![module(protocol)]),
+                script: toggling(),
+                faults: vec![
+                    (
+                        1500,
+                        Fault::OutputStage {
+                            dev: 0,
+                            refuse,
+                            ms: 12_000,
+                        },
+                    ),
+                    (3000, Fault::Sigterm),
+                ],
+            };
+            let run = harness::run(&case);
+            assert_eq!(
+                oracle::check(&case, &run),
+                [],
+                "{protocol:?} {refuse:?}\n{}",
+                describe(&case, &run)
+            );
+            assert!(
+                run.at_end[0].watchdog.enabled,
+                "{protocol:?} {refuse:?}: left on\n{}",
+                describe(&case, &run)
+            );
+            assert_eq!(run.after_wait[0].outputs, 0x05, "{protocol:?} {refuse:?}");
+            match &run.end {
+                harness::End::Ran { status, .. } => assert_eq!(*status, 5, "{protocol:?}"),
+                _ => panic!("{}", describe(&case, &run)),
+            }
+        }
+    }
+}
+
+#[test]
+fn a_module_swapped_behind_the_open_line_is_taken_control_of_before_a_kill() {
+    for protocol in [Proto::Modbus, Proto::Ascii] {
+        let case = Case {
+            rig: rig(20, vec![module(protocol)]),
+            script: toggling(),
+            faults: vec![
+                (
+                    1000,
+                    Fault::Swap {
+                        dev: 0,
+                        safe: 0xFF,
+                        power_on: 0xA6,
+                    },
+                ),
+                (8000, Fault::Kill),
+            ],
+        };
+        let run = harness::run(&case);
+        assert_eq!(
+            oracle::check(&case, &run),
+            [],
+            "{protocol:?}\n{}",
+            describe(&case, &run)
+        );
+        assert_eq!(run.at_end[0].safe_value, 0x05, "rewritten: {protocol:?}");
+        assert_eq!(
+            run.after_wait[0].outputs, 0x05,
+            "its new watchdog acted: {protocol:?}"
+        );
+    }
+}
+
+#[test]
 fn a_killed_runner_leaves_the_module_to_its_watchdog() {
     let case = Case {
         rig: rig(20, vec![module(Proto::Modbus)]),

@@ -128,7 +128,8 @@ fn test_api() -> BTreeSet<String> {
     };
     let mut engine = sandboxed(1000);
     let before = listed(&engine);
-    rigscript::script::scenario::register(&mut engine, Path::new("."));
+    let budget = std::rc::Rc::new(rigscript::script::test_budget::TestBudget::start());
+    rigscript::script::scenario::register(&mut engine, Path::new("."), &budget);
     let rig = format!(
         "{:?}",
         std::any::TypeId::of::<rigscript::script::scenario::RigHandle>()

@@ -105,3 +105,63 @@ fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
     assert_eq!(s["do"], 0x05, "{s}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// SIGTERM with the module in a state the end must not take on its word: the end reads the
+/// outputs back, names the module, exits 5, and leaves its host watchdog on, which then
+/// drives it safe.
+fn sigterm_with_a_faulty_output_stage(fault: &str, tag: &str) {
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let (dir, config, script) = setup(&sim, tag);
+    let mut run = start_run(&config, &script, &[]);
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    assert_eq!(s["do"], 0xF0, "{s}");
+    assert_eq!(sim.control(fault), "ok");
+    signal(&run, "-TERM");
+    let status = run.wait().unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(5), "{err}");
+    assert!(
+        err.contains("io: the safe state did not reach it: ") && err.contains("outputs read 0xf0"),
+        "{err}"
+    );
+    let s = sim.state();
+    assert_eq!(s["watchdog"]["enabled"], true, "left on: {s}\n{err}");
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0x05);
+    assert_eq!(s["do"], 0x05, "its watchdog drove it safe: {s}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn sigterm_with_a_module_that_ignores_writes_exits_5_and_leaves_its_watchdog_on() {
+    sigterm_with_a_faulty_output_stage("ignore-writes", "ignore");
+}
+
+#[test]
+fn sigterm_with_a_module_that_refuses_writes_with_ff_exits_5_and_leaves_its_watchdog_on() {
+    sigterm_with_a_faulty_output_stage("refuse-writes 0xFF", "refuse");
+}
+
+#[test]
+fn a_module_swapped_behind_the_open_port_is_taken_control_of_and_goes_safe_after_kill_9() {
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let (dir, config, script) = setup(&sim, "swap");
+    // Without the guardian: what is tested is the watchdog the takeover gave the new module.
+    let mut run = start_run(&config, &script, &["--no-guardian"]);
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    assert_eq!(s["do"], 0xF0, "{s}");
+    // Another module, safe value 0xFF and no watchdog, answers on the same port.
+    assert_eq!(sim.control("swap OTHER 0xFF 0xFF"), "ok");
+    let s = wait_for(&mut sim, Duration::from_secs(15), |s| {
+        s["safe_value"] == 0x05 && s["watchdog"]["enabled"] == true && s["do"] == 0xF0
+    });
+    assert_eq!(s["safe_value"], 0x05, "taken control of: {s}");
+    assert_eq!(s["watchdog"]["enabled"], true, "{s}");
+    signal(&run, "-KILL");
+    run.wait().unwrap();
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| {
+        s["watchdog"]["expired"] == true
+    });
+    assert_eq!(s["do"], 0x05, "its new watchdog drove it safe: {s}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

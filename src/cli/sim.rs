@@ -3,10 +3,10 @@
 
 use crate::cli::c29::parse_baud;
 use crate::device::c29u::auto_frame_gap;
-use crate::protocol::c29u::baud_code;
+use crate::protocol::c29u::{baud_code, FirmwareDate};
 use crate::protocol::c29u_modbus::silence_gap;
 use crate::protocol::c29u_modbus::SLAVE_IDS;
-use crate::sim::c29u::{C29uModel, Eeprom, Protocol};
+use crate::sim::c29u::{C29uModel, Eeprom, OutputFault, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use crate::sim::pty::{Faults, PtyServer, StrictTiming};
 use crate::time::clock::{SharedClock, SystemClock};
@@ -132,6 +132,13 @@ fn parse_probability(text: &str) -> Result<f64, String> {
     }
 }
 
+/// The firmware a module put in by `swap` reports.
+const SWAPPED_FIRMWARE: FirmwareDate = FirmwareDate {
+    year: 14,
+    month: 9,
+    day: 1,
+};
+
 /// One control line from standard input.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Control {
@@ -148,6 +155,19 @@ pub enum Control {
     Reset,
     /// Print the module's state as one JSON line.
     State,
+    /// Its output stage faulty (`ignore-writes`, `refuse-writes CODE`) or sound again
+    /// (`accept-writes`).
+    OutputFault(Option<OutputFault>),
+    /// Another module in its place (`swap NAME SAFE POWER_ON`): same ID, that name, those
+    /// stored values, a later firmware, no watchdog.
+    Swap {
+        /// Its name.
+        name: String,
+        /// Its stored safe value.
+        safe_value: u8,
+        /// Its stored power-on value.
+        power_on_value: u8,
+    },
 }
 
 /// A control line with the module it is for (`@ID` prefix; the first module when absent).
@@ -185,9 +205,17 @@ pub fn parse_control(line: &str) -> Result<ControlLine, String> {
         }
         ["reset"] => Control::Reset,
         ["state"] => Control::State,
+        ["ignore-writes"] => Control::OutputFault(Some(OutputFault::Ignore)),
+        ["refuse-writes", code] => Control::OutputFault(Some(OutputFault::Refuse(parse_byte(code)?))),
+        ["accept-writes"] => Control::OutputFault(None),
+        ["swap", name, safe, power_on] => Control::Swap {
+            name: (*name).to_string(),
+            safe_value: parse_byte(safe)?,
+            power_on_value: parse_byte(power_on)?,
+        },
         _ => {
             return Err(format!(
-                "unknown control line `{}`: use `di BYTE`, `pulse CH N`, `reset` or `state`, optionally after `@ID`",
+                "unknown control line `{}`: use `di BYTE`, `pulse CH N`, `reset`, `state`, `ignore-writes`, `refuse-writes CODE`, `accept-writes` or `swap NAME SAFE POWER_ON`, optionally after `@ID`",
                 line.trim()
             ))
         }
@@ -229,6 +257,24 @@ pub fn apply_control(
         Control::Reset => {
             model.power_cycle();
             "ok".into()
+        }
+        Control::OutputFault(fault) => {
+            model.set_output_fault(fault);
+            "ok".into()
+        }
+        Control::Swap {
+            name,
+            safe_value,
+            power_on_value,
+        } => {
+            let mut eeprom = Eeprom::factory();
+            eeprom.name = name;
+            eeprom.safe_value = safe_value;
+            eeprom.power_on_value = power_on_value;
+            match model.swap(eeprom, SWAPPED_FIRMWARE) {
+                Ok(()) => "ok".into(),
+                Err(e) => format!("error: {e}"),
+            }
         }
         Control::State => {
             let mut state = match serde_json::to_value(model.state()) {
@@ -329,7 +375,7 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
         out.flush().map_err(|e| e.to_string())?;
     }
     eprintln!(
-        "simulated TRP-C29U ({:?}, ID {}) on {}; control lines: di BYTE | pulse CH N | reset | state; Ctrl-C to stop",
+        "simulated TRP-C29U ({:?}, ID {}) on {}; control lines: di BYTE | pulse CH N | reset | state | ignore-writes | refuse-writes CODE | accept-writes | swap NAME SAFE POWER_ON; Ctrl-C to stop",
         args.protocol,
         modules.iter().map(|(id, _)| id.to_string()).collect::<Vec<_>>().join(","),
         server.path()

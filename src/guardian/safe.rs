@@ -4,7 +4,8 @@
 
 use crate::config::{DeviceConfig, Port, RigConfig};
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, DeviceError, OpenError};
+use crate::runtime::devices::{open_devices, Device, OpenError};
+use crate::runtime::safety::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed, END_TRIES};
 use crate::time::clock::SharedClock;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -21,10 +22,8 @@ pub struct DeviceOutcome {
 /// A safe state the device confirmed.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Confirmed {
-    /// A TRP-C29U's outputs, read back after the write.
-    Outputs(u8),
-    /// A TRC1000's relay, selected and confirmed by a request after it.
-    Relay(u8),
+    /// Read back: a TRP-C29U's outputs, or a TRC1000's relay confirmed by a request after it.
+    Reading(SafeReading),
     /// A TRC1000 without a `safe_relay` in rig.toml: nothing to write.
     NoSafeRelay,
 }
@@ -35,17 +34,9 @@ pub enum SafeError {
     /// The device cannot be opened (missing, busy, no permission).
     #[error("{}", .0.source)]
     Open(Box<OpenError>),
-    /// It did not answer, or answered with an error.
-    #[error("{0}")]
-    Device(#[from] DeviceError),
-    /// It answered the write, but its outputs read back otherwise: it refused or ignored it.
-    #[error("outputs read back {read:#04x} after {wanted:#04x} was written: the module did not apply its safe value")]
-    NotApplied {
-        /// The safe value written.
-        wanted: u8,
-        /// What the module's outputs read.
-        read: u8,
-    },
+    /// It did not answer, or answered otherwise than its safe state.
+    #[error(transparent)]
+    Unconfirmed(#[from] Unconfirmed),
     /// A simulated device lives inside the runner: nothing outside it can reach it.
     #[error("simulated: it lives in the runner, nothing outside it can reach it")]
     Simulated,
@@ -56,8 +47,7 @@ impl SafeError {
     pub fn unreachable(&self) -> bool {
         match self {
             SafeError::Open(_) | SafeError::Simulated => true,
-            SafeError::Device(e) => e.is_comm_failure() || e.is_link_failure(),
-            SafeError::NotApplied { .. } => false,
+            SafeError::Unconfirmed(u) => u.is_no_answer(),
         }
     }
 }
@@ -65,8 +55,10 @@ impl SafeError {
 impl fmt::Display for Confirmed {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Confirmed::Outputs(v) => write!(f, "outputs {v:#04x} (read back)"),
-            Confirmed::Relay(r) => write!(f, "relay {r} (confirmed)"),
+            Confirmed::Reading(SafeReading::Outputs(v)) => {
+                write!(f, "outputs {v:#04x} (read back)")
+            }
+            Confirmed::Reading(SafeReading::Relay(r)) => write!(f, "relay {r} (confirmed)"),
             Confirmed::NoSafeRelay => f.write_str("no safe_relay in rig.toml: relay left as it is"),
         }
     }
@@ -112,32 +104,26 @@ fn make_one_safe(
     let mut opened = open_devices(&alone, clock, false, &TransactionCounter::default())
         .map_err(|e| SafeError::Open(Box::new(e)))?;
     match opened.devices.first_mut() {
-        Some(d) => confirm_safe(d),
+        Some(d) => confirm(d),
         None => Err(SafeError::Simulated),
     }
 }
 
-/// Writes the device's safe state and confirms it: a TRP-C29U's outputs are read back (a
-/// module in safe mode refuses the write but should hold the value already, which the
-/// read-back shows either way); a TRC1000's relay is confirmed by a request after it.
-pub fn confirm_safe(device: &mut Device) -> Result<Confirmed, SafeError> {
-    match device {
-        Device::C29u(d) => {
-            d.write_safe()?;
-            let wanted = d.config.safe_value;
-            let read = d.driver.read_outputs().map_err(DeviceError::from)?;
-            if read == wanted {
-                Ok(Confirmed::Outputs(read))
-            } else {
-                Err(SafeError::NotApplied { wanted, read })
-            }
-        }
-        Device::Trc(t) => match t.config.safe_relay {
-            Some(r) => {
-                t.select_relay_confirmed(r)?;
-                Ok(Confirmed::Relay(r))
-            }
-            None => Ok(Confirmed::NoSafeRelay),
+/// Writes the device's safe state and confirms it (`safety::confirm_safe_state`) with the
+/// driver's configured retries, in two tries.
+fn confirm(device: &mut Device) -> Result<Confirmed, SafeError> {
+    let target = match device {
+        Device::C29u(d) => SafeDriver::C29u {
+            safe_value: d.config.safe_value,
+            driver: &mut d.driver,
         },
-    }
+        Device::Trc(t) => match t.config.safe_relay {
+            Some(relay) => SafeDriver::Trc1000 {
+                driver: &mut t.driver,
+                relay,
+            },
+            None => return Ok(Confirmed::NoSafeRelay),
+        },
+    };
+    Ok(Confirmed::Reading(confirm_safe_state(target, END_TRIES)?))
 }

@@ -19,9 +19,9 @@ pub const UNAVAILABLE: i32 = 3;
 /// A measurement was out of its limits.
 pub const MEASUREMENT_FAILED: i32 = 4;
 /// The run went on to its end, but something failed on the way: script errors recovered under
-/// `on_error = "restart"` or `"skip"`, a device lost and not back at the end, a device the
-/// end's safe state did not reach (no answer confirmed it), an `on_stop` handler that failed,
-/// records the records file did not take.
+/// `on_error = "restart"` or `"skip"`, a device lost and not back at the end, an output write
+/// refused, a device whose safe state the end did not confirm (read back), an `on_stop`
+/// handler that failed, records the records file did not take.
 pub const TROUBLE: i32 = 5;
 /// A bug in rigscript (a panic); the safe state was written to every device that answered
 /// and the host watchdogs left on.
@@ -41,8 +41,9 @@ Exit status (the first that applies):
     N  the script called stop(N) with N from 1 to 255
     5  the run ended, but something failed on the way: script errors recovered
        (on_error = \"restart\" or \"skip\"), a device lost and not back at the end,
-       a device the end's safe state did not reach, an on_stop handler that failed,
-       records the records file did not take (a full disk, a pipe nobody reads)
+       an output write refused, a device whose safe state the end did not
+       confirm (read back), an on_stop handler that failed, records the
+       records file did not take (a full disk, a pipe nobody reads)
     4  a measurement out of its limits
   130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)
     0  the run ended as planned (--for, stop(), nothing left to do)

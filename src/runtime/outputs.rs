@@ -2,6 +2,8 @@
 //! at its end, one transaction per device, only where it changed; the safe state instead
 //! while everything is held safe. The log tells changes only (a relay selected again after
 //! the periodic check is not one), and a write the device keeps refusing once, then counted.
+//! A refused write leaves the outputs unconfirmed: it is tried again at the next tick (the
+//! loop does not sleep past it, `outputs_pending`).
 
 use super::devices::Device;
 use super::log::Level;
@@ -45,6 +47,29 @@ impl<H: Clone> Runtime<H> {
                 Device::C29u(c) => c.outputs = c.config.safe_value,
             }
         }
+    }
+
+    /// Whether a device that answers still has outputs to be written (a refused write, one
+    /// not yet made): the loop ticks again at the next period boundary for it.
+    pub fn outputs_pending(&self) -> bool {
+        let held = self.held_safe;
+        self.devices.iter().any(|d| {
+            d.health().online()
+                && match d {
+                    Device::C29u(c) => {
+                        let target = if held { c.config.safe_value } else { c.outputs };
+                        c.outputs_written != Some(target)
+                    }
+                    Device::Trc(t) => {
+                        let target = if held {
+                            t.config.safe_relay
+                        } else {
+                            Some(t.relay)
+                        };
+                        target.is_some() && t.relay_written != target
+                    }
+                }
+        })
     }
 
     /// Writes what changed, one transaction per device: the DO byte the script wants (the
@@ -109,14 +134,24 @@ impl<H: Clone> Runtime<H> {
                         .settled(&refusal(&name), &format!("{name}: outputs written again"));
                 }
                 Ok(None) => {}
-                Err(e) if e.is_safe_mode() => self.regain_control(idx),
+                // A module that refused even with its watchdog off is not in safe mode: its
+                // refusals are refusals until a write gets through.
+                Err(e) if e.is_safe_mode() && !self.c29u(idx).is_some_and(|d| d.refusing) => {
+                    self.regain_control(idx);
+                }
                 Err(e) => {
                     if !e.is_comm_failure() && !e.is_cancelled() {
                         let name = self.device_name(idx);
+                        if let Some(d) = self.c29u(idx) {
+                            // Unconfirmed: what the module drives is not known.
+                            d.outputs_written = None;
+                            d.refusing = true;
+                            d.refused_writes = d.refused_writes.saturating_add(1);
+                        }
                         self.log.repeating(
                             &refusal(&name),
                             Level::Error,
-                            &format!("{name}: writing outputs failed: {e}"),
+                            &format!("{name}: writing outputs failed: {e}; trying again"),
                         );
                     }
                     self.note_failure(idx, &e);

@@ -11,6 +11,7 @@
 use super::error_log::ErrorLog;
 use super::exit;
 use super::invariants::{Check, Violation};
+use super::safety::DeviceEnd;
 use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::Call;
@@ -30,9 +31,10 @@ use std::time::Duration;
 /// SIGTERM are handled promptly whatever the period.
 pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
 
-/// How often the modules' outputs are read back and the relays selected again (a module
-/// reset or power cycled behind the runner's back is set right within this time).
-pub const VERIFY_INTERVAL: Duration = Duration::from_secs(5);
+/// How often each device is checked (`Runtime::check_devices`: a module reset, swapped or
+/// changed behind the runner's back, or outputs that do not read as written, are set right
+/// within this time) and the relays selected again.
+pub const CHECK_INTERVAL: Duration = Duration::from_secs(5);
 
 /// The first wait before a script is started again under policy `restart`; it doubles with
 /// each failure in a row, up to `MAX_BACKOFF`.
@@ -120,7 +122,7 @@ pub struct Runner<P: Program> {
     options: RunOptions,
     state: State,
     next_deadline: Duration,
-    last_verify: Duration,
+    last_check: Duration,
     failures_in_a_row: u32,
     last_start: Duration,
     /// What went wrong on the way.
@@ -131,6 +133,8 @@ pub struct Runner<P: Program> {
     /// The script errors so far.
     pub errors: ErrorLog,
     violation: Option<Violation>,
+    /// How the end left each device (empty until the run has ended).
+    end_report: Vec<DeviceEnd>,
     /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
     pub service: Option<crate::service::notify::Notifier>,
 }
@@ -150,7 +154,7 @@ impl<P: Program> Runner<P> {
             options,
             state: State::Running,
             next_deadline: now,
-            last_verify: now,
+            last_check: now,
             failures_in_a_row: 0,
             last_start: now,
             trouble: Trouble::default(),
@@ -158,6 +162,7 @@ impl<P: Program> Runner<P> {
             stats: Stats::default(),
             errors: ErrorLog::default(),
             violation: None,
+            end_report: Vec::new(),
             service: None,
         }
     }
@@ -178,6 +183,12 @@ impl<P: Program> Runner<P> {
             State::Stopped { status } => Some(status),
             _ => None,
         }
+    }
+
+    /// How the end left each device: its safe state confirmed or not, and why (empty until
+    /// the run has ended). Whoever finishes the job reads it.
+    pub fn end_report(&self) -> &[DeviceEnd] {
+        &self.end_report
     }
 
     /// The invariant found false, if one was (the run then ended).
@@ -464,9 +475,9 @@ impl<P: Program> Runner<P> {
             rt.flush_outputs();
             rt.feed_watchdogs();
             let now = rt.now();
-            if now.saturating_sub(self.last_verify) >= VERIFY_INTERVAL {
-                self.last_verify = now;
-                rt.verify_outputs();
+            if now.saturating_sub(self.last_check) >= CHECK_INTERVAL {
+                self.last_check = now;
+                rt.check_devices();
                 rt.flush_outputs();
             }
         }
@@ -491,8 +502,8 @@ impl<P: Program> Runner<P> {
     /// Moves the deadline one period on; past it already, counts an overrun and skips to the
     /// first period boundary after `now`. When no handler polls inputs, ticks that would have
     /// nothing to do are skipped too: the next deadline is the first period boundary at or
-    /// after the next timer, watchdog feed, output check, retry or end (idle runs cost no CPU,
-    /// and a day of a cron script in virtual time takes a moment).
+    /// after the next timer, watchdog feed, device check, retry, pending write or end (idle
+    /// runs cost no CPU, and a day of a cron script in virtual time takes a moment).
     fn schedule_next(&mut self, now: Duration) {
         let period = self.options.period.max(Duration::from_micros(1));
         self.next_deadline = self.next_deadline.saturating_add(period);
@@ -512,7 +523,7 @@ impl<P: Program> Runner<P> {
     /// When the next tick has work, if no handler polls inputs (see `schedule_next`).
     fn idle_until(&self) -> Option<Duration> {
         let mut next = self.rt.borrow().idle_until()?;
-        next = next.min(self.last_verify.saturating_add(VERIFY_INTERVAL));
+        next = next.min(self.last_check.saturating_add(CHECK_INTERVAL));
         if let State::Restarting { at } = self.state {
             next = next.min(at);
         }
@@ -698,6 +709,11 @@ impl<P: Program> Runner<P> {
             }
         }
         let mut rt = self.rt.borrow_mut();
+        self.trouble.refused_writes = rt
+            .devices
+            .iter_mut()
+            .filter_map(|d| d.as_c29u().map(|c| c.refused_writes))
+            .sum();
         self.trouble.lost_at_end = rt
             .devices
             .iter()
@@ -711,7 +727,13 @@ impl<P: Program> Runner<P> {
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
         };
-        self.trouble.unreached_at_end = rt.end_safe(why, true);
+        self.end_report = rt.end_safe(why, true);
+        self.trouble.unreached_at_end = self
+            .end_report
+            .iter()
+            .filter(|d| d.needs_safe_state())
+            .map(|d| d.device.clone())
+            .collect();
         // After the safe state: the records file gets a bounded wait for what is queued.
         let r = &mut *rt;
         self.trouble.records_lost = r.records.close(&mut r.log);
@@ -759,7 +781,10 @@ pub struct Trouble {
     pub on_stop_failed: u64,
     /// Devices lost and not back when the run ended.
     pub lost_at_end: Vec<String>,
-    /// Devices the end's safe state did not reach (no answer confirmed it).
+    /// Output writes the modules refused during the run.
+    pub refused_writes: u64,
+    /// Devices the end's safe state did not reach (not confirmed: no answer, or the read-back
+    /// showed another value).
     pub unreached_at_end: Vec<String>,
     /// Records the records file did not take (dropped, refused, or still queued at the end).
     pub records_lost: u64,
@@ -771,6 +796,7 @@ impl Trouble {
         self.recovered_errors == 0
             && self.on_stop_failed == 0
             && self.lost_at_end.is_empty()
+            && self.refused_writes == 0
             && self.unreached_at_end.is_empty()
             && self.records_lost == 0
     }
@@ -792,6 +818,9 @@ impl Trouble {
                 "{} lost and not back at the end",
                 self.lost_at_end.join(", ")
             ));
+        }
+        if self.refused_writes > 0 {
+            parts.push(format!("{} output write(s) refused", self.refused_writes));
         }
         if !self.unreached_at_end.is_empty() {
             parts.push(format!(

@@ -114,7 +114,8 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
-    /// timer or retry of a lost device (watchdogs are fed between ticks). `None` when every
+    /// timer or retry of a lost device, or now while outputs wait to be written (a refused
+    /// write is tried again at the next tick; watchdogs are fed between ticks). `None` when every
     /// tick has work: a handler polls inputs, or an invariant read device inputs when last
     /// evaluated (an invariant that reads only outputs, script state or time can change only
     /// in a tick that runs anyway, and is checked in every tick that runs).
@@ -124,6 +125,9 @@ impl<H: Clone> Runtime<H> {
             return None;
         }
         let now = self.now();
+        if self.outputs_pending() {
+            return Some(now);
+        }
         let timer = self.handlers.next_timer(now, self.clock.wall());
         let upkeep = self.next_retry();
         let next = match (timer, upkeep) {

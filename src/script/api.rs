@@ -574,8 +574,9 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         c29u_op(d, |m| {
             m.driver.reset()?;
             // The module comes back at its power-on value; the script's outputs are written
-            // again at the end of the tick.
+            // again at the end of the tick, and the periodic check knows this reset.
             m.outputs_written = None;
+            m.reset_by_script = true;
             Ok(())
         })
     });

@@ -19,6 +19,12 @@
 //!   half_turns)`, `r.set_inputs(dev, byte)`, `r.set_input(dev, ch, on)`, `r.pulse(dev, ch,
 //!   n)`, `r.fail(dev)`, `r.restore(dev)`, `r.power_cycle(dev)`, `r.drop_answers(dev, n)` and
 //!   `r.garble_answers(dev, n)` (the device's next `n` answers lost or garbled),
+//!   `r.ignore_writes(dev)` (a module acknowledges output writes without applying them),
+//!   `r.refuse_writes(dev, code)` (it refuses them with that Modbus exception code: 4, 0xFF),
+//!   `r.accept_writes(dev)` (its output stage sound again), `r.swap_module(dev, #{name,
+//!   firmware, safe_value, power_on_value, watchdog})` (another module answers in its place
+//!   behind the same link: same ID, its own name, firmware date `"YYMMDD"`, stored values and
+//!   watchdog, a duration or `()` for off; keys left out take a factory module's),
 //!   `r.signal_stop()`, `r.end()` (the run ends normally, as at `--for`).
 //! - Time itself: `r.stall(dur)` (virtual time moves on without a tick: the host stalled),
 //!   `r.step_wall(step)` (the wall clock steps by `"+1h"`, `"-90s"`...: NTP, a clock change).
@@ -28,7 +34,9 @@
 //! - Read from the run: `r.records()`, `r.stopped()`, `r.exit_status()` (`()` while
 //!   running), `r.log()`, `r.now()`, `r.overruns()`, `r.online(dev)`, `r.held_safe()`
 //!   (outputs held safe for a device lost past its grace time), `r.errors()` (the script
-//!   errors so far, as logged), `r.violation()` (the invariant found false, or `()`).
+//!   errors so far, as logged), `r.violation()` (the invariant found false, or `()`),
+//!   `r.end_confirmed(dev)` (whether the end confirmed the device's safe state; `()` before
+//!   the end).
 //! - `r.expect_errors()`: the test expects the script under test to fail. A script error the
 //!   test never looked at fails the test once it has passed: errors after its last
 //!   `r.errors()` call count, unless it called `r.expect_errors()` on that rig.
@@ -48,10 +56,11 @@ use super::rig::{start, Rig, RigSetup};
 use super::test_budget::{breach_text, test_limits, TestBudget, TEST_BUDGET};
 use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
-use crate::runtime::devices::FieldError;
+use crate::runtime::devices::{FieldError, SwappedModule};
 use crate::runtime::log::LogFormat;
 use crate::runtime::scan::EndReason;
 use crate::sim::answer_faults::AnswerFault;
+use crate::sim::c29u::OutputFault;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
@@ -221,7 +230,7 @@ impl RigHandle {
 
 /// Registers the test API on `engine` for one test, whose budgets are `budget`; script paths
 /// are relative to `base`.
-fn register(engine: &mut Engine, base: &Path, budget: &Rc<TestBudget>) {
+pub fn register(engine: &mut Engine, base: &Path, budget: &Rc<TestBudget>) {
     engine.register_type_with_name::<RigHandle>("Rig");
     let default_start = parse_time(DEFAULT_START).ok();
     let (b, t) = (base.to_path_buf(), Rc::clone(budget));
@@ -361,6 +370,26 @@ fn register_field(engine: &mut Engine) {
     engine.register_fn("power_cycle", |r: &mut RigHandle, dev: &str| {
         r.sim(|s| s.power_cycle(dev))
     });
+    engine.register_fn("ignore_writes", |r: &mut RigHandle, dev: &str| {
+        r.sim(|s| s.set_output_fault(dev, Some(OutputFault::Ignore)))
+    });
+    engine.register_fn(
+        "refuse_writes",
+        |r: &mut RigHandle, dev: &str, code: i64| -> R<()> {
+            let code = u8_arg("Modbus exception code", code)?;
+            r.sim(|s| s.set_output_fault(dev, Some(OutputFault::Refuse(code))))
+        },
+    );
+    engine.register_fn("accept_writes", |r: &mut RigHandle, dev: &str| {
+        r.sim(|s| s.set_output_fault(dev, None))
+    });
+    engine.register_fn(
+        "swap_module",
+        |r: &mut RigHandle, dev: &str, other: Map| -> R<()> {
+            let other = swapped_module(&other)?;
+            r.sim(|s| s.swap_module(dev, &other))
+        },
+    );
     for (name, fault) in [
         ("drop_answers", AnswerFault::Drop),
         ("garble_answers", AnswerFault::Garble),
@@ -376,6 +405,45 @@ fn register_field(engine: &mut Engine) {
             }
             Ok(())
         });
+    }
+}
+
+/// The module `r.swap_module` puts in place, from the test's map.
+fn swapped_module(map: &Map) -> R<SwappedModule> {
+    let mut m = SwappedModule::default();
+    for (key, value) in map {
+        match key.as_str() {
+            "name" => m.name = value.to_string(),
+            "safe_value" => m.safe_value = u8_arg("safe value", value.as_int().unwrap_or(-1))?,
+            "power_on_value" => {
+                m.power_on_value = u8_arg("power-on value", value.as_int().unwrap_or(-1))?;
+            }
+            "watchdog" if value.is_unit() => m.watchdog_tenths = 0,
+            "watchdog" => {
+                let d = duration(value)?;
+                m.watchdog_tenths =
+                    crate::device::c29u::watchdog_tenths(d).or_else(|e| fail(e.to_string()))?;
+            }
+            "firmware" => m.firmware = firmware_date(&value.to_string())?,
+            other => {
+                return fail(format!(
+                    "swap_module: unknown key {other:?} (name, firmware, safe_value, \
+                     power_on_value, watchdog)"
+                ))
+            }
+        }
+    }
+    Ok(m)
+}
+
+/// A firmware date written `"YYMMDD"`.
+fn firmware_date(text: &str) -> R<crate::protocol::c29u::FirmwareDate> {
+    let part = |at: usize| text.get(at..at + 2).and_then(|p| p.parse::<u8>().ok());
+    match (text.len(), part(0), part(2), part(4)) {
+        (6, Some(year), Some(month), Some(day)) => {
+            Ok(crate::protocol::c29u::FirmwareDate { year, month, day })
+        }
+        _ => fail(format!("firmware {text:?}: write its date as \"YYMMDD\"")),
     }
 }
 
@@ -467,6 +535,20 @@ fn register_observations(engine: &mut Engine) {
             .violation()
             .map_or(Dynamic::UNIT, |v| Dynamic::from(v.to_string()))
     });
+    engine.register_fn(
+        "end_confirmed",
+        |r: &mut RigHandle, dev: &str| -> R<Dynamic> {
+            let s = r.0.borrow();
+            let report = s.rig.runner.end_report();
+            if report.is_empty() {
+                return Ok(Dynamic::UNIT);
+            }
+            match report.iter().find(|d| d.device == dev) {
+                Some(d) => Ok(Dynamic::from(!d.needs_safe_state())),
+                None => fail(format!("no device called {dev:?} at the end")),
+            }
+        },
+    );
     engine.register_fn("online", |r: &mut RigHandle, dev: &str| -> R<bool> {
         let s = r.0.borrow();
         let rt = s.rig.runner.runtime().borrow();

@@ -13,9 +13,7 @@
 //! - A LF right after a CR (a CR LF line end) is ignored; a frame longer than
 //!   [`AsciiFrontEnd::MAX_FRAME`] is dropped up to the next CR.
 
-use super::c29u::{
-    C29uModel, C29uModelError, ModuleConfig, Protocol, FIRMWARE_DATE, FIRMWARE_MODEL,
-};
+use super::c29u::{C29uModel, C29uModelError, ModuleConfig, Protocol, FIRMWARE_MODEL};
 use crate::protocol::c29u_ascii::{
     decode_request, encode_answer, encode_refusal, Address, Answer, FirmwareVersion, LatchLevel,
     ModuleName, Preset, Refusal, Request, CR,
@@ -107,7 +105,7 @@ fn carry_out(
             Answer::Name(ModuleName::new(model.name()).ok_or(Refusal::InvalidCommand)?)
         }
         Request::ReadFirmware => Answer::Firmware(
-            FirmwareVersion::from_parts(FIRMWARE_MODEL, FIRMWARE_DATE)
+            FirmwareVersion::from_parts(FIRMWARE_MODEL, model.firmware())
                 .ok_or(Refusal::InvalidCommand)?,
         ),
         Request::ReadResetStatus => Answer::ResetStatus(model.take_reset_flag()),
@@ -136,11 +134,12 @@ fn carry_out(
     })
 }
 
-/// 8-4 / 8-19: `>` when done, `!IDWE` in safe mode, `!ID` for anything else the model refuses.
+/// 8-4 / 8-19: `>` when done, `!IDWE` in safe mode (and for a faulty stage's refusal with the
+/// safe-mode code FF), `!ID` for anything else the model refuses.
 fn output_write(result: Result<(), C29uModelError>) -> Result<Answer, Refusal> {
     match result {
         Ok(()) => Ok(Answer::OutputWritten),
-        Err(C29uModelError::SafeMode) => Err(Refusal::SafeMode),
+        Err(C29uModelError::SafeMode | C29uModelError::Refused(0xFF)) => Err(Refusal::SafeMode),
         Err(_) => Err(Refusal::ParameterError),
     }
 }

@@ -4,7 +4,8 @@
 //! Readings this front end follows, where the manual is silent:
 //! - Slave ID 0 (Modbus broadcast) is not supported: such frames are ignored, not executed.
 //! - Refused model calls map to exception codes: safe mode -> FF, bad channel -> 02 (start
-//!   channel), bad value -> 01 (data format), anything else -> 00 (syntax); any refused vendor
+//!   channel), bad value -> 01 (data format), a faulty output stage's refusal -> its code,
+//!   anything else -> 00 (syntax); any refused vendor
 //!   (46) command answers `ID C6 00`.
 //! - 46 0C answers EN = 1 while a timeout is set, even once it has fired (the ASCII `~IDWR`
 //!   reports a fired watchdog as "D"; 10-9 as read defines only "EN 1 = enabled").
@@ -14,7 +15,7 @@
 //! - 0F 00 with a start and count other than 0 and 8 writes only those channels (bit 0 of DD =
 //!   channel NN), as standard Modbus does; 0F 03 saves all counters whatever the range.
 
-use super::c29u::{C29uModel, C29uModelError, FIRMWARE_DATE};
+use super::c29u::{C29uModel, C29uModelError};
 use crate::protocol::c29u_modbus::{
     decode_request, encode_exception, encode_response, encode_vendor_error, BitArea, CoilCommand,
     CoilsTarget, ExceptionCode, FrameReader, Request, Response, VendorRequest, VendorResponse,
@@ -161,11 +162,14 @@ fn vendor(
             model.set_config(cfg)?;
             R::BaudChanged
         }
-        VendorRequest::ReadFirmware => R::Firmware {
-            year: FIRMWARE_DATE.year,
-            month: FIRMWARE_DATE.month,
-            day: FIRMWARE_DATE.day,
-        },
+        VendorRequest::ReadFirmware => {
+            let date = model.firmware();
+            R::Firmware {
+                year: date.year,
+                month: date.month,
+                day: date.day,
+            }
+        }
         VendorRequest::ReadResetFlag => R::ResetFlag(model.take_reset_flag()),
         VendorRequest::Reset => {
             model.reset();
@@ -207,6 +211,7 @@ fn vendor(
 fn exception_code(e: &C29uModelError) -> ExceptionCode {
     match e {
         C29uModelError::SafeMode => ExceptionCode::SafeMode,
+        C29uModelError::Refused(code) => ExceptionCode::from_byte(*code),
         C29uModelError::BadChannel(_) => ExceptionCode::StartChannel,
         C29uModelError::BadValue(_) => ExceptionCode::DataFormat,
         C29uModelError::NotSynchronized | C29uModelError::Io(_) => ExceptionCode::Syntax,

@@ -154,6 +154,16 @@ pub enum Fault {
     Unplug { line: u8, ms: u64 },
     /// `dev`'s module is power cycled behind the runner's back.
     ModuleReset { dev: u8 },
+    /// Another module answers in `dev`'s module's place on its line (same ID), with these
+    /// stored safe and power-on values and no watchdog, powered on as it is swapped in.
+    Swap { dev: u8, safe: u8, power_on: u8 },
+    /// `dev`'s module's output stage is faulty for `ms`: output writes acknowledged and not
+    /// applied (`refuse: None`), or refused with that Modbus exception code.
+    OutputStage {
+        dev: u8,
+        refuse: Option<u8>,
+        ms: u64,
+    },
     /// The runner's process stalls for `ms` (the module's time goes on).
     Freeze { ms: u64 },
     /// The next call on the line panics.
@@ -348,6 +358,10 @@ fn fault() -> impl Strategy<Value = Fault> {
         1 => (line.clone(), long.clone()).prop_map(|(line, ms)| Fault::Silence { line, ms }),
         1 => (line.clone(), long.clone()).prop_map(|(line, ms)| Fault::Unplug { line, ms }),
         1 => (0..2u8).prop_map(|dev| Fault::ModuleReset { dev }),
+        1 => (0..2u8, select(SAFE_POOL.to_vec()), select(POWER_ON_POOL.to_vec()))
+            .prop_map(|(dev, safe, power_on)| Fault::Swap { dev, safe, power_on }),
+        1 => (0..2u8, select(vec![None, Some(0x04), Some(0xFF)]), long.clone())
+            .prop_map(|(dev, refuse, ms)| Fault::OutputStage { dev, refuse, ms }),
         1 => long.prop_map(|ms| Fault::Freeze { ms }),
         1 => line.prop_map(|line| Fault::Panic { line }),
     ]

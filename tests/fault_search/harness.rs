@@ -13,7 +13,9 @@ use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevi
 use rigscript::runtime::log::LogFormat;
 use rigscript::script::rig::{start_with, RigError, RigSetup};
 use rigscript::sim::answer_faults::AnswerFaults;
-use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig, Protocol, WatchdogStatus};
+use rigscript::sim::c29u::{
+    C29uModel as Model, Eeprom, ModuleConfig, OutputFault, Protocol, WatchdogStatus,
+};
 use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use rigscript::sim::faults::{Connection, EventClock, FaultHit, FaultPlan, FaultyLink, LinkFault};
 use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
@@ -505,6 +507,36 @@ fn schedule(
                 if let Some(i) = module_of(modules, dev) {
                     let model = Arc::clone(&modules[i].model);
                     clock.at(t, move |_| lock(&model).power_cycle());
+                }
+            }
+            Fault::Swap {
+                dev,
+                safe,
+                power_on,
+            } => {
+                if let Some(i) = module_of(modules, dev) {
+                    let model = Arc::clone(&modules[i].model);
+                    clock.at(t, move |_| {
+                        let mut other = Eeprom::factory();
+                        "OTHER".clone_into(&mut other.name);
+                        other.safe_value = safe;
+                        other.power_on_value = power_on;
+                        let firmware = rigscript::protocol::c29u::FirmwareDate {
+                            year: 14,
+                            month: 9,
+                            day: 1,
+                        };
+                        // A valid image by construction: the swap cannot fail.
+                        let _ = lock(&model).swap(other, firmware);
+                    });
+                }
+            }
+            Fault::OutputStage { dev, refuse, ms: d } => {
+                if let Some(i) = module_of(modules, dev) {
+                    let (on, off) = (Arc::clone(&modules[i].model), Arc::clone(&modules[i].model));
+                    let fault = refuse.map_or(OutputFault::Ignore, OutputFault::Refuse);
+                    clock.at(t, move |_| lock(&on).set_output_fault(Some(fault)));
+                    clock.at(t + ms(d), move |_| lock(&off).set_output_fault(None));
                 }
             }
             Fault::Freeze { ms: d } => clock.at(t, move |c| c.advance(ms(d))),

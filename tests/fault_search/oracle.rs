@@ -19,7 +19,15 @@
 //!   failure is `exit-hides-failure` (the statuses are `runtime::exit`'s);
 //! - a script error says where in the script it happened (`error-without-location`);
 //! - nothing is written to a module's EEPROM that it holds already, unless an answer on its
-//!   line was lost (`eeprom-rewrite`).
+//!   line was lost (`eeprom-rewrite`);
+//! - a module whose output stage is faulty (writes ignored or refused) cannot be made safe by
+//!   the runner: at the end it is excused from `end-not-safe` only if the end named it as not
+//!   reached (else `end-unconfirmed-not-said`), its watchdog must be left on
+//!   (`watchdog-weakened`), and a write refused during the run makes the exit status say so;
+//! - a module swapped for another (its own stored values, no watchdog) is found at the next
+//!   check and taken control of: only one swapped in less than a check (and its exchanges)
+//!   before the runner stopped is excused from `safe-value-changed`, `watchdog-weakened` and
+//!   `not-safe-after-end`.
 
 use super::case::{Case, Fault, Proto, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
@@ -292,6 +300,27 @@ impl Facts<'_> {
         }
     }
 
+    /// Whether module `i`'s output stage was faulty at some time between `from` and `to`.
+    fn stage_faulty(&self, i: usize, from: Duration, to: Duration) -> bool {
+        self.case.faults.iter().any(|&(start, f)| match f {
+            Fault::OutputStage { dev, ms: d, .. } => {
+                self.addresses(i, dev) && ms(start) <= to && ms(start) + ms(d) >= from
+            }
+            _ => false,
+        })
+    }
+
+    /// Whether module `i` was swapped for another too shortly before `t` for the runner's
+    /// periodic check to have found it (5 s, and the check's exchanges), or after it (no one
+    /// is left to take control of the new one).
+    fn swapped_unseen(&self, i: usize, t: Duration) -> bool {
+        let window = ms(5000) + ms(2 * self.case.rig.period_ms) + self.slowest_exchange() * 8;
+        self.case.faults.iter().any(|&(start, f)| match f {
+            Fault::Swap { dev, .. } => self.addresses(i, dev) && ms(start) + window >= t,
+            _ => false,
+        })
+    }
+
     /// The longest host watchdog module `i` may have: configured, or set by the script.
     fn longest_watchdog(&self, i: usize) -> Duration {
         let configured = self.run.modules[i]
@@ -347,9 +376,12 @@ impl Facts<'_> {
         let tail = ms(1000) + watchdog + ms(2 * self.case.rig.period_ms) + slow * 4;
         self.case.faults.iter().copied().find(|&(start, f)| {
             let lasts = match f {
-                Fault::Input { .. } | Fault::Sigterm | Fault::Kill | Fault::ModuleReset { .. } => {
-                    return false
-                }
+                Fault::Input { .. }
+                | Fault::Sigterm
+                | Fault::Kill
+                | Fault::ModuleReset { .. }
+                | Fault::Swap { .. }
+                | Fault::OutputStage { .. } => return false,
                 Fault::Freeze { ms: d }
                 | Fault::LinkStall { ms: d, .. }
                 | Fault::Silence { ms: d, .. }
@@ -422,7 +454,7 @@ impl Facts<'_> {
                     || ms(t) + ms(3000) < from
                     || ms(t) > by
             });
-            if !quiet {
+            if !quiet || self.stage_faulty(i, from, by) {
                 continue;
             }
             let Some(fired) = history
@@ -511,8 +543,25 @@ impl Facts<'_> {
             let name = render::name(e);
             let now = self.run.at_end[i];
             let later = self.run.after_wait[i];
+            let faulty = self.stage_faulty(i, self.end_began(), self.run.ended_at);
+            let unseen = self.swapped_unseen(i, self.runner_gone());
             if self.reachable(m.line) {
-                if now.outputs != m.safe {
+                let said = match &self.run.end {
+                    End::Ran { log, .. } => log
+                        .iter()
+                        .any(|l| l.contains(&format!("{name}{END_NOT_REACHED}"))),
+                    _ => false,
+                };
+                if now.outputs != m.safe && faulty && !said {
+                    self.push(
+                        "end-unconfirmed-not-said",
+                        format!(
+                            "{name}: outputs {:#04x} after {how} (its output stage is faulty), \
+                             and the end did not say it did not reach it",
+                            now.outputs
+                        ),
+                    );
+                } else if now.outputs != m.safe && !faulty {
                     let shared = self.run.modules[i].entries.len() > 1;
                     let skipped = match &self.run.end {
                         End::Ran { log, .. } => log.iter().any(|l| {
@@ -544,7 +593,7 @@ impl Facts<'_> {
                         ),
                     );
                 }
-                if now.safe_value != m.safe {
+                if now.safe_value != m.safe && !unseen {
                     self.push(
                         "safe-value-changed",
                         format!(
@@ -558,6 +607,9 @@ impl Facts<'_> {
             let Some(w) = m.watchdog_tenths else {
                 continue;
             };
+            if unseen {
+                continue;
+            }
             let wd = now.watchdog;
             // Off is fine once the outputs are safe; otherwise only the watchdog can make them so.
             if (wd.enabled && wd.timeout_tenths > w) || (!wd.enabled && now.outputs != m.safe) {
@@ -699,9 +751,13 @@ impl Facts<'_> {
                     |l: &&String| l.contains(" error: in ") || l.contains(" error: case.rhai:");
                 // Script errors the run went on after (skip, restart), and anything that failed
                 // once it was stopping (on_stop, the safe state).
+                // A write a module refused is a device fault the run must own up to.
+                let refused = |l: &&String| {
+                    l.contains(": writing outputs failed: ") && !l.contains("no answer")
+                };
                 let mut failures: Vec<String> = log[..si]
                     .iter()
-                    .filter(script_error)
+                    .filter(|l| script_error(l) || refused(l))
                     .chain(log[si..].iter().filter(|l| l.contains(" error: ")))
                     .cloned()
                     .collect();

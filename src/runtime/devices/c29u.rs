@@ -2,6 +2,7 @@
 //! script wants and the one last written, the host watchdog the runner feeds, and what the
 //! module holds in its EEPROM.
 
+use super::identity::Found;
 use super::{DeviceError, Health, Snapshot};
 use crate::config::feeding::{FeedTiming, MOST_FEEDS_PER_TIMEOUT};
 use crate::config::C29uConfig;
@@ -52,6 +53,16 @@ pub struct C29uDevice {
     pub feed_timing: Option<FeedTiming>,
     /// What the module holds, so that unchanged values are not written again.
     pub stored: Stored,
+    /// Who it is and what it stored when last taken control of, before anything was written.
+    pub found: Option<Found>,
+    /// Which item the next periodic check reads in turn (`identity::ModuleCheck`).
+    pub check_turn: usize,
+    /// The script reset it (`.reset()`): its reset flag is no news.
+    pub reset_by_script: bool,
+    /// Its last output write was refused (not for a safe mode its watchdog explains).
+    pub refusing: bool,
+    /// Output writes it refused during the run.
+    pub refused_writes: u64,
 }
 
 /// What the module holds in its EEPROM, as last read or written (`None`: not known).
@@ -95,6 +106,11 @@ impl C29uDevice {
             controlled: false,
             feed_timing: None,
             stored: Stored::default(),
+            found: None,
+            check_turn: 0,
+            reset_by_script: false,
+            refusing: false,
+            refused_writes: 0,
         }
     }
 
@@ -123,6 +139,7 @@ impl C29uDevice {
     pub fn write_outputs(&mut self, value: u8) -> Result<(), DeviceError> {
         self.driver.write_outputs(value)?;
         self.outputs_written = Some(value);
+        self.refusing = false;
         Ok(())
     }
 
@@ -190,29 +207,23 @@ impl C29uDevice {
         Ok(true)
     }
 
-    /// Writes the safe value to the outputs with the configured retries; a module in safe
-    /// mode already holds it.
-    pub fn write_safe(&mut self) -> Result<(), DeviceError> {
-        let safe = self.config.safe_value;
-        Self::safe_write(&mut self.driver, safe)?;
-        self.outputs_written = Some(safe);
-        Ok(())
+    /// Who the module should be and what it should store now: as taking control found it,
+    /// with the values the runner stored since (`None` before it was taken control of).
+    pub fn expected(&self) -> Option<Found> {
+        let f = self.found.as_ref()?;
+        Some(Found {
+            name: f.name.clone(),
+            firmware: f.firmware.clone(),
+            watchdog: self.stored.watchdog.unwrap_or(f.watchdog),
+            safe_value: self.stored.safe_value.unwrap_or(f.safe_value),
+            power_on_value: self.stored.power_on_value.unwrap_or(f.power_on_value),
+        })
     }
 
-    /// `write_safe` in one try, without retries (the end of a run: each device gets a bounded
-    /// time).
-    pub fn write_safe_once(&mut self) -> Result<(), DeviceError> {
-        let safe = self.config.safe_value;
-        Self::safe_write(&mut self.probe, safe)?;
-        self.outputs_written = Some(safe);
-        Ok(())
-    }
-
-    fn safe_write(driver: &mut C29u, safe: u8) -> Result<(), DeviceError> {
-        match driver.write_outputs(safe) {
-            Ok(()) | Err(C29uError::SafeMode { .. }) => Ok(()),
-            Err(e) => Err(e.into()),
-        }
+    /// The driver on the same line without retries: one try costs one timeout (the end of a
+    /// run gives each device a bounded time).
+    pub fn single_try_driver(&mut self) -> &mut C29u {
+        &mut self.probe
     }
 
     /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe), in

@@ -3,6 +3,7 @@
 //! per-tick input snapshots, the outputs the script wants, and the link's health.
 
 mod c29u;
+mod identity;
 mod open;
 mod settings;
 mod sim;
@@ -12,9 +13,10 @@ mod trc;
 pub mod links;
 
 pub use c29u::{C29uDevice, Stored};
+pub use identity::{watchdog_words, CheckFinding, Found, ModuleCheck};
 pub use open::{c29u_options, open_devices, OpenError, Opened};
 pub use settings::SettingRefused;
-pub use sim::{FieldError, SimDevice, SimRig};
+pub use sim::{FieldError, SimDevice, SimRig, SwappedModule};
 pub use takeover::{ControlNotes, Takeover};
 pub use trc::TrcDevice;
 

@@ -2,8 +2,9 @@
 //! switch, turn a knob, energize an input, pull a cable) and what it reads back from them.
 
 use super::links::Presence;
+use crate::protocol::c29u::FirmwareDate;
 use crate::sim::answer_faults::{AnswerFault, AnswerFaults};
-use crate::sim::c29u::WatchdogStatus;
+use crate::sim::c29u::{Eeprom, OutputFault, WatchdogStatus};
 use crate::sim::c29u_line::{lock, SharedModel};
 use crate::sim::trc1000::Trc1000Sim;
 use std::collections::BTreeMap;
@@ -30,6 +31,39 @@ pub enum SimDevice {
         /// Faults waiting for its next answers.
         faults: AnswerFaults,
     },
+}
+
+/// The module `SimRig::swap_module` puts in another's place.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SwappedModule {
+    /// Its name (8-14).
+    pub name: String,
+    /// Its firmware date.
+    pub firmware: FirmwareDate,
+    /// Its stored safe value.
+    pub safe_value: u8,
+    /// Its stored power-on value.
+    pub power_on_value: u8,
+    /// Its host watchdog, in 0.1 s (0: off).
+    pub watchdog_tenths: u8,
+}
+
+impl Default for SwappedModule {
+    /// A factory-fresh module of a later firmware: the factory name, zero values, no
+    /// watchdog.
+    fn default() -> Self {
+        Self {
+            name: crate::sim::c29u::DEFAULT_NAME.to_string(),
+            firmware: FirmwareDate {
+                year: 14,
+                month: 9,
+                day: 1,
+            },
+            safe_value: 0,
+            power_on_value: 0,
+            watchdog_tenths: 0,
+        }
+    }
 }
 
 /// Why a field-side action could not be done.
@@ -233,6 +267,32 @@ impl SimRig {
             }
         }
         Ok(())
+    }
+
+    /// Makes the output stage of a simulated TRP-C29U faulty (`None`: sound again): writes
+    /// acknowledged and ignored, or refused with an exception code.
+    pub fn set_output_fault(
+        &self,
+        dev: &str,
+        fault: Option<OutputFault>,
+    ) -> Result<(), FieldError> {
+        let m = self.c29u(dev, "output fault")?;
+        lock(&m).set_output_fault(fault);
+        Ok(())
+    }
+
+    /// Puts another module in the place of a simulated TRP-C29U, behind the same open link:
+    /// same ID and line settings, `other`'s name, firmware and stored values.
+    pub fn swap_module(&self, dev: &str, other: &SwappedModule) -> Result<(), FieldError> {
+        let m = self.c29u(dev, "swap")?;
+        let mut m = lock(&m);
+        let mut eeprom = Eeprom::factory();
+        other.name.clone_into(&mut eeprom.name);
+        eeprom.safe_value = other.safe_value;
+        eeprom.power_on_value = other.power_on_value;
+        eeprom.watchdog_tenths = other.watchdog_tenths;
+        m.swap(eeprom, other.firmware)
+            .map_err(|e| FieldError::Refused(e.to_string()))
     }
 
     /// The DO byte of a simulated TRP-C29U (as the module drives it now).

@@ -1,10 +1,13 @@
-//! Taking control of a TRP-C29U, one exchange at a time: the stored safe and power-on values
+//! Taking control of a TRP-C29U, one exchange at a time: who it is and what it stores read and
+//! recorded (name, firmware, watchdog, safe and power-on values: `identity::Found`; its reset
+//! flag cleared, so that the periodic check sees a later reset), the stored safe and power-on values
 //! set to the wanted ones (only where they differ, to spare the EEPROM), the outputs written
 //! (leaving safe mode first if the module refuses because it is in it), and the host watchdog
 //! on and fed. One exchange a step, so the runner can feed the other modules' watchdogs
 //! between steps whatever each exchange takes.
 
 use super::c29u::C29uDevice;
+use super::identity::Found;
 use super::DeviceError;
 use crate::device::c29u::{C29u, C29uError, Preset, PresetWrite, WatchdogInfo, WatchdogTimeout};
 use std::time::Duration;
@@ -34,10 +37,16 @@ pub struct ControlNotes {
     pub safe_value_was: Option<u8>,
     /// Its stored power-on value was changed to the wanted one (from this).
     pub power_on_value_was: Option<u8>,
+    /// rig.toml sets no power-on value and the module's (this) is not its safe value: a power
+    /// cycle drives it until the runner notices.
+    pub power_on_unsafe: Option<u8>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Stage {
+    ReadName,
+    ReadFirmware,
+    ClearResetFlag,
     ReadWatchdog,
     ReadSafe,
     WriteSafe,
@@ -67,6 +76,8 @@ pub struct Takeover {
     stage: Stage,
     before: Option<WatchdogInfo>,
     notes: ControlNotes,
+    name: String,
+    firmware: String,
 }
 
 impl Takeover {
@@ -74,9 +85,11 @@ impl Takeover {
     pub fn new(outputs: u8) -> Self {
         Self {
             outputs,
-            stage: Stage::ReadWatchdog,
+            stage: Stage::ReadName,
             before: None,
             notes: ControlNotes::default(),
+            name: String::new(),
+            firmware: String::new(),
         }
     }
 
@@ -88,6 +101,19 @@ impl Takeover {
     /// Does the next exchange at `now`; true once the module is under control.
     pub fn step(&mut self, d: &mut C29uDevice, now: Duration) -> Result<bool, DeviceError> {
         self.stage = match self.stage {
+            Stage::ReadName => {
+                self.name = d.driver.name()?;
+                Stage::ReadFirmware
+            }
+            Stage::ReadFirmware => {
+                self.firmware = d.driver.firmware()?.text;
+                Stage::ClearResetFlag
+            }
+            Stage::ClearResetFlag => {
+                d.driver.take_reset_flag()?;
+                d.reset_by_script = false;
+                Stage::ReadWatchdog
+            }
             Stage::ReadWatchdog => {
                 self.before = Some(d.driver.watchdog()?);
                 Stage::ReadSafe
@@ -102,22 +128,27 @@ impl Takeover {
                     Stage::WriteSafe
                 }
             }
-            Stage::ReadPowerOn => match d.config.power_on_value {
-                None => Stage::WriteOutputs,
-                Some(wanted) => {
-                    let stored = d.driver.power_on_value()?;
-                    d.stored.power_on_value = Some(stored);
-                    if stored == wanted {
+            Stage::ReadPowerOn => {
+                let stored = d.driver.power_on_value()?;
+                d.stored.power_on_value = Some(stored);
+                self.record(d, stored);
+                match d.config.power_on_value {
+                    None => {
+                        if stored != d.config.safe_value {
+                            self.notes.power_on_unsafe = Some(stored);
+                        }
                         Stage::WriteOutputs
-                    } else {
+                    }
+                    Some(wanted) if stored == wanted => Stage::WriteOutputs,
+                    Some(_) => {
                         self.notes.power_on_value_was = Some(stored);
                         Stage::WritePowerOn
                     }
                 }
-            },
-            Stage::WriteSafe => self.write(d, Write::SafeValue)?,
-            Stage::WritePowerOn => self.write(d, Write::PowerOnValue)?,
-            Stage::WriteOutputs => self.write(d, Write::Outputs)?,
+            }
+            Stage::WriteSafe => self.write(d, Write::SafeValue, now)?,
+            Stage::WritePowerOn => self.write(d, Write::PowerOnValue, now)?,
+            Stage::WriteOutputs => self.write(d, Write::Outputs, now)?,
             Stage::LeaveSafeMode { resume } => {
                 d.driver.set_watchdog(None)?;
                 d.stored.watchdog = Some(None);
@@ -138,8 +169,29 @@ impl Takeover {
         Ok(self.stage == Stage::Done)
     }
 
-    /// One write; a refusal in safe mode (the first time) leads out of it and back here.
-    fn write(&mut self, d: &mut C29uDevice, step: Write) -> Result<Stage, DeviceError> {
+    /// Records who the module is and what it stored, before anything was written to it.
+    fn record(&self, d: &mut C29uDevice, power_on_value: u8) {
+        let watchdog = self.before.and_then(super::identity::watchdog_of);
+        d.found = Some(Found {
+            name: self.name.clone(),
+            firmware: self.firmware.clone(),
+            watchdog,
+            safe_value: self.notes.safe_value_was.unwrap_or(d.config.safe_value),
+            power_on_value,
+        });
+    }
+
+    /// One write; a refusal in safe mode (the first time) leads out of it and back here. A
+    /// module that still answers "safe mode" with its watchdog off is not in safe mode but
+    /// refuses writes: its watchdog goes back on (it may yet make the module safe by itself),
+    /// and the refusal is the error, as a refusal (`refusing`: not taken for safe mode again
+    /// until a write gets through).
+    fn write(
+        &mut self,
+        d: &mut C29uDevice,
+        step: Write,
+        now: Duration,
+    ) -> Result<Stage, DeviceError> {
         let safe = d.config.safe_value;
         let result = match step {
             Write::SafeValue => store_at_safe_value(&mut d.driver, Preset::Safe, safe, safe),
@@ -152,6 +204,19 @@ impl Takeover {
         match result {
             Err(C29uError::SafeMode { .. }) if !self.notes.left_safe_mode => {
                 return Ok(Stage::LeaveSafeMode { resume: step });
+            }
+            Err(C29uError::SafeMode { port, id }) => {
+                d.refusing = true;
+                self.watchdog(d, now)?;
+                return Err(C29uError::Refused {
+                    port,
+                    id,
+                    request: "the write".into(),
+                    reason: "exception: module in safe mode (FF), with its watchdog off: it \
+                             refuses writes"
+                        .into(),
+                }
+                .into());
             }
             other => other?,
         }
@@ -166,6 +231,7 @@ impl Takeover {
             }
             Write::Outputs => {
                 d.outputs_written = Some(self.outputs);
+                d.refusing = false;
                 Stage::Watchdog
             }
         })

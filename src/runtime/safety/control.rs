@@ -1,7 +1,7 @@
 //! Taking control of a device: at start (a device that does not answer ends the run), when it
 //! comes back after a loss, and when a module refused a write because its watchdog fired.
 
-use crate::runtime::devices::{ControlNotes, Device, DeviceError, Takeover};
+use crate::runtime::devices::{ControlNotes, Device, DeviceError, Found, Takeover};
 use crate::runtime::log::Level;
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
@@ -95,6 +95,7 @@ impl<H: Clone> Runtime<H> {
     /// safe: as `try_take_control`, with what it found logged; a failure loses the device.
     /// False if it failed.
     pub fn take_control(&mut self, idx: usize) -> bool {
+        let before = self.c29u(idx).and_then(|d| d.expected());
         match self.try_take_control(idx) {
             Ok(found) => {
                 for line in found {
@@ -104,6 +105,7 @@ impl<H: Clone> Runtime<H> {
                 let done = format!("{name}: taken control of");
                 self.log.settled(&takeover_key(&name), &done);
                 self.log.settled(&safe_mode_key(&name), &done);
+                self.log_differences(idx, before.as_ref());
                 true
             }
             Err(e) => {
@@ -156,7 +158,45 @@ impl<H: Clone> Runtime<H> {
                 break;
             }
         }
+        if let (Some(v), Some(d)) = (takeover.notes().power_on_unsafe, self.c29u(idx)) {
+            let line = format!(
+                "{}: its power-on value {v:#04x} is not its safe value {:#04x}, and rig.toml \
+                 sets none: after a power cycle it drives {v:#04x} until the runner notices \
+                 (the next device check, within 5s); set power_on_value in rig.toml",
+                d.name, d.config.safe_value
+            );
+            self.log.warn(&line);
+        }
         Ok(self.describe_findings(idx, takeover.notes()))
+    }
+
+    /// The TRP-C29U at `idx` is not the module the runner took control of (`why`: another
+    /// module behind the same link, or one reset or changed behind the runner's back): taken
+    /// control of as a new one (`take_control` logs what differs from the one before).
+    pub fn take_control_as_new(&mut self, idx: usize, why: &str) {
+        let name = self.device_name(idx);
+        self.log.warn(&format!(
+            "{name}: {why}; taking control of it as a new module"
+        ));
+        self.take_control(idx);
+    }
+
+    /// Logs how the module at `idx` just taken control of differs from the one the runner
+    /// expected there (`before`): another module, or one changed behind its back.
+    fn log_differences(&mut self, idx: usize, before: Option<&Found>) {
+        let Some(d) = self.c29u(idx) else { return };
+        let (Some(before), Some(found)) = (before, d.found.as_ref()) else {
+            return;
+        };
+        let differs = found.differences(before);
+        if !differs.is_empty() {
+            let line = format!(
+                "{}: the module taken control of differs from the one before: {}",
+                d.name,
+                differs.join(", ")
+            );
+            self.log.warn(&line);
+        }
     }
 
     /// What taking control of the module at `idx` found, in log lines.
@@ -357,6 +397,54 @@ mod tests {
             !r.sim.safe_mode("io").unwrap(),
             "io was fed between the steps"
         );
+    }
+
+    #[test]
+    fn taking_control_warns_when_a_power_on_value_is_not_set_and_the_modules_is_not_safe() {
+        let rig = RIG.replace("power_on_value = 0x11\n", "");
+        let mut r = TestRig::new(&rig);
+        r.rt.start_devices().unwrap();
+        assert!(
+            r.log().contains(
+                "io: its power-on value 0x00 is not its safe value 0x05, and rig.toml sets none: \
+                 after a power cycle it drives 0x00 until the runner notices"
+            ),
+            "{}",
+            r.log()
+        );
+        let mut r = TestRig::new(&rig);
+        r.rt.c29u(IO)
+            .unwrap()
+            .driver
+            .set_power_on_value(0x05)
+            .unwrap();
+        r.rt.start_devices().unwrap();
+        assert!(!r.log().contains("power-on value"), "{}", r.log());
+    }
+
+    #[test]
+    fn a_different_module_back_after_a_loss_is_named_with_what_differs() {
+        let mut r = TestRig::started();
+        r.sim.set_gone("io", true).unwrap();
+        r.rt.tick += 1;
+        r.rt.inputs(IO);
+        assert!(!r.rt.online(IO));
+        let other = crate::runtime::devices::SwappedModule {
+            safe_value: 0x0F,
+            ..Default::default()
+        };
+        r.sim.swap_module("io", &other).unwrap();
+        r.sim.set_gone("io", false).unwrap();
+        r.clock.advance(Duration::from_secs(1));
+        r.rt.supervise();
+        assert!(r.rt.online(IO));
+        let log = r.log();
+        assert!(
+            log.contains("io: the module taken control of differs from the one before: ")
+                && log.contains("safe value 0x0f (was 0x05)"),
+            "{log}"
+        );
+        assert_eq!(r.sim.safe_value("io").unwrap(), 0x05);
     }
 
     #[test]

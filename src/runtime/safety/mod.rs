@@ -3,11 +3,13 @@
 //! losing devices and trying them again, holding every output safe while one has been lost
 //! for longer than its grace time, and the safe state at the end.
 
+mod confirm;
 mod control;
 mod loss;
 mod safe_state;
 mod upkeep;
 
+pub use confirm::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed};
 pub use control::Unavailable;
 pub use loss::RETRY_INTERVAL;
-pub use safe_state::END_TRIES;
+pub use safe_state::{DeviceEnd, EndOutcome, END_TRIES};

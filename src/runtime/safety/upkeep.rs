@@ -1,7 +1,9 @@
 //! Keeping control while the run goes: host watchdogs fed at a quarter of their timeout, and
-//! every few seconds the modules' outputs read back and the relays selected again.
+//! every few seconds each module checked (the one taken control of, not reset, its watchdog,
+//! stored values and outputs as the runner left them) and the relays selected again.
 
-use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::devices::{CheckFinding, Device, ModuleCheck};
+use crate::runtime::log::Level;
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
 use std::time::Duration;
@@ -72,55 +74,99 @@ impl<H: Clone> Runtime<H> {
             .min()
     }
 
-    /// Checks that the modules still drive what was written (a module reset or power cycled
-    /// by someone else goes back to its power-on value) and selects each relay again (a board
-    /// that was unplugged forgets it), confirmed by a request after it; run every few seconds.
-    pub fn verify_outputs(&mut self) {
+    /// Checks each device, run every few seconds: a module is still the one taken control
+    /// of, not reset, its watchdog and stored values as the runner left them, and its outputs
+    /// what was written (`devices::ModuleCheck`: four requests, one a step with the other
+    /// watchdogs fed between them); a module that is not is taken control of as a new one.
+    /// Each relay is selected again (a board that was unplugged forgets it), confirmed by a
+    /// request after it.
+    pub fn check_devices(&mut self) {
         for idx in 0..self.devices.len() {
             if !self.ready_for_exchange(idx) {
                 continue;
             }
             let result = match self.devices.get_mut(idx) {
-                Some(Device::C29u(d)) => match d.outputs_written {
-                    Some(written) => {
-                        d.driver
-                            .read_outputs()
-                            .map_err(DeviceError::from)
-                            .map(|actual| {
-                                (actual != written).then(|| {
-                                    d.outputs_written = None;
-                                    format!(
-                                        "{}: outputs read {actual:#04x} but {written:#04x} was \
-                                     written (module reset or power cycled?); writing them again",
-                                        d.name
-                                    )
-                                })
-                            })
-                    }
-                    None => Ok(None),
-                },
+                Some(Device::C29u(_)) => {
+                    self.check_module(idx);
+                    continue;
+                }
                 // A selection gets no answer, so a script that only writes the relay would
                 // never learn that the board stopped answering: the check selects the relay
                 // again (a board reset behind the runner's back gets it back) and confirms it
                 // with a request after it.
                 Some(Device::Trc(d)) => match d.relay_written {
-                    Some(relay) => d.select_relay_confirmed(relay).map(|()| None),
-                    None => Ok(None),
+                    Some(relay) => d.select_relay_confirmed(relay),
+                    None => Ok(()),
                 },
-                None => Ok(None),
+                None => Ok(()),
             };
-            match result {
-                Ok(Some(line)) => self.log.warn(&line),
-                Ok(None) => {}
-                Err(e) => self.note_failure(idx, &e),
+            if let Err(e) = result {
+                self.note_failure(idx, &e);
             }
+        }
+    }
+
+    /// The periodic check of the TRP-C29U at `idx` (see `check_devices`).
+    fn check_module(&mut self, idx: usize) {
+        let mut check = ModuleCheck::new();
+        let finding = loop {
+            if !self.ready_for_exchange(idx) {
+                return;
+            }
+            let Some(d) = self.c29u(idx) else { return };
+            match check.step(d) {
+                Ok(Some(finding)) => break finding,
+                Ok(None) => {}
+                Err(e) => {
+                    self.note_failure(idx, &e);
+                    return;
+                }
+            }
+        };
+        let name = self.device_name(idx);
+        let key = format!("{name}/read-back");
+        match finding {
+            CheckFinding::Same => self
+                .log
+                .settled(&key, &format!("{name}: outputs as written")),
+            CheckFinding::Outputs { read, written } => {
+                if let Some(d) = self.c29u(idx) {
+                    d.outputs_written = None;
+                }
+                self.log.repeating(
+                    &key,
+                    Level::Warn,
+                    &format!(
+                        "{name}: outputs read {read:#04x} but {written:#04x} was written (someone \
+                         else writes them, or the module does not apply what it is sent); \
+                         writing them again"
+                    ),
+                );
+            }
+            CheckFinding::Reset => self.take_control_as_new(
+                idx,
+                "reset or power cycled behind the runner's back (its reset flag is set)",
+            ),
+            CheckFinding::Differs {
+                what,
+                read,
+                expected,
+            } => self.take_control_as_new(
+                idx,
+                &format!(
+                    "its {what} reads {read}, not {expected}: another module answers on its \
+                     line, or someone changed it"
+                ),
+            ),
         }
     }
 }
 
 #[cfg(test)]
 mod tests {
+    use crate::runtime::devices::SwappedModule;
     use crate::runtime::testing::{TestRig, IO, PANEL};
+    use crate::sim::c29u::OutputFault;
     use std::time::Duration;
 
     const TICK: Duration = Duration::from_millis(20);
@@ -177,22 +223,144 @@ mod tests {
     }
 
     #[test]
-    fn outputs_changed_behind_the_runners_back_are_noticed_and_written_again() {
+    fn a_module_reset_behind_the_runners_back_is_taken_control_of_as_a_new_one() {
         let mut r = TestRig::started();
         r.rt.set_outputs(IO, 0x21);
         r.rt.flush_outputs();
         r.sim.power_cycle("io").unwrap();
         assert_eq!(r.sim.outputs("io").unwrap(), 0x11, "the power-on value");
-        r.rt.verify_outputs();
+        r.rt.check_devices();
         assert!(
             r.log().contains(
-                "io: outputs read 0x11 but 0x21 was written (module reset or power cycled?)"
+                "io: reset or power cycled behind the runner's back (its reset flag is set); \
+                 taking control of it as a new module"
             ),
             "{}",
             r.log()
         );
+        assert_eq!(
+            r.sim.outputs("io").unwrap(),
+            0x21,
+            "the script's outputs at once"
+        );
+        assert!(r.sim.watchdog("io").unwrap().enabled);
+    }
+
+    #[test]
+    fn outputs_that_do_not_read_as_written_are_written_again_and_the_line_is_not_repeated() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x21);
         r.rt.flush_outputs();
+        r.sim
+            .set_output_fault("io", Some(OutputFault::Ignore))
+            .unwrap();
+        r.rt.set_outputs(IO, 0x0F);
+        r.rt.flush_outputs();
+        for _ in 0..3 {
+            r.rt.check_devices();
+            r.rt.flush_outputs();
+        }
+        let log = r.log();
+        assert_eq!(
+            log.matches("io: outputs read 0x21 but 0x0f was written")
+                .count(),
+            1,
+            "{log}"
+        );
+        r.sim.set_output_fault("io", None).unwrap();
+        r.rt.check_devices();
+        r.rt.flush_outputs();
+        assert_eq!(r.sim.outputs("io").unwrap(), 0x0F);
+    }
+
+    #[test]
+    fn a_check_costs_four_requests() {
+        let mut r = TestRig::started();
+        let before = r.requests();
+        r.rt.check_devices();
+        assert_eq!(
+            r.requests() - before,
+            4 + 2,
+            "the module: reset flag, outputs, watchdog, one item in turn; the panel: the \
+             selection and the request that confirms it"
+        );
+    }
+
+    #[test]
+    fn a_different_module_behind_the_same_link_is_taken_control_of_as_a_new_one() {
+        let mut r = TestRig::started();
+        r.rt.set_outputs(IO, 0x21);
+        r.rt.flush_outputs();
+        let other = SwappedModule {
+            name: "OTHER".into(),
+            safe_value: 0xFF,
+            power_on_value: 0x00,
+            watchdog_tenths: 0,
+            ..SwappedModule::default()
+        };
+        r.sim.swap_module("io", &other).unwrap();
+        r.rt.check_devices();
+        let log = r.log();
+        assert!(
+            log.contains("io: the module taken control of differs from the one before: ")
+                && log.contains("firmware 140901 (was 090703)")
+                && log.contains("host watchdog off (was 1s)")
+                && log.contains("safe value 0xff (was 0x05)")
+                && log.contains("power-on value 0x00 (was 0x11)"),
+            "{log}"
+        );
+        assert_eq!(r.sim.safe_value("io").unwrap(), 0x05, "rewritten");
+        assert_eq!(r.sim.power_on_value("io").unwrap(), 0x11);
+        assert!(r.sim.watchdog("io").unwrap().enabled);
         assert_eq!(r.sim.outputs("io").unwrap(), 0x21);
+    }
+
+    #[test]
+    fn a_watchdog_turned_off_behind_the_runners_back_is_noticed_at_the_next_check() {
+        let mut r = TestRig::started();
+        // Another master on the line turns it off; no reset, outputs untouched.
+        let model = r.sim.c29u("io", "test").unwrap();
+        crate::sim::c29u_line::lock(&model).set_watchdog(0).unwrap();
+        r.rt.check_devices();
+        assert!(
+            r.log().contains(
+                "io: its host watchdog reads off, not 1s: another module answers on its line, \
+                 or someone changed it; taking control of it as a new module"
+            ),
+            "{}",
+            r.log()
+        );
+        assert!(r.sim.watchdog("io").unwrap().enabled);
+    }
+
+    #[test]
+    fn a_stored_value_changed_behind_the_runners_back_is_noticed_within_four_checks() {
+        let mut r = TestRig::started();
+        let model = r.sim.c29u("io", "test").unwrap();
+        crate::sim::c29u_line::lock(&model)
+            .set_power_on_value(0xFF)
+            .unwrap();
+        for _ in 0..4 {
+            r.rt.check_devices();
+        }
+        assert!(
+            r.log()
+                .contains("io: its power-on value reads 0xff, not 0x11"),
+            "{}",
+            r.log()
+        );
+        assert_eq!(r.sim.power_on_value("io").unwrap(), 0x11, "rewritten");
+    }
+
+    #[test]
+    fn the_scripts_own_reset_is_no_news() {
+        let mut r = TestRig::started();
+        let io = r.rt.c29u(IO).unwrap();
+        io.driver.reset().unwrap();
+        io.reset_by_script = true;
+        io.outputs_written = None;
+        r.rt.check_devices();
+        assert!(!r.log().contains("reset or power cycled"), "{}", r.log());
     }
 
     #[test]
@@ -202,7 +370,7 @@ mod tests {
         r.rt.flush_outputs();
         r.sim.power_cycle("panel").unwrap();
         assert_ne!(r.sim.relay("panel").unwrap(), 4);
-        r.rt.verify_outputs();
+        r.rt.check_devices();
         r.rt.flush_outputs();
         assert_eq!(r.sim.relay("panel").unwrap(), 4);
     }

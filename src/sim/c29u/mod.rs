@@ -23,6 +23,11 @@
 //! - What `#**` made the module remember is RAM too: lost on reset / power cycle (`$ID4` then
 //!   answers `?ID`).
 //! - A Modbus module's ID can only be set to 1..=247 (9-1); ASCII takes 00..=FF.
+//! - Faulty output stages (`OutputFault`, for tests of the host): one that acknowledges output
+//!   writes without applying them, one that refuses them with a given code. Safe mode comes
+//!   first, and the watchdog still drives the safe value when it fires.
+//! - `swap`: another module answering on the same line with the same ID and line settings but
+//!   its own name, firmware and stored values, powered on as such.
 
 mod config;
 mod eeprom;
@@ -37,6 +42,7 @@ pub use eeprom::{validate_led_mode, validate_name, Eeprom, DEFAULT_NAME};
 pub use history::{OutputCause, OutputChange, OutputHistory};
 pub use view::{SimState, WatchdogState, WatchdogStatus, FIRMWARE_DATE, FIRMWARE_MODEL};
 
+use crate::protocol::c29u::FirmwareDate;
 use crate::protocol::c29u_ascii::{SynchronizedData, WatchdogReading};
 use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::time::clock::SharedClock;
@@ -49,6 +55,9 @@ pub enum C29uModelError {
     /// Output write refused: the watchdog has fired, until it is disabled.
     #[error("module in safe mode: the host watchdog has fired; disable it to write outputs")]
     SafeMode,
+    /// Output write refused by a faulty output stage, with this Modbus exception code.
+    #[error("output write refused (exception {0:02X})")]
+    Refused(u8),
     /// Channel outside 0..=7.
     #[error("channel {0} outside 0..=7")]
     BadChannel(u8),
@@ -80,6 +89,16 @@ fn tenths_duration(t: u8) -> Duration {
     Duration::from_millis(u64::from(t) * 100)
 }
 
+/// A faulty output stage (see the module doc): what host output writes do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputFault {
+    /// Acknowledged, not applied: the outputs stay as they are.
+    Ignore,
+    /// Refused with this Modbus exception code (0xFF is the safe-mode code; over ASCII it
+    /// answers as in safe mode, any other code as a parameter error).
+    Refuse(u8),
+}
+
 /// The simulated TRP-C29U: RAM state, EEPROM image, and the clock that drives its watchdog.
 pub struct C29uModel {
     protocol: Protocol,
@@ -101,6 +120,10 @@ pub struct C29uModel {
     history: OutputHistory,
     /// EEPROM writes that stored what was there already.
     eeprom_rewrites: u64,
+    /// What host output writes do when the output stage is faulty.
+    output_fault: Option<OutputFault>,
+    /// The firmware date it reports (8-15, 10-5).
+    firmware: FirmwareDate,
 }
 
 impl std::fmt::Debug for C29uModel {
@@ -140,6 +163,8 @@ impl C29uModel {
             synchronized: None,
             history: OutputHistory::default(),
             eeprom_rewrites: 0,
+            output_fault: None,
+            firmware: FIRMWARE_DATE,
         };
         m.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
         m
@@ -258,26 +283,55 @@ impl C29uModel {
     /// Writes all eight outputs; `SafeMode` once the watchdog has fired.
     pub fn write_outputs(&mut self, value: u8) -> Result<(), C29uModelError> {
         self.tick();
-        if self.eeprom.safe_mode {
-            return Err(C29uModelError::SafeMode);
-        }
-        self.drive(self.clock.now(), value, OutputCause::HostWrite);
-        Ok(())
+        self.host_drive(value)
     }
 
     /// Writes one output; `BadChannel` outside 0..=7, `SafeMode` once the watchdog has fired.
     pub fn write_output(&mut self, ch: u8, on: bool) -> Result<(), C29uModelError> {
         let bit = channel_bit(ch)?;
         self.tick();
-        if self.eeprom.safe_mode {
-            return Err(C29uModelError::SafeMode);
-        }
         let value = if on {
             self.outputs | bit
         } else {
             self.outputs & !bit
         };
-        self.drive(self.clock.now(), value, OutputCause::HostWrite);
+        self.host_drive(value)
+    }
+
+    /// Makes the output stage faulty (`None`: sound again).
+    pub fn set_output_fault(&mut self, fault: Option<OutputFault>) {
+        self.output_fault = fault;
+    }
+
+    /// The output stage's fault, if any.
+    pub fn output_fault(&self) -> Option<OutputFault> {
+        self.output_fault
+    }
+
+    /// The firmware date it reports.
+    pub fn firmware(&self) -> FirmwareDate {
+        self.firmware
+    }
+
+    /// Another module in this one's place on the line (a swap behind a serial server, a hub or
+    /// on an RS-485 bus): the same ID and line settings, `eeprom`'s name and stored values,
+    /// `firmware`, powered on as a new module (its power-on value, its reset flag set, its
+    /// watchdog counting if on). Its output stage is sound.
+    pub fn swap(
+        &mut self,
+        mut eeprom: Eeprom,
+        firmware: FirmwareDate,
+    ) -> Result<(), C29uModelError> {
+        self.tick();
+        eeprom.config = self.eeprom.config;
+        eeprom.validate()?;
+        // Another module's EEPROM, not a write to this one's: no rewrite to count.
+        if eeprom != self.eeprom {
+            self.commit(eeprom)?;
+        }
+        self.firmware = firmware;
+        self.output_fault = None;
+        self.boot(|in_safe_mode| OutputCause::PowerOn { in_safe_mode });
         Ok(())
     }
 
@@ -594,6 +648,19 @@ impl C29uModel {
     /// The watchdog's deadline has passed but `tick` has not yet acted on it.
     fn fires_now(&self) -> bool {
         self.deadline.is_some_and(|d| self.clock.now() >= d)
+    }
+
+    /// A host output write of `value`: refused in safe mode, else as the output stage does it.
+    fn host_drive(&mut self, value: u8) -> Result<(), C29uModelError> {
+        if self.eeprom.safe_mode {
+            return Err(C29uModelError::SafeMode);
+        }
+        match self.output_fault {
+            None => self.drive(self.clock.now(), value, OutputCause::HostWrite),
+            Some(OutputFault::Ignore) => {}
+            Some(OutputFault::Refuse(code)) => return Err(C29uModelError::Refused(code)),
+        }
+        Ok(())
     }
 
     /// Sets the DO byte and notes it in the history.

@@ -1426,3 +1426,76 @@ fn a_failed_write_when_the_watchdog_fires_is_retried_by_flush() {
     m.flush().unwrap();
     assert!(Eeprom::load(&path).unwrap().safe_mode);
 }
+
+// ---- faulty output stage, swap -----------------------------------------------------------
+
+#[test]
+fn an_output_stage_that_ignores_writes_acknowledges_them_and_keeps_its_outputs() {
+    let (mut m, clock) = module(Protocol::Modbus);
+    m.write_outputs(0x1F).unwrap();
+    m.set_output_fault(Some(OutputFault::Ignore));
+    assert_eq!(m.write_outputs(0x05), Ok(()));
+    assert_eq!(m.write_output(7, true), Ok(()));
+    assert_eq!(m.outputs(), 0x1F);
+    // Its watchdog still acts on the outputs.
+    m.set_safe_value(0x05).unwrap();
+    m.set_watchdog(1).unwrap();
+    clock.advance(ms(100));
+    assert_eq!(m.outputs(), 0x05);
+    m.set_output_fault(None);
+    m.set_watchdog(0).unwrap();
+    m.write_outputs(0x21).unwrap();
+    assert_eq!(m.outputs(), 0x21);
+}
+
+#[test]
+fn a_refusing_output_stage_answers_with_its_exception_code() {
+    use crate::protocol::c29u_modbus::{parse_response, ModbusError, Request};
+    let (mut m, _) = module(Protocol::Modbus);
+    for code in [0x04u8, 0xFF] {
+        m.set_output_fault(Some(OutputFault::Refuse(code)));
+        let request = Request::write_outputs(0x05);
+        let answer = crate::sim::c29u_modbus::answer(&mut m, &request.encode(1)).unwrap();
+        let decoded = parse_response(&request, 1, &answer);
+        match code {
+            0xFF => assert!(
+                matches!(decoded, Err(ModbusError::SafeMode { .. })),
+                "{decoded:?}"
+            ),
+            _ => assert!(
+                matches!(decoded, Err(ModbusError::Exception { .. })),
+                "{decoded:?}"
+            ),
+        }
+        assert_eq!(m.outputs(), 0x00);
+    }
+}
+
+#[test]
+fn a_swapped_module_keeps_the_line_settings_and_brings_its_own_name_firmware_and_values() {
+    let (mut m, _) = ascii();
+    m.set_safe_value(0x05).unwrap();
+    m.set_watchdog(10).unwrap();
+    m.take_reset_flag();
+    let mut other = Eeprom::factory();
+    "OTHER".clone_into(&mut other.name);
+    other.safe_value = 0xFF;
+    other.power_on_value = 0x9C;
+    let firmware = crate::protocol::c29u::FirmwareDate {
+        year: 14,
+        month: 9,
+        day: 1,
+    };
+    m.swap(other, firmware).unwrap();
+    assert_eq!(
+        m.config(),
+        ModuleConfig::factory(),
+        "same ID and line settings"
+    );
+    assert_eq!(m.name(), "OTHER");
+    assert_eq!(m.firmware(), firmware);
+    assert_eq!(m.safe_value(), 0xFF);
+    assert!(!m.watchdog().enabled);
+    assert_eq!(m.outputs(), 0x9C, "powered on");
+    assert!(m.take_reset_flag());
+}
