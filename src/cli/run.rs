@@ -7,10 +7,11 @@
 //! the service watchdog from the scan loop (`cli::run_outputs`); `--junit FILE` writes the
 //! measurements as JUnit XML.
 
+use super::output::say;
 use super::run_outputs::RunOutputs;
 use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
-use crate::runtime::exit;
 use crate::runtime::log::LogFormat;
+use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
@@ -109,15 +110,15 @@ pub fn run(args: RunArgs) -> i32 {
         (Some(path), _) => match RigConfig::load(path) {
             Ok(c) => c,
             Err(e) => {
-                eprintln!("rigscript run: {e}");
+                say(&format!("rigscript run: {e}"));
                 return exit::USAGE;
             }
         },
         (None, true) => RigConfig::simulated_default(),
         (None, false) => {
-            eprintln!(
+            say(
                 "rigscript run: give --config rig.toml (the devices to drive) or --sim \
-                 (simulated devices: panel, a TRC1000, and io, a TRP-C29U)"
+                 (simulated devices: panel, a TRC1000, and io, a TRP-C29U)",
             );
             return exit::USAGE;
         }
@@ -134,25 +135,22 @@ pub fn run(args: RunArgs) -> i32 {
     let mut outputs = match RunOutputs::new(&file, args.junit) {
         Ok(o) => o,
         Err(e) => {
-            eprintln!("rigscript run: {e}");
+            say(&format!("rigscript run: {e}"));
             return exit::USAGE;
         }
     };
     let source = match std::fs::read_to_string(&args.script) {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("rigscript run: cannot read {file}: {e}");
+            say(&format!("rigscript run: cannot read {file}: {e}"));
             return exit::USAGE;
         }
     };
     let stop_flag = Arc::new(AtomicUsize::new(0));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        // The flag holds the signal's number: the exit status reports which one it was.
-        let number = usize::try_from(signal).unwrap_or(1);
-        if let Err(e) = signal_hook::flag::register_usize(signal, Arc::clone(&stop_flag), number) {
-            eprintln!("rigscript run: cannot watch for signal {signal}: {e}");
-            return exit::ERROR;
-        }
+    // The flag holds the signal's number: the exit status reports which one it was.
+    if let Err(e) = signals::watch(&stop_flag) {
+        say(&format!("rigscript run: cannot watch for signals: {e}"));
+        return exit::ERROR;
     }
     let setup = RigSetup {
         config,
@@ -171,7 +169,7 @@ pub fn run(args: RunArgs) -> i32 {
     let mut rig = match start(&source, &file, setup) {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("rigscript run: {e}");
+            say(&format!("rigscript run: {e}"));
             return outputs.not_started(e.status(), &e.to_string());
         }
     };

@@ -11,6 +11,7 @@
 use super::error_log::ErrorLog;
 use super::exit;
 use super::invariants::{Check, Violation};
+use super::signals;
 use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::Call;
@@ -18,16 +19,17 @@ use super::wake_latency;
 use crate::config::{ErrorPolicy, WakeLatency};
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
-use signal_hook::consts::{SIGINT, SIGTERM};
+use signal_hook::consts::SIGTERM;
 use std::cell::RefCell;
+use std::io::Write;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-/// How long the loop sleeps at most before it looks at the stop flag again, so that SIGINT and
-/// SIGTERM are handled promptly whatever the period.
+/// How long the loop sleeps at most before it looks at the stop flag again, so that an ending
+/// signal is handled promptly whatever the period.
 pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
 
 /// How often the modules' outputs are read back and the relays selected again (a module
@@ -80,7 +82,7 @@ pub struct RunOptions {
     pub policy: ErrorPolicy,
     /// End the run normally after this long (`--for`).
     pub end_after: Option<Duration>,
-    /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
+    /// The number of the signal that asks the run to stop (`signals::ENDING`; 0: none), set by
     /// the signal handler or a scenario test: stop at once, outputs safe. It also cuts the
     /// exchange under way short (`device::cancel`), within a `CANCEL_SLICE`.
     pub stop_flag: Arc<AtomicUsize>,
@@ -97,7 +99,7 @@ pub enum EndReason {
     Finished(String),
     /// The script called `stop(code)`.
     Stopped(i64),
-    /// SIGINT or SIGTERM (the signal's number).
+    /// An ending signal (`runtime::signals::ENDING`: the signal's number).
     Signal(i32),
     /// A script or runtime error (policy `stop`, or at the first start).
     Error(String),
@@ -660,8 +662,11 @@ impl<P: Program> Runner<P> {
             match &reason {
                 EndReason::Error(m) => rt.log.error(m),
                 EndReason::Signal(n) => {
-                    rt.log
-                        .info(&format!("stopping: {} received", signal_name(*n)));
+                    rt.log.info(&format!(
+                        "stopping: {} received ({})",
+                        signals::name(*n),
+                        signals::likely_cause(*n)
+                    ));
                 }
                 EndReason::Stopped(code) => {
                     rt.log
@@ -786,15 +791,6 @@ impl Trouble {
     }
 }
 
-/// SIGINT or SIGTERM by name, for the log.
-fn signal_name(n: i32) -> String {
-    match n {
-        SIGINT => "SIGINT".into(),
-        SIGTERM => "SIGTERM".into(),
-        other => format!("signal {other}"),
-    }
-}
-
 /// After a panic (a bug) in the runner: the safe state written through the drivers to every
 /// device that answers, logged with `message`; the host watchdogs are left on, so a module the
 /// write did not reach goes safe by itself. Says so on stderr if even that fails.
@@ -813,7 +809,9 @@ pub fn safe_after_panic<H: Clone>(rt: &Shared<H>, message: &str) {
         true
     }));
     if !matches!(ended, Ok(true)) {
-        eprintln!(
+        // A closed stderr loses this line rather than panic again.
+        let _ = writeln!(
+            std::io::stderr(),
             "rigscript: internal error ({message}) and the safe state could not be written after \
              it; the modules' host watchdogs, where on, drive their outputs safe"
         );

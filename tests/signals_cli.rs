@@ -1,0 +1,197 @@
+//! `rigscript run` as a real process against signals and closed outputs: every ending signal is
+//! an orderly stop (on_stop, the safe state, 128 + the signal, the signal and its likely cause
+//! named); a signal during the start is honoured at once, even with a silent module; a closed
+//! stdout or stderr never kills the run; a script nested deep enough to overflow the stack is a
+//! script error, not an abort.
+
+mod common;
+
+use common::{rigscript, SimProcess, TempDir};
+use std::io::{BufRead, BufReader, Read};
+use std::os::fd::{FromRawFd, OwnedFd};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Waits for `child` until it exits or `limit` passes (then kills it); its exit status, or
+/// None if it had to be killed.
+fn wait_at_most(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let started = Instant::now();
+    while started.elapsed() < limit {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    None
+}
+
+/// Reads `child`'s stderr line by line until a line contains `marker` (or it ends); the text so
+/// far. The rest stays in the reader.
+fn read_until(err: &mut impl BufRead, marker: &str) -> String {
+    let mut log = String::new();
+    while !log.contains(marker) {
+        let mut line = String::new();
+        if err.read_line(&mut line).unwrap_or(0) == 0 {
+            break;
+        }
+        log.push_str(&line);
+    }
+    log
+}
+
+fn kill(pid: u32, signal: &str) {
+    let ok = Command::new("kill")
+        .args([signal, &pid.to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill {signal} {pid}");
+}
+
+#[test]
+fn every_ending_signal_is_an_orderly_stop_with_128_plus_the_signal() {
+    let dir = TempDir::new("ending-signals");
+    let script = dir.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\non_stop(|| log(\"on_stop ran\"));\nevery(\"50ms\", || ());\n\
+         after(\"100ms\", || log(\"ready\"));\n",
+    );
+    for (signal, status, name, cause) in [
+        ("-HUP", 129, "SIGHUP", "SSH session"),
+        ("-QUIT", 131, "SIGQUIT", "Ctrl-\\"),
+        ("-USR1", 138, "SIGUSR1", "another program"),
+        ("-USR2", 140, "SIGUSR2", "another program"),
+        ("-ALRM", 142, "SIGALRM", "timer"),
+        ("-XFSZ", 153, "SIGXFSZ", "RLIMIT_FSIZE"),
+    ] {
+        let mut child = Command::new(rigscript())
+            .args(["run", "--sim", &script])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut err = BufReader::new(child.stderr.take().unwrap());
+        let mut log = read_until(&mut err, "script: ready");
+        kill(child.id(), signal);
+        let ended = wait_at_most(&mut child, Duration::from_secs(10));
+        err.read_to_string(&mut log).unwrap();
+        assert_eq!(ended.and_then(|s| s.code()), Some(status), "{name}: {log}");
+        assert!(
+            log.contains(&format!("stopping: {name} received (")) && log.contains(cause),
+            "{name}: {log}"
+        );
+        assert!(log.contains("on_stop ran"), "{name}: {log}");
+        assert!(
+            log.contains("safe state (signal): io outputs 0x00"),
+            "{name}: {log}"
+        );
+        assert!(
+            log.contains(&format!("exit status {status}")),
+            "{name}: {log}"
+        );
+    }
+}
+
+/// A pipe whose reading end is closed: writing to the other end fails with EPIPE.
+fn broken_pipe() -> OwnedFd {
+    let mut fds = [0; 2];
+    // SAFETY: pipe fills two fresh descriptors, each owned once below.
+    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    // SAFETY: both are open and owned by nobody else.
+    let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+    drop(read);
+    write
+}
+
+#[test]
+fn a_closed_stdout_or_stderr_never_kills_the_run() {
+    let dir = TempDir::new("closed-outputs");
+    let script = dir.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\nevery(\"20ms\", || log(\"tick\"));\n",
+    );
+    // Errors before the run: said on a stderr nobody reads, with the status they call for.
+    let o = Command::new(rigscript())
+        .args([
+            "run",
+            "--config",
+            &dir.path("missing.toml").display().to_string(),
+        ])
+        .arg(&script)
+        .stderr(Stdio::from(broken_pipe()))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "no panic on a broken stderr");
+    // A whole run with both closed: it ends as planned, --stats and all.
+    let mut child = Command::new(rigscript())
+        .args(["run", "--sim", "--for", "500ms", "--stats", &script])
+        .stdout(Stdio::from(broken_pipe()))
+        .stderr(Stdio::from(broken_pipe()))
+        .spawn()
+        .unwrap();
+    let ended = wait_at_most(&mut child, Duration::from_secs(20));
+    assert_eq!(ended.and_then(|s| s.code()), Some(0));
+}
+
+#[test]
+fn a_signal_during_the_start_is_honoured_at_once_with_a_silent_module() {
+    // The module answers ID 1 only; rig.toml asks ID 2, with 1 s timeouts and 10 retries: the
+    // start's first exchange alone would take 21 s to fail.
+    let sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = TempDir::new("start-signal");
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nid = 2\ntimeout = \"1s\"\n\
+             retries = 10\n",
+            sim.path
+        ),
+    );
+    let script = dir.file("work.rhai", "every(\"1s\", || ());\n");
+    for (signal, status, name) in [("-TERM", 143, "SIGTERM"), ("-INT", 130, "SIGINT")] {
+        let mut child = Command::new(rigscript())
+            .args(["run", "--config", &config, &script])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Once the runner catches the signal, and a little into the first exchange.
+        let started = Instant::now();
+        while !catches(child.id(), libc::SIGTERM) && started.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        kill(child.id(), signal);
+        // Honoured within a cancel slice plus the end's writes; the exchange it cut would have
+        // gone on for 20 s more.
+        let ended = wait_at_most(&mut child, Duration::from_secs(10));
+        let mut log = String::new();
+        child
+            .stderr
+            .take()
+            .unwrap()
+            .read_to_string(&mut log)
+            .unwrap();
+        assert_eq!(ended.and_then(|s| s.code()), Some(status), "{name}: {log}");
+        assert!(
+            log.contains(&format!("stopping during the start: {name} received")),
+            "{name}: {log}"
+        );
+        assert!(
+            log.contains(&format!("stopped during the start by {name}")),
+            "{log}"
+        );
+    }
+}
+
+/// Whether process `pid` has a handler for `signal` (its SigCgt mask in /proc).
+fn catches(pid: u32, signal: i32) -> bool {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("SigCgt:"))
+        .and_then(|mask| u64::from_str_radix(mask.trim(), 16).ok())
+        .is_some_and(|mask| mask & (1 << (signal - 1)) != 0)
+}
