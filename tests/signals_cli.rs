@@ -195,3 +195,82 @@ fn catches(pid: u32, signal: i32) -> bool {
         .and_then(|mask| u64::from_str_radix(mask.trim(), 16).ok())
         .is_some_and(|mask| mask & (1 << (signal - 1)) != 0)
 }
+
+/// Closures nested 50,000 deep inside an `after` handler: calling the chain nests too deep,
+/// and dropping it (even uncalled) recurses once per link.
+const DEEP: &str = "after(\"10ms\", || {\n  let f = || 0;\n  for i in 0..50000 { let g = f; f = || g.call() + 1; }\n  log(\"built\");\n  log(`${f.call()}`);\n});\n";
+const DEEP_UNCALLED: &str = "after(\"10ms\", || {\n  let f = || 0;\n  for i in 0..50000 { let g = f; f = || g.call() + 1; }\n  log(\"built\");\n});\n";
+
+#[test]
+fn a_script_nested_deep_enough_to_overflow_the_stack_is_a_script_error_in_run_test_and_verify() {
+    let dir = TempDir::new("deep-nesting");
+    let deep = dir.file("deep.rhai", DEEP);
+    let uncalled = dir.file("uncalled.rhai", DEEP_UNCALLED);
+    // Generous time per call: building the chain is slow in a debug build on a busy machine.
+    let run = |script: &str| {
+        Command::new(rigscript())
+            .args([
+                "run",
+                "--sim",
+                "--for",
+                "1s",
+                "--handler-time",
+                "60s",
+                script,
+            ])
+            .output()
+            .unwrap()
+    };
+    let o = run(&deep);
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{log}");
+    assert!(
+        log.contains("deep.rhai:3:") && log.contains("nested more than 48 deep"),
+        "{log}"
+    );
+    assert!(log.contains("safe state (script error)"), "{log}");
+    let o = run(&uncalled);
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{log}");
+    assert!(log.contains("built"), "{log}");
+    // The same scripts in a scenario test and under verify.
+    let tests = dir.file(
+        "deep.test.rhai",
+        "fn test_deep() {\n  let r = rig(\"deep.rhai\");\n  r.advance(\"100ms\");\n  \
+         assert_eq(r.exit_status(), 1);\n}\nfn test_uncalled() {\n  let r = rig(\"uncalled.rhai\");\n  \
+         r.advance(\"100ms\");\n}\n",
+    );
+    let o = Command::new(rigscript())
+        .args(["test", &tests])
+        .output()
+        .unwrap();
+    let out = both(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    assert!(out.contains("2 passed, 0 failed"), "{out}");
+    let o = Command::new(rigscript())
+        .args([
+            "verify",
+            &uncalled,
+            "--runs",
+            "4",
+            "--for",
+            "1s",
+            "--seed",
+            "1",
+            "--no-faults",
+        ])
+        .output()
+        .unwrap();
+    let out = both(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    assert!(out.contains("no counterexample in 4 runs"), "{out}");
+}
+
+/// A command's stdout and stderr, one after the other.
+fn both(o: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}

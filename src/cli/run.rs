@@ -13,6 +13,7 @@ use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
 use crate::runtime::log::LogFormat;
 use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
+use crate::script::stack;
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
@@ -131,6 +132,13 @@ pub fn run(args: RunArgs) -> i32 {
     limits.handler_time = args.handler_time.unwrap_or(limits.handler_time);
     limits.memory = args.memory_limit.unwrap_or(limits.memory);
     limits.timers = args.max_timers.map_or(limits.timers, |n| n as usize);
+    // On a stack that holds whatever the script can build within its memory limit.
+    let memory = limits.memory;
+    stack::on_script_stack(memory, move || run_configured(args, config))
+}
+
+/// The run itself, once its rig and limits are known.
+fn run_configured(args: RunArgs, config: RigConfig) -> i32 {
     let file = args.script.display().to_string();
     let mut outputs = match RunOutputs::new(&file, args.junit) {
         Ok(o) => o,

@@ -13,4 +13,5 @@ pub mod program;
 pub mod reads;
 pub mod rig;
 pub mod scenario;
+pub mod stack;
 pub mod values;
