@@ -9,7 +9,7 @@
 
 use super::output::say;
 use super::run_outputs::RunOutputs;
-use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
+use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency};
 use crate::runtime::log::LogFormat;
 use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
@@ -36,7 +36,7 @@ pub struct RunArgs {
     /// `io`, a TRP-C29U at Modbus ID 1).
     #[arg(long)]
     pub sim: bool,
-    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s").
+    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s"), at most 10s.
     #[arg(long, value_name = "DURATION", value_parser = period)]
     pub period: Option<Duration>,
     /// End the run normally after this long: a number with a unit ("500ms", "10s", "5m",
@@ -99,10 +99,7 @@ fn memory_limit(text: &str) -> Result<u64, String> {
 }
 
 fn period(text: &str) -> Result<Duration, String> {
-    match dur(text)? {
-        d if d.is_zero() => Err("a period must be above zero".into()),
-        d => Ok(d),
-    }
+    check_period(dur(text)?).map_err(|why| format!("\"{text}\" {why}"))
 }
 
 /// Runs `rigscript run`; returns the exit status.

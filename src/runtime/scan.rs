@@ -315,28 +315,67 @@ impl<P: Program> Runner<P> {
             {
                 return;
             }
-            let (feed, retry) = {
+            let (feed, retry, grace, held) = {
                 let rt = self.rt.borrow();
                 // A retry already overdue waits for the tick (or was skipped while stopping).
-                (rt.next_feed(), rt.next_retry().filter(|&due| due > now))
+                (
+                    rt.next_feed(),
+                    rt.next_retry().filter(|&due| due > now),
+                    rt.grace_ends(),
+                    rt.held_safe,
+                )
             };
+            let end = self.end_at();
             let mut until = target;
             if watch_stop {
                 until = until.min(now.saturating_add(SLEEP_SLICE));
             }
-            for due in [feed, retry].into_iter().flatten() {
-                until = until.min(due);
+            for due in [feed, retry, grace, end].into_iter().flatten() {
+                until = until.min(due.max(now));
             }
             self.clock.sleep_until(until);
             // A lost device is tried when its time comes, not at the next tick: with a long
             // period its watchdog would go unfed past its timeout.
-            if retry.is_some_and(|due| self.clock.now() >= due) {
+            let retried = retry.is_some_and(|due| self.clock.now() >= due);
+            if retried {
                 self.guarded(|r| r.rt.borrow_mut().supervise());
+            }
+            // The end of a grace time holds the outputs safe at once, not at the next tick
+            // (with only a slow timer, that was the next output check, 5 s on).
+            if retried || grace.is_some_and(|due| self.clock.now() >= due) {
+                self.guarded(|r| r.rt.borrow_mut().hold_safe_between_ticks(held));
             }
             if feed.is_some_and(|due| self.clock.now() >= due) {
                 self.guarded(|r| r.rt.borrow_mut().feed_watchdogs());
             }
+            // `--for` ends when it is over, not at the next period boundary.
+            if end.is_some_and(|due| self.clock.now() >= due) {
+                self.guarded(|r| {
+                    r.end_if_over();
+                });
+            }
         }
+    }
+
+    /// When `--for` is over, if it was given.
+    fn end_at(&self) -> Option<Duration> {
+        let end = self.options.end_after?;
+        Some(self.rt.borrow().started.saturating_add(end))
+    }
+
+    /// Ends the run if `--for` is over; true if it did.
+    fn end_if_over(&mut self) -> bool {
+        let Some(end) = self.options.end_after else {
+            return false;
+        };
+        if self.status().is_some() || self.rt.borrow().uptime() < end {
+            return false;
+        }
+        self.finish(EndReason::Finished(format!(
+            "ran for {}",
+            crate::time::duration::format_duration(end)
+        )));
+        true
     }
 
     /// Runs ticks until the clock has advanced by `by` (virtual time: scenario tests).
@@ -419,15 +458,8 @@ impl<P: Program> Runner<P> {
         if self.ended_by_signal() {
             return;
         }
-        let uptime = self.rt.borrow().uptime();
-        if let Some(end) = self.options.end_after {
-            if uptime >= end {
-                self.finish(EndReason::Finished(format!(
-                    "ran for {}",
-                    crate::time::duration::format_duration(end)
-                )));
-                return;
-            }
+        if self.end_if_over() {
+            return;
         }
         self.rt.borrow_mut().supervise();
         if self.ended_by_signal() {
@@ -1245,5 +1277,95 @@ mod tests {
             "{log}"
         );
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
+    }
+
+    /// A program that turns the panel's relay off its safe position and then has only a slow
+    /// timer: nothing in it makes the loop tick before that timer.
+    struct SlowTimer {
+        rt: Shared<&'static str>,
+    }
+
+    impl Program for SlowTimer {
+        type Handler = &'static str;
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            rt.set_relay(crate::runtime::testing::PANEL, 5);
+            rt.every(Duration::from_secs(30), "slow").unwrap();
+            Ok(())
+        }
+        fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
+        fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+            Ok(())
+        }
+    }
+
+    fn slow_timer(
+        period: Duration,
+        end_after: Option<Duration>,
+    ) -> (Runner<SlowTimer>, crate::runtime::testing::TestRig) {
+        let mut r = crate::runtime::testing::TestRig::started();
+        let rt = r.shared_runtime();
+        let program = SlowTimer { rt: Rc::clone(&rt) };
+        let options = RunOptions {
+            period,
+            policy: ErrorPolicy::Stop,
+            end_after,
+            stop_flag: Arc::default(),
+            wake_latency: WakeLatency::Off,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        (runner, r)
+    }
+
+    #[test]
+    fn a_lost_devices_grace_end_holds_every_output_safe_at_once_whatever_the_period() {
+        for period in [Duration::from_millis(20), Duration::from_secs(10)] {
+            let (mut runner, r) = slow_timer(period, None);
+            runner.advance(Duration::from_millis(100));
+            assert_eq!(r.sim.relay("panel").unwrap(), 5, "at work");
+            r.sim.set_gone("io", true).unwrap();
+            // Lost at its next watchdog feed; held safe once lost for longer than grace (1 s).
+            let step = Duration::from_millis(10);
+            let started = r.clock.now();
+            while r.sim.relay("panel").unwrap() != 3
+                && r.clock.now() - started < Duration::from_secs(20)
+            {
+                runner.advance(step);
+            }
+            let held_at = r.clock.now();
+            let lost_at = runner.runtime().borrow().devices[crate::runtime::testing::IO]
+                .health()
+                .lost_at
+                .expect("io is lost");
+            let log = runner.runtime().borrow().log.lines().join("\n");
+            assert_eq!(r.sim.relay("panel").unwrap(), 3, "{period:?}: {log}");
+            let grace = Duration::from_secs(1);
+            assert!(
+                held_at <= lost_at + grace + step,
+                "{period:?}: lost at {lost_at:?}, the panel safe at {held_at:?}: {log}"
+            );
+            assert!(
+                log.contains("every output is held at its safe state"),
+                "{log}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_end_of_for_is_honoured_to_the_sleep_slice_not_the_period() {
+        let (mut runner, r) = slow_timer(Duration::from_secs(10), Some(Duration::from_secs(2)));
+        let status = runner.run();
+        assert_eq!(status, exit::OK);
+        let ended = r.clock.now();
+        assert!(
+            ended >= Duration::from_secs(2) && ended <= Duration::from_secs(2) + SLEEP_SLICE,
+            "ended at {ended:?}"
+        );
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("stopping: ran for 2s"), "{log}");
     }
 }
