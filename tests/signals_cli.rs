@@ -274,3 +274,89 @@ fn both(o: &std::process::Output) -> String {
         String::from_utf8_lossy(&o.stderr)
     )
 }
+
+/// 100 `on_stop` handlers that loop, each allowed a minute and a billion operations: a stop
+/// that ran them all would take an hour and more.
+const LOOPING_STOPS: &str = "io.outputs = 0xF0;\nfor i in 0..100 { on_stop(|| { loop { } }); }\n\
+    every(\"50ms\", || ());\nafter(\"100ms\", || log(\"ready\"));\n";
+
+/// Starts `run --sim` of `script` with generous limits per call, waits for `ready`.
+fn started_with_looping_stops(
+    script: &str,
+) -> (Child, BufReader<std::process::ChildStderr>, String) {
+    let mut child = Command::new(rigscript())
+        .args([
+            "run",
+            "--sim",
+            "--budget",
+            "1000000000",
+            "--handler-time",
+            "60s",
+            script,
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let log = read_until(&mut err, "script: ready");
+    (child, err, log)
+}
+
+#[test]
+fn a_stop_is_bounded_however_its_on_stop_handlers_behave() {
+    let dir = TempDir::new("bounded-stop");
+    let script = dir.file("loops.rhai", LOOPING_STOPS);
+    let (mut child, mut err, mut log) = started_with_looping_stops(&script);
+    kill(child.id(), "-TERM");
+    let ended = wait_at_most(&mut child, Duration::from_secs(15));
+    err.read_to_string(&mut log).unwrap();
+    // The handler that ran out of the budget failed, and the 99 it left: exit 5.
+    assert_eq!(ended.and_then(|s| s.code()), Some(5), "{log}");
+    assert!(log.contains("ran past the 2s they have together"), "{log}");
+    assert!(
+        log.contains("99 on_stop handler(s) skipped, straight to the safe state"),
+        "{log}"
+    );
+    assert!(
+        log.contains("safe state (signal): io outputs 0x00"),
+        "{log}"
+    );
+    // One more than the limit is a script error where it is registered.
+    let many = dir.file("many.rhai", "for i in 0..101 {\n  on_stop(|| ());\n}\n");
+    let o = Command::new(rigscript())
+        .args(["run", "--sim", &many])
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{log}");
+    assert!(
+        log.contains("many.rhai:2:") && log.contains("too many on_stop handlers (at most 100"),
+        "{log}"
+    );
+}
+
+#[test]
+fn a_second_signal_while_stopping_goes_straight_to_the_safe_state() {
+    let dir = TempDir::new("second-signal");
+    let script = dir.file("loops.rhai", LOOPING_STOPS);
+    let (mut child, mut err, mut log) = started_with_looping_stops(&script);
+    kill(child.id(), "-TERM");
+    log.push_str(&read_until(&mut err, "stopping: SIGTERM received"));
+    kill(child.id(), "-INT");
+    let ended = wait_at_most(&mut child, Duration::from_secs(15));
+    err.read_to_string(&mut log).unwrap();
+    // Stopped by the first signal; the second only cut the stop short.
+    assert_eq!(ended.and_then(|s| s.code()), Some(143), "{log}");
+    let cut = log.find("on_stop: cut off by SIGINT while stopping");
+    let skipped = log.find("SIGINT received while stopping: 99 on_stop handler(s) skipped");
+    let safe = log.find("safe state (signal): io outputs 0x00");
+    assert!(
+        cut.is_some() && cut < skipped && skipped < safe,
+        "the handler under way cut, the rest skipped, then the safe state: {log}"
+    );
+    assert!(
+        !log.contains("ran past the 2s"),
+        "before the budget ran out: {log}"
+    );
+}

@@ -14,7 +14,7 @@ use super::invariants::{Check, Violation};
 use super::signals;
 use super::state::Runtime;
 use super::stats::Stats;
-use super::subscriptions::Call;
+use super::subscriptions::{Call, STOP_BUDGET};
 use super::wake_latency;
 use crate::config::{ErrorPolicy, WakeLatency};
 use crate::device::cancel::Cancel;
@@ -61,6 +61,17 @@ pub struct Fault {
     pub over_budget: bool,
 }
 
+/// What bounds an `on_stop` call besides the script's limits per call.
+#[derive(Debug, Clone)]
+pub struct StopLimit {
+    /// When the budget of all the stop's `on_stop` handlers runs out, on the run's clock.
+    pub until: Duration,
+    /// That budget (`subscriptions::STOP_BUDGET`), for the message.
+    pub budget: Duration,
+    /// The run's stop flag, cleared as the stop began: set again by another signal.
+    pub signal: Arc<AtomicUsize>,
+}
+
 /// The script, as the scan loop sees it.
 pub trait Program {
     /// The script's handler type.
@@ -71,6 +82,12 @@ pub trait Program {
     fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
     /// Evaluates an invariant: whether it holds.
     fn holds(&mut self, check: &Check<Self::Handler>) -> Result<bool, Fault>;
+    /// Runs an `on_stop` handler, stopped also once `limit` runs out or another signal
+    /// comes; a program without a way to stop a call midway just runs it.
+    fn call_in_stop(&mut self, call: &Call<Self::Handler>, limit: StopLimit) -> Result<(), Fault> {
+        let _ = limit;
+        self.call(call)
+    }
 }
 
 /// How a run is driven.
@@ -709,21 +726,19 @@ impl<P: Program> Runner<P> {
                 EndReason::Violated(_) => {}
             }
         }
-        // What follows comes after the stop and is not cut: `on_stop` handlers as the script
-        // wrote them, the end's writes with their own bounded tries.
-        self.rt.borrow_mut().set_cancel(&Cancel::never());
+        // The signal that stopped the run (if one did) has been seen: the flag now tells of
+        // another one, which cuts the `on_stop` handlers short (their exchanges, the handler
+        // under way, the ones left) and goes straight to the end's writes.
+        let flag = Arc::clone(&self.options.stop_flag);
+        flag.store(0, Ordering::SeqCst);
+        self.rt
+            .borrow_mut()
+            .set_cancel(&Cancel::when_set(Arc::clone(&flag)));
         if was_running {
-            let calls = self.rt.borrow().stop_calls();
-            for call in calls {
-                self.rt.borrow_mut().cause.clone_from(&call.label);
-                if let Err(f) = self.program.call(&call) {
-                    let message = describe(&f, &call.label);
-                    self.errors.push(&message, f.over_budget);
-                    self.rt.borrow_mut().log.error(&message);
-                    self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
-                }
-            }
+            self.run_stop_handlers(&flag);
         }
+        // The end's writes are not cut: they come after the stop, with their own bounded tries.
+        self.rt.borrow_mut().set_cancel(&Cancel::never());
         let mut rt = self.rt.borrow_mut();
         self.trouble.lost_at_end = rt
             .devices
@@ -759,6 +774,65 @@ impl<P: Program> Runner<P> {
             None => rt.log.info(&format!("stopped; exit status {status}")),
         }
         self.state = State::Stopped { status };
+    }
+}
+
+impl<P: Program> Runner<P> {
+    /// Runs the `on_stop` handlers in the order they were added, all of them together within
+    /// `STOP_BUDGET` (each also within the script's limits per call); skips the rest once the
+    /// budget is spent or another signal sets `flag`. A handler cut off is a failed one.
+    fn run_stop_handlers(&mut self, flag: &Arc<AtomicUsize>) {
+        let calls = self.rt.borrow().stop_calls();
+        let until = self.clock.now().saturating_add(STOP_BUDGET);
+        let count = calls.len();
+        for (done, call) in calls.iter().enumerate() {
+            let signal = flag.load(Ordering::SeqCst);
+            let over = self.clock.now() >= until;
+            if signal != 0 || over {
+                let left = count - done;
+                let why = match i32::try_from(signal) {
+                    Ok(n) if n != 0 => format!("{} received while stopping", signals::name(n)),
+                    _ => format!(
+                        "the on_stop handlers' {} are spent",
+                        crate::time::duration::format_duration(STOP_BUDGET)
+                    ),
+                };
+                self.rt.borrow_mut().log.warn(&format!(
+                    "{why}: {left} on_stop handler(s) skipped, straight to the safe state"
+                ));
+                if signal == 0 {
+                    self.trouble.on_stop_failed =
+                        self.trouble.on_stop_failed.saturating_add(left as u64);
+                }
+                return;
+            }
+            self.rt.borrow_mut().cause.clone_from(&call.label);
+            let limit = StopLimit {
+                until,
+                budget: STOP_BUDGET,
+                signal: Arc::clone(flag),
+            };
+            let result = self.program.call_in_stop(call, limit);
+            let cut_by = flag.load(Ordering::SeqCst);
+            match result {
+                // Asked for by whoever sent the signal: no failure of the script's.
+                Err(_) if cut_by != 0 => {
+                    let signal = i32::try_from(cut_by).unwrap_or(SIGTERM);
+                    self.rt.borrow_mut().log.warn(&format!(
+                        "{}: cut off by {} while stopping",
+                        call.label,
+                        signals::name(signal)
+                    ));
+                }
+                Err(f) => {
+                    let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
+                    self.rt.borrow_mut().log.error(&message);
+                    self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
+                }
+                Ok(()) => {}
+            }
+        }
     }
 }
 
@@ -1367,5 +1441,108 @@ mod tests {
         );
         let log = runner.runtime().borrow().log.lines().join("\n");
         assert!(log.contains("stopping: ran for 2s"), "{log}");
+    }
+
+    /// A program with `handlers` on_stop handlers, each taking `burn` of virtual time; the
+    /// one numbered `signal_in` (if any) "receives" SIGINT meanwhile.
+    struct StopBurner {
+        rt: Shared<()>,
+        clock: VirtualClock,
+        handlers: usize,
+        burn: Duration,
+        signal_in: Option<usize>,
+        flag: Arc<AtomicUsize>,
+        calls: usize,
+    }
+
+    impl Program for StopBurner {
+        type Handler = ();
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            for _ in 0..self.handlers {
+                rt.on_stop(()).unwrap();
+            }
+            rt.every(Duration::from_secs(1), ()).unwrap();
+            Ok(())
+        }
+        fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
+        fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+            self.calls += 1;
+            self.clock.advance(self.burn);
+            if self.signal_in == Some(self.calls) {
+                self.flag.store(libc::SIGINT as usize, Ordering::SeqCst);
+            }
+            Ok(())
+        }
+    }
+
+    fn stop_burner(
+        handlers: usize,
+        burn: Duration,
+        signal_in: Option<usize>,
+    ) -> (Runner<StopBurner>, VirtualClock) {
+        let (r, clock) = runner(Duration::from_secs(3600), Duration::ZERO, ErrorPolicy::Stop);
+        let rt = Rc::clone(r.runtime());
+        let flag: Arc<AtomicUsize> = Arc::default();
+        let program = StopBurner {
+            rt: Rc::clone(&rt),
+            clock: clock.clone(),
+            handlers,
+            burn,
+            signal_in,
+            flag: Arc::clone(&flag),
+            calls: 0,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Stop,
+            end_after: None,
+            stop_flag: flag,
+            wake_latency: WakeLatency::Off,
+        };
+        let mut r = Runner::new(rt, program, options);
+        r.start();
+        (r, clock)
+    }
+
+    #[test]
+    fn on_stop_handlers_share_one_budget_and_the_rest_are_skipped() {
+        let (mut r, clock) = stop_burner(100, Duration::from_millis(300), None);
+        r.advance(Duration::from_millis(100));
+        let stopped_at = clock.now();
+        r.signal_stop();
+        // 300 ms each: the seventh starts before 2 s are spent and ends past them.
+        assert_eq!(r.program().calls, 7);
+        assert!(clock.now() - stopped_at <= STOP_BUDGET + Duration::from_millis(300));
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert!(
+            log.contains("the on_stop handlers' 2s are spent: 93 on_stop handler(s) skipped, straight to the safe state"),
+            "{log}"
+        );
+        assert_eq!(
+            r.status(),
+            Some(exit::TROUBLE),
+            "skipped handlers are failed ones"
+        );
+    }
+
+    #[test]
+    fn a_second_signal_while_stopping_skips_the_remaining_on_stop_handlers() {
+        let (mut r, _clock) = stop_burner(5, Duration::from_millis(10), Some(2));
+        r.advance(Duration::from_millis(100));
+        r.signal_stop();
+        assert_eq!(r.program().calls, 2, "none after the second signal");
+        let log = r.runtime().borrow().log.lines().join("\n");
+        let skipped = log
+            .find("SIGINT received while stopping: 3 on_stop handler(s) skipped, straight to the safe state")
+            .unwrap_or_else(|| panic!("{log}"));
+        let end = log
+            .find("stopped; exit status 143")
+            .unwrap_or_else(|| panic!("{log}"));
+        assert!(skipped < end, "{log}");
+        assert_eq!(r.status(), Some(exit::signal(SIGTERM)));
     }
 }

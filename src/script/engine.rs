@@ -18,6 +18,7 @@
 
 use crate::config::ScriptLimits;
 use crate::heap::{self, format_bytes};
+use crate::runtime::scan::StopLimit;
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
 use rhai::{Array, Dynamic, Engine, EvalAltResult, EvalContext, ImmutableString, Map, Position};
@@ -92,6 +93,14 @@ pub enum Breach {
         /// Heap the run held when it was noticed (`heap::RunHeap`).
         used: u64,
     },
+    /// An `on_stop` handler ran past what was left of the stop's budget for all of them.
+    StopBudget {
+        /// The budget of all the `on_stop` handlers together.
+        budget: Duration,
+    },
+    /// Another ending signal came while an `on_stop` handler ran: the stop goes straight to
+    /// the safe state.
+    StopCut,
     /// Function calls nested too deep.
     Depth,
     /// A string, array or map grew past its size limit.
@@ -111,7 +120,10 @@ impl Breach {
     pub fn is_runaway(&self) -> bool {
         matches!(
             self,
-            Breach::Operations { .. } | Breach::Time { .. } | Breach::Memory { .. }
+            Breach::Operations { .. }
+                | Breach::Time { .. }
+                | Breach::Memory { .. }
+                | Breach::StopBudget { .. }
         )
     }
 
@@ -136,6 +148,12 @@ impl Breach {
                 format_bytes(*used),
                 format_bytes(*limit)
             ),
+            Breach::StopBudget { budget } => format!(
+                "the on_stop handlers ran past the {} they have together (a stop must reach \
+                 the safe state whatever the script does): do less in on_stop",
+                format_duration(*budget)
+            ),
+            Breach::StopCut => "cut off by another signal while stopping".into(),
             Breach::Depth => format!(
                 "function calls nested more than {MAX_CALL_LEVELS} deep (runaway recursion?)"
             ),
@@ -166,6 +184,9 @@ pub struct Guard {
     breach: std::cell::RefCell<Option<Breach>>,
     cut_off_at: Cell<u64>,
     heap: heap::RunHeap,
+    /// Within a stop, for this call: when the stop's budget runs out, and the flag another
+    /// signal sets.
+    stop: std::cell::RefCell<Option<StopLimit>>,
 }
 
 impl Guard {
@@ -187,6 +208,7 @@ impl Guard {
             breach: std::cell::RefCell::new(None),
             cut_off_at: Cell::new(0),
             heap: heap::RunHeap::start(),
+            stop: std::cell::RefCell::new(None),
         });
         guard.begin_call();
         // Rhai's own limits, beyond the guard's: a backstop for what the guard cannot see
@@ -217,6 +239,12 @@ impl Guard {
         self.seen_transactions
             .set(self.transactions.load(Ordering::Relaxed));
         self.breach.replace(None);
+        self.stop.replace(None);
+    }
+
+    /// The call that just began is an `on_stop` handler's, bounded by `limit` too.
+    pub fn within_stop(&self, limit: StopLimit) {
+        self.stop.replace(Some(limit));
     }
 
     /// The call has ended: the limit it went over, if any (whether or not the script caught
@@ -278,14 +306,27 @@ impl Guard {
                 used,
             });
         }
+        if let Some(stop) = self.stop.borrow().as_ref() {
+            if stop.signal.load(Ordering::Relaxed) != 0 {
+                return Some(Breach::StopCut);
+            }
+        }
         let tx = self.transactions.load(Ordering::Relaxed);
         if ops % CLOCK_EVERY == 0 || tx != self.seen_transactions.get() {
             self.seen_transactions.set(tx);
-            let ran = self.clock.now().saturating_sub(self.started.get());
+            let now = self.clock.now();
+            let ran = now.saturating_sub(self.started.get());
             if ran > self.limits.handler_time {
                 return Some(Breach::Time {
                     limit: self.limits.handler_time,
                 });
+            }
+            if let Some(stop) = self.stop.borrow().as_ref() {
+                if now > stop.until {
+                    return Some(Breach::StopBudget {
+                        budget: stop.budget,
+                    });
+                }
             }
         }
         None
