@@ -360,3 +360,117 @@ fn a_second_signal_while_stopping_goes_straight_to_the_safe_state() {
         "before the budget ran out: {log}"
     );
 }
+
+#[test]
+fn a_run_in_a_background_process_group_is_not_stopped_by_its_own_log_writes() {
+    common::require_tool("setsid", "util-linux");
+    common::require_tool("stty", "coreutils");
+    let dir = TempDir::new("background-tostop");
+    let script = dir.file(
+        "work.rhai",
+        "every(\"50ms\", || ());\nafter(\"100ms\", || log(\"ready\"));\n",
+    );
+    let (mut master, slave) = pty_pair();
+    // A session on the pty with `tostop`, the run as a background job (its own process
+    // group) writing its log to the terminal: SIGTTOU for each write unless ignored.
+    let shell = format!(
+        "stty tostop; set -m; '{}' run --sim --for 1s '{script}' & wait $!; echo status=$?",
+        rigscript()
+    );
+    let mut session = Command::new("setsid")
+        .args(["-c", "sh", "-c", &shell])
+        .stdin(Stdio::from(slave.try_clone().unwrap()))
+        .stdout(Stdio::from(slave.try_clone().unwrap()))
+        .stderr(Stdio::from(slave))
+        .spawn()
+        .unwrap();
+    let (chunks, text) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        // Ends with EIO once every process on the terminal has gone.
+        while let Ok(n) = master.read(&mut buf) {
+            if n == 0 || chunks.send(buf[..n].to_vec()).is_err() {
+                break;
+            }
+        }
+    });
+    let mut out = String::new();
+    let started = Instant::now();
+    while !out.contains("status=") && started.elapsed() < Duration::from_secs(15) {
+        if let Ok(chunk) = text.recv_timeout(Duration::from_millis(100)) {
+            out.push_str(&String::from_utf8_lossy(&chunk));
+        }
+    }
+    let _ = wait_at_most(&mut session, Duration::from_secs(5));
+    assert!(
+        out.contains("status=0"),
+        "the job was stopped (150: SIGTTOU): {out}"
+    );
+    assert!(
+        out.contains("script: ready") && out.contains("stopping: ran for 1s"),
+        "{out}"
+    );
+}
+
+/// A new pseudo-terminal: its master (for reading what is written to the terminal) and its
+/// slave (the terminal itself).
+fn pty_pair() -> (std::fs::File, OwnedFd) {
+    let (mut master, mut slave) = (0, 0);
+    // SAFETY: openpty fills two fresh descriptors, each owned once below; the name, termios
+    // and window size are not asked for.
+    let done = unsafe {
+        libc::openpty(
+            &mut master,
+            &mut slave,
+            std::ptr::null_mut(),
+            std::ptr::null(),
+            std::ptr::null(),
+        )
+    };
+    assert_eq!(done, 0, "openpty: {}", std::io::Error::last_os_error());
+    // SAFETY: both are open and owned by nobody else.
+    unsafe {
+        (
+            std::fs::File::from(OwnedFd::from_raw_fd(master)),
+            OwnedFd::from_raw_fd(slave),
+        )
+    }
+}
+
+#[test]
+fn a_records_file_past_the_file_size_limit_ends_the_run_in_order_with_153() {
+    let dir = TempDir::new("xfsz");
+    let script = dir.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\nevery(\"20ms\", || record(\"x\", \"a line of some length, again and again\"));\n",
+    );
+    let records = dir.path("records.jsonl").display().to_string();
+    // 1 block of 512 bytes (dash's unit): a dozen records.
+    let mut child = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -f 1; exec '{}' run --sim --records '{records}' '{script}'",
+            rigscript()
+        ))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let ended = wait_at_most(&mut child, Duration::from_secs(15));
+    let mut log = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
+    assert_eq!(ended.and_then(|s| s.code()), Some(153), "{log}");
+    assert!(
+        log.contains("stopping: SIGXFSZ received (") && log.contains("the records file?"),
+        "{log}"
+    );
+    assert!(
+        log.contains("safe state (signal): io outputs 0x00"),
+        "{log}"
+    );
+}

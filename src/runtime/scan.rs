@@ -576,6 +576,15 @@ impl<P: Program> Runner<P> {
             }
             let result = self.program.call(&call);
             if let Err(f) = result {
+                if self.stop_signal().is_some() {
+                    // The signal came while the handler ran, and the run ends by it; the
+                    // error is told (often the same cause: a records write past the file
+                    // size limit fails as SIGXFSZ comes).
+                    let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
+                    self.rt.borrow_mut().log.error(&message);
+                    return;
+                }
                 if !self.handle_fault(&f, &call.label) {
                     return;
                 }
