@@ -183,6 +183,12 @@ fn a_signal_during_the_start_is_honoured_at_once_with_a_silent_module() {
             log.contains(&format!("stopped during the start by {name}")),
             "{log}"
         );
+        // Not the end's tries either: the start wrote it nothing.
+        assert!(
+            log.contains("io: not under control yet: left as it is"),
+            "{log}"
+        );
+        assert!(!log.contains("the safe state did not reach it"), "{log}");
     }
 }
 
