@@ -187,6 +187,8 @@ pub struct Guard {
     /// Within a stop, for this call: when the stop's budget runs out, and the flag another
     /// signal sets.
     stop: std::cell::RefCell<Option<StopLimit>>,
+    /// Whether `stop` is set: the one thing looked at per operation outside a stop.
+    in_stop: Cell<bool>,
 }
 
 impl Guard {
@@ -209,6 +211,7 @@ impl Guard {
             cut_off_at: Cell::new(0),
             heap: heap::RunHeap::start(),
             stop: std::cell::RefCell::new(None),
+            in_stop: Cell::new(false),
         });
         guard.begin_call();
         // Rhai's own limits, beyond the guard's: a backstop for what the guard cannot see
@@ -240,11 +243,13 @@ impl Guard {
             .set(self.transactions.load(Ordering::Relaxed));
         self.breach.replace(None);
         self.stop.replace(None);
+        self.in_stop.set(false);
     }
 
     /// The call that just began is an `on_stop` handler's, bounded by `limit` too.
     pub fn within_stop(&self, limit: StopLimit) {
         self.stop.replace(Some(limit));
+        self.in_stop.set(true);
     }
 
     /// The call has ended: the limit it went over, if any (whether or not the script caught
@@ -306,10 +311,8 @@ impl Guard {
                 used,
             });
         }
-        if let Some(stop) = self.stop.borrow().as_ref() {
-            if stop.signal.load(Ordering::Relaxed) != 0 {
-                return Some(Breach::StopCut);
-            }
+        if self.in_stop.get() && self.stop_signalled() {
+            return Some(Breach::StopCut);
         }
         let tx = self.transactions.load(Ordering::Relaxed);
         if ops % CLOCK_EVERY == 0 || tx != self.seen_transactions.get() {
@@ -321,19 +324,36 @@ impl Guard {
                     limit: self.limits.handler_time,
                 });
             }
-            if let Some(stop) = self.stop.borrow().as_ref() {
-                if now > stop.until {
-                    return Some(Breach::StopBudget {
-                        budget: stop.budget,
-                    });
-                }
+            if let Some(budget) = self.in_stop.get().then(|| self.stop_over(now)).flatten() {
+                return Some(Breach::StopBudget { budget });
             }
         }
         None
     }
 
+    /// Within a stop: whether another signal has come.
+    fn stop_signalled(&self) -> bool {
+        self.stop
+            .borrow()
+            .as_ref()
+            .is_some_and(|s| s.signal.load(Ordering::Relaxed) != 0)
+    }
+
+    /// Within a stop: its budget, if it is spent at `now`.
+    fn stop_over(&self, now: Duration) -> Option<Duration> {
+        let stop = self.stop.borrow();
+        let stop = stop.as_ref()?;
+        (now > stop.until).then_some(stop.budget)
+    }
+
     fn trip(&self, breach: Breach, ops: u64) {
-        self.cut_off_at.set(ops.saturating_add(GRACE_OPERATIONS));
+        // A stop's limits cut at the next operation: reaching the safe state matters more
+        // than a line for the error (each operation could be a device exchange).
+        let grace = match breach {
+            Breach::StopBudget { .. } | Breach::StopCut => 0,
+            _ => GRACE_OPERATIONS,
+        };
+        self.cut_off_at.set(ops.saturating_add(grace));
         self.breach.replace(Some(breach));
     }
 }
@@ -529,5 +549,58 @@ mod tests {
         let (text, pos) = limit_error(&err);
         assert!(text.contains("nested more than 48 deep"), "{text}");
         assert_eq!(pos.line(), Some(2), "{err:?}");
+    }
+
+    #[test]
+    fn a_call_in_a_stop_ends_with_the_stops_budget_or_another_signal() {
+        let clock = VirtualClock::at_epoch();
+        let transactions = Arc::new(AtomicU64::new(0));
+        let (mut e, guard) =
+            guarded_counting(ScriptLimits::default(), &clock, Arc::clone(&transactions));
+        let c = clock.clone();
+        // A device exchange that takes 100 ms of the run's time.
+        e.register_fn("slow", move || {
+            transactions.fetch_add(1, Ordering::Relaxed);
+            c.advance(Duration::from_millis(100));
+        });
+        let signal = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let limit = StopLimit {
+            until: clock.now() + Duration::from_millis(250),
+            budget: Duration::from_secs(2),
+            signal: Arc::clone(&signal),
+        };
+        guard.begin_call();
+        guard.within_stop(limit.clone());
+        e.run("loop {\n  slow();\n}").unwrap_err();
+        let breach = guard.end_call();
+        assert_eq!(
+            breach,
+            Some(Breach::StopBudget {
+                budget: Duration::from_secs(2)
+            })
+        );
+        let cause = breach.map(|b| b.cause()).unwrap_or_default();
+        assert!(
+            cause.contains("ran past the 2s they have together"),
+            "{cause}"
+        );
+        assert!(
+            clock.now() <= Duration::from_millis(400),
+            "{:?}",
+            clock.now()
+        );
+        // Another signal cuts it at once, budget or not.
+        guard.begin_call();
+        guard.within_stop(StopLimit {
+            until: clock.now() + Duration::from_secs(60),
+            ..limit
+        });
+        signal.store(15, Ordering::SeqCst);
+        e.run("let x = 0;\nloop { x += 1; }").unwrap_err();
+        assert_eq!(guard.end_call(), Some(Breach::StopCut));
+        // Outside a stop neither applies.
+        guard.begin_call();
+        e.run("let y = 0;\nwhile y < 10 { y += 1; }").unwrap();
+        assert_eq!(guard.end_call(), None);
     }
 }
