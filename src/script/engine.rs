@@ -571,7 +571,7 @@ mod tests {
         };
         guard.begin_call();
         guard.within_stop(limit.clone());
-        e.run("loop {\n  slow();\n}").unwrap_err();
+        let _ = e.run("loop {\n  slow();\n}").unwrap_err();
         let breach = guard.end_call();
         assert_eq!(
             breach,
@@ -596,7 +596,7 @@ mod tests {
             ..limit
         });
         signal.store(15, Ordering::SeqCst);
-        e.run("let x = 0;\nloop { x += 1; }").unwrap_err();
+        let _ = e.run("let x = 0;\nloop { x += 1; }").unwrap_err();
         assert_eq!(guard.end_call(), Some(Breach::StopCut));
         // Outside a stop neither applies.
         guard.begin_call();
