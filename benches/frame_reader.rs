@@ -34,7 +34,7 @@ fn noise(len: usize) -> Vec<u8> {
         .collect()
 }
 
-/// The floods: issue 8's `01 46 77` (a vendor request of unknown length, nonstop), noise, and
+/// The floods: `01 46 77` (a vendor request of unknown length, nonstop), noise, and
 /// `0F` headers announcing 255-byte frames (the longest a reader must wait for and check).
 fn floods(len: usize) -> Vec<(&'static str, Vec<u8>)> {
     vec![

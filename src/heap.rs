@@ -101,7 +101,7 @@ pub fn thread_balance() -> isize {
 /// whole process's heap, counted exactly. While other runs share the process (`verify --jobs
 /// N`, tests on parallel threads), it holds what its thread has allocated and not freed since
 /// the run started, so that one run's growth never counts against its neighbours. That count
-/// drifts when memory crosses threads: a log line made here is freed by the log's writer
+/// drifts when memory crosses threads: a log line or a record made here is freed by its writer
 /// thread, a buffer a device thread filled is freed here. It is a fair measure of a run still:
 /// the script's values (Rhai's, `Rc`-based, neither `Send` nor `Sync`) are made and dropped on
 /// the run's thread and cannot cross to another, so what a growing script keeps is counted

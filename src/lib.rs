@@ -52,6 +52,7 @@
 pub mod cli;
 pub mod config;
 pub mod device;
+pub mod guardian;
 pub mod heap;
 pub mod link;
 pub mod protocol;

@@ -363,8 +363,8 @@ fn the_oracle_sees_a_stored_safe_value_the_script_changed() {
     };
     let run = harness::run(&case);
     let kinds: Vec<&str> = oracle::check(&case, &run).iter().map(|v| v.kind).collect();
-    // Today the script may store its own safe value; whether the runner refuses that (issue 8,
-    // defect 5) or not, the module's own watchdog must not drive it.
+    // Today the script may store its own safe value; whether the runner refuses that
+    // (`script_may_change`) or not, the module's own watchdog must not drive it.
     if run.after_wait[0].outputs != 0x05 {
         assert!(kinds.contains(&"not-safe-after-end"), "{kinds:?}");
         assert!(kinds.contains(&"unsafe-safe-value"), "{kinds:?}");
@@ -373,7 +373,7 @@ fn the_oracle_sees_a_stored_safe_value_the_script_changed() {
     }
 }
 
-// ---- issue 8: the minimal cases the search shrank each defect to (seed and count in the
+// ---- the minimal cases the search shrank each defect to (seed and count in the
 // ---- README's fault search notes), kept so they stay checked after the fixes. Each fails on
 // ---- the code the search first ran against.
 

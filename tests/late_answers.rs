@@ -1,9 +1,9 @@
-//! A late answer is never taken as the answer to the next request (issue 8, defect 13): after
+//! A late answer is never taken as the answer to the next request (DESIGN.md, "Line timing"): after
 //! a timeout the driver lets the line fall silent for one more timeout, dropping what comes,
 //! before the retry. A DO read and a DI read have answers of the same shape, ASCII counter
 //! answers carry no channel, and a name and a firmware answer are both text, so matching
 //! answers to requests alone cannot tell them apart. Answers that come twice or torn end right
-//! or in a clear error, and the line's silence holds after each of them (issue 10).
+//! or in a clear error, and the line's silence holds after each of them (DESIGN.md, "Line timing").
 
 mod common;
 

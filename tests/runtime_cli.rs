@@ -428,3 +428,163 @@ fn the_wake_latency_is_released_when_the_fast_handler_goes() {
         );
     }
 }
+
+/// Makes a named pipe at `path`.
+fn mkfifo(path: &std::path::Path) {
+    let c = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a valid C string.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
+}
+
+/// Waits until `child` exits or 10 s pass (then kills it and fails, saying `what`).
+fn exits_within_10s(child: &mut std::process::Child, what: &str) -> std::process::ExitStatus {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("not within 10 s: {what}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// Collects `child`'s stderr on a thread, into the text returned.
+fn collect_stderr(child: &mut std::process::Child) -> std::sync::Arc<std::sync::Mutex<String>> {
+    use std::io::{BufRead, BufReader};
+    let err = BufReader::new(child.stderr.take().unwrap());
+    let text = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    let theirs = std::sync::Arc::clone(&text);
+    std::thread::spawn(move || {
+        for line in err.lines() {
+            let Ok(line) = line else { break };
+            let mut t = theirs.lock().unwrap();
+            t.push_str(&line);
+            t.push('\n');
+        }
+    });
+    text
+}
+
+#[test]
+fn a_records_pipe_nobody_reads_never_holds_the_run_and_sigterm_still_stops_it_safely() {
+    use std::os::unix::fs::OpenOptionsExt;
+    let d = Dir::new("records-fifo-stuck");
+    let fifo = d.0.join("records.fifo");
+    mkfifo(&fifo);
+    // Someone has the pipe open for reading, and never reads.
+    let _reader = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(&fifo)
+        .unwrap();
+    // Far more than the pipe (64 KiB) and the records queue together hold.
+    let s = d.file(
+        "r.rhai",
+        "io.outputs = 0xF0;\nlet big = \"x\";\nbig.pad(1000, 'x');\n\
+         for n in 0..3000 { record(\"n\", `${n} ${big}`); }\n\
+         every(\"50ms\", || record(\"tick\", 1));\nafter(\"100ms\", || log(\"ready\"));\n",
+    );
+    let mut child = Command::new(rigscript())
+        .args(["run", "--sim", "--stats", "--records"])
+        .arg(&fifo)
+        .arg(&s)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let log = collect_stderr(&mut child);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !log.lock().unwrap().contains("script: ready") {
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "the run did not get past its records within 10 s: {}",
+                log.lock().unwrap()
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let ok = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let status = exits_within_10s(&mut child, "SIGTERM with a records pipe nobody reads");
+    let mut stats = String::new();
+    std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stats).unwrap();
+    // The stderr thread ends with the process; give it the last lines.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !log.lock().unwrap().contains("exit status") && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let log = log.lock().unwrap().clone();
+    assert!(log.contains("stopping: SIGTERM received"), "{log}");
+    assert!(
+        log.contains("safe state (signal): io outputs 0x00"),
+        "{log}"
+    );
+    assert!(log.contains("records not written"), "{log}");
+    assert!(
+        log.contains("record(s) not written to the records file: exit status 5"),
+        "{log}"
+    );
+    assert_eq!(status.code(), Some(5), "{log}");
+    assert!(stats.contains("records not written: "), "{stats}");
+}
+
+#[test]
+fn a_records_pipe_with_no_reader_is_refused_at_start_without_waiting() {
+    let d = Dir::new("records-fifo-none");
+    let fifo = d.0.join("records.fifo");
+    mkfifo(&fifo);
+    let s = d.file("r.rhai", "record(\"n\", 1);\n");
+    let mut child = Command::new(rigscript())
+        .args(["run", "--sim", "--for", "1s", "--records"])
+        .arg(&fifo)
+        .arg(&s)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let status = exits_within_10s(&mut child, "start with a records pipe that has no reader");
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("a named pipe (FIFO) that nothing reads; start its reader first"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_full_disk_for_the_records_is_told_once_with_the_count_and_the_run_ends_5() {
+    // /dev/full refuses every write with ENOSPC, as a full disk does.
+    let d = Dir::new("records-full");
+    let s = d.file(
+        "r.rhai",
+        "for n in 0..20 { record(\"n\", n); }\nmeasure(\"v\", 1.0, #{min: 0.0});\n",
+    );
+    let o = run(&["run", "--sim", "--records", "/dev/full", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert_eq!(
+        err.matches("records file /dev/full: disk full: records are not written")
+            .count(),
+        1,
+        "{err}"
+    );
+    assert!(
+        err.contains("records file /dev/full: disk full, 21 records not written"),
+        "{err}"
+    );
+    assert!(
+        err.contains("21 record(s) not written to the records file: exit status 5"),
+        "{err}"
+    );
+    assert!(!err.contains("in top level"), "not a script error: {err}");
+}

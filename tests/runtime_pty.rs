@@ -1,6 +1,6 @@
 //! `rigscript run` against the TRP-C29U simulator on a real pseudo-terminal: SIGTERM leaves
-//! the module at its safe value; after `kill -9` the module's own host watchdog, enabled and
-//! fed by the runner, drives it there.
+//! the module at its safe value; after `kill -9` of a run without its guardian the module's own
+//! host watchdog, enabled and fed by the runner, drives it there (tests/guardian.rs: with it).
 
 mod common;
 
@@ -30,9 +30,10 @@ fn setup(sim: &SimProcess, tag: &str) -> (std::path::PathBuf, String, String) {
     )
 }
 
-fn start_run(config: &str, script: &str) -> Child {
+fn start_run(config: &str, script: &str, extra: &[&str]) -> Child {
     Command::new(rigscript())
         .args(["run", "--quiet", "--config", config, script])
+        .args(extra)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -69,7 +70,7 @@ fn signal(child: &Child, sig: &str) {
 fn sigterm_leaves_the_module_at_its_safe_value() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let (dir, config, script) = setup(&sim, "term");
-    let mut run = start_run(&config, &script);
+    let mut run = start_run(&config, &script, &[]);
     let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "the script drives the module: {s}");
     assert_eq!(s["safe_value"], 0x05);
@@ -89,10 +90,10 @@ fn sigterm_leaves_the_module_at_its_safe_value() {
 }
 
 #[test]
-fn after_kill_9_the_modules_own_watchdog_drives_it_safe() {
+fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let (dir, config, script) = setup(&sim, "kill");
-    let mut run = start_run(&config, &script);
+    let mut run = start_run(&config, &script, &["--no-guardian"]);
     let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
     signal(&run, "-KILL");

@@ -117,7 +117,14 @@ fn systemd_accepts_the_units() {
 fn the_interlock_unit_restarts_only_where_a_restart_can_help() {
     let u = parse_unit("rigscript@.service");
     assert_eq!(value(&u, "Service", "Type"), "notify");
-    assert_eq!(value(&u, "Service", "NotifyAccess"), "main");
+    // The runner is the guardian's child (the pid systemd started): its notifications must
+    // count, and a stop's SIGTERM go to the guardian alone, which passes it on once.
+    assert_eq!(value(&u, "Service", "NotifyAccess"), "all");
+    assert_eq!(value(&u, "Service", "KillMode"), "mixed");
+    assert!(
+        value(&u, "Service", "ExecStopPost").contains(" safe --config "),
+        "the safe state written once more after every end"
+    );
     assert_eq!(value(&u, "Service", "Restart"), "on-failure");
     let prevented: Vec<i32> = value(&u, "Service", "RestartPreventExitStatus")
         .split_whitespace()

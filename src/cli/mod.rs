@@ -9,6 +9,7 @@ pub mod man;
 pub mod output;
 pub mod run;
 pub mod run_outputs;
+pub mod safe;
 pub mod scan;
 pub mod sim;
 pub mod test;
@@ -29,6 +30,8 @@ pub struct Cli {
 pub enum Command {
     /// Run a script on the rig's devices (or --sim) in the supervised scan loop
     Run(run::RunArgs),
+    /// Write and confirm the safe state of every device in a rig (by hand, or systemd's ExecStopPost=)
+    Safe(safe::SafeArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
     Check(check::CheckArgs),
     /// Run scenario tests (*.test.rhai) in virtual time against the simulators
@@ -94,6 +97,7 @@ pub fn main() -> i32 {
     }
     match cli.command {
         Command::Run(args) => run::run(args),
+        Command::Safe(args) => safe::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.
         Command::Test(args) => crate::script::stack::on_script_stack(

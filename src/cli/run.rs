@@ -10,6 +10,7 @@
 use super::output::say;
 use super::run_outputs::RunOutputs;
 use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency};
+use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
 use crate::runtime::log::LogFormat;
 use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
@@ -43,7 +44,8 @@ pub struct RunArgs {
     /// "24h", "1h30m"); a bare number is refused.
     #[arg(long = "for", value_name = "DURATION", value_parser = dur)]
     pub run_for: Option<Duration>,
-    /// Append records and measurements to this JSON-lines file (overrides rig.toml).
+    /// Append records and measurements to this JSON-lines file (overrides rig.toml); written
+    /// off the loop, so records the file does not take in time are counted (exit status 5).
     #[arg(long)]
     pub records: Option<PathBuf>,
     /// At the end, print ticks, period jitter, tick work, overruns and transactions per tick.
@@ -81,6 +83,11 @@ pub struct RunArgs {
     /// test case with its value and limits, plus one for the run itself.
     #[arg(long, value_name = "FILE")]
     pub junit: Option<PathBuf>,
+    /// Run without the guardian process (see DESIGN.md "The guardian"): a runner that dies
+    /// (kill -9, an abort, the OOM killer) then leaves the outputs as they were, but for each
+    /// module's own host watchdog.
+    #[arg(long)]
+    pub no_guardian: bool,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -100,6 +107,12 @@ fn memory_limit(text: &str) -> Result<u64, String> {
 
 fn period(text: &str) -> Result<Duration, String> {
     check_period(dur(text)?).map_err(|why| format!("\"{text}\" {why}"))
+}
+
+/// Whether the run's own end confirmed the safe state of every device (a panic's end does not
+/// confirm anything): the guardian then has nothing to do.
+fn ended_safe(rig: &crate::script::rig::Rig, status: i32) -> bool {
+    status != exit::INTERNAL && rig.runner.trouble.unreached_at_end.is_empty()
 }
 
 /// Runs `rigscript run`; returns the exit status.
@@ -129,15 +142,8 @@ pub fn run(args: RunArgs) -> i32 {
     limits.handler_time = args.handler_time.unwrap_or(limits.handler_time);
     limits.memory = args.memory_limit.unwrap_or(limits.memory);
     limits.timers = args.max_timers.map_or(limits.timers, |n| n as usize);
-    // On a stack that holds whatever the script can build within its memory limit.
-    let memory = limits.memory;
-    stack::on_script_stack(memory, move || run_configured(args, config))
-}
-
-/// The run itself, once its rig and limits are known.
-fn run_configured(args: RunArgs, config: RigConfig) -> i32 {
     let file = args.script.display().to_string();
-    let mut outputs = match RunOutputs::new(&file, args.junit) {
+    let mut outputs = match RunOutputs::new(&file, args.junit.clone()) {
         Ok(o) => o,
         Err(e) => {
             say(&format!("rigscript run: {e}"));
@@ -164,22 +170,65 @@ fn run_configured(args: RunArgs, config: RigConfig) -> i32 {
         zone: Zone::Local,
         period: args.period,
         end_after: args.run_for,
-        records: args.records,
+        records: args.records.clone(),
         log_to_stderr: true,
         quiet: args.quiet,
         log_format: args.log_format,
         keep_log: outputs.keeps_log(),
         stop_flag,
     };
-    let mut rig = match start(&source, &file, setup) {
+    let guardian = if args.no_guardian || args.sim || !setup.config.has_real_devices() {
+        None
+    } else {
+        let log = GuardianLog {
+            format: args.log_format,
+            zone: Zone::Local,
+        };
+        match guard(&setup.config, log) {
+            Ok(Guarded::Runner(confirmation)) => Some(confirmation),
+            Ok(Guarded::Guardian(status)) => return status,
+            Err(e) => {
+                say(&format!(
+                    "rigscript run: {e}; nothing was started (--no-guardian runs without it)"
+                ));
+                return exit::ERROR;
+            }
+        }
+    };
+    // After the guardian's fork (which needs this process to have one thread): the run on a
+    // stack that holds whatever the script can build within its memory limit.
+    let memory = setup.config.limits.memory;
+    let stats = args.stats;
+    stack::on_script_stack(memory, move || {
+        run_started(&source, &file, setup, &mut outputs, guardian, stats)
+    })
+}
+
+/// The run itself, from taking control of the devices to the last log line.
+fn run_started(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    outputs: &mut RunOutputs,
+    guardian: Option<Confirmation>,
+    stats: bool,
+) -> i32 {
+    let mut rig = match start(source, file, setup) {
         Ok(r) => r,
         Err(e) => {
             say(&format!("rigscript run: {e}"));
+            // A run that never started drove nothing but the safe state taking control writes.
+            if let (Some(g), false) = (guardian, e.status() == exit::INTERNAL) {
+                g.confirm();
+            }
             return outputs.not_started(e.status(), &e.to_string());
         }
     };
     outputs.started(&mut rig);
     let status = rig.runner.run();
+    if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
+        g.confirm();
+    }
     let status = outputs.finished(&mut rig, status);
     let dropped = {
         // The last lines out (at most a second's wait for a stderr nobody reads).
@@ -188,7 +237,7 @@ fn run_configured(args: RunArgs, config: RigConfig) -> i32 {
         rt.log.dropped()
     };
     rig.runner.stats.log_dropped = dropped;
-    if args.stats {
+    if stats {
         // After the end: a reader that went away costs the figures, never the status.
         let _ = std::io::Write::write_fmt(
             &mut std::io::stdout(),

@@ -84,7 +84,8 @@ pub struct C29uConfig {
     pub safe_value: u8,
     /// DO byte the module loads at power on; `None` (the default) leaves the module's as is.
     pub power_on_value: Option<u8>,
-    /// Whether an energized input reads as a 0 bit on the wire (default true, per NOTES.md).
+    /// Whether an energized input reads as a 0 bit on the wire (default true, as manual 8-11 and
+    /// 10-17 show: docs/trp-c29u-protocol.md, 'DI polarity').
     pub di_active_low: bool,
     /// Silence kept on a serial line before each request (default auto: the protocol's rule).
     pub frame_gap: FrameGap,

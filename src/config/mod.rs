@@ -255,6 +255,15 @@ impl RigConfig {
         })
     }
 
+    /// Whether any device is real hardware (not `port = "simulator"`): only those outlive the
+    /// runner, and need its guardian.
+    pub fn has_real_devices(&self) -> bool {
+        self.devices.values().any(|d| match d {
+            DeviceConfig::C29u(c) => c.port != Port::Simulated,
+            DeviceConfig::Trc1000(_) => true,
+        })
+    }
+
     /// The rig `--sim` provides without a config: `panel`, a TRC1000 at unit 0 (safe relay 0),
     /// and `io`, a TRP-C29U at Modbus id 1, both simulated, everything else at its default.
     pub fn simulated_default() -> Self {

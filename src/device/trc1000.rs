@@ -1,5 +1,5 @@
 //! TRC1000 driver: relay selection, switch and rotary reads over any packet link, matching each
-//! answer to its request by its first byte and dropping stale packets (NOTES.md, TRC1000). A
+//! answer to its request by its first byte and dropping stale packets (docs/trc1000-protocol.md). A
 //! `Cancel` cuts a request short: nothing is sent once it is set, and the wait for an answer
 //! looks at it between slices.
 

@@ -8,13 +8,24 @@ use std::time::{Duration, Instant};
 
 /// Puts `fd` in non-blocking mode, so a read with nothing to read returns at once.
 pub fn set_nonblocking(fd: RawFd) -> io::Result<()> {
+    set_status_flag(fd, libc::O_NONBLOCK, true)
+}
+
+/// Puts `fd` back in blocking mode (a file opened non-blocking only so that opening it could
+/// not wait).
+pub fn set_blocking(fd: RawFd) -> io::Result<()> {
+    set_status_flag(fd, libc::O_NONBLOCK, false)
+}
+
+fn set_status_flag(fd: RawFd, flag: libc::c_int, on: bool) -> io::Result<()> {
     // SAFETY: fcntl on a descriptor the caller owns; no pointers.
     let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
     if flags < 0 {
         return Err(io::Error::last_os_error());
     }
+    let flags = if on { flags | flag } else { flags & !flag };
     // SAFETY: as above.
-    if unsafe { libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) } < 0 {
+    if unsafe { libc::fcntl(fd, libc::F_SETFL, flags) } < 0 {
         return Err(io::Error::last_os_error());
     }
     Ok(())

@@ -82,7 +82,7 @@ impl BaudCode {
     }
 }
 
-/// A firmware release date as both protocols give it: `$IDF`'s trailing YYMMDD (8-15, NOTES)
+/// A firmware release date as both protocols give it: `$IDF`'s trailing YYMMDD (8-15 as read)
 /// and 46 07's `YY MM DD` bytes (10-5).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct FirmwareDate {

@@ -1,4 +1,5 @@
-//! TRC1000 wire codec: 8-byte commands and responses, switch and rotary names (NOTES.md wins).
+//! TRC1000 wire codec: 8-byte commands and responses, switch and rotary names
+//! (docs/trc1000-protocol.md).
 //!
 //! Pure: bytes in, typed values out, and back. No clocks, no I/O.
 
@@ -137,7 +138,8 @@ impl Command {
     }
 }
 
-/// Switch numbers by (data byte b0..b5, bit 0..7); 0 marks an unused bit (NOTES.md, TRC1000).
+/// Switch numbers by (data byte b0..b5, bit 0..7); 0 marks an unused bit
+/// (docs/trc1000-protocol.md, 'Answers').
 const LAYOUT: [[u8; 8]; 6] = [
     [1, 2, 3, 4, 5, 6, 7, 8],
     [9, 10, 11, 12, 13, 14, 15, 16],
@@ -626,7 +628,7 @@ mod tests {
         assert_eq!(Command::SelectRelay(relay(2)).response_code(), None);
     }
 
-    // Vendor document, "Respond Input", with the layout of NOTES.md.
+    // Vendor document, "Respond Input", with the layout of docs/trc1000-protocol.md.
     #[test]
     fn respond_input_bytes_0_to_2_are_s1_to_s24_in_order() {
         let r = Response::decode(&[0xC1, 0x01, 0x80, 0x05, 0, 0, 0, 0]).unwrap();

@@ -21,7 +21,8 @@ pub const UNAVAILABLE: i32 = 3;
 pub const MEASUREMENT_FAILED: i32 = 4;
 /// The run went on to its end, but something failed on the way: script errors recovered under
 /// `on_error = "restart"` or `"skip"`, a device lost and not back at the end, a device the
-/// end's safe state did not reach (no answer confirmed it), an `on_stop` handler that failed.
+/// end's safe state did not reach (no answer confirmed it), an `on_stop` handler that failed,
+/// records the records file did not take.
 pub const TROUBLE: i32 = 5;
 /// A bug in rigscript (a panic); the safe state was written to every device that answered
 /// and the host watchdogs left on.
@@ -41,12 +42,15 @@ Exit status (the first that applies):
     N  the script called stop(N) with N from 1 to 255
     5  the run ended, but something failed on the way: script errors recovered
        (on_error = \"restart\" or \"skip\"), a device lost and not back at the end,
-       a device the end's safe state did not reach, an on_stop handler that failed
+       a device the end's safe state did not reach, an on_stop handler that failed,
+       records the records file did not take (a full disk, a pipe nobody reads)
     4  a measurement out of its limits
   130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15); any other
        ending signal 128 + its number: 129 SIGHUP, 131 SIGQUIT, 138 SIGUSR1,
        140 SIGUSR2, 142 SIGALRM, 153 SIGXFSZ (a file past ulimit -f)
     0  the run ended as planned (--for, stop(), nothing left to do)
+  128 + N  the runner died of signal N (137 kill -9 or the OOM killer, 134 an abort,
+       139 a crash): its guardian wrote and read back the safe state (the log says)
 Before the run starts: 2 usage or rig.toml error, 3 a device not available (missing,
 busy, no answer).";
 

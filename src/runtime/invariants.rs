@@ -261,12 +261,7 @@ impl<H: Clone> Runtime<H> {
             "{v}; the outputs of this tick are not written, the safe state is"
         ));
         let time = self.wall_text();
-        if let Err(e) = self
-            .records
-            .record(&time, "invariant_violated", v.to_json())
-        {
-            self.log
-                .error(&format!("recording the violation failed: {e}"));
-        }
+        self.records
+            .record(&time, "invariant_violated", v.to_json(), &mut self.log);
     }
 }

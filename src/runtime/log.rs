@@ -9,12 +9,12 @@
 //! source, message, device) for journald and Loki. A problem that repeats (a write the
 //! module keeps refusing) is logged once and then counted (`repeating`).
 
+use super::line_writer::{LineSink, LineWriter};
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::io::Write;
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Duration;
 
 /// Lines kept in memory at most (the oldest go first), so a long run cannot grow without bound.
@@ -76,7 +76,7 @@ pub struct Logger {
     quiet: bool,
     format: LogFormat,
     devices: Vec<String>,
-    writer: Option<Writer>,
+    writer: Option<LineWriter>,
     /// Lines the writer dropped, once it is closed.
     dropped_before_close: u64,
     kept: Option<Vec<String>>,
@@ -94,7 +94,7 @@ struct Repeat {
 impl Logger {
     /// A log stamped with `clock`'s wall time in `zone`, written to stderr if `to_stderr`.
     pub fn new(clock: SharedClock, zone: Zone, to_stderr: bool) -> Self {
-        let writer = to_stderr.then(|| Writer::spawn(|| Box::new(std::io::stderr())));
+        let writer = to_stderr.then(|| spawn_writer(|| Box::new(std::io::stderr())));
         Self {
             clock,
             zone,
@@ -111,7 +111,7 @@ impl Logger {
     /// Writes to `out` (instead of stderr) through the same bounded queue and writer thread.
     pub fn with_output(clock: SharedClock, zone: Zone, out: impl Write + Send + 'static) -> Self {
         let mut log = Self::new(clock, zone, false);
-        log.writer = Some(Writer::spawn(move || Box::new(out)));
+        log.writer = Some(spawn_writer(move || Box::new(out)));
         log
     }
 
@@ -147,7 +147,7 @@ impl Logger {
     pub fn dropped(&self) -> u64 {
         self.writer
             .as_ref()
-            .map_or(self.dropped_before_close, Writer::dropped)
+            .map_or(self.dropped_before_close, LineWriter::dropped)
     }
 
     /// Writes one line at `level`.
@@ -156,7 +156,8 @@ impl Logger {
             return;
         }
         let wall = self.zone.at(self.clock.wall());
-        let message = cut(message);
+        let shown = visible(message);
+        let message = cut(&shown);
         if let Some(kept) = &mut self.kept {
             if kept.len() >= MAX_KEPT_LINES {
                 kept.remove(0);
@@ -170,11 +171,11 @@ impl Logger {
             LogFormat::Text => text_line(&wall, level, message),
             LogFormat::Json => json_line(&wall, level, message, devices),
         };
-        writer.push(&render(level, &message), |dropped| {
-            render(
+        writer.push(render(level, &message), |dropped| {
+            Some(render(
                 Level::Warn,
                 &format!("{dropped} log lines dropped: stderr not being read"),
-            )
+            ))
         });
     }
 
@@ -253,7 +254,7 @@ impl Logger {
     /// logged afterwards go nowhere but the kept lines.
     pub fn close(&mut self) {
         if let Some(w) = self.writer.take() {
-            w.close(CLOSE_WAIT);
+            let _ = w.close(CLOSE_WAIT);
             self.dropped_before_close = w.dropped();
         }
     }
@@ -272,6 +273,29 @@ impl Drop for Logger {
     fn drop(&mut self) {
         self.close();
     }
+}
+
+/// `message` with every control character written out (`\n`, `\r`, `\t`, `\x1b`, `\u{9b}`),
+/// so no text (a script's `log`, an error it threw) can start a line that looks like the
+/// runner's, move the cursor or recolour the terminal.
+fn visible(message: &str) -> std::borrow::Cow<'_, str> {
+    if !message.chars().any(char::is_control) {
+        return message.into();
+    }
+    let mut out = String::with_capacity(message.len() + 8);
+    for c in message.chars() {
+        match c {
+            '\n' => out.push_str("\\n"),
+            '\r' => out.push_str("\\r"),
+            '\t' => out.push_str("\\t"),
+            c if c.is_control() && u32::from(c) < 0x80 => {
+                out.push_str(&format!("\\x{:02x}", u32::from(c)));
+            }
+            c if c.is_control() => out.push_str(&format!("\\u{{{:x}}}", u32::from(c))),
+            c => out.push(c),
+        }
+    }
+    out.into()
 }
 
 /// `message` cut to `MAX_LINE` bytes (at a character boundary), saying how much was left out.
@@ -329,135 +353,24 @@ fn json_line(wall: &Wall, level: Level, message: &str, devices: &[String]) -> St
     .to_string()
 }
 
-/// The queue between the scan loop and the thread that writes the log out.
-struct Writer {
-    shared: Arc<Shared>,
-}
+/// The log's output on its writer thread. A closed output must not stop the rig: what it
+/// refuses is simply lost.
+struct LossyOutput(Box<dyn Write>);
 
-struct Shared {
-    queue: Mutex<Queue>,
-    /// Signalled when lines are queued or the log closes (to the writer), and when the writer
-    /// has written everything after closing (to `close`).
-    changed: Condvar,
-}
-
-#[derive(Default)]
-struct Queue {
-    lines: VecDeque<String>,
-    /// Bytes queued or being written.
-    bytes: usize,
-    /// Dropped since the last notice of it.
-    unreported: u64,
-    /// Dropped in all.
-    dropped: u64,
-    closing: bool,
-    done: bool,
-}
-
-impl Writer {
-    /// Starts the writer thread; `open` makes its output (on that thread).
-    fn spawn(open: impl FnOnce() -> Box<dyn Write> + Send + 'static) -> Self {
-        let shared = Arc::new(Shared {
-            queue: Mutex::new(Queue::default()),
-            changed: Condvar::new(),
-        });
-        let theirs = Arc::clone(&shared);
-        let spawned = std::thread::Builder::new()
-            .name("rigscript-log".into())
-            .spawn(move || write_out(&theirs, open()));
-        if spawned.is_err() {
-            // No thread, no output: lines are counted as dropped rather than block the loop.
-            lock(&shared).closing = true;
-        }
-        Self { shared }
-    }
-
-    /// Queues `line`, or drops and counts it when the queue is full; after drops, queues the
-    /// notice `notice(count)` first once there is room for it.
-    fn push(&self, line: &str, notice: impl FnOnce(u64) -> String) {
-        let mut q = lock(&self.shared);
-        if q.closing {
-            q.dropped = q.dropped.saturating_add(1);
-            return;
-        }
-        if q.unreported > 0 {
-            let text = notice(q.unreported);
-            if q.bytes + text.len() + line.len() + 2 > QUEUE_BYTES {
-                q.unreported += 1;
-                q.dropped = q.dropped.saturating_add(1);
-                return;
-            }
-            q.unreported = 0;
-            q.bytes += text.len() + 1;
-            q.lines.push_back(text);
-        }
-        if q.bytes + line.len() + 1 > QUEUE_BYTES {
-            q.unreported += 1;
-            q.dropped = q.dropped.saturating_add(1);
-            return;
-        }
-        q.bytes += line.len() + 1;
-        q.lines.push_back(line.to_string());
-        drop(q);
-        self.shared.changed.notify_all();
-    }
-
-    fn dropped(&self) -> u64 {
-        lock(&self.shared).dropped
-    }
-
-    /// Asks the writer to finish and waits up to `wait` for it to write what is queued.
-    fn close(&self, wait: Duration) {
-        let mut q = lock(&self.shared);
-        q.closing = true;
-        self.shared.changed.notify_all();
-        let deadline = std::time::Instant::now() + wait;
-        while !q.done {
-            let left = deadline.saturating_duration_since(std::time::Instant::now());
-            if left.is_zero() {
-                break;
-            }
-            q = match self.shared.changed.wait_timeout(q, left) {
-                Ok((g, _)) => g,
-                Err(e) => e.into_inner().0,
-            };
-        }
+impl LineSink for LossyOutput {
+    fn write_batch(&mut self, batch: &str, _count: usize) {
+        let _ = self
+            .0
+            .write_all(batch.as_bytes())
+            .and_then(|()| self.0.flush());
     }
 }
 
-/// The writer thread: writes batches of queued lines as they come, until closed and empty.
-fn write_out(shared: &Shared, mut out: Box<dyn Write>) {
-    let mut batch = String::new();
-    loop {
-        let mut q = lock(shared);
-        while q.lines.is_empty() && !q.closing {
-            q = match shared.changed.wait(q) {
-                Ok(g) => g,
-                Err(e) => e.into_inner(),
-            };
-        }
-        if q.lines.is_empty() {
-            q.done = true;
-            drop(q);
-            shared.changed.notify_all();
-            return;
-        }
-        batch.clear();
-        for line in q.lines.drain(..) {
-            batch.push_str(&line);
-            batch.push('\n');
-        }
-        drop(q);
-        // A closed output must not stop the rig: what it refuses is simply lost.
-        let _ = out.write_all(batch.as_bytes()).and_then(|()| out.flush());
-        let mut q = lock(shared);
-        q.bytes = q.bytes.saturating_sub(batch.len());
-    }
-}
-
-fn lock(shared: &Shared) -> MutexGuard<'_, Queue> {
-    // A panic on the other side leaves the queue usable: it only holds lines and counts.
-    shared.queue.lock().unwrap_or_else(|e| e.into_inner())
+/// The log's writer thread, writing what `open` makes.
+fn spawn_writer(open: impl FnOnce() -> Box<dyn Write> + Send + 'static) -> LineWriter {
+    LineWriter::spawn("rigscript-log", QUEUE_BYTES, move || {
+        Some(LossyOutput(open()))
+    })
 }
 
 #[cfg(test)]
@@ -468,6 +381,7 @@ mod tests {
     use std::io::Read;
     use std::os::fd::{FromRawFd, OwnedFd};
     use std::sync::mpsc;
+    use std::sync::Arc;
 
     fn clock() -> VirtualClock {
         let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 1).unwrap());
@@ -628,6 +542,40 @@ mod tests {
             ),
             "{lines}"
         );
+    }
+
+    #[test]
+    fn control_characters_in_a_message_are_written_out_in_text_and_json() {
+        let forged = "ready\n20:00:00.000 safe state (end of run): io outputs 0x00\r\x1b[2K\tdone\u{9b}\u{7f}";
+        let shown = "ready\\n20:00:00.000 safe state (end of run): io outputs 0x00\\r\\x1b[2K\\tdone\\u{9b}\\x7f";
+        for format in [LogFormat::Text, LogFormat::Json] {
+            let (mut reader, writer) = pipe();
+            let mut log = Logger::with_output(Arc::new(clock()), Zone::utc(), writer);
+            log.keep_lines();
+            log.set_format(format);
+            log.info(&format!("script: {forged}"));
+            log.warn(&format!("script: {forged}"));
+            assert_eq!(log.lines()[0], format!("12:00:01.020 script: {shown}"));
+            log.close();
+            drop(log);
+            let mut text = String::new();
+            reader.read_to_string(&mut text).unwrap();
+            assert_eq!(text.lines().count(), 2, "{format:?}: {text}");
+            assert!(
+                text.lines().all(|l| !l.chars().any(char::is_control)),
+                "{format:?}: {text:?}"
+            );
+            if format == LogFormat::Json {
+                let line: serde_json::Value =
+                    serde_json::from_str(text.lines().next().unwrap()).unwrap();
+                assert_eq!(line["message"], shown);
+            } else {
+                assert!(
+                    text.contains(&format!("warning: script: {shown}")),
+                    "{text}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -763,6 +763,10 @@ impl<P: Program> Runner<P> {
             EndReason::Finished(_) => "end of run",
         };
         self.trouble.unreached_at_end = rt.end_safe(why, true);
+        // After the safe state: the records file gets a bounded wait for what is queued.
+        let r = &mut *rt;
+        self.trouble.records_lost = r.records.close(&mut r.log);
+        self.stats.records_lost = self.trouble.records_lost;
         let failed = rt.records.failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
@@ -867,6 +871,8 @@ pub struct Trouble {
     pub lost_at_end: Vec<String>,
     /// Devices the end's safe state did not reach (no answer confirmed it).
     pub unreached_at_end: Vec<String>,
+    /// Records the records file did not take (dropped, refused, or still queued at the end).
+    pub records_lost: u64,
 }
 
 impl Trouble {
@@ -876,6 +882,7 @@ impl Trouble {
             && self.on_stop_failed == 0
             && self.lost_at_end.is_empty()
             && self.unreached_at_end.is_empty()
+            && self.records_lost == 0
     }
 
     /// What went wrong, in words.
@@ -900,6 +907,12 @@ impl Trouble {
             parts.push(format!(
                 "the safe state did not reach {}",
                 self.unreached_at_end.join(", ")
+            ));
+        }
+        if self.records_lost > 0 {
+            parts.push(format!(
+                "{} record(s) not written to the records file",
+                self.records_lost
             ));
         }
         parts.join("; ")

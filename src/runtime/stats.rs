@@ -126,6 +126,8 @@ pub struct Stats {
     pub prompt_wakeups: Option<String>,
     /// Log lines dropped because stderr was not being read.
     pub log_dropped: u64,
+    /// Records the records file did not take (the log says why).
+    pub records_lost: u64,
 }
 
 impl Stats {
@@ -172,6 +174,13 @@ impl fmt::Display for Stats {
                 f,
                 "log lines dropped: {} (stderr not being read)",
                 self.log_dropped
+            )?;
+        }
+        if self.records_lost > 0 {
+            writeln!(
+                f,
+                "records not written: {} (the log says why)",
+                self.records_lost
             )?;
         }
         write!(

@@ -776,19 +776,18 @@ fn limits(map: &Map) -> R<Limits> {
 fn register_records(engine: &mut Engine, rt: &Rt) {
     let r = Rc::clone(rt);
     engine.register_fn("record", move |name: &str, value: Dynamic| -> R<()> {
-        let mut rt = r.borrow_mut();
+        let mut guard = r.borrow_mut();
+        let rt = &mut *guard;
         let time = rt.wall_text();
-        let result = rt.records.record(&time, name, to_json(&value));
-        result.or_else(|e| fail(e.to_string()))
+        rt.records.record(&time, name, to_json(&value), &mut rt.log);
+        Ok(())
     });
     let measure = move |rt: &Rt, name: &str, value: &Dynamic, l: &Limits| -> R<bool> {
         let v = number(value, "a measured value")?;
-        let mut r = rt.borrow_mut();
+        let mut guard = rt.borrow_mut();
+        let r = &mut *guard;
         let time = r.wall_text();
-        let pass = r
-            .records
-            .measure(&time, name, v, l)
-            .or_else(|e| fail(e.to_string()))?;
+        let pass = r.records.measure(&time, name, v, l, &mut r.log);
         let unit = l.unit.as_deref().unwrap_or("");
         let range = match (l.min, l.max) {
             (Some(a), Some(b)) => format!(" [{a}, {b}]"),

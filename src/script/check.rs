@@ -190,6 +190,51 @@ impl Registry {
     }
 }
 
+/// The script API as `check` knows it, by name: what the engine of a run registers beyond
+/// Rhai's standard library (the user guide's reference is tested against it).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ScriptApi {
+    /// Functions called on their own (`every`, `device`, ...).
+    pub functions: BTreeSet<String>,
+    /// A TRC1000 handle's methods and properties.
+    pub trc1000: BTreeSet<String>,
+    /// A TRP-C29U handle's methods and properties.
+    pub c29u: BTreeSet<String>,
+}
+
+/// The script API's names, from the engine a run uses.
+pub fn script_api() -> ScriptApi {
+    let api = Registry::of_the_api();
+    let library = Registry::of(&sandboxed(DEFAULT_BUDGET));
+    let devices = [Kind::Trc.type_id(), Kind::C29u.type_id()];
+    let functions = api
+        .functions
+        .iter()
+        .filter(|(name, overloads)| {
+            let known = library.functions.get(*name);
+            is_identifier(name)
+                && overloads.iter().any(|o| {
+                    !o.1.is_some_and(|t| devices.contains(&t))
+                        && !known.is_some_and(|k| k.contains(o))
+                })
+        })
+        .map(|(name, _)| name.clone())
+        .collect();
+    let members = |kind| {
+        let (methods, properties) = api.members(kind);
+        methods
+            .into_iter()
+            .chain(properties)
+            .map(String::from)
+            .collect()
+    };
+    ScriptApi {
+        functions,
+        trc1000: members(Kind::Trc),
+        c29u: members(Kind::C29u),
+    }
+}
+
 /// True for names a script can write as a call (not operators, getters or indexers).
 fn is_identifier(name: &str) -> bool {
     let mut chars = name.chars();

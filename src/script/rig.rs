@@ -285,6 +285,30 @@ mod tests {
     }
 
     #[test]
+    fn what_a_script_logs_cannot_forge_a_line_or_reach_the_terminal_raw() {
+        let clock = VirtualClock::at_epoch();
+        let script = "print(\"a\\n00:00:00.000 safe state (end of run): io outputs 0x00\");\n\
+                      debug(\"b\\rc\");\nlog(\"d\\x1b[2Je\");\nwarn(\"f\\ng\");\n";
+        let rig = start(script, "t.rhai", setup(&clock)).unwrap();
+        let lines = rig.runner.runtime().borrow().log.lines().to_vec();
+        let log = lines.join("\n");
+        assert!(
+            log.contains("script: a\\n00:00:00.000 safe state (end of run)"),
+            "{log}"
+        );
+        assert!(log.contains("script: \"b\\rc\""), "{log}");
+        assert!(log.contains("script: d\\x1b[2Je"), "{log}");
+        assert!(log.contains("warning: script: f\\ng"), "{log}");
+        assert!(
+            lines.iter().all(|l| !l.chars().any(char::is_control)),
+            "{lines:?}"
+        );
+        assert!(!lines
+            .iter()
+            .any(|l| l.starts_with("00:00:00.000 safe state")));
+    }
+
+    #[test]
     fn numbers_out_of_range_from_a_script_are_script_errors_at_their_line() {
         let clock = VirtualClock::at_epoch();
         for (script, message) in [

@@ -3,8 +3,8 @@
 //!
 //! Readings (see also `protocol::c29u_ascii`'s list):
 //! - The module is silent on a bad checksum, a frame with no readable ID, another ID, and
-//!   broadcasts (NOTES); it also stays silent when its DIP switch selects Modbus (section 4).
-//! - 8-1 / NOTES: `%` is answered `!NN` from the new ID, framed with the checksum setting the
+//!   broadcasts; it also stays silent when its DIP switch selects Modbus (section 4).
+//! - 8-1 / 8-3: `%` is answered `!NN` from the new ID, framed with the checksum setting the
 //!   request came with; the following frames use the new settings.
 //! - 8-19: an output write in safe mode is answered `!IDWE`.
 //! - 8-21: `~IDWR` answers as [`WatchdogReading`](crate::protocol::c29u_ascii::WatchdogReading)
@@ -267,7 +267,7 @@ mod tests {
         assert_eq!(b.send("#010"), "!010000");
         assert_eq!(b.send("#01CW"), "!01");
         assert_eq!(b.send("#012"), "!010000");
-        // Channel 8 does not exist (NOTES: 0-7).
+        // Channel 8 does not exist (0-7, as 8-6 has it).
         assert_eq!(b.send("#018"), "?01");
     }
 

@@ -1,5 +1,5 @@
 //! The simulated TRP-C29U's Modbus RTU front end: frames requests out of the byte stream,
-//! applies them to the protocol-agnostic model, and encodes the answers (sections 9-10, NOTES).
+//! applies them to the protocol-agnostic model, and encodes the answers (sections 9-10).
 //!
 //! Readings this front end follows, where the manual is silent:
 //! - Slave ID 0 (Modbus broadcast) is not supported: such frames are ignored, not executed.
@@ -7,7 +7,7 @@
 //!   channel), bad value -> 01 (data format), anything else -> 00 (syntax); any refused vendor
 //!   (46) command answers `ID C6 00`.
 //! - 46 0C answers EN = 1 while a timeout is set, even once it has fired (the ASCII `~IDWR`
-//!   reports a fired watchdog as "D"; NOTES defines only "EN 1 = enabled").
+//!   reports a fired watchdog as "D"; 10-9 as read defines only "EN 1 = enabled").
 //! - 46 00 always answers the model code `0C 29` ("C29"); the settable ASCII name is not used.
 //! - 03/04 read counters from start 00 only (10-18/10-19 give "SS=00"); another start is
 //!   refused with 02 (start channel), by `decode_request`.
@@ -43,7 +43,7 @@ pub fn answer(model: &mut C29uModel, frame: &[u8]) -> Option<Vec<u8>> {
 }
 
 /// Applies a request addressed to this module and encodes its answer (from `id`, the ID the
-/// request was sent to, even when the request changes it: NOTES 10-2).
+/// request was sent to, even when the request changes it: 10-2 as read).
 fn execute(model: &mut C29uModel, id: u8, request: Request) -> Option<Vec<u8>> {
     let function = request.function();
     let response = match request {
@@ -371,7 +371,7 @@ mod tests {
         let mut r = Rig::new();
         assert_eq!(r.send("01 46 0C 00"), "01 46 0C 00 00");
         assert_eq!(r.send("01 46 0B 0F 00"), "01 46 0B 00");
-        // NOTES 10-9: `01 46 0C 01 0F` = enabled, 1.5 s.
+        // 10-9 as read: `01 46 0C 01 0F` = enabled, 1.5 s.
         assert_eq!(r.send("01 46 0C 00"), "01 46 0C 01 0F");
         assert_eq!(r.send("01 46 0B 00 00"), "01 46 0B 00");
         assert_eq!(r.send("01 46 0C 00"), "01 46 0C 00 00");
@@ -471,7 +471,7 @@ mod tests {
         let mut r = Rig::new();
         assert_eq!(r.send("01 0F 00 00 00 08 01 36"), "01 0F 00 00 00 08");
         assert_eq!(r.send("01 01 00 00 00 08"), "01 01 01 36");
-        // DI5 energized reads as a 0 bit on the wire (NOTES).
+        // DI5 energized reads as a 0 bit on the wire (10-17).
         r.model.set_inputs(0x20);
         assert_eq!(r.send("01 01 00 20 00 08"), "01 01 01 DF");
         r.model.set_inputs(0x00);
@@ -536,7 +536,7 @@ mod tests {
         for ch in 0..8 {
             r.model.pulse(ch, u32::from(ch) + 1).unwrap();
         }
-        // NOTES: the answer echoes address and quantity.
+        // 10-20 as read: the answer echoes address and quantity.
         assert_eq!(r.send("01 0F 02 04 00 04 01 00"), "01 0F 02 04 00 04");
         assert_eq!(r.model.counters(), [1, 2, 3, 4, 0, 0, 0, 0]);
         assert_eq!(r.send("01 0F 03 00 00 08 01 00"), "01 0F 03 00 00 08");

@@ -33,7 +33,7 @@ pub struct C29uOptions {
     pub timeout: Duration,
     /// Further attempts after a timeout or a garbled answer.
     pub retries: u32,
-    /// Inputs read 0 on the wire when energized (NOTES: true for the real module).
+    /// Inputs read 0 on the wire when energized (8-11, 10-17: true for the real module).
     pub di_active_low: bool,
     /// Silence kept on a serial line before each request to this module.
     pub frame_gap: FrameGap,
@@ -513,7 +513,7 @@ impl C29u {
     /// The latched inputs.
     pub fn read_latches(&mut self) -> Result<Latches, C29uError> {
         let (low, high) = self.backend.read_latches(&mut self.transport)?;
-        // An energized input is wire level 0 on an active-low module (NOTES): it latches low.
+        // An energized input is wire level 0 on an active-low module (8-11): it latches low.
         let (energized, released) = if self.options.di_active_low {
             (low, high)
         } else {

@@ -1,4 +1,4 @@
-//! The TRP-C29U driver's Modbus RTU back end (manual sections 9-10, NOTES' vendor addressing).
+//! The TRP-C29U driver's Modbus RTU back end (manual sections 9-10 and their vendor addressing).
 
 use super::transport::{Fault, Transport};
 use super::{
@@ -366,7 +366,7 @@ impl Backend for ModbusBackend {
                     "Modbus ID {new_id} is not possible: use 1-247"
                 )));
             }
-            // NOTES 10-2: the module answers from its old ID, then uses the new one.
+            // 10-2 as read: the module answers from its old ID, then uses the new one.
             self.vendor(t, VendorRequest::SetId(new_id))?;
             self.id = new_id;
         }

@@ -19,9 +19,9 @@ pub enum Answer {
         /// The module answered 4 hex digits (data format bit 0).
         hex: bool,
     },
-    /// 8-9 `$IDLS`: the latch byte, bit n = DIn (NOTES: the first of the 4 hex digits' bytes).
+    /// 8-9 `$IDLS`: the latch byte, bit n = DIn (8-9 as read: the first of the 4 digits' bytes).
     Latch(u8),
-    /// 8-11 `$ID6`: DO byte and DI byte as on the wire (NOTES: energized = 0 bit).
+    /// 8-11 `$ID6`: DO byte and DI byte as on the wire (energized = 0 bit: 8-11).
     Dio {
         /// AB: DO0..DO7.
         outputs: u8,
@@ -47,7 +47,7 @@ pub enum Answer {
         /// CD: the inputs byte the module adds (of no use to a driver).
         inputs: u8,
     },
-    /// 8-26 `$ID4`: `!` + A + DO + DI + `00`, with or without the ID (NOTES).
+    /// 8-26 `$ID4`: `!` + A + DO + DI + `00`, with or without the ID (8-26 as read).
     Synchronized(SynchronizedData),
 }
 
@@ -94,7 +94,7 @@ pub enum AsciiError {
 }
 
 impl AsciiError {
-    /// True when the module did answer an output write, but not with `>`: NOTES says that while
+    /// True when the module did answer an output write, but not with `>`: by 8-19, while
     /// the host watchdog has fired any such answer means "module in safe mode".
     pub fn is_output_refusal(&self) -> bool {
         matches!(
@@ -106,7 +106,7 @@ impl AsciiError {
         )
     }
 
-    /// The safe-mode rule (8-19, NOTES): an output write refused this way means the module is in
+    /// The safe-mode rule (8-19 as read): an output write refused this way means the module is in
     /// safe mode when it says so (`!IDWE`) or when its watchdog, read after the refusal, has
     /// fired. A watchdog that is merely off (`WD00`) does not make a `?ID` safe mode.
     pub fn means_safe_mode(&self, watchdog: Option<WatchdogReading>) -> bool {
@@ -151,7 +151,7 @@ pub fn parse_answer(
         }
         [b'>'] if request.is_output_write() => Ok(Answer::OutputWritten),
         [b'!', rest @ ..] if *request == Request::ReadSynchronized => {
-            // NOTES: 8-26's example `!1010E00` carries no ID; accept both forms.
+            // 8-26's example `!1010E00` carries no ID; accept both forms.
             let data = match rest {
                 [_, _, _, _, _, _, _] => rest,
                 [hi, lo, data @ ..] if data.len() == 7 => {

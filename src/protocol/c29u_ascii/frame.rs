@@ -3,7 +3,7 @@
 /// Carriage return: the end of every frame (section 6).
 pub const CR: u8 = b'\r';
 
-/// Section 7's checksum: the low byte of the sum of every character before it (NOTES: `$06M` is
+/// Section 7's checksum: the low byte of the sum of every character before it (`$06M` is
 /// `D7`; the manual's `A1` leaves out the `6`).
 pub fn checksum(bytes: &[u8]) -> u8 {
     bytes.iter().fold(0u8, |sum, b| sum.wrapping_add(*b))
@@ -61,7 +61,7 @@ pub(crate) fn push_hex(out: &mut Vec<u8>, value: u8) {
     }
 }
 
-/// One hex digit, either case (NOTES: accept lower-case hex).
+/// One hex digit, either case (answers may use lower-case hex).
 pub(crate) fn hex_digit(c: u8) -> Option<u8> {
     match c {
         b'0'..=b'9' => Some(c - b'0'),

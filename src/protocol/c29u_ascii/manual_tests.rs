@@ -1,5 +1,6 @@
 //! Every example exchange of the manual's sections 7 and 8, with and without checksum; where an
-//! example contradicts NOTES.md, the NOTES rule is tested and the literal example documented.
+//! example contradicts its own rule (docs/trp-c29u-protocol.md), the rule is tested and the
+//! literal example documented.
 
 use super::frame::close;
 use super::*;
@@ -286,7 +287,7 @@ fn s8_5_to_8_8_counters() {
             hex: false,
         },
     );
-    // NOTES: channels 0-7 (8-5 says 0-3).
+    // Channels 0-7 (8-5 says 0-3).
     request("#017", Address::Id(1), &Request::ReadCounter(ch(7)));
     assert_eq!(decode_err("#018").refusal(1), Some(Refusal::InvalidCommand));
 
@@ -297,7 +298,7 @@ fn s8_5_to_8_8_counters() {
         Some(Refusal::InvalidCommand)
     );
 
-    // NOTES: "#DCW" / "#DCS" mean "#IDCW" / "#IDCS".
+    // "#DCW" / "#DCS" (8-7, 8-8) mean "#IDCW" / "#IDCS".
     request("#01CW", Address::Id(1), &Request::ClearCounters);
     answer(&Request::ClearCounters, 1, "!01", 1, &Answer::Done);
     request("#01CS", Address::Id(1), &Request::SaveCounters);
@@ -337,7 +338,7 @@ fn s8_9_and_8_10_latches() {
         1,
         &Answer::Latch(0x02),
     );
-    // The manual's command line writes "#IDLS": NOTES reads it as "$IDLS".
+    // The manual's command line writes "#IDLS": read as "$IDLS", as 8-9's syntax table has it.
     assert_eq!(
         decode_err("#01L0"),
         RequestError::UnknownCommand {
@@ -426,7 +427,7 @@ fn s8_13_to_8_16_reset_name_firmware_reset_status() {
         &Answer::Firmware(manual.clone()),
     );
     assert_eq!(manual.date(), None);
-    // NOTES: the simulator answers model C29M, 09-07-03 (as 10-5).
+    // The simulator answers model C29M, 09-07-03 (the date of 10-5).
     let notes = FirmwareVersion::new("C29M090703").unwrap();
     answer(
         &Request::ReadFirmware,
@@ -583,7 +584,7 @@ fn s8_19_safe_mode_rule_for_refused_output_writes() {
     let t = WatchdogTimeout::from_tenths(5).unwrap();
     // `!IDWE` says so itself.
     assert!(AsciiError::SafeMode.means_safe_mode(None));
-    // Any other refusal is safe mode only while the watchdog reads as fired (NOTES) ...
+    // Any other refusal is safe mode only while the watchdog reads as fired (8-19 as read) ...
     for refusal in [AsciiError::InvalidCommand, AsciiError::ParameterError] {
         assert!(refusal.means_safe_mode(Some(WatchdogReading::Fired(t))));
         // ... not when it is merely off (`WD00`) or counting.
@@ -640,7 +641,7 @@ fn s8_23_and_8_24_power_on_and_safe_values() {
     );
 
     request("#010013", Address::Id(1), &Request::WriteOutputs(0x13));
-    // NOTES: an output write succeeds with ">" ...
+    // 8-4: an output write succeeds with ">" ...
     answer(
         &Request::WriteOutputs(0x13),
         1,

@@ -1,7 +1,8 @@
-//! The TRP-C29U's ASCII protocol (manual sections 6-8, as NOTES.md reads them): typed requests and
-//! answers, their frames (`lead + ID + body + [checksum] + CR`), for the driver and the simulator.
+//! The TRP-C29U's ASCII protocol (manual sections 6-8, as docs/trp-c29u-protocol.md reads
+//! them): typed requests and answers, their frames (`lead + ID + body + [checksum] + CR`), for
+//! the driver and the simulator.
 //!
-//! Readings of the manual beyond NOTES.md, each with its section:
+//! Readings of the manual where it is silent or unclear, each with its section:
 //! - 8-9: `$IDL1` ("no use") is read as "latched high", the counterpart of Modbus 10-17's 60.
 //! - 8-4: a single-channel write accepts DD `00`/`01` only; any 4-character `#ID` body is an
 //!   output write, so a bad PP or DD gets `!ID`. Bad parameters of other commands get `?ID`.

@@ -6,7 +6,7 @@ use super::types::{Address, BaudCode, Channel, DataFormat, LatchLevel, ModuleNam
 /// The digital I/O type PP that `%` carries and `$ID2` reports (8-1).
 pub const MODULE_TYPE: u8 = 0x40;
 
-/// One command to a TRP-C29U in ASCII mode (section 8, with NOTES' corrections).
+/// One command to a TRP-C29U in ASCII mode (section 8, as docs/trp-c29u-protocol.md reads it).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub enum Request {
     /// 8-1 `%IDNNPPBBDD`: new ID, baud code and data format (PP is always 40).
@@ -181,7 +181,7 @@ fn simple(out: &mut Vec<u8>, id: u8, lead: u8, body: &[u8]) {
 /// module answers.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum RequestError {
-    /// The checksum is wrong or missing: the module stays silent (NOTES).
+    /// The checksum is wrong or missing: the module stays silent.
     #[error("bad checksum: expected {expected:02X}, got {}", got.map_or("no hex digits".to_string(), |g| format!("{g:02X}")))]
     BadChecksum {
         /// The checksum of the characters before the last two.

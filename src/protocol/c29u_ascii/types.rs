@@ -22,7 +22,7 @@ impl fmt::Display for Address {
     }
 }
 
-/// A DI or DO channel number, 0-7 (NOTES: the "0-3" of 8-5 is from another model).
+/// A DI or DO channel number, 0-7 (the "0-3" of 8-5 is from another model).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Channel(u8);
 
@@ -94,7 +94,7 @@ impl DataFormat {
     }
 }
 
-/// What `$ID2` reports (8-12, NOTES): I/O type, baud code and a format byte whose bits 2..0 are
+/// What `$ID2` reports (8-12 as read): I/O type, baud code and a format byte whose bits 2..0 are
 /// the model, not the counter display mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct ConfigReport {
@@ -112,7 +112,7 @@ impl ConfigReport {
 
     /// What a TRP-C29U with baud code `baud_code` and data format `format` reports: DD keeps the
     /// edge and checksum bits and carries the model in bits 2..0, so the hex-counter bit of 8-3
-    /// is not reported (NOTES 8-12: factory settings read `!01400603`).
+    /// is not reported (8-12: factory settings read `!01400603`).
     pub fn of_c29u(baud_code: u8, format: DataFormat) -> Self {
         Self {
             module_type: MODULE_TYPE,
@@ -185,7 +185,7 @@ pub struct SynchronizedData {
     pub fresh: bool,
     /// The DO byte when the `#**` arrived.
     pub outputs: u8,
-    /// The DI byte when the `#**` arrived, as on the wire (energized = 0 bit, NOTES).
+    /// The DI byte when the `#**` arrived, as on the wire (energized = 0 bit: 8-11).
     pub inputs_wire: u8,
 }
 
@@ -221,7 +221,7 @@ impl fmt::Display for ModuleName {
 
 pub use crate::protocol::c29u::FirmwareDate;
 
-/// `$IDF`'s answer (8-15, NOTES): opaque text after the ID, and the YYMMDD date when the text
+/// `$IDF`'s answer (8-15 as read): opaque text after the ID, and the YYMMDD date when the text
 /// ends in six digits that make one (`C29M090703` -> model `C29M`, 2009-07-03).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct FirmwareVersion {

@@ -1,5 +1,5 @@
 //! The host watchdog as `~IDWR` reports it (8-21) and what a refused output write means (8-19,
-//! NOTES): one reading, used by the driver to interpret answers and by the simulator to give them.
+//! 8-21): one reading, used by the driver to interpret answers and by the simulator to give them.
 //!
 //! 8-21 answers `!IDWANN` (A = E enabled, A = D "disabled or safe mode") or a bare `!ID`. The
 //! project reads them as: `WE` + NN counting; `WD00` or bare `!ID` off (no timeout set: 8-20's

@@ -1,4 +1,4 @@
-//! Exception codes and the typed errors of the Modbus codec (10-16..10-20, NOTES).
+//! Exception codes and the typed errors of the Modbus codec (10-16..10-20).
 
 use std::fmt;
 

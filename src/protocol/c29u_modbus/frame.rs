@@ -1,4 +1,4 @@
-//! CRC-16/MODBUS sealing and checking of RTU frames, and the RTU silence gap (section 9, NOTES).
+//! CRC-16/MODBUS sealing and checking of RTU frames, and the RTU silence gap (section 9).
 
 use std::time::Duration;
 

@@ -1,5 +1,5 @@
 //! Every example exchange of manual section 10, with the CRCs the manual leaves out, and the
-//! examples NOTES.md corrects kept as tests of the difference.
+//! examples docs/trp-c29u-protocol.md corrects kept as tests of the difference.
 
 use super::*;
 
@@ -78,7 +78,7 @@ fn ex_10_1_error_answer() {
 
 #[test]
 fn ex_10_2_set_id_answers_from_the_old_id() {
-    // NOTES: the module answers from its old ID (02), then uses the new one (03).
+    // 10-2 as read: the module answers from its old ID (02), then uses the new one (03).
     exchange(
         "02 46 04 03 00 00 00",
         vendor(VendorRequest::SetId(3)),
@@ -168,7 +168,7 @@ fn ex_10_8_watchdog_500_ms() {
 
 #[test]
 fn ex_10_9_read_watchdog_en_wt() {
-    // NOTES: `ID 46 0C EN WT`; the example `01 46 0C 01 0F` = enabled, 1.5 s.
+    // 10-9 as read: `ID 46 0C EN WT`; the example `01 46 0C 01 0F` = enabled, 1.5 s.
     exchange(
         "01 46 0C 00",
         vendor(VendorRequest::ReadWatchdog),
@@ -217,7 +217,7 @@ fn ex_10_11_set_power_on_value() {
 
 #[test]
 fn ex_10_12_power_on_value_is_the_byte() {
-    // NOTES: `01 46 28 08` means the value 0x08, not the "00010011" the manual prints.
+    // 10-12 as read: `01 46 28 08` means the value 0x08, not the "00010011" the manual prints.
     exchange(
         "01 46 28 00",
         vendor(VendorRequest::ReadPowerOnValue),
@@ -442,7 +442,7 @@ fn ex_10_20_write_outputs() {
 
 #[test]
 fn ex_10_20_clear_counters_echoes_address_and_quantity() {
-    // NOTES: clearing CH4-7 is answered `01 0F 02 04 00 04`.
+    // 10-20 as read: clearing CH4-7 is answered `01 0F 02 04 00 04`.
     exchange(
         "01 0F 02 04 00 04 01 00",
         Request::clear_counters(4, 4),

@@ -1,5 +1,6 @@
-//! TRP-C29U Modbus RTU codec (manual sections 9 and 10, as settled by NOTES.md): typed requests
-//! and answers, CRC-16/MODBUS, and a frame reader for byte streams. Pure: no clocks, no I/O.
+//! TRP-C29U Modbus RTU codec (manual sections 9 and 10, as docs/trp-c29u-protocol.md reads
+//! them): typed requests and answers, CRC-16/MODBUS, and a frame reader for byte streams. Pure:
+//! no clocks, no I/O.
 //!
 //! Master side: `Request::encode`, then `FrameReader::for_answers` + `expect_answer` to cut the
 //! answer out of the byte stream, then `parse_response`. Slave side (the simulator):

@@ -1,5 +1,5 @@
 //! Cuts RTU frames out of a byte stream that arrives in arbitrary pieces, without trusting
-//! frame lengths to be known in advance (NOTES: vendor 46 lengths are unreliable).
+//! frame lengths to be known in advance (manual section 10: vendor 46 lengths are unreliable).
 //!
 //! A frame ends on a valid CRC or on silence, whichever the reader can tell first. What the
 //! first bytes say about the frame's length decides how far a CRC is trusted: a length fixed by
@@ -606,7 +606,7 @@ mod tests {
 
     #[test]
     fn a_flood_leaves_a_bounded_buffer_and_the_next_frame_is_found() {
-        // Issue 8: a peer sending `01 46 77` nonstop (a vendor request of unknown length).
+        // A peer sending `01 46 77` nonstop (a vendor request of unknown length).
         let flood = [0x01, 0x46, 0x77].repeat(40_000);
         let answer = encode_response(1, &Response::Bits(0xDF));
         let expecting = || {

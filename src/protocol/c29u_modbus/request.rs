@@ -1,6 +1,6 @@
 //! Typed Modbus requests to the TRP-C29U: encoding (master side) and decoding (simulator side).
 //!
-//! Vendor addressing (10-16..10-20, NOTES): the high address byte of 05 and 0F selects what the
+//! Vendor addressing (10-16..10-20): the high address byte of 05 and 0F selects what the
 //! command acts on, so `05 02 NN` clears counter NN rather than writing coil 0x02NN.
 
 use super::error::{ExceptionCode, RequestError};
@@ -14,7 +14,7 @@ use super::{
 pub enum BitArea {
     /// 00: the DO byte.
     Outputs,
-    /// 20: the DI byte as on the wire (energized input = 0 bit, NOTES).
+    /// 20: the DI byte as on the wire (energized input = 0 bit: 8-11, 10-17).
     Inputs,
     /// 40: inputs latched at logic 0 since the last clear.
     LatchedLow,
@@ -133,7 +133,7 @@ impl CoilsTarget {
 pub enum VendorRequest {
     /// 00: read the module name (`0C 29` = "C29").
     ReadName,
-    /// 04: set a new slave ID; the answer still comes from the old one (NOTES 10-2).
+    /// 04: set a new slave ID; the answer still comes from the old one (10-2 as read).
     SetId(u8),
     /// 05: read the configuration (baud code).
     ReadConfig,
@@ -212,7 +212,7 @@ impl VendorRequest {
     }
 
     /// Reads a sub-function and what follows it. Reserved bytes are neither required nor
-    /// checked (lengths are not reliable in section 10, NOTES); data bytes are required.
+    /// checked (lengths are not reliable in section 10); data bytes are required.
     fn decode(sub: u8, rest: &[u8]) -> Option<Self> {
         let first = rest.first().copied();
         Some(match sub {
@@ -248,7 +248,8 @@ pub(crate) fn vendor_request_len(sub: u8) -> Option<usize> {
 }
 
 /// The length with CRC of the (non-error) answer to vendor sub-function `sub`, as the project
-/// writes it (section 10 with NOTES' corrections); None for host OK, which is never answered.
+/// writes it (section 10 as docs/trp-c29u-protocol.md reads it); None for host OK, which is
+/// never answered.
 pub(crate) fn vendor_answer_len(sub: u8) -> Option<usize> {
     match sub {
         0x09 | 0x0B | 0x0D | 0x27 | 0x28 | 0x29 | 0x2A => Some(6),
@@ -354,7 +355,7 @@ impl Request {
     }
 
     /// The length with CRC of the normal answer, as the module is expected to send it
-    /// (None when no answer comes). Vendor answers may differ on a real module (NOTES).
+    /// (None when no answer comes). Vendor answers may differ on a real module (section 10).
     pub fn answer_len(&self) -> Option<usize> {
         match self {
             Self::ReadBits(_) => Some(6),

@@ -1,5 +1,5 @@
 //! Typed answers of the TRP-C29U: encoding (simulator side) and parsing against the request that
-//! was sent (master side), with the corrections of NOTES.md (10-2, 10-9, 10-12, 10-20).
+//! was sent (master side), as docs/trp-c29u-protocol.md reads 10-2, 10-9, 10-12 and 10-20.
 
 use super::error::{ExceptionCode, ModbusError};
 use super::frame::{open_frame, seal};
@@ -35,7 +35,7 @@ pub enum VendorResponse {
     ResetDone,
     /// 0B: `ID 46 0B 00`.
     WatchdogSet,
-    /// 0C: `ID 46 0C EN WT` (NOTES 10-9).
+    /// 0C: `ID 46 0C EN WT` (10-9 as read).
     Watchdog {
         /// EN = 1.
         enabled: bool,
@@ -46,7 +46,7 @@ pub enum VendorResponse {
     LedModeSet,
     /// 27: `ID 46 27 00`.
     PowerOnValueSet,
-    /// 28: `ID 46 28 DD`, DD is the value itself (NOTES 10-12).
+    /// 28: `ID 46 28 DD`, DD is the value itself (10-12 as read).
     PowerOnValue(u8),
     /// 29: `ID 46 29 00`.
     SafeValueSet,
@@ -124,7 +124,7 @@ pub enum Response {
     },
     /// 05: the request echoed.
     CoilWritten(CoilCommand),
-    /// 0F: `ID 0F SS NN 00 CN`, address and quantity echoed (NOTES 10-20).
+    /// 0F: `ID 0F SS NN 00 CN`, address and quantity echoed (10-20 as read).
     CoilsWritten {
         /// What was written.
         target: CoilsTarget,
@@ -192,7 +192,7 @@ pub fn encode_vendor_error(id: u8) -> Vec<u8> {
 ///
 /// Standard functions are checked strictly (byte counts, echoes). Vendor 46 answers must carry
 /// their data bytes, but trailing reserved bytes may be missing or extra, since section 10 does
-/// not state the lengths consistently (NOTES).
+/// not state the lengths consistently.
 pub fn parse_response(
     request: &Request,
     expected_id: u8,

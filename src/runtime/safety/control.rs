@@ -2,6 +2,7 @@
 //! comes back after a loss, and when a module refused a write because its watchdog fired.
 
 use crate::runtime::devices::{ControlNotes, Device, DeviceError, Takeover};
+use crate::runtime::log::Level;
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
 
@@ -14,6 +15,16 @@ pub struct Unavailable {
     /// Why.
     #[source]
     pub source: DeviceError,
+}
+
+/// The repeated-problem log key of a device's failing takeovers.
+fn takeover_key(name: &str) -> String {
+    format!("{name}/takeover")
+}
+
+/// The repeated-problem log key of a device found in safe mode.
+fn safe_mode_key(name: &str) -> String {
+    format!("{name}/safe-mode")
 }
 
 impl<H: Clone> Runtime<H> {
@@ -68,10 +79,15 @@ impl<H: Clone> Runtime<H> {
     /// too late to feed it): take control of it again as when it comes back after a loss.
     pub fn regain_control(&mut self, idx: usize) {
         let name = self.device_name(idx);
-        self.log.warn(&format!(
-            "{name}: the module is in safe mode (its host watchdog fired: it was not fed in \
-             time); taking control again"
-        ));
+        // Once, then counted: a module that stays in safe mode refuses every tick's write.
+        self.log.repeating(
+            &safe_mode_key(&name),
+            Level::Warn,
+            &format!(
+                "{name}: the module is in safe mode (its host watchdog fired: it was not fed \
+                 in time); taking control again"
+            ),
+        );
         self.take_control(idx);
     }
 
@@ -84,15 +100,23 @@ impl<H: Clone> Runtime<H> {
                 for line in found {
                     self.log.info(&line);
                 }
+                let name = self.device_name(idx);
+                let done = format!("{name}: taken control of");
+                self.log.settled(&takeover_key(&name), &done);
+                self.log.settled(&safe_mode_key(&name), &done);
                 true
             }
             Err(e) => {
                 // A communication failure loses the device; a stop leaves it as it is, for
-                // the end to write its safe state.
+                // the end to write its safe state. A refusal is logged once, then counted:
+                // a device that keeps refusing is tried again and again.
                 if !e.is_comm_failure() && !e.is_cancelled() {
                     let name = self.device_name(idx);
-                    self.log
-                        .error(&format!("{name}: taking control failed: {e}"));
+                    self.log.repeating(
+                        &takeover_key(&name),
+                        Level::Error,
+                        &format!("{name}: taking control failed: {e}"),
+                    );
                 }
                 self.note_failure(idx, &e);
                 false

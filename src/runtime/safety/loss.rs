@@ -109,6 +109,13 @@ impl<H: Clone> Runtime<H> {
                              again",
                             format_duration(lost_for)
                         ));
+                    } else if let Some(d) = self.devices.get_mut(idx) {
+                        // Only a lost answer moves the retry time on (`note_failure`); after a
+                        // refusal it would stay past, and the device be tried every tick.
+                        let h = d.health_mut();
+                        if !h.online() && h.next_retry <= now {
+                            h.next_retry = now.saturating_add(RETRY_INTERVAL);
+                        }
                     }
                 }
                 Err(e) => {
@@ -183,7 +190,7 @@ impl<H: Clone> Runtime<H> {
 mod tests {
     use super::RETRY_INTERVAL;
     use crate::runtime::devices::DeviceError;
-    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use crate::runtime::testing::{TestRig, IO, PANEL, RIG};
     use std::time::Duration;
 
     const TICK: Duration = Duration::from_millis(20);
@@ -276,6 +283,38 @@ mod tests {
         r.rt.flush_outputs();
         assert_eq!(r.sim.outputs("io").unwrap(), 0x30);
         assert!(r.log().contains("every device is back"), "{}", r.log());
+    }
+
+    #[test]
+    fn a_device_back_that_refuses_to_be_taken_control_of_is_tried_once_a_second_and_logged_once() {
+        let toml = RIG.replace(
+            "safe_value = 0x05\npower_on_value = 0x11",
+            "protocol = \"ascii\"\nchecksum = true\nsafe_value = 0x05\npower_on_value = 0x05",
+        );
+        let mut r = TestRig::new(&toml);
+        r.rt.start_devices().unwrap();
+        r.sim.set_gone("io", true).unwrap();
+        poll(&mut r);
+        assert!(!r.rt.online(IO));
+        // It answers again, but every takeover is refused (here: a power-on value it cannot
+        // store over ASCII without driving its outputs; a module answering with an exception
+        // takes the same way).
+        r.rt.c29u(IO).unwrap().config.power_on_value = Some(0x11);
+        r.sim.set_gone("io", false).unwrap();
+        let before = r.requests();
+        let minute = 60_000 / TICK.as_millis();
+        for _ in 0..minute {
+            r.next_tick(TICK);
+            r.rt.supervise();
+        }
+        assert!(!r.rt.online(IO));
+        let log = r.log();
+        assert_eq!(log.matches("io: taking control failed").count(), 1, "{log}");
+        let tries = r.requests() - before;
+        assert!(
+            tries <= 61 * 5,
+            "a try a second, a few requests each: {tries} requests in a minute"
+        );
     }
 
     #[test]

@@ -59,7 +59,7 @@ impl ModuleConfig {
         }
     }
 
-    /// What `$ID2` answers for these settings (8-12, NOTES).
+    /// What `$ID2` answers for these settings (8-12 as read).
     pub fn report(&self) -> ConfigReport {
         ConfigReport::of_c29u(self.baud_code, self.data_format())
     }

@@ -1,7 +1,7 @@
 //! Protocol-agnostic behavioural model of the TRP-C29U DIO module: outputs, inputs, counters,
 //! latches, host watchdog, EEPROM. The ASCII and Modbus front ends decode frames and call it.
 //!
-//! Readings of the manual this model follows (NOTES.md settles the rest):
+//! Readings of the manual this model follows (docs/trp-c29u-protocol.md has the rest):
 //! - Time: all timing comes from the model's `SharedClock`; the watchdog is brought up to date
 //!   lazily from `clock.now()` at each call (`&self` getters report what it would be now).
 //! - Watchdog (8-19, 8-22): only Host OK (`host_ok`) and setting a timeout restart the countdown;
@@ -286,7 +286,7 @@ impl C29uModel {
         self.inputs
     }
 
-    /// DI byte as sent on the wire: active-low (NOTES: an energized input is a 0 bit).
+    /// DI byte as sent on the wire: active-low (8-11, 10-17: an energized input is a 0 bit).
     pub fn inputs_wire(&self) -> u8 {
         !self.inputs
     }

@@ -1002,7 +1002,7 @@ fn the_watchdog_fires_when_a_whole_timeout_has_passed() {
 
 #[test]
 fn timeout_0f_is_1_5_s_not_the_1_6_s_of_8_21() {
-    // 8-21 says "0F..1.6 Sec"; NOTES: 0x0F x 0.1 s = 1.5 s.
+    // 8-21 says "0F..1.6 Sec"; by 8-19's unit, 0x0F x 0.1 s = 1.5 s.
     let (mut m, clock) = ascii();
     m.set_watchdog(0x0F).unwrap();
     assert_eq!(m.state().watchdog.timeout_ms, 1500);
@@ -1029,7 +1029,7 @@ fn safe_mode_status_keeps_the_timeout_like_8_21() {
 
 #[test]
 fn modbus_10_9_example_watchdog_reads_enabled_0f() {
-    // NOTES 10-9: "01 46 0C 01 0F" = enabled, 1.5 s.
+    // 10-9 as read: "01 46 0C 01 0F" = enabled, 1.5 s.
     let (mut m, _) = module(Protocol::Modbus);
     m.set_watchdog(0x0F).unwrap();
     let wd = m.watchdog();

@@ -4,7 +4,7 @@ use super::config::Protocol;
 use crate::protocol::c29u::FirmwareDate;
 use serde::{Deserialize, Serialize};
 
-/// The firmware the simulated module reports (NOTES 8-15 / 10-5: model `C29M`, 09-07-03).
+/// The firmware the simulated module reports (8-15 / 10-5 as read: model `C29M`, 09-07-03).
 pub const FIRMWARE_MODEL: &str = "C29M";
 
 /// The release date of [`FIRMWARE_MODEL`].

@@ -1,0 +1,344 @@
+//! The guardian process: `guard` forks; the child goes on as the runner, the parent (the pid
+//! the user or systemd started) stays behind, forwards ending signals to the runner, waits for
+//! it, and makes the rig safe when it ended without confirming its safe state.
+//!
+//! The runner confirms over a pipe (`Confirmation::confirm`, one byte at its end); any other
+//! end (a signal it could not handle, an abort, a status without the byte) leaves the guardian
+//! to act. The runner is in a process group of its own, so a terminal's Ctrl-C reaches the
+//! guardian alone and is forwarded once; it dies with the guardian (`PR_SET_PDEATHSIG`:
+//! SIGTERM, an orderly stop), so `kill -9` of the pid that was started ends the rig safe too.
+
+use super::safe::{make_safe, DeviceOutcome};
+use crate::config::RigConfig;
+use crate::runtime::log::{LogFormat, Logger};
+use crate::time::clock::SystemClock;
+use crate::time::zone::Zone;
+use std::io;
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::sync::atomic::{AtomicI32, Ordering};
+
+/// The byte the runner sends when its end confirmed the safe state (or it drove nothing).
+const CONFIRMED: u8 = b'C';
+
+/// The signals that end a run in order; the guardian passes each on to the runner.
+const FORWARDED: [libc::c_int; 7] = [
+    libc::SIGINT,
+    libc::SIGTERM,
+    libc::SIGHUP,
+    libc::SIGQUIT,
+    libc::SIGUSR1,
+    libc::SIGUSR2,
+    libc::SIGALRM,
+];
+
+/// The runner's pid, for the signal handlers (0: none yet).
+static RUNNER: AtomicI32 = AtomicI32::new(0);
+
+/// Which side of the fork this process is on.
+pub enum Guarded {
+    /// The runner: go on with the run, and confirm its end.
+    Runner(Confirmation),
+    /// The guardian, done: the runner has ended; exit with this status.
+    Guardian(i32),
+}
+
+/// The runner's end of the pipe to its guardian.
+pub struct Confirmation {
+    pipe: OwnedFd,
+}
+
+impl Confirmation {
+    /// Tells the guardian that the run's end confirmed the safe state of every device (or that
+    /// it drove none): it then exits with the runner's status and does nothing else.
+    pub fn confirm(self) {
+        let byte = [CONFIRMED];
+        // SAFETY: a one-byte write from a live buffer to a descriptor this value owns. A pipe
+        // with room for 64 KiB never blocks on it; a failure leaves the guardian to act, which
+        // is safe.
+        unsafe {
+            libc::write(self.pipe.as_raw_fd(), byte.as_ptr().cast(), 1);
+        }
+    }
+}
+
+/// Why the guardian could not be started.
+#[derive(Debug, thiserror::Error)]
+pub enum GuardError {
+    /// No pipe or no fork (the system is out of processes or descriptors).
+    #[error("cannot start the guardian process: {0}")]
+    Start(#[source] io::Error),
+    /// The process already runs other threads: a fork would copy it with locks they may hold.
+    #[error(
+        "cannot start the guardian process: {0} threads run already (a bug: it must fork first)"
+    )]
+    Threads(usize),
+}
+
+/// How many threads this process runs (`None` where /proc does not say).
+fn threads() -> Option<usize> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("Threads:"))
+        .and_then(|n| n.trim().parse().ok())
+}
+
+/// How the guardian speaks: the run's log format, and the zone of its times.
+#[derive(Debug, Clone, Copy)]
+pub struct GuardianLog {
+    /// Text or JSON lines, as the run's own log.
+    pub format: LogFormat,
+    /// The zone of the times.
+    pub zone: Zone,
+}
+
+/// Splits this process into the guardian and the runner. Must be called while the process has
+/// one thread (before the log's writer or any other is started). The guardian's side returns
+/// only once the runner has ended (and the rig was made safe if it had to be).
+pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError> {
+    if let Some(n) = threads().filter(|&n| n > 1) {
+        return Err(GuardError::Threads(n));
+    }
+    let (read, write) = pipe()?;
+    let guardian = std::process::id();
+    // SAFETY: the process has one thread (the caller's contract), so the child starts as a
+    // full copy with no lock held by a thread that does not exist there.
+    match unsafe { libc::fork() } {
+        -1 => Err(GuardError::Start(io::Error::last_os_error())),
+        0 => {
+            drop(read);
+            become_runner(guardian);
+            Ok(Guarded::Runner(Confirmation { pipe: write }))
+        }
+        child => {
+            drop(write);
+            RUNNER.store(child, Ordering::SeqCst);
+            // Also here, so that a signal before the child has done it cannot find it in our
+            // group (the usual race of setpgid, done on both sides).
+            // SAFETY: plain system calls on our own child.
+            unsafe {
+                libc::setpgid(child, child);
+            }
+            forward_signals();
+            let end = wait_for(child);
+            let confirmed = read_confirmation(&read);
+            Ok(Guarded::Guardian(finish(
+                end, confirmed, child, config, log,
+            )))
+        }
+    }
+}
+
+/// The child's set-up: its own process group, SIGTERM when the guardian dies, and systemd's
+/// service watchdog (`$WATCHDOG_PID` names the pid systemd started, the guardian) passed on.
+fn become_runner(guardian: u32) {
+    // SAFETY: plain system calls on this process; prctl's argument is a signal number.
+    unsafe {
+        libc::setpgid(0, 0);
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+        // The guardian may have died before the prctl took effect: then nobody will send it.
+        if libc::getppid() as u32 != guardian {
+            libc::raise(libc::SIGTERM);
+        }
+    }
+    if std::env::var("WATCHDOG_PID").ok() == Some(guardian.to_string()) {
+        std::env::set_var("WATCHDOG_PID", std::process::id().to_string());
+    }
+}
+
+fn pipe() -> Result<(OwnedFd, OwnedFd), GuardError> {
+    let mut fds = [0; 2];
+    // SAFETY: pipe2 fills the two-element array it is given.
+    if unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) } != 0 {
+        return Err(GuardError::Start(io::Error::last_os_error()));
+    }
+    // SAFETY: both descriptors are new and owned by nothing else.
+    Ok(unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) })
+}
+
+/// Passes each ending signal on to the runner; SIGABRT (what systemd's service watchdog sends
+/// when the loop stopped turning) kills the runner, which is stuck, so the guardian can act.
+/// Job-control signals are ignored: a rig does not pause because a terminal asks it to.
+fn forward_signals() {
+    extern "C" fn forward(signal: libc::c_int) {
+        let runner = RUNNER.load(Ordering::SeqCst);
+        if runner > 0 {
+            // SAFETY: kill is async-signal-safe.
+            unsafe {
+                libc::kill(runner, signal);
+            }
+        }
+    }
+    extern "C" fn stuck(_: libc::c_int) {
+        let runner = RUNNER.load(Ordering::SeqCst);
+        if runner > 0 {
+            // SAFETY: kill is async-signal-safe.
+            unsafe {
+                libc::kill(runner, libc::SIGKILL);
+            }
+        }
+    }
+    for signal in FORWARDED {
+        set_handler(signal, forward as *const () as libc::sighandler_t);
+    }
+    set_handler(libc::SIGABRT, stuck as *const () as libc::sighandler_t);
+    for signal in [
+        libc::SIGTSTP,
+        libc::SIGTTIN,
+        libc::SIGTTOU,
+        libc::SIGXFSZ,
+        libc::SIGPIPE,
+    ] {
+        set_handler(signal, libc::SIG_IGN);
+    }
+}
+
+fn set_handler(signal: libc::c_int, handler: libc::sighandler_t) {
+    // SAFETY: a zeroed sigaction is valid; the handlers above only call kill.
+    unsafe {
+        let mut action: libc::sigaction = std::mem::zeroed();
+        action.sa_sigaction = handler;
+        action.sa_flags = libc::SA_RESTART;
+        libc::sigemptyset(&mut action.sa_mask);
+        libc::sigaction(signal, &action, std::ptr::null_mut());
+    }
+}
+
+/// How the runner ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunnerEnd {
+    /// It exited with this status.
+    Exited(i32),
+    /// A signal killed it.
+    Killed {
+        /// The signal.
+        signal: i32,
+        /// It dumped core.
+        core: bool,
+    },
+}
+
+fn wait_for(child: libc::pid_t) -> RunnerEnd {
+    loop {
+        let mut status = 0;
+        // SAFETY: waits for our own child, writing into a local.
+        let got = unsafe { libc::waitpid(child, &mut status, 0) };
+        if got == child {
+            if libc::WIFEXITED(status) {
+                return RunnerEnd::Exited(libc::WEXITSTATUS(status));
+            }
+            if libc::WIFSIGNALED(status) {
+                return RunnerEnd::Killed {
+                    signal: libc::WTERMSIG(status),
+                    core: libc::WCOREDUMP(status),
+                };
+            }
+            continue;
+        }
+        if got == -1 && io::Error::last_os_error().kind() != io::ErrorKind::Interrupted {
+            // The child cannot be waited for (it never can be lost to us otherwise): act.
+            return RunnerEnd::Killed {
+                signal: 0,
+                core: false,
+            };
+        }
+    }
+}
+
+/// Whether the runner sent its confirmation before it ended (its end of the pipe is closed
+/// now, so this never waits).
+fn read_confirmation(read: &OwnedFd) -> bool {
+    let mut buf = [0u8; 16];
+    loop {
+        // SAFETY: reads into a local buffer of the size given.
+        let n = unsafe { libc::read(read.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len()) };
+        match n {
+            n if n > 0 => {
+                let n = usize::try_from(n).unwrap_or(0).min(buf.len());
+                if buf[..n].contains(&CONFIRMED) {
+                    return true;
+                }
+            }
+            -1 if io::Error::last_os_error().kind() == io::ErrorKind::Interrupted => {}
+            _ => return false,
+        }
+    }
+}
+
+/// The guardian's exit status, after making the rig safe where the runner's end did not.
+fn finish(
+    end: RunnerEnd,
+    confirmed: bool,
+    runner: libc::pid_t,
+    config: &RigConfig,
+    settings: GuardianLog,
+) -> i32 {
+    let status = exit_status(end);
+    if confirmed && matches!(end, RunnerEnd::Exited(_)) {
+        return status;
+    }
+    let mut log = Logger::new(SystemClock::shared(), settings.zone, true);
+    log.set_format(settings.format);
+    log.set_devices(config.devices.keys().cloned());
+    log.warn(&format!(
+        "guardian: the runner (pid {runner}) {} before it confirmed the safe state; writing it \
+         now",
+        describe(end)
+    ));
+    let outcomes = make_safe(config, &SystemClock::shared());
+    report(&mut log, &outcomes);
+    log.close();
+    status
+}
+
+/// The guardian's status: the runner's own, or 128 + the signal that killed it, as a shell
+/// reports a process killed by a signal.
+pub fn exit_status(end: RunnerEnd) -> i32 {
+    match end {
+        RunnerEnd::Exited(code) => code,
+        RunnerEnd::Killed { signal, .. } => 128 + signal,
+    }
+}
+
+/// How the runner ended, in words.
+pub fn describe(end: RunnerEnd) -> String {
+    match end {
+        RunnerEnd::Exited(code) => format!("ended with status {code}"),
+        RunnerEnd::Killed { signal: 0, .. } => "could not be waited for".into(),
+        RunnerEnd::Killed { signal, core } => {
+            let what = match signal {
+                libc::SIGKILL => {
+                    "was killed by SIGKILL (kill -9, or the kernel's out-of-memory killer)"
+                }
+                libc::SIGABRT => {
+                    "aborted (SIGABRT: a stack overflow, an abort, or stuck and killed)"
+                }
+                libc::SIGSEGV => "crashed (SIGSEGV: a fault in rigscript or a C library)",
+                libc::SIGBUS => "crashed (SIGBUS)",
+                libc::SIGILL => {
+                    "crashed (SIGILL: an illegal instruction, in rigscript or a C library)"
+                }
+                libc::SIGFPE => "crashed (SIGFPE)",
+                _ => "was killed",
+            };
+            let core = if core { ", core dumped" } else { "" };
+            format!("{what} (signal {signal}{core})")
+        }
+    }
+}
+
+/// Logs each device's outcome: a warning for those confirmed (the rig needed the guardian),
+/// an error for each that was not.
+fn report(log: &mut Logger, outcomes: &[DeviceOutcome]) {
+    let (done, failed): (Vec<_>, Vec<_>) = outcomes.iter().partition(|o| o.result.is_ok());
+    for o in &failed {
+        log.error(&format!("guardian: {o}"));
+    }
+    if !done.is_empty() {
+        let words: Vec<String> = done.iter().map(ToString::to_string).collect();
+        log.warn(&format!(
+            "guardian: safe state (the runner died): {}",
+            words.join(", ")
+        ));
+    }
+}
