@@ -376,15 +376,47 @@ fn a_run_in_a_background_process_group_is_not_stopped_by_its_own_log_writes() {
         "work.rhai",
         "every(\"50ms\", || ());\nafter(\"100ms\", || log(\"ready\"));\n",
     );
-    let (mut master, slave) = pty_pair();
-    // A session on the pty with `tostop`, the run as a background job (its own process
-    // group) writing its log to the terminal: SIGTTOU for each write unless ignored.
-    let shell = format!(
+    // The run as a background job (its own process group) writing its log to a terminal with
+    // `tostop`: SIGTTOU for each write unless ignored.
+    let out = on_a_terminal(&format!(
         "stty tostop; set -m; '{}' run --sim --for 1s '{script}' & wait $!; echo status=$?",
         rigscript()
+    ));
+    assert!(
+        out.contains("status=0"),
+        "the job was stopped (150: SIGTTOU): {out}"
     );
+    assert!(
+        out.contains("script: ready") && out.contains("stopping: ran for 1s"),
+        "{out}"
+    );
+    // In the foreground with a real device: the runner behind its guardian has a process
+    // group of its own, in the background of the terminal.
+    let sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nid = 1\n",
+            sim.path
+        ),
+    );
+    let out = on_a_terminal(&format!(
+        "stty tostop; '{}' run --config '{config}' --for 1s '{script}'; echo status=$?",
+        rigscript()
+    ));
+    assert!(out.contains("status=0"), "{out}");
+    assert!(
+        out.contains("safe state (end of run): io outputs 0x00"),
+        "{out}"
+    );
+}
+
+/// Runs `shell` (sh) in a session of its own on a new terminal; what the terminal showed, up
+/// to `status=` or 15 s.
+fn on_a_terminal(shell: &str) -> String {
+    let (mut master, slave) = pty_pair();
     let mut session = Command::new("setsid")
-        .args(["-c", "sh", "-c", &shell])
+        .args(["-c", "sh", "-c", shell])
         .stdin(Stdio::from(slave.try_clone().unwrap()))
         .stdout(Stdio::from(slave.try_clone().unwrap()))
         .stderr(Stdio::from(slave))
@@ -408,14 +440,7 @@ fn a_run_in_a_background_process_group_is_not_stopped_by_its_own_log_writes() {
         }
     }
     let _ = wait_at_most(&mut session, Duration::from_secs(5));
-    assert!(
-        out.contains("status=0"),
-        "the job was stopped (150: SIGTTOU): {out}"
-    );
-    assert!(
-        out.contains("script: ready") && out.contains("stopping: ran for 1s"),
-        "{out}"
-    );
+    out
 }
 
 /// A new pseudo-terminal: its master (for reading what is written to the terminal) and its
