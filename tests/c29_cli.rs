@@ -573,6 +573,34 @@ fn usage_errors_exit_2_and_say_what_to_write() {
 }
 
 #[test]
+fn a_raw_frame_longer_than_the_protocol_allows_is_refused_unsent() {
+    for (flavor, fits, too_long, says) in [
+        (
+            MODBUS,
+            format!("01 0F 00 00 00 08 01 {}", "00 ".repeat(247)),
+            "01 ".repeat(5000),
+            "a raw frame of 5000 bytes is too long: at most 254",
+        ),
+        (
+            ASCII,
+            "%0101400600".to_string(),
+            "$".repeat(5000),
+            "a raw frame of 5000 characters is too long: at most 11",
+        ),
+    ] {
+        let r = Rig::start(flavor, &[]);
+        // Refused before it is sent (sent, it got no answer: exit 3 after seconds).
+        let run = r.c29(&["raw", &too_long]);
+        assert_eq!(run.status, 2, "{}", run.stderr);
+        assert!(run.stderr.contains(says), "{}", run.stderr);
+        assert!(run.stderr.len() < 500, "a short error: {}", run.stderr);
+        // The longest request still goes out.
+        let run = r.c29(&["raw", &fits]);
+        assert!(!run.stderr.contains("too long"), "{}", run.stderr);
+    }
+}
+
+#[test]
 fn no_answer_exits_3_naming_port_id_and_request() {
     for (protocol, request) in [("modbus", "`01 01 00 00 00 08`"), ("ascii", "`$016`")] {
         let flavor = Flavor { protocol, ..MODBUS };

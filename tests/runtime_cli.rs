@@ -133,11 +133,11 @@ fn two_entries_for_one_module_are_refused_by_check_and_run() {
 #[test]
 fn script_errors_are_exit_1_with_file_line_and_column() {
     let d = Dir::new("errors");
-    let s = d.file("syntax.rhai", "let x = ;\n");
-    let o = run(&["run", "--sim", &s]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains(&format!("{s}:1:9: ")), "{}", stderr(&o));
-    let s = d.file("runtime.rhai", "\nafter(\"50ms\", || device(\"nope\"));\n");
+    // A name `check` cannot see: the error comes when the handler runs.
+    let s = d.file(
+        "runtime.rhai",
+        "let name = \"nope\";\nafter(\"50ms\", || device(name));\n",
+    );
     let o = run(&["run", "--sim", &s]);
     assert_eq!(o.status.code(), Some(1));
     let err = stderr(&o);
@@ -147,8 +147,74 @@ fn script_errors_are_exit_1_with_file_line_and_column() {
         )),
         "{err}"
     );
-    let s = d.file("import.rhai", "import \"fs\" as fs;\n");
-    assert_eq!(run(&["run", "--sim", &s]).status.code(), Some(1));
+}
+
+#[test]
+fn a_script_check_rejects_does_not_run() {
+    let d = Dir::new("check-first");
+    // The interlock's off switch misspelt: it would fail just when a guard opens.
+    let s = d.file(
+        "interlock.rhai",
+        "let io = device(\"io\");\nio.on_rise(0, |ch| {\n    io.set_ouptut(7, false);\n});\n",
+    );
+    let checked = run(&["check", &s]);
+    assert_eq!(checked.status.code(), Some(1));
+    let problem = String::from_utf8_lossy(&checked.stdout)
+        .lines()
+        .next()
+        .unwrap()
+        .to_string();
+    assert_eq!(
+        problem,
+        format!(
+            "{s}:3:8: io is a TRP-C29U: it has no method set_ouptut; did you mean `set_output`?"
+        )
+    );
+    let o = run(&["run", "--sim", "--for", "200ms", &s]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(&problem), "check's message: {err}");
+    assert!(err.contains("fix them first"), "{err}");
+    assert!(!err.contains("safe state"), "nothing was started: {err}");
+    for (name, text) in [
+        ("syntax.rhai", "let x = ;\n"),
+        ("import.rhai", "import \"fs\" as fs;\n"),
+    ] {
+        let s = d.file(name, text);
+        let o = run(&["run", "--sim", &s]);
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", stderr(&o));
+        assert!(stderr(&o).contains(&format!("{s}:1:")), "{}", stderr(&o));
+    }
+}
+
+#[test]
+fn an_endless_file_is_refused_with_its_limit() {
+    let d = Dir::new("endless");
+    let s = d.file("ok.rhai", "let x = 1;\n");
+    for (args, says) in [
+        (
+            vec!["run", "/dev/zero", "--sim"],
+            "cannot read /dev/zero: it holds more than 4 MiB, the most a script may be",
+        ),
+        (
+            vec!["check", "/dev/zero"],
+            "cannot read /dev/zero: it holds more than 4 MiB, the most a script may be",
+        ),
+        (
+            vec!["run", &s, "--sim", "--config", "/dev/zero"],
+            "/dev/zero: cannot read: it holds more than 1 MiB, the most a rig.toml may be",
+        ),
+        (
+            vec!["check", &s, "--config", "/dev/zero"],
+            "/dev/zero: cannot read: it holds more than 1 MiB, the most a rig.toml may be",
+        ),
+    ] {
+        let o = run(&args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(err.contains("give the"), "what to do: {err}");
+    }
 }
 
 #[test]
@@ -301,7 +367,8 @@ fn run_help_shows_the_exit_statuses() {
         "Exit status (the first that applies):",
         "    5  the run ended, but something failed on the way: script errors recovered",
         "  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)",
-        "Before the run starts: 2 usage or rig.toml error, 3 a device not available (missing,",
+        "Before the run starts: 2 usage or rig.toml error, or a script `rigscript check`",
+        "rejects; 3 a device not available (missing, busy, no answer).",
     ] {
         assert!(out.contains(line), "{line}: {out}");
     }
@@ -364,7 +431,11 @@ fn a_run_with_recovered_errors_does_not_end_0() {
         "rig.toml",
         "on_error = \"skip\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
     );
-    let s = d.file("s.rhai", "every(\"100ms\", || io.set_output(9, true));\n");
+    // A channel `check` cannot see: each call fails as it runs.
+    let s = d.file(
+        "s.rhai",
+        "let ch = 9;\nevery(\"100ms\", || io.set_output(ch, true));\n",
+    );
     let o = run(&["run", "--sim", "--config", &cfg, "--for", "350ms", &s]);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(5), "{err}");

@@ -81,6 +81,158 @@ fn test_missing_script() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Runs `rigscript test` on a directory holding `files` (name, text); the status and stdout.
+fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, std::path::PathBuf) {
+    let dir = std::env::temp_dir().join(format!("rigscript-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (file, body) in files {
+        std::fs::write(dir.join(file), body).unwrap();
+    }
+    let out = Command::new(rigscript())
+        .arg("test")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    (out.status.code(), text(&out.stdout), dir)
+}
+
+#[test]
+fn a_test_file_without_tests_fails() {
+    let (status, stdout, dir) = test_dir(
+        "no-tests",
+        &[(
+            "none.test.rhai",
+            "fn helper() { 1 }\nfn test_takes(x) { x }\n",
+        )],
+    );
+    let file = dir.join("none.test.rhai").display().to_string();
+    assert_eq!(status, Some(1), "{stdout}");
+    assert_eq!(
+        stdout.lines().next().unwrap_or_default(),
+        format!(
+            "FAIL {file}::(no tests): {file} has no tests: a test is a function whose name starts \
+             with test_ and that takes no parameters, such as `fn test_start() {{ .. }}`"
+        )
+    );
+    assert!(stdout.ends_with("0 passed, 1 failed\n"), "{stdout}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_test_that_advances_a_billion_hours_fails_on_its_virtual_time_budget() {
+    let (status, stdout, dir) = test_dir(
+        "forever",
+        &[
+            ("s.rhai", "io.outputs = 3;\nevery(\"1s\", || {});\n"),
+            (
+                "a.test.rhai",
+                "fn test_forever() {\n    let r = rig(\"s.rhai\");\n    r.advance(\"1000000000h\");\n}\n\n\
+                 fn test_stalls_count_too() {\n    let r = rig(\"s.rhai\");\n    \
+                 r.stall(\"700h\");\n    r.advance(\"30h\");\n}\n",
+            ),
+        ],
+    );
+    let file = dir.join("a.test.rhai").display().to_string();
+    assert_eq!(status, Some(1), "{stdout}");
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(
+        lines[0],
+        format!(
+            "FAIL {file}::test_forever: r.advance(\"1000000000h\") would take the test past its \
+             virtual-time budget of 720h (0s used): a test moves a rig's clock by at most that in \
+             all; split the scenario into tests at {file}:3:7"
+        )
+    );
+    assert!(
+        lines[1].starts_with(&format!(
+            "FAIL {file}::test_stalls_count_too: r.advance(\"30h\") would take the test past its \
+             virtual-time budget of 720h (700h used)"
+        )),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_script_error_the_test_does_not_look_at_fails_it() {
+    let script = "let io = device(\"io\");\nio.outputs = 3;\nlet ch = 9;\n\
+                  every(\"100ms\", || io.set_output(ch, true));\n";
+    let tests = r#"fn test_passes_over_the_error() {
+    let r = rig("err.rhai");
+    r.advance("150ms");
+}
+
+fn test_expects_errors() {
+    let r = rig("err.rhai");
+    r.expect_errors();
+    r.advance("150ms");
+}
+
+fn test_looks_at_the_errors() {
+    let r = rig("err.rhai");
+    r.advance("150ms");
+    assert_eq(r.errors().len(), 1);
+}
+
+fn test_looks_too_early() {
+    let r = rig("err.rhai");
+    assert_eq(r.errors(), []);
+    r.advance("150ms");
+}
+"#;
+    let (status, stdout, dir) =
+        test_dir("unlooked", &[("err.rhai", script), ("a.test.rhai", tests)]);
+    let file = dir.join("a.test.rhai").display().to_string();
+    let script = dir.join("err.rhai").display().to_string();
+    assert_eq!(status, Some(1), "{stdout}");
+    let lines: Vec<&str> = stdout.lines().collect();
+    let unlooked = format!(
+        "the script under test had 1 error(s) the test did not look at, the first: \
+         {script}:4:22: in every 100ms: channel 9 does not exist on io (TRP-C29U): use 0-7; a \
+         test that expects errors says so with r.expect_errors() or checks r.errors()"
+    );
+    assert_eq!(
+        lines,
+        [
+            format!("FAIL {file}::test_passes_over_the_error: {unlooked}").as_str(),
+            &format!("ok   {file}::test_expects_errors"),
+            &format!("ok   {file}::test_looks_at_the_errors"),
+            &format!("FAIL {file}::test_looks_too_early: {unlooked}"),
+            "2 passed, 2 failed",
+        ],
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn rigs_built_in_a_loop_count_against_the_tests_memory() {
+    let (status, stdout, dir) = test_dir(
+        "rig-loop",
+        &[
+            ("s.rhai", "every(\"1s\", || {});\n"),
+            (
+                "a.test.rhai",
+                "fn test_rigs() {\n    let rigs = [];\n    for i in 0..5000 {\n        \
+                 rigs.push(rig(\"s.rhai\"));\n    }\n}\n",
+            ),
+        ],
+    );
+    let file = dir.join("a.test.rhai").display().to_string();
+    assert_eq!(status, Some(1), "{stdout}");
+    assert!(
+        stdout.starts_with(&format!(
+            "FAIL {file}::test_rigs: the test's memory reached "
+        )),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("over its limit of 256 MiB (rigs built in a loop?"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn no_test_files_is_a_usage_error() {
     let dir = std::env::temp_dir().join(format!("rigscript-empty-{}", std::process::id()));

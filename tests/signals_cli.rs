@@ -242,7 +242,7 @@ fn a_script_nested_deep_enough_to_overflow_the_stack_is_a_script_error_in_run_te
     // The same scripts in a scenario test and under verify.
     let tests = dir.file(
         "deep.test.rhai",
-        "fn test_deep() {\n  let r = rig(\"deep.rhai\");\n  r.advance(\"100ms\");\n  \
+        "fn test_deep() {\n  let r = rig(\"deep.rhai\");\n  r.expect_errors();\n  r.advance(\"100ms\");\n  \
          assert_eq(r.exit_status(), 1);\n}\nfn test_uncalled() {\n  let r = rig(\"uncalled.rhai\");\n  \
          r.advance(\"100ms\");\n}\n",
     );

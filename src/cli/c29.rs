@@ -199,7 +199,8 @@ pub enum C29Command {
         after_help = "ASCII: the frame as text, leading character and ID included, such \
                             as '$016' (the checksum, when on, and the CR are added). Modbus: the \
                             frame as hex bytes, ID included, such as '01 01 00 20 00 08' (the \
-                            CRC is added)."
+                            CRC is added). At most the protocol's longest request: 11 \
+                            characters (ASCII), 254 bytes (Modbus)."
     )]
     Raw {
         /// The frame

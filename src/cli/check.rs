@@ -7,7 +7,9 @@
 
 use crate::config::RigConfig;
 use crate::script::check::check;
+use crate::text_file::{read_text, TextKind};
 use clap::Args;
+use std::path::Path;
 use std::path::PathBuf;
 
 /// Options of `rigscript check`.
@@ -33,7 +35,7 @@ pub fn run(args: CheckArgs) -> i32 {
         None => RigConfig::simulated_default(),
     };
     let file = args.script.display().to_string();
-    let source = match std::fs::read_to_string(&args.script) {
+    let source = match read_text(&args.script, TextKind::Script) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("rigscript check: cannot read {file}: {e}");
@@ -51,4 +53,32 @@ pub fn run(args: CheckArgs) -> i32 {
         eprintln!("{file}: {} problem(s)", problems.len());
         1
     }
+}
+
+/// For the commands that run a script (`run`, `verify`): whether `check` finds nothing wrong
+/// with `source`. If it does, its problems go to stderr as `check` prints them, then why
+/// `command` does not run the script: a script `check` rejects would fail where it is wrong,
+/// maybe in the handler that makes the rig safe, so fixing it is the only way on.
+pub fn fit_to_run(
+    command: &str,
+    file: &str,
+    source: &str,
+    config: &RigConfig,
+    config_path: Option<&Path>,
+) -> bool {
+    let problems = check(source, config);
+    if problems.is_empty() {
+        return true;
+    }
+    for p in &problems {
+        eprintln!("{file}:{p}");
+    }
+    let with_config =
+        config_path.map_or_else(String::new, |c| format!(" --config {}", c.display()));
+    eprintln!(
+        "rigscript {command}: {file} has {} problem(s) that `rigscript check{with_config} {file}` \
+         finds; fix them first: a script check rejects does not run",
+        problems.len()
+    );
+    false
 }

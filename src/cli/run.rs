@@ -7,6 +7,7 @@
 //! the service watchdog from the scan loop (`cli::run_outputs`); `--junit FILE` writes the
 //! measurements as JUnit XML.
 
+use super::check::fit_to_run;
 use super::output::say;
 use super::run_outputs::RunOutputs;
 use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency};
@@ -15,6 +16,7 @@ use crate::runtime::log::LogFormat;
 use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
 use crate::script::stack;
+use crate::text_file::{read_text, TextKind};
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
@@ -150,13 +152,19 @@ pub fn run(args: RunArgs) -> i32 {
             return exit::USAGE;
         }
     };
-    let source = match std::fs::read_to_string(&args.script) {
+    let source = match read_text(&args.script, TextKind::Script) {
         Ok(s) => s,
         Err(e) => {
             say(&format!("rigscript run: cannot read {file}: {e}"));
             return exit::USAGE;
         }
     };
+    if !fit_to_run("run", &file, &source, &config, args.config.as_deref()) {
+        return outputs.not_started(
+            exit::USAGE,
+            &format!("{file} does not pass rigscript check"),
+        );
+    }
     let stop_flag = Arc::new(AtomicUsize::new(0));
     // The flag holds the signal's number: the exit status reports which one it was.
     if let Err(e) = signals::watch(&stop_flag) {

@@ -1,7 +1,7 @@
 //! `rigscript test [PATH..]`: runs the scenario tests (`*.test.rhai`, default under
 //! `scripts/tests/`) in virtual time against the simulators; one line per test, then
-//! `N passed, N failed`. Exit status 0 when all pass, 1 when any fails, 2 when no test file
-//! is found or the JUnit report cannot be written. `--junit FILE` also writes the results as
+//! `N passed, N failed`. Exit status 0 when all pass, 1 when any fails (a file without tests
+//! fails), 2 when no test file is found or the JUnit report cannot be written. `--junit FILE` also writes the results as
 //! JUnit XML for CI: a suite per test file, a case per test function.
 
 use crate::report::junit::{self, Outcome, TestCase, TestSuite};

@@ -6,8 +6,9 @@
 //! Exit status: 0 nothing found, 1 a counterexample, 2 usage or config error (a script that
 //! cannot run on the simulated rig says why, with the same messages as `check`).
 
+use super::check::fit_to_run;
 use crate::config::RigConfig;
-use crate::script::check::check;
+use crate::text_file::{read_text, TextKind};
 use crate::time::duration::{format_duration, parse_duration};
 use crate::verify::exec::Target;
 use crate::verify::{report, search, Options, SHRINK_BUDGET};
@@ -104,23 +105,14 @@ pub fn run(args: VerifyArgs) -> i32 {
 /// `verify` itself, once its rig is known.
 fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
     let file = args.script.display().to_string();
-    let source = match std::fs::read_to_string(&args.script) {
+    let source = match read_text(&args.script, TextKind::Script) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("rigscript verify: cannot read {file}: {e}");
             return 2;
         }
     };
-    let problems = check(&source, &config);
-    if !problems.is_empty() {
-        for p in &problems {
-            eprintln!("{file}:{p}");
-        }
-        eprintln!(
-            "rigscript verify: {file} cannot run on the simulated rig ({} problem(s)); fix it \
-             first (`rigscript check {file}`)",
-            problems.len()
-        );
+    if !fit_to_run("verify", &file, &source, &config, args.config.as_deref()) {
         return 2;
     }
     let seed = args.seed.unwrap_or_else(|| fastrand::u64(..));

@@ -12,7 +12,7 @@ pub enum ConfigError {
         /// The file as given.
         path: PathBuf,
         /// Why not.
-        source: std::io::Error,
+        source: crate::text_file::ReadError,
     },
     /// The text is not TOML.
     #[error("{file}:{line}:{column}: not valid TOML: {message}")]

@@ -29,6 +29,7 @@ pub use limits::{
 pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
+use crate::text_file::{read_text, TextKind};
 use reader::{duration, line_and_column, string, Reader, TableRef};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -131,7 +132,7 @@ impl RigConfig {
     /// Reads and checks a rig.toml file; messages name it as `path` was given.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = read_text(path, TextKind::Config).map_err(|source| ConfigError::Read {
             path: path.to_path_buf(),
             source,
         })?;

@@ -51,8 +51,8 @@ Exit status (the first that applies):
     0  the run ended as planned (--for, stop(), nothing left to do)
   128 + N  the runner died of signal N (137 kill -9 or the OOM killer, 134 an abort,
        139 a crash): its guardian wrote and read back the safe state (the log says)
-Before the run starts: 2 usage or rig.toml error, 3 a device not available (missing,
-busy, no answer).";
+Before the run starts: 2 usage or rig.toml error, or a script `rigscript check`
+rejects; 3 a device not available (missing, busy, no answer).";
 
 #[cfg(test)]
 mod tests {

@@ -397,13 +397,23 @@ impl<P: Program> Runner<P> {
 
     /// Runs ticks until the clock has advanced by `by` (virtual time: scenario tests).
     pub fn advance(&mut self, by: Duration) {
+        self.advance_while(by, || true);
+    }
+
+    /// As `advance`, asking `go_on` before each tick (a scenario test's wall-time budget);
+    /// false when it said no, the clock left where that tick was due.
+    pub fn advance_while(&mut self, by: Duration, mut go_on: impl FnMut() -> bool) -> bool {
         let target = self.clock.now().saturating_add(by);
         while self.status().is_none() && self.next_deadline <= target {
+            if !go_on() {
+                return false;
+            }
             self.wait_until(self.next_deadline, false);
             self.tick();
         }
         self.wait_until(target, false);
         self.clock.sleep_until(target);
+        true
     }
 
     /// Waits for the next deadline and runs one tick.

@@ -164,12 +164,25 @@ fn channel(dev: &str, ch: i64) -> R<u8> {
 }
 
 fn byte(what: &str, v: i64) -> R<u8> {
-    u8::try_from(v).or_else(|_| {
-        fail(format!(
-            "{v} is not a {what}: use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"
-        ))
-    })
+    u8::try_from(v).or_else(|_| fail(not_a_byte(what, v)))
 }
+
+/// Why `v` cannot be a `what` ("DO byte"), in the words of the runtime and of `check`.
+pub(super) fn not_a_byte(what: &str, v: i64) -> String {
+    format!("{v} is not a {what}: use 0-255 (0x00-0xFF, 0b00000000-0b11111111)")
+}
+
+/// Why `v` is no relay position of the TRC1000 `dev`, in the words of the runtime and `check`.
+pub(super) fn no_relay(dev: &str, v: i64) -> String {
+    format!("relay {v} does not exist on {dev} (TRC1000): use 0-7")
+}
+
+/// The byte properties of a TRP-C29U with their names in messages (for `check`).
+pub(super) const BYTE_PROPERTIES: &[(&str, &str)] = &[
+    ("outputs", "DO byte"),
+    ("safe_value", "safe value"),
+    ("power_on_value", "power-on value"),
+];
 
 fn switch(dev: &str, name: &str) -> R<Switch> {
     Switch::from_name(name).map_or_else(
@@ -340,10 +353,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                 p.rt.borrow_mut().set_relay(p.idx, r);
                 Ok(())
             }
-            _ => fail(format!(
-                "relay {v} does not exist on {} (TRC1000): use 0-7",
-                p.name
-            )),
+            _ => fail(no_relay(&p.name, v)),
         }
     });
     engine.register_fn("pressed", |p: &mut Panel, name: &str| -> R<bool> {

@@ -8,13 +8,20 @@
 //! - literal arguments: device names in `device("...")` against the rig, switch and rotary
 //!   names, channels, durations and cron expressions, the number of parameters of handlers,
 //!   and invariants that are not closures taking no parameters;
+//! - literal numbers assigned to a device property that cannot hold them (`io.outputs = 300`;
+//!   the safe and power-on values 0-255, `panel.relay` 0-7), in the run's own words;
 //! - properties and methods called on a variable known to hold a device (bound once to a
 //!   `device("...")` literal, or a device's own name) that its kind does not have.
 //!
 //! A method whose name is also a key of a map in the script is left alone: Rhai calls a
 //! function stored in a map property as a method.
+//!
+//! The same words serve a run: `NotFound` tells a call or property Rhai found nothing for as
+//! the script ran (`ScriptProgram` asks it), instead of Rhai's "Function not found: ..".
 
-use super::api::{register, takes_words, Arities, Io, Panel};
+use super::api::{
+    no_relay, not_a_byte, register, takes_words, Arities, Io, Panel, BYTE_PROPERTIES,
+};
 use super::engine::{sandboxed, DEFAULT_BUDGET};
 use super::reads::ReadTracker;
 use crate::config::{DeviceConfig, RigConfig};
@@ -72,6 +79,13 @@ impl Kind {
             Kind::Trc => TypeId::of::<Panel>(),
             Kind::C29u => TypeId::of::<Io>(),
         }
+    }
+
+    /// The kind whose Rhai type is called `name`.
+    fn named(name: &str) -> Option<Kind> {
+        [Kind::Trc, Kind::C29u]
+            .into_iter()
+            .find(|k| k.name() == name)
     }
 
     fn other(self) -> Kind {
@@ -259,7 +273,7 @@ struct ClosureSite {
 
 struct Checker<'a> {
     ast: &'a AST,
-    registry: Registry,
+    registry: &'a Registry,
     script_fns: Vec<ScriptFn>,
     closures: HashMap<String, ClosureSite>,
     devices: HashMap<String, Kind>,
@@ -288,44 +302,8 @@ pub fn check(source: &str, config: &RigConfig) -> Vec<Problem> {
             }];
         }
     };
-    let devices: HashMap<String, Kind> = config
-        .devices
-        .iter()
-        .map(|(n, d)| {
-            let k = match d {
-                DeviceConfig::Trc1000(_) => Kind::Trc,
-                DeviceConfig::C29u(_) => Kind::C29u,
-            };
-            (n.clone(), k)
-        })
-        .collect();
-    let device_names = config
-        .devices
-        .keys()
-        .cloned()
-        .collect::<Vec<_>>()
-        .join(", ");
-    let script_fns = ast
-        .iter_functions()
-        .map(|f| ScriptFn {
-            name: f.name.to_string(),
-            params: f.params.iter().map(ToString::to_string).collect(),
-        })
-        .collect();
-    let mut c = Checker {
-        ast: &ast,
-        registry: Registry::of_the_api(),
-        script_fns,
-        closures: HashMap::new(),
-        devices,
-        device_names,
-        bound: HashMap::new(),
-        shadowed: HashSet::new(),
-        map_keys: HashSet::new(),
-        variables: HashSet::new(),
-        problems: Vec::new(),
-    };
-    c.survey();
+    let registry = Registry::of_the_api();
+    let mut c = Checker::new(&ast, &registry, config);
     c.bind_variables();
     // The top level, then each function on its own, so that its parameters hide the devices
     // they are named after.
@@ -341,6 +319,192 @@ pub fn check(source: &str, config: &RigConfig) -> Vec<Problem> {
     c.problems.sort_by_key(|p| (p.line, p.column));
     c.problems.dedup();
     c.problems
+}
+
+/// `check`'s words for a call Rhai finds no function for as a script runs (`explain`): the
+/// same messages and suggestions, from the functions the run's engine has.
+pub struct NotFound {
+    registry: Registry,
+}
+
+impl NotFound {
+    /// For the script API as `engine` has it registered.
+    pub fn new(engine: &Engine) -> Self {
+        Self {
+            registry: Registry::of(engine),
+        }
+    }
+
+    /// What `check` would say of the call at `pos` in `ast` that Rhai found no function for:
+    /// `signature` is Rhai's `name (type, ..)`, the receiver first for a method. Where `check`
+    /// has nothing to say (a function of that name takes that many arguments), the types are
+    /// wrong, and the message says so. `None` for what is not a call by name (an operator).
+    pub fn explain(&self, signature: &str, ast: &AST, pos: Position) -> Option<String> {
+        let (name, types) = signature.split_once(" (")?;
+        let types: Vec<&str> = match types.strip_suffix(')')? {
+            "" => Vec::new(),
+            list => list
+                .split(", ")
+                .map(|t| {
+                    if t.contains("ImmutableString") {
+                        "string"
+                    } else {
+                        t
+                    }
+                })
+                .collect(),
+        };
+        let (call, receiver) = call_at(ast, pos, name)?;
+        let mut c = Checker::new(ast, &self.registry, &RigConfig::default());
+        let kind = types.first().and_then(|t| Kind::named(t));
+        let (shown, given) = match (&call, kind) {
+            (Call::Property(property), Some(kind)) => {
+                let var = receiver.unwrap_or_else(|| "it".into());
+                c.check_property(kind, &var, property, pos);
+                return c.problems.pop().map(|p| p.message);
+            }
+            (Call::Property(_), None) => return None,
+            (Call::Method, Some(kind)) => {
+                let var = receiver.unwrap_or_else(|| "it".into());
+                c.check_device_method(kind, &var, name, types.len() - 1, pos);
+                (format!("{var}.{name}"), &types[1..])
+            }
+            (Call::Method, None) => {
+                c.check_method(name, types.len().saturating_sub(1), pos);
+                (format!(".{name}"), types.get(1..).unwrap_or_default())
+            }
+            (Call::Function, _) => {
+                c.check_function(name, types.len(), pos);
+                (name.to_string(), &types[..])
+            }
+        };
+        Some(c.problems.pop().map_or_else(
+            || {
+                format!(
+                    "{shown}({}): {name} takes arguments of other types",
+                    given.join(", ")
+                )
+            },
+            |p| p.message,
+        ))
+    }
+
+    /// What `check` would say of the property at `pos` in `ast` that Rhai found no getter or
+    /// setter for: `text` is Rhai's "Unknown property 'x' - a getter is not registered for
+    /// type 'T'" (or "No writable property .."). `None` when it is not about a device.
+    pub fn explain_property(&self, text: &str, ast: &AST, pos: Position) -> Option<String> {
+        let quoted = |after: &str| -> Option<&str> {
+            let rest = &text[text.find(after)? + after.len()..];
+            rest.split('\'').next()
+        };
+        let property = quoted("property '")?;
+        let kind = Kind::named(quoted("for type '")?)?;
+        let var = receiver_at(ast, pos).unwrap_or_else(|| "it".into());
+        let mut c = Checker::new(ast, &self.registry, &RigConfig::default());
+        c.check_property(kind, &var, property, pos);
+        c.problems.pop().map(|p| p.message)
+    }
+}
+
+/// What kind of call a runtime error at a place was made by.
+enum Call {
+    Function,
+    Method,
+    /// Reading or setting a property (Rhai's `get$x`, `set$x`).
+    Property(String),
+}
+
+/// The call of `name` at `pos` in `ast`, and the variable it is a method of, if it is one.
+fn call_at(ast: &AST, pos: Position, name: &str) -> Option<(Call, Option<String>)> {
+    if !is_identifier(name) {
+        let property = name
+            .strip_prefix("get$")
+            .or_else(|| name.strip_prefix("set$"))?;
+        return Some((Call::Property(property.to_string()), receiver_at(ast, pos)));
+    }
+    let mut found = None;
+    ast.walk(&mut |path: &[ASTNode]| {
+        match path.last() {
+            Some(ASTNode::Expr(Expr::MethodCall(call, at))) if *at == pos && call.name == name => {
+                let var = match Checker::receiver(path) {
+                    Some(Expr::Variable(x, ..)) => Some(x.1.to_string()),
+                    _ => None,
+                };
+                found = Some((Call::Method, var));
+            }
+            Some(ASTNode::Expr(Expr::FnCall(call, at)) | ASTNode::Stmt(Stmt::FnCall(call, at)))
+                if *at == pos && call.name == name =>
+            {
+                found = Some((Call::Function, None));
+            }
+            _ => {}
+        }
+        found.is_none()
+    });
+    // Not found at its place (an `Fn` pointer called by name): a function call.
+    Some(found.unwrap_or((Call::Function, None)))
+}
+
+/// The variable whose property is used at `pos`, if it is one.
+fn receiver_at(ast: &AST, pos: Position) -> Option<String> {
+    let mut found = None;
+    ast.walk(&mut |path: &[ASTNode]| {
+        if let Some(ASTNode::Expr(Expr::Property(_, at))) = path.last() {
+            if *at == pos {
+                if let Some(Expr::Variable(x, ..)) = Checker::receiver(path) {
+                    found = Some(x.1.to_string());
+                }
+            }
+        }
+        found.is_none()
+    });
+    found
+}
+
+impl<'a> Checker<'a> {
+    /// A checker of `ast` against the devices of `config`, with the functions of `registry`;
+    /// where closures are made and the names maps use are surveyed.
+    fn new(ast: &'a AST, registry: &'a Registry, config: &RigConfig) -> Self {
+        let devices: HashMap<String, Kind> = config
+            .devices
+            .iter()
+            .map(|(n, d)| {
+                let k = match d {
+                    DeviceConfig::Trc1000(_) => Kind::Trc,
+                    DeviceConfig::C29u(_) => Kind::C29u,
+                };
+                (n.clone(), k)
+            })
+            .collect();
+        let device_names = config
+            .devices
+            .keys()
+            .cloned()
+            .collect::<Vec<_>>()
+            .join(", ");
+        let script_fns = ast
+            .iter_functions()
+            .map(|f| ScriptFn {
+                name: f.name.to_string(),
+                params: f.params.iter().map(ToString::to_string).collect(),
+            })
+            .collect();
+        let mut c = Checker {
+            ast,
+            registry,
+            script_fns,
+            closures: HashMap::new(),
+            devices,
+            device_names,
+            bound: HashMap::new(),
+            shadowed: HashSet::new(),
+            map_keys: HashSet::new(),
+            variables: HashSet::new(),
+            problems: Vec::new(),
+        };
+        c.survey();
+        c
+    }
 }
 
 /// The function `name` with `params` parameters of `ast`, alone, to walk by itself.
@@ -651,7 +815,37 @@ impl Checker<'_> {
                     self.check_property(kind, &var, p.2.as_str(), *pos);
                 }
             }
+            Some(ASTNode::Stmt(Stmt::Assignment(x))) => self.check_assigned(&x.0, &x.1),
             _ => {}
+        }
+    }
+
+    /// A literal number assigned to a device property that cannot hold it (`io.outputs =
+    /// 300`, `panel.relay = 9`), in the words the run would fail with.
+    fn check_assigned(&mut self, op: &rhai::OpAssignment, bin: &rhai::BinaryExpr) {
+        let (Expr::Dot(dot, ..), Expr::IntegerConstant(n, at)) = (&bin.lhs, &bin.rhs) else {
+            return;
+        };
+        let Expr::Property(p, _) = &dot.rhs else {
+            return;
+        };
+        if op.is_op_assignment() {
+            return;
+        }
+        let Some((kind, var)) = self.kind_of(&dot.lhs) else {
+            return;
+        };
+        let property = p.2.as_str();
+        let message = match kind {
+            Kind::C29u => BYTE_PROPERTIES
+                .iter()
+                .find(|(name, _)| *name == property)
+                .filter(|_| u8::try_from(*n).is_err())
+                .map(|(_, what)| not_a_byte(what, *n)),
+            Kind::Trc => (property == "relay" && !(0..8).contains(n)).then(|| no_relay(&var, *n)),
+        };
+        if let Some(message) = message {
+            self.report(*at, message);
         }
     }
 
@@ -1321,6 +1515,9 @@ after("1s", || panel.set_output(1, true));
         "foo(1);",
         "io.set_output(1);",
         "io.outputz = 1;",
+        "io.outputs = 300;",
+        "every(\"1s\", || { panel.relay = 8; });",
+        "io.safe_value = -1;",
         "fn bar(x) { x } bar(1, 2);",
         "let a = [1]; a.psh(3);",
         "print(io.counters);",
@@ -1360,6 +1557,60 @@ after("1s", || panel.set_output(1, true));
     }
 
     #[test]
+    fn literal_numbers_a_device_property_cannot_hold_are_reported_as_the_run_would() {
+        let p = problems(
+            "io.outputs = 300;\npanel.relay = 9;\nio.outputs = 0xFF;\npanel.relay = 7;\n\
+             let x = 300;\nio.outputs = x;\nio.outputs += 300;\n",
+        );
+        assert_eq!(
+            p,
+            [
+                "1:14: 300 is not a DO byte: use 0-255 (0x00-0xFF, 0b00000000-0b11111111)",
+                "2:15: relay 9 does not exist on panel (TRC1000): use 0-7",
+            ]
+        );
+    }
+
+    #[test]
+    fn a_call_with_no_function_fails_at_run_time_in_checks_words() {
+        // Run without `check` first, as scenario tests and the fault search start scripts;
+        // the last three `check` cannot see.
+        for (seen, source, says) in [
+            // The issue's interlock: Rhai said "Function not found: set_ouptut (TRP-C29U, i64,
+            // bool)".
+            (
+                true,
+                "let d = if true { io } else { panel };\nevery(\"1s\", || d.set_ouptut(7, false));",
+                "t.rhai:2:18: in every 1s: d is a TRP-C29U: it has no method set_ouptut; did you \
+                 mean `set_output`?",
+            ),
+            (
+                false,
+                "every(\"1s\", || io.set_output(1, 1));",
+                "t.rhai:1:19: in every 1s: io.set_output(i64, i64): set_output takes arguments \
+                 of other types",
+            ),
+            (
+                false,
+                "let d = if true { io } else { panel };\nd.relay = 3;",
+                "t.rhai:2:3: in top level: d is a TRP-C29U: it has no relay (that is a TRC1000 \
+                 member)",
+            ),
+            (
+                false,
+                "let name = \"nope\";\nlet f = Fn(name);\nf.call(1);",
+                "in top level: no function called nope in the script API or this script",
+            ),
+        ] {
+            assert_eq!(problems(source).is_empty(), !seen, "{source}");
+            let (status, log) = run_status(source);
+            assert_eq!(status, Some(1), "{source}\n{log}");
+            assert!(log.contains(says), "{source}: {log}");
+            assert!(!log.contains("Function not found"), "{log}");
+        }
+    }
+
+    #[test]
     fn what_check_passes_runs_and_what_it_reports_fails() {
         for source in VALID {
             assert_eq!(problems(source), Vec::<String>::new(), "{source}");
@@ -1371,6 +1622,13 @@ after("1s", || panel.set_output(1, true));
             assert_eq!(p.len(), 1, "{source}: {p:?}");
             let (status, log) = run_status(source);
             assert_eq!(status, Some(1), "{source} should fail when run\n{log}");
+            // The run says what check says (`NotFound` for Rhai's "Function not found").
+            let (place, message) = p[0].split_once(": ").unwrap();
+            let line = place.split(':').next().unwrap();
+            assert!(
+                log.contains(&format!("t.rhai:{line}:")) && log.contains(message),
+                "{source}: check says {message:?} at {place}, the run:\n{log}"
+            );
         }
     }
 

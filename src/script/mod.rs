@@ -14,4 +14,5 @@ pub mod reads;
 pub mod rig;
 pub mod scenario;
 pub mod stack;
+pub mod test_budget;
 pub mod values;

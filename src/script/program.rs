@@ -3,8 +3,9 @@
 //! it takes. A call over a limit is a fault placed where the limit was hit.
 
 use super::api::{register, resolve_variables, Arities, Rt};
+use super::check::NotFound;
 use super::engine::{sandboxed, Guard};
-use super::error::{breach_fault, fault, is_stop};
+use super::error::{breach_fault, fault, innermost, is_stop};
 use super::reads::{ReadSet, ReadTracker};
 use crate::config::ScriptLimits;
 use crate::runtime::invariants::Check;
@@ -24,6 +25,8 @@ pub struct ScriptProgram {
     guard: Rc<Guard>,
     reads: ReadTracker,
     coverage: Option<Coverage>,
+    /// `check`'s words for calls with no function, made at the first such error.
+    not_found: std::cell::OnceCell<NotFound>,
 }
 
 /// What the script did, when asked to keep count (`verify`): how often each handler ran, what
@@ -61,6 +64,7 @@ impl ScriptProgram {
             guard,
             reads,
             coverage: None,
+            not_found: std::cell::OnceCell::new(),
         }
     }
 
@@ -123,7 +127,7 @@ impl ScriptProgram {
             )),
             (Ok(()), None) => Ok(()),
             (Err(e), None) if is_stop(&e) => Ok(()),
-            (Err(e), None) => Err(fault(&self.file, &e, fallback())),
+            (Err(e), None) => Err(self.fault(&e, fallback())),
         }
     }
 
@@ -157,6 +161,26 @@ impl ScriptProgram {
         }
         self.note_reads(None);
         self.outcome(result, || self.body_start(&call.handler, n))
+    }
+
+    /// A runtime error as a fault; a call Rhai found no function for is told in `check`'s
+    /// words (its raw "Function not found: set_ouptut (TRP-C29U, i64, bool)" says little).
+    fn fault(&self, err: &EvalAltResult, fallback: Position) -> Fault {
+        let mut f = fault(&self.file, err, fallback);
+        let words = || self.not_found.get_or_init(|| NotFound::new(&self.engine));
+        let said = match innermost(err).0 {
+            EvalAltResult::ErrorFunctionNotFound(signature, pos) => {
+                words().explain(signature, &self.ast, *pos)
+            }
+            EvalAltResult::ErrorDotExpr(text, pos) => {
+                words().explain_property(text, &self.ast, *pos)
+            }
+            _ => None,
+        };
+        if let Some(cause) = said {
+            f.cause = cause;
+        }
+        f
     }
 
     /// Where the body of `handler` starts when it gets `args` arguments, if it is a function
@@ -217,7 +241,7 @@ impl Program for ScriptProgram {
             }),
             // stop() inside an invariant: the run is stopping anyway; it holds.
             Err(e) if is_stop(&e) => Ok(true),
-            Err(e) => Err(placed(fault(&self.file, &e, Position::NONE))),
+            Err(e) => Err(placed(self.fault(&e, Position::NONE))),
         }
     }
 }

@@ -29,19 +29,31 @@
 //!   running), `r.log()`, `r.now()`, `r.overruns()`, `r.online(dev)`, `r.held_safe()`
 //!   (outputs held safe for a device lost past its grace time), `r.errors()` (the script
 //!   errors so far, as logged), `r.violation()` (the invariant found false, or `()`).
+//! - `r.expect_errors()`: the test expects the script under test to fail. A script error the
+//!   test never looked at fails the test once it has passed: errors after its last
+//!   `r.errors()` call count, unless it called `r.expect_errors()` on that rig.
 //! - `assert(cond)`, `assert(cond, msg)`, `assert_eq(a, b)`, `assert_eq(a, b, msg)`.
+//!
+//! Each test has a run's limits for its own code (operations: `TEST_BUDGET`; heap memory: a
+//! run's default, 256 MiB, which the rigs it builds count against) and two budgets
+//! (`script::test_budget`): the virtual time its `advance`, `tick` and `stall` calls move in
+//! all (30 days) and real time (60 s); over either, the call that went over fails the test.
+//! The script under test keeps its rig's limits (operations, time per call, memory, timers).
+//! A test file without a `test_*` function taking no parameters fails as `file::(no tests)`.
 
 use super::api::{duration, fail, R};
-use super::engine::sandboxed;
+use super::engine::{sandboxed, Guard};
 use super::error::{cause, innermost, location, parse_error};
 use super::rig::{start, Rig, RigSetup};
+use super::test_budget::{breach_text, test_limits, TestBudget, TEST_BUDGET};
 use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
 use crate::runtime::devices::FieldError;
 use crate::runtime::log::LogFormat;
 use crate::runtime::scan::EndReason;
 use crate::sim::answer_faults::AnswerFault;
-use crate::time::clock::VirtualClock;
+use crate::text_file::{read_text, TextKind};
+use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
 use chrono::{DateTime, FixedOffset, Utc};
 use rhai::{Array, CallFnOptions, Dynamic, Engine, Map, Scope};
@@ -49,9 +61,6 @@ use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::sync::Arc;
-
-/// Operations a test function may take (its own, not the script under test's).
-pub const TEST_BUDGET: u64 = 50_000_000;
 
 /// Where virtual wall time starts unless a test says otherwise.
 pub const DEFAULT_START: &str = "2026-03-28T12:00:00Z";
@@ -70,9 +79,45 @@ struct Scenario {
     rig: Rig,
     clock: VirtualClock,
     violation_reported: bool,
+    /// The test's budgets (shared by its rigs).
+    budget: Rc<TestBudget>,
+    /// Script errors the test has seen (`r.errors()`).
+    errors_seen: u64,
+    /// The test expects script errors (`r.expect_errors()`).
+    errors_expected: bool,
+}
+
+impl Drop for Scenario {
+    /// A rig whose script failed where the test never looked fails the test.
+    fn drop(&mut self) {
+        let errors = &self.rig.runner.errors;
+        if !self.errors_expected && errors.total() > self.errors_seen {
+            let index = usize::try_from(self.errors_seen).unwrap_or(usize::MAX);
+            let first = errors
+                .kept()
+                .get(index)
+                .map_or("(not kept)", |e| e.message.as_str());
+            self.budget
+                .note_unobserved(errors.total() - self.errors_seen, first);
+        }
+    }
 }
 
 impl Scenario {
+    /// Moves the rig on by `by` within the test's budgets (`what` names the call).
+    fn advance(&mut self, what: &str, by: std::time::Duration) -> R<()> {
+        self.budget.take_virtual(what, by).or_else(fail)?;
+        let budget = Rc::clone(&self.budget);
+        if !self
+            .rig
+            .runner
+            .advance_while(by, || budget.wall_time_left())
+        {
+            return fail(TestBudget::out_of_wall_time(what));
+        }
+        self.violation()
+    }
+
     /// An error naming the invariant found false, the first time the test drives the rig
     /// after it was.
     fn violation(&mut self) -> R<()> {
@@ -121,6 +166,7 @@ fn parse_time(text: &str) -> R<DateTime<FixedOffset>> {
 
 /// Loads the script under test.
 fn load(
+    budget: &Rc<TestBudget>,
     base: &Path,
     script: &str,
     config: Option<&str>,
@@ -135,7 +181,7 @@ fn load(
         }
         None => RigConfig::simulated_default(),
     };
-    let source = std::fs::read_to_string(&path)
+    let source = read_text(&path, TextKind::Script)
         .or_else(|e| fail(format!("cannot read {}: {e}", path.display())))?;
     let clock = VirtualClock::new(start_at.with_timezone(&Utc));
     let setup = RigSetup {
@@ -158,6 +204,9 @@ fn load(
         rig,
         clock,
         violation_reported: false,
+        budget: Rc::clone(budget),
+        errors_seen: 0,
+        errors_expected: false,
     }))))
 }
 
@@ -170,42 +219,43 @@ impl RigHandle {
     }
 }
 
-/// Registers the test API on `engine`; script paths are relative to `base`.
-pub fn register(engine: &mut Engine, base: &Path) {
+/// Registers the test API on `engine` for one test, whose budgets are `budget`; script paths
+/// are relative to `base`.
+fn register(engine: &mut Engine, base: &Path, budget: &Rc<TestBudget>) {
     engine.register_type_with_name::<RigHandle>("Rig");
     let default_start = parse_time(DEFAULT_START).ok();
-    let b = base.to_path_buf();
+    let (b, t) = (base.to_path_buf(), Rc::clone(budget));
     let start0 = default_start;
     engine.register_fn("rig", move |path: &str| -> R<RigHandle> {
         let at = start0.map_or_else(|| parse_time(DEFAULT_START), Ok)?;
-        load(&b, path, None, at, Zone::utc())
+        load(&t, &b, path, None, at, Zone::utc())
     });
-    let b = base.to_path_buf();
+    let (b, t) = (base.to_path_buf(), Rc::clone(budget));
     engine.register_fn("rig", move |path: &str, config: &str| -> R<RigHandle> {
         let at = default_start.map_or_else(|| parse_time(DEFAULT_START), Ok)?;
-        load(&b, path, Some(config), at, Zone::utc())
+        load(&t, &b, path, Some(config), at, Zone::utc())
     });
-    let b = base.to_path_buf();
+    let (b, t) = (base.to_path_buf(), Rc::clone(budget));
     engine.register_fn("rig_at", move |path: &str, time: &str| -> R<RigHandle> {
         let at = parse_time(time)?;
-        load(&b, path, None, at, Zone::Fixed(*at.offset()))
+        load(&t, &b, path, None, at, Zone::Fixed(*at.offset()))
     });
-    let b = base.to_path_buf();
+    let (b, t) = (base.to_path_buf(), Rc::clone(budget));
     engine.register_fn(
         "rig_at",
         move |path: &str, time: &str, zone: &str| -> R<RigHandle> {
             let at = parse_time(time)?;
             let zone = Zone::parse(zone).or_else(|e| fail(e.to_string()))?;
-            load(&b, path, None, at, zone)
+            load(&t, &b, path, None, at, zone)
         },
     );
-    let b = base.to_path_buf();
+    let (b, t) = (base.to_path_buf(), Rc::clone(budget));
     engine.register_fn(
         "rig_at",
         move |path: &str, time: &str, zone: &str, config: &str| -> R<RigHandle> {
             let at = parse_time(time)?;
             let zone = Zone::parse(zone).or_else(|e| fail(e.to_string()))?;
-            load(&b, path, Some(config), at, zone)
+            load(&t, &b, path, Some(config), at, zone)
         },
     );
     register_driving(engine);
@@ -228,19 +278,24 @@ fn wall_step(text: &str) -> R<chrono::TimeDelta> {
 
 fn register_driving(engine: &mut Engine) {
     engine.register_fn("advance", |r: &mut RigHandle, d: Dynamic| -> R<()> {
+        let what = format!("r.advance({})", show(&d));
         let d = duration(&d)?;
-        let mut s = r.0.borrow_mut();
-        s.rig.runner.advance(d);
-        s.violation()
+        r.0.borrow_mut().advance(&what, d)
     });
     engine.register_fn("tick", |r: &mut RigHandle| -> R<()> {
         let mut s = r.0.borrow_mut();
+        let before = s.clock.now();
         s.rig.runner.step();
+        let moved = s.clock.now().saturating_sub(before);
+        s.budget.note_virtual("r.tick()", moved).or_else(fail)?;
         s.violation()
     });
     engine.register_fn("stall", |r: &mut RigHandle, d: Dynamic| -> R<()> {
+        let what = format!("r.stall({})", show(&d));
         let d = duration(&d)?;
-        r.0.borrow().clock.advance(d);
+        let s = r.0.borrow();
+        s.budget.take_virtual(&what, d).or_else(fail)?;
+        s.clock.advance(d);
         Ok(())
     });
     engine.register_fn("step_wall", |r: &mut RigHandle, step: &str| -> R<()> {
@@ -392,7 +447,8 @@ fn register_observations(engine: &mut Engine) {
         r.0.borrow().rig.runner.runtime().borrow().held_safe
     });
     engine.register_fn("errors", |r: &mut RigHandle| -> Array {
-        let s = r.0.borrow();
+        let mut s = r.0.borrow_mut();
+        s.errors_seen = s.rig.runner.errors.total();
         s.rig
             .runner
             .errors
@@ -400,6 +456,9 @@ fn register_observations(engine: &mut Engine) {
             .iter()
             .map(|e| Dynamic::from(e.message.clone()))
             .collect()
+    });
+    engine.register_fn("expect_errors", |r: &mut RigHandle| {
+        r.0.borrow_mut().errors_expected = true;
     });
     engine.register_fn("violation", |r: &mut RigHandle| -> Dynamic {
         r.0.borrow()
@@ -454,13 +513,22 @@ fn register_asserts(engine: &mut Engine) {
     });
 }
 
-/// An engine with the test API; a test's own `print` and `debug` go to stderr.
-fn test_engine(base: &Path) -> Engine {
+/// An engine with the test API for one test, its budgets, and the guard that watches the
+/// test's own calls (operations, wall time, the heap it and its rigs hold); a test's own
+/// `print` and `debug` go to stderr.
+fn test_engine(base: &Path) -> (Engine, Rc<TestBudget>, Rc<Guard>) {
     let mut engine = sandboxed(TEST_BUDGET);
-    register(&mut engine, base);
+    let budget = Rc::new(TestBudget::start());
+    register(&mut engine, base, &budget);
+    let guard = Guard::install(
+        &mut engine,
+        test_limits(),
+        crate::time::clock::SystemClock::shared(),
+        Arc::default(),
+    );
     engine.on_print(|s| eprintln!("{s}"));
     engine.on_debug(|s, _, _| eprintln!("{s}"));
-    engine
+    (engine, budget, guard)
 }
 
 /// Runs every `test_*` function of the test file at `path` (called `file` in messages),
@@ -472,7 +540,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
         report(&r);
         results.push(r);
     };
-    let source = match std::fs::read_to_string(path) {
+    let source = match read_text(path, TextKind::TestFile) {
         Ok(s) => s,
         Err(e) => {
             push(TestResult {
@@ -482,7 +550,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
             return results;
         }
     };
-    let engine = test_engine(&base);
+    let engine = sandboxed(TEST_BUDGET);
     let ast = match engine.compile(&source) {
         Ok(ast) => ast,
         Err(e) => {
@@ -498,20 +566,44 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
         .filter(|f| f.name.starts_with("test_") && f.params.is_empty())
         .map(|f| f.name.to_string())
         .collect();
+    if tests.is_empty() {
+        push(TestResult {
+            name: format!("{file}::(no tests)"),
+            failure: Some(format!(
+                "{file} has no tests: a test is a function whose name starts with test_ and \
+                 that takes no parameters, such as `fn test_start() {{ .. }}`"
+            )),
+        });
+        return results;
+    }
     // In the order they are written.
     tests.sort_by_key(|name| source.find(&format!("fn {name}(")).unwrap_or(usize::MAX));
     for name in tests {
-        let engine = test_engine(&base);
+        let (engine, budget, guard) = test_engine(&base);
         let options = CallFnOptions::new().eval_ast(false);
-        let result =
-            engine.call_fn_with_options::<Dynamic>(options, &mut Scope::new(), &ast, &name, ());
-        let failure = result.err().map(|e| {
-            let (inner, pos) = innermost(&e);
-            match location(file, pos) {
-                Some(at) => format!("{} at {at}", cause(inner)),
-                None => cause(inner),
+        guard.begin_call();
+        let result = engine
+            .call_fn_with_options::<Dynamic>(options, &mut Scope::new(), &ast, &name, ())
+            .map(drop);
+        let breach = guard.end_call();
+        // The rigs the test built are gone now: their unobserved errors are noted.
+        let failure = match (result, breach) {
+            (result, Some(b)) => {
+                let at = result.err().and_then(|e| location(file, innermost(&e).1));
+                Some(at.map_or_else(
+                    || breach_text(&b),
+                    |at| format!("{} at {at}", breach_text(&b)),
+                ))
             }
-        });
+            (Err(e), None) => {
+                let (inner, pos) = innermost(&e);
+                Some(match location(file, pos) {
+                    Some(at) => format!("{} at {at}", cause(inner)),
+                    None => cause(inner),
+                })
+            }
+            (Ok(()), None) => budget.unobserved(),
+        };
         push(TestResult {
             name: format!("{file}::{name}"),
             failure,
@@ -543,4 +635,32 @@ pub fn test_files(path: &Path) -> std::io::Result<Vec<PathBuf>> {
     }
     found.sort();
     Ok(found)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn a_test_out_of_wall_time_fails_in_the_advance_it_ran_out_in() {
+        let dir = std::env::temp_dir().join(format!("rigscript-wall-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // Polls the inputs: every tick runs.
+        std::fs::write(dir.join("s.rhai"), "io.on_rise(0, || {});\n").unwrap();
+        let mut engine = sandboxed(TEST_BUDGET);
+        let budget = Rc::new(TestBudget::with_wall_time(Duration::ZERO));
+        register(&mut engine, &dir, &budget);
+        let err = engine
+            .run("let r = rig(\"s.rhai\");\nr.advance(\"1h\");")
+            .unwrap_err();
+        let (inner, pos) = innermost(&err);
+        assert_eq!(
+            cause(inner),
+            "the test ran out of its wall-time budget of 1m during r.advance(\"1h\") (a rig \
+             polling fast over a long advance?)"
+        );
+        assert_eq!(pos.line(), Some(2));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -654,7 +654,27 @@ impl C29u {
 
     /// Sends one raw frame (ASCII text without ID framing rules applied; Modbus bytes without
     /// CRC), with the checksum or CRC appended, and returns the answer as received.
+    /// A frame longer than the protocol's longest request is refused unsent (a long one
+    /// holds the line for seconds and can be no request the module knows).
     pub fn raw(&mut self, body: &[u8]) -> Result<Vec<u8>, C29uError> {
+        let (most, unit, what) = match self.options.protocol {
+            Protocol::Ascii => (
+                crate::protocol::c29u_ascii::LONGEST_REQUEST,
+                "characters",
+                "the longest ASCII request (manual 8-1), without checksum and CR",
+            ),
+            Protocol::Modbus => (
+                crate::protocol::c29u_modbus::MAX_FRAME_LEN - 2,
+                "bytes",
+                "a Modbus RTU frame's 256 bytes less the CRC",
+            ),
+        };
+        if body.len() > most {
+            return Err(C29uError::InvalidArgument(format!(
+                "a raw frame of {} {unit} is too long: at most {most} ({what})",
+                body.len()
+            )));
+        }
         self.backend.raw(&mut self.transport, body)
     }
 }

@@ -782,3 +782,17 @@ fn answers_of_the_wrong_shape_are_malformed() {
         Err(AsciiError::BadChecksum { .. })
     ));
 }
+
+#[test]
+fn the_longest_request_is_8_1s_configure() {
+    let configure = Request::Configure {
+        new_id: 1,
+        baud: BaudCode::from_baud(9600).unwrap(),
+        format: DataFormat::default(),
+    };
+    let name = Request::SetName(ModuleName::new("ABCDEF").unwrap());
+    // Without the CR (and checksum) the encodings add.
+    let body = |r: &Request| r.encode(1, false).len() - 1;
+    assert_eq!(body(&configure), LONGEST_REQUEST);
+    assert!(body(&name) < LONGEST_REQUEST);
+}

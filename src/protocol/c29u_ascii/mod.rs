@@ -28,7 +28,7 @@ mod prop_tests;
 
 pub use answer::{encode_answer, encode_refusal, parse_answer, Answer, AsciiError};
 pub use frame::{checksum, CR};
-pub use request::{decode_request, Refusal, Request, RequestError, MODULE_TYPE};
+pub use request::{decode_request, Refusal, Request, RequestError, LONGEST_REQUEST, MODULE_TYPE};
 pub use types::{
     Address, BaudCode, Channel, ConfigReport, DataFormat, FirmwareDate, FirmwareVersion,
     LatchLevel, ModuleName, Preset, SynchronizedData,

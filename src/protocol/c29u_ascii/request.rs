@@ -3,6 +3,10 @@
 use super::frame::{self, hex_byte, hex_pair, push_hex};
 use super::types::{Address, BaudCode, Channel, DataFormat, LatchLevel, ModuleName, Preset};
 
+/// The longest request, leading code to command, without checksum and CR: 8-1's
+/// `%IDNNPPBBDD` (8-17's `~IDONN` with a six-character name is one shorter).
+pub const LONGEST_REQUEST: usize = 11;
+
 /// The digital I/O type PP that `%` carries and `$ID2` reports (8-1).
 pub const MODULE_TYPE: u8 = 0x40;
 
