@@ -588,8 +588,8 @@ impl<P: Program> Runner<P> {
             if let Err(f) = result {
                 if self.stop_signal().is_some() {
                     // The signal came while the handler ran, and the run ends by it; the
-                    // error is told (often the same cause: a records write past the file
-                    // size limit fails as SIGXFSZ comes).
+                    // error is told (often of the same cause: an exchange the stop cut, a
+                    // write past the file size limit as SIGXFSZ came).
                     let message = describe(&f, &call.label);
                     self.errors.push(&message, f.over_budget);
                     self.rt.borrow_mut().log.error(&message);
@@ -803,7 +803,8 @@ impl<P: Program> Runner<P> {
 impl<P: Program> Runner<P> {
     /// Runs the `on_stop` handlers in the order they were added, all of them together within
     /// `STOP_BUDGET` (each also within the script's limits per call); skips the rest once the
-    /// budget is spent or another signal sets `flag`. A handler cut off is a failed one.
+    /// budget is spent or another signal sets `flag`. A handler the budget cuts off, and each
+    /// one skipped for it, is a failed one; another signal's cut is what its sender asked for.
     fn run_stop_handlers(&mut self, flag: &Arc<AtomicUsize>) {
         let calls = self.rt.borrow().stop_calls();
         let until = self.clock.now().saturating_add(STOP_BUDGET);
