@@ -99,7 +99,11 @@ pub fn main() -> i32 {
         Command::Run(args) => run::run(args),
         Command::Safe(args) => safe::run(args),
         Command::Check(args) => check::run(args),
-        Command::Test(args) => test::run(args),
+        // Each test's rig has the default limits; its scripts get the stack those call for.
+        Command::Test(args) => crate::script::stack::on_script_stack(
+            crate::config::ScriptLimits::default().memory,
+            || test::run(args),
+        ),
         Command::Verify(args) => verify::run(args),
         Command::Scan(args) => scan::run(args),
         Command::C29(args) => c29::run(args),

@@ -26,7 +26,7 @@ pub trait CommandError: Display {
 /// returns the exit status.
 pub fn report_error(e: &dyn CommandError, json: bool, out: &mut dyn Write) -> i32 {
     let status = e.exit_status();
-    eprintln!("error: {e}");
+    say(&format!("error: {e}"));
     if json {
         let _ = writeln!(
             out,
@@ -35,6 +35,13 @@ pub fn report_error(e: &dyn CommandError, json: bool, out: &mut dyn Write) -> i3
         );
     }
     status
+}
+
+/// Writes `line` to standard error for people; a closed or broken standard error (a reader
+/// gone: EPIPE; a hung-up terminal: EIO) loses the line instead of panicking as `eprintln!`
+/// does, so a run goes on to its safe state whatever became of its terminal.
+pub fn say(line: &str) {
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// Runs a command's `body` on standard output, reports its error, and returns the exit status.

@@ -8,12 +8,14 @@
 //! measurements as JUnit XML.
 
 use super::check::fit_to_run;
+use super::output::say;
 use super::run_outputs::RunOutputs;
-use crate::config::{parse_memory_limit, RigConfig, WakeLatency};
-use crate::guardian::{guard, Guarded, GuardianLog};
-use crate::runtime::exit;
+use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency};
+use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
 use crate::runtime::log::LogFormat;
+use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
+use crate::script::stack;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
@@ -37,7 +39,7 @@ pub struct RunArgs {
     /// `io`, a TRP-C29U at Modbus ID 1).
     #[arg(long)]
     pub sim: bool,
-    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s").
+    /// Scan period, overriding rig.toml: a number with a unit ("20ms", "0.1s"), at most 10s.
     #[arg(long, value_name = "DURATION", value_parser = period)]
     pub period: Option<Duration>,
     /// End the run normally after this long: a number with a unit ("500ms", "10s", "5m",
@@ -106,10 +108,7 @@ fn memory_limit(text: &str) -> Result<u64, String> {
 }
 
 fn period(text: &str) -> Result<Duration, String> {
-    match dur(text)? {
-        d if d.is_zero() => Err("a period must be above zero".into()),
-        d => Ok(d),
-    }
+    check_period(dur(text)?).map_err(|why| format!("\"{text}\" {why}"))
 }
 
 /// Whether the run's own end confirmed the safe state of every device (a panic's end does not
@@ -124,15 +123,15 @@ pub fn run(args: RunArgs) -> i32 {
         (Some(path), _) => match RigConfig::load(path) {
             Ok(c) => c,
             Err(e) => {
-                eprintln!("rigscript run: {e}");
+                say(&format!("rigscript run: {e}"));
                 return exit::USAGE;
             }
         },
         (None, true) => RigConfig::simulated_default(),
         (None, false) => {
-            eprintln!(
+            say(
                 "rigscript run: give --config rig.toml (the devices to drive) or --sim \
-                 (simulated devices: panel, a TRC1000, and io, a TRP-C29U)"
+                 (simulated devices: panel, a TRC1000, and io, a TRP-C29U)",
             );
             return exit::USAGE;
         }
@@ -146,17 +145,17 @@ pub fn run(args: RunArgs) -> i32 {
     limits.memory = args.memory_limit.unwrap_or(limits.memory);
     limits.timers = args.max_timers.map_or(limits.timers, |n| n as usize);
     let file = args.script.display().to_string();
-    let mut outputs = match RunOutputs::new(&file, args.junit) {
+    let mut outputs = match RunOutputs::new(&file, args.junit.clone()) {
         Ok(o) => o,
         Err(e) => {
-            eprintln!("rigscript run: {e}");
+            say(&format!("rigscript run: {e}"));
             return exit::USAGE;
         }
     };
     let source = match read_text(&args.script, TextKind::Script) {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("rigscript run: cannot read {file}: {e}");
+            say(&format!("rigscript run: cannot read {file}: {e}"));
             return exit::USAGE;
         }
     };
@@ -167,13 +166,10 @@ pub fn run(args: RunArgs) -> i32 {
         );
     }
     let stop_flag = Arc::new(AtomicUsize::new(0));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        // The flag holds the signal's number: the exit status reports which one it was.
-        let number = usize::try_from(signal).unwrap_or(1);
-        if let Err(e) = signal_hook::flag::register_usize(signal, Arc::clone(&stop_flag), number) {
-            eprintln!("rigscript run: cannot watch for signal {signal}: {e}");
-            return exit::ERROR;
-        }
+    // The flag holds the signal's number: the exit status reports which one it was.
+    if let Err(e) = signals::watch(&stop_flag) {
+        say(&format!("rigscript run: cannot watch for signals: {e}"));
+        return exit::ERROR;
     }
     let setup = RigSetup {
         config,
@@ -182,7 +178,7 @@ pub fn run(args: RunArgs) -> i32 {
         zone: Zone::Local,
         period: args.period,
         end_after: args.run_for,
-        records: args.records,
+        records: args.records.clone(),
         log_to_stderr: true,
         quiet: args.quiet,
         log_format: args.log_format,
@@ -200,17 +196,35 @@ pub fn run(args: RunArgs) -> i32 {
             Ok(Guarded::Runner(confirmation)) => Some(confirmation),
             Ok(Guarded::Guardian(status)) => return status,
             Err(e) => {
-                eprintln!(
+                say(&format!(
                     "rigscript run: {e}; nothing was started (--no-guardian runs without it)"
-                );
+                ));
                 return exit::ERROR;
             }
         }
     };
-    let mut rig = match start(&source, &file, setup) {
+    // After the guardian's fork (which needs this process to have one thread): the run on a
+    // stack that holds whatever the script can build within its memory limit.
+    let memory = setup.config.limits.memory;
+    let stats = args.stats;
+    stack::on_script_stack(memory, move || {
+        run_started(&source, &file, setup, &mut outputs, guardian, stats)
+    })
+}
+
+/// The run itself, from taking control of the devices to the last log line.
+fn run_started(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    outputs: &mut RunOutputs,
+    guardian: Option<Confirmation>,
+    stats: bool,
+) -> i32 {
+    let mut rig = match start(source, file, setup) {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("rigscript run: {e}");
+            say(&format!("rigscript run: {e}"));
             // A run that never started drove nothing but the safe state taking control writes.
             if let (Some(g), false) = (guardian, e.status() == exit::INTERNAL) {
                 g.confirm();
@@ -231,7 +245,7 @@ pub fn run(args: RunArgs) -> i32 {
         rt.log.dropped()
     };
     rig.runner.stats.log_dropped = dropped;
-    if args.stats {
+    if stats {
         // After the end: a reader that went away costs the figures, never the status.
         let _ = std::io::Write::write_fmt(
             &mut std::io::stdout(),

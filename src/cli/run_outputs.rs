@@ -32,7 +32,7 @@ impl RunOutputs {
             junit::check_path(path)?;
         }
         let notifier = Notifier::from_env().unwrap_or_else(|e| {
-            eprintln!("rigscript run: {e}");
+            super::output::say(&format!("rigscript run: {e}"));
             None
         });
         Ok(Self {
@@ -121,10 +121,10 @@ impl RunOutputs {
         match junit::write(path, &[suite]) {
             Ok(()) => status,
             Err(e) => {
-                eprintln!(
+                super::output::say(&format!(
                     "rigscript run: cannot write the JUnit report {}: {e}",
                     path.display()
-                );
+                ));
                 if status == 0 {
                     1
                 } else {

@@ -96,6 +96,14 @@ pub fn run(args: VerifyArgs) -> i32 {
     };
     // Runs are simulated: they never append to the rig's records file.
     config.records = None;
+    // On a stack that holds whatever the script can build within its memory limit (the
+    // shrinking replays run here; each worker gets one too).
+    let memory = config.limits.memory;
+    crate::script::stack::on_script_stack(memory, move || verify_configured(args, config))
+}
+
+/// `verify` itself, once its rig is known.
+fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
     let file = args.script.display().to_string();
     let source = match read_text(&args.script, TextKind::Script) {
         Ok(s) => s,

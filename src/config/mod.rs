@@ -40,6 +40,23 @@ use wake_latency::ACCEPTED_FORMS as WAKE_FORMS;
 /// Scan period when rig.toml does not set one: 50 ticks a second.
 pub const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
 
+/// The longest scan period: a tick reads the inputs the handlers wait for, so a longer one
+/// would leave a press or a guard opening unseen for that long (slow work is `every("30s")`).
+pub const MAX_PERIOD: Duration = Duration::from_secs(10);
+
+/// `period` as rig.toml and `--period` take it: above zero, at most `MAX_PERIOD`; else what
+/// to write instead (after the value, as in `"30s" is ...`).
+pub fn check_period(period: Duration) -> Result<Duration, &'static str> {
+    if period.is_zero() || period > MAX_PERIOD {
+        return Err(
+            "is not a period: use above zero up to 10s (each tick reads the inputs \
+                    the handlers wait for, so a longer period leaves an input change unseen \
+                    that long; for slow work keep the period and use every(\"30s\", ..))",
+        );
+    }
+    Ok(period)
+}
+
 /// How long a device may be lost before its safe state is enforced, when not configured.
 pub const DEFAULT_GRACE: Duration = Duration::from_secs(1);
 
@@ -142,9 +159,8 @@ impl RigConfig {
         r.check_keys(&root, TOP_KEYS);
         let defaults = Self::default();
         let period = r
-            .read(&root, "period", |v| match duration(v)? {
-                d if d.is_zero() => Err(reader::bad(v, "is not a period; it must be above zero")),
-                d => Ok(d),
+            .read(&root, "period", |v| {
+                check_period(duration(v)?).map_err(|why| reader::bad(v, why))
             })
             .unwrap_or(defaults.period);
         let on_error = r

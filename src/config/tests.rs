@@ -385,7 +385,7 @@ fn bad_values_name_line_and_key() {
     let cases: &[(&str, &str)] = &[
         (
             "period = \"0ms\"",
-            r#"rig.toml:1: period: "0ms" is not a period; it must be above zero"#,
+            r#"rig.toml:1: period: "0ms" is not a period: use above zero up to 10s (each tick reads the inputs the handlers wait for, so a longer period leaves an input change unseen that long; for slow work keep the period and use every("30s", ..))"#,
         ),
         (
             "period = 20",
@@ -401,7 +401,11 @@ fn bad_values_name_line_and_key() {
         ),
         (
             "\nperiod = \"0s\"",
-            r#"rig.toml:2: period: "0s" is not a period; it must be above zero"#,
+            r#"rig.toml:2: period: "0s" is not a period: use above zero up to 10s (each tick reads the inputs the handlers wait for, so a longer period leaves an input change unseen that long; for slow work keep the period and use every("30s", ..))"#,
+        ),
+        (
+            "period = \"10.5s\"",
+            r#"rig.toml:1: period: "10.5s" is not a period: use above zero up to 10s (each tick reads the inputs the handlers wait for, so a longer period leaves an input change unseen that long; for slow work keep the period and use every("30s", ..))"#,
         ),
         (
             "period = \"fast\"",

@@ -1,7 +1,8 @@
 //! The exit statuses of `rigscript run`, for cron, systemd and shell scripts: 0 only when the
 //! run ended as planned with nothing wrong on the way; 1-5 for what went wrong, worst first;
 //! 70 for a bug in rigscript (sysexits' EX_SOFTWARE); 128 + the signal for a run stopped by
-//! SIGINT (130) or SIGTERM (143), as shells report it (a unit lists them in systemd's
+//! SIGINT (130), SIGTERM (143) or any other ending signal (`runtime::signals::ENDING`: SIGHUP
+//! 129, SIGQUIT 131, SIGUSR1 138, SIGUSR2 140, SIGALRM 142, SIGXFSZ 153), as shells report it (a unit lists them in systemd's
 //! `SuccessExitStatus=` to count `systemctl stop` as success). `stop(code)` ends with its code.
 //!
 //! Where several apply, the first of: 70, 1, `stop(code)` (not 0), 5, 4, 128 + signal, 0. A
@@ -27,7 +28,7 @@ pub const TROUBLE: i32 = 5;
 /// and the host watchdogs left on.
 pub const INTERNAL: i32 = 70;
 
-/// The status of a run stopped by signal `signal` (SIGINT: 130, SIGTERM: 143).
+/// The status of a run stopped by signal `signal` (SIGINT: 130, SIGTERM: 143, SIGHUP: 129).
 pub fn signal(signal: i32) -> i32 {
     128 + signal
 }
@@ -45,7 +46,9 @@ Exit status (the first that applies):
        confirm (read back), an on_stop handler that failed, records the
        records file did not take (a full disk, a pipe nobody reads)
     4  a measurement out of its limits
-  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)
+  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15); any other
+       ending signal 128 + its number: 129 SIGHUP, 131 SIGQUIT, 138 SIGUSR1,
+       140 SIGUSR2, 142 SIGALRM, 153 SIGXFSZ (a file past ulimit -f)
     0  the run ended as planned (--for, stop(), nothing left to do)
   128 + N  the runner died of signal N (137 kill -9 or the OOM killer, 134 an abort,
        139 a crash): its guardian wrote and read back the safe state (the log says)
@@ -60,6 +63,17 @@ mod tests {
     fn signals_follow_the_shell_convention() {
         assert_eq!(signal(2), 130);
         assert_eq!(signal(15), 143);
+        for (n, status) in [
+            (1, 129),
+            (3, 131),
+            (10, 138),
+            (12, 140),
+            (14, 142),
+            (25, 153),
+        ] {
+            assert_eq!(signal(n), status);
+            assert!(TABLE.contains(&status.to_string()), "{status} in the table");
+        }
     }
 
     #[test]

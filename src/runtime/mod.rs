@@ -16,6 +16,7 @@ mod registry;
 pub mod safety;
 pub mod scan;
 pub mod schedule;
+pub mod signals;
 pub mod state;
 pub mod stats;
 pub mod subscriptions;

@@ -12,23 +12,25 @@ use super::error_log::ErrorLog;
 use super::exit;
 use super::invariants::{Check, Violation};
 use super::safety::DeviceEnd;
+use super::signals;
 use super::state::Runtime;
 use super::stats::Stats;
-use super::subscriptions::Call;
+use super::subscriptions::{Call, STOP_BUDGET};
 use super::wake_latency;
 use crate::config::{ErrorPolicy, WakeLatency};
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
-use signal_hook::consts::{SIGINT, SIGTERM};
+use signal_hook::consts::SIGTERM;
 use std::cell::RefCell;
+use std::io::Write;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-/// How long the loop sleeps at most before it looks at the stop flag again, so that SIGINT and
-/// SIGTERM are handled promptly whatever the period.
+/// How long the loop sleeps at most before it looks at the stop flag again, so that an ending
+/// signal is handled promptly whatever the period.
 pub const SLEEP_SLICE: Duration = Duration::from_millis(20);
 
 /// How often each device is checked (`Runtime::check_devices`: a module reset, swapped or
@@ -61,6 +63,17 @@ pub struct Fault {
     pub over_budget: bool,
 }
 
+/// What bounds an `on_stop` call besides the script's limits per call.
+#[derive(Debug, Clone)]
+pub struct StopLimit {
+    /// When the budget of all the stop's `on_stop` handlers runs out, on the run's clock.
+    pub until: Duration,
+    /// That budget (`subscriptions::STOP_BUDGET`), for the message.
+    pub budget: Duration,
+    /// The run's stop flag, cleared as the stop began: set again by another signal.
+    pub signal: Arc<AtomicUsize>,
+}
+
 /// The script, as the scan loop sees it.
 pub trait Program {
     /// The script's handler type.
@@ -71,6 +84,12 @@ pub trait Program {
     fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
     /// Evaluates an invariant: whether it holds.
     fn holds(&mut self, check: &Check<Self::Handler>) -> Result<bool, Fault>;
+    /// Runs an `on_stop` handler, stopped also once `limit` runs out or another signal
+    /// comes; a program without a way to stop a call midway just runs it.
+    fn call_in_stop(&mut self, call: &Call<Self::Handler>, limit: StopLimit) -> Result<(), Fault> {
+        let _ = limit;
+        self.call(call)
+    }
 }
 
 /// How a run is driven.
@@ -82,7 +101,7 @@ pub struct RunOptions {
     pub policy: ErrorPolicy,
     /// End the run normally after this long (`--for`).
     pub end_after: Option<Duration>,
-    /// The number of the signal that asks the run to stop (SIGINT, SIGTERM; 0: none), set by
+    /// The number of the signal that asks the run to stop (`signals::ENDING`; 0: none), set by
     /// the signal handler or a scenario test: stop at once, outputs safe. It also cuts the
     /// exchange under way short (`device::cancel`), within a `CANCEL_SLICE`.
     pub stop_flag: Arc<AtomicUsize>,
@@ -99,7 +118,7 @@ pub enum EndReason {
     Finished(String),
     /// The script called `stop(code)`.
     Stopped(i64),
-    /// SIGINT or SIGTERM (the signal's number).
+    /// An ending signal (`runtime::signals::ENDING`: the signal's number).
     Signal(i32),
     /// A script or runtime error (policy `stop`, or at the first start).
     Error(String),
@@ -324,28 +343,67 @@ impl<P: Program> Runner<P> {
             {
                 return;
             }
-            let (feed, retry) = {
+            let (feed, retry, grace, held) = {
                 let rt = self.rt.borrow();
                 // A retry already overdue waits for the tick (or was skipped while stopping).
-                (rt.next_feed(), rt.next_retry().filter(|&due| due > now))
+                (
+                    rt.next_feed(),
+                    rt.next_retry().filter(|&due| due > now),
+                    rt.grace_ends(),
+                    rt.held_safe,
+                )
             };
+            let end = self.end_at();
             let mut until = target;
             if watch_stop {
                 until = until.min(now.saturating_add(SLEEP_SLICE));
             }
-            for due in [feed, retry].into_iter().flatten() {
-                until = until.min(due);
+            for due in [feed, retry, grace, end].into_iter().flatten() {
+                until = until.min(due.max(now));
             }
             self.clock.sleep_until(until);
             // A lost device is tried when its time comes, not at the next tick: with a long
             // period its watchdog would go unfed past its timeout.
-            if retry.is_some_and(|due| self.clock.now() >= due) {
+            let retried = retry.is_some_and(|due| self.clock.now() >= due);
+            if retried {
                 self.guarded(|r| r.rt.borrow_mut().supervise());
+            }
+            // The end of a grace time holds the outputs safe at once, not at the next tick
+            // (with only a slow timer, that was the next output check, 5 s on).
+            if retried || grace.is_some_and(|due| self.clock.now() >= due) {
+                self.guarded(|r| r.rt.borrow_mut().hold_safe_between_ticks(held));
             }
             if feed.is_some_and(|due| self.clock.now() >= due) {
                 self.guarded(|r| r.rt.borrow_mut().feed_watchdogs());
             }
+            // `--for` ends when it is over, not at the next period boundary.
+            if end.is_some_and(|due| self.clock.now() >= due) {
+                self.guarded(|r| {
+                    r.end_if_over();
+                });
+            }
         }
+    }
+
+    /// When `--for` is over, if it was given.
+    fn end_at(&self) -> Option<Duration> {
+        let end = self.options.end_after?;
+        Some(self.rt.borrow().started.saturating_add(end))
+    }
+
+    /// Ends the run if `--for` is over; true if it did.
+    fn end_if_over(&mut self) -> bool {
+        let Some(end) = self.options.end_after else {
+            return false;
+        };
+        if self.status().is_some() || self.rt.borrow().uptime() < end {
+            return false;
+        }
+        self.finish(EndReason::Finished(format!(
+            "ran for {}",
+            crate::time::duration::format_duration(end)
+        )));
+        true
     }
 
     /// Runs ticks until the clock has advanced by `by` (virtual time: scenario tests).
@@ -438,15 +496,8 @@ impl<P: Program> Runner<P> {
         if self.ended_by_signal() {
             return;
         }
-        let uptime = self.rt.borrow().uptime();
-        if let Some(end) = self.options.end_after {
-            if uptime >= end {
-                self.finish(EndReason::Finished(format!(
-                    "ran for {}",
-                    crate::time::duration::format_duration(end)
-                )));
-                return;
-            }
+        if self.end_if_over() {
+            return;
         }
         self.rt.borrow_mut().supervise();
         if self.ended_by_signal() {
@@ -546,6 +597,15 @@ impl<P: Program> Runner<P> {
             }
             let result = self.program.call(&call);
             if let Err(f) = result {
+                if self.stop_signal().is_some() {
+                    // The signal came while the handler ran, and the run ends by it; the
+                    // error is told (often of the same cause: an exchange the stop cut, a
+                    // write past the file size limit as SIGXFSZ came).
+                    let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
+                    self.rt.borrow_mut().log.error(&message);
+                    return;
+                }
                 if !self.handle_fault(&f, &call.label) {
                     return;
                 }
@@ -681,8 +741,11 @@ impl<P: Program> Runner<P> {
             match &reason {
                 EndReason::Error(m) => rt.log.error(m),
                 EndReason::Signal(n) => {
-                    rt.log
-                        .info(&format!("stopping: {} received", signal_name(*n)));
+                    rt.log.info(&format!(
+                        "stopping: {} received ({})",
+                        signals::name(*n),
+                        signals::likely_cause(*n)
+                    ));
                 }
                 EndReason::Stopped(code) => {
                     rt.log
@@ -693,21 +756,19 @@ impl<P: Program> Runner<P> {
                 EndReason::Violated(_) => {}
             }
         }
-        // What follows comes after the stop and is not cut: `on_stop` handlers as the script
-        // wrote them, the end's writes with their own bounded tries.
-        self.rt.borrow_mut().set_cancel(&Cancel::never());
+        // The signal that stopped the run (if one did) has been seen: the flag now tells of
+        // another one, which cuts the `on_stop` handlers short (their exchanges, the handler
+        // under way, the ones left) and goes straight to the end's writes.
+        let flag = Arc::clone(&self.options.stop_flag);
+        flag.store(0, Ordering::SeqCst);
+        self.rt
+            .borrow_mut()
+            .set_cancel(&Cancel::when_set(Arc::clone(&flag)));
         if was_running {
-            let calls = self.rt.borrow().stop_calls();
-            for call in calls {
-                self.rt.borrow_mut().cause.clone_from(&call.label);
-                if let Err(f) = self.program.call(&call) {
-                    let message = describe(&f, &call.label);
-                    self.errors.push(&message, f.over_budget);
-                    self.rt.borrow_mut().log.error(&message);
-                    self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
-                }
-            }
+            self.run_stop_handlers(&flag);
         }
+        // The end's writes are not cut: they come after the stop, with their own bounded tries.
+        self.rt.borrow_mut().set_cancel(&Cancel::never());
         let mut rt = self.rt.borrow_mut();
         self.trouble.refused_writes = rt
             .devices
@@ -758,6 +819,66 @@ impl<P: Program> Runner<P> {
             None => rt.log.info(&format!("stopped; exit status {status}")),
         }
         self.state = State::Stopped { status };
+    }
+}
+
+impl<P: Program> Runner<P> {
+    /// Runs the `on_stop` handlers in the order they were added, all of them together within
+    /// `STOP_BUDGET` (each also within the script's limits per call); skips the rest once the
+    /// budget is spent or another signal sets `flag`. A handler the budget cuts off, and each
+    /// one skipped for it, is a failed one; another signal's cut is what its sender asked for.
+    fn run_stop_handlers(&mut self, flag: &Arc<AtomicUsize>) {
+        let calls = self.rt.borrow().stop_calls();
+        let until = self.clock.now().saturating_add(STOP_BUDGET);
+        let count = calls.len();
+        for (done, call) in calls.iter().enumerate() {
+            let signal = flag.load(Ordering::SeqCst);
+            let over = self.clock.now() >= until;
+            if signal != 0 || over {
+                let left = count - done;
+                let why = match i32::try_from(signal) {
+                    Ok(n) if n != 0 => format!("{} received while stopping", signals::name(n)),
+                    _ => format!(
+                        "the on_stop handlers' {} are spent",
+                        crate::time::duration::format_duration(STOP_BUDGET)
+                    ),
+                };
+                self.rt.borrow_mut().log.warn(&format!(
+                    "{why}: {left} on_stop handler(s) skipped, straight to the safe state"
+                ));
+                if signal == 0 {
+                    self.trouble.on_stop_failed =
+                        self.trouble.on_stop_failed.saturating_add(left as u64);
+                }
+                return;
+            }
+            self.rt.borrow_mut().cause.clone_from(&call.label);
+            let limit = StopLimit {
+                until,
+                budget: STOP_BUDGET,
+                signal: Arc::clone(flag),
+            };
+            let result = self.program.call_in_stop(call, limit);
+            let cut_by = flag.load(Ordering::SeqCst);
+            match result {
+                // Asked for by whoever sent the signal: no failure of the script's.
+                Err(_) if cut_by != 0 => {
+                    let signal = i32::try_from(cut_by).unwrap_or(SIGTERM);
+                    self.rt.borrow_mut().log.warn(&format!(
+                        "{}: cut off by {} while stopping",
+                        call.label,
+                        signals::name(signal)
+                    ));
+                }
+                Err(f) => {
+                    let message = describe(&f, &call.label);
+                    self.errors.push(&message, f.over_budget);
+                    self.rt.borrow_mut().log.error(&message);
+                    self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
+                }
+                Ok(()) => {}
+            }
+        }
     }
 }
 
@@ -838,15 +959,6 @@ impl Trouble {
     }
 }
 
-/// SIGINT or SIGTERM by name, for the log.
-fn signal_name(n: i32) -> String {
-    match n {
-        SIGINT => "SIGINT".into(),
-        SIGTERM => "SIGTERM".into(),
-        other => format!("signal {other}"),
-    }
-}
-
 /// After a panic (a bug) in the runner: the safe state written through the drivers to every
 /// device that answers, logged with `message`; the host watchdogs are left on, so a module the
 /// write did not reach goes safe by itself. Says so on stderr if even that fails.
@@ -865,7 +977,9 @@ pub fn safe_after_panic<H: Clone>(rt: &Shared<H>, message: &str) {
         true
     }));
     if !matches!(ended, Ok(true)) {
-        eprintln!(
+        // A closed stderr loses this line rather than panic again.
+        let _ = writeln!(
+            std::io::stderr(),
             "rigscript: internal error ({message}) and the safe state could not be written after \
              it; the modules' host watchdogs, where on, drive their outputs safe"
         );
@@ -1299,5 +1413,198 @@ mod tests {
             "{log}"
         );
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "the others get theirs");
+    }
+
+    /// A program that turns the panel's relay off its safe position and then has only a slow
+    /// timer: nothing in it makes the loop tick before that timer.
+    struct SlowTimer {
+        rt: Shared<&'static str>,
+    }
+
+    impl Program for SlowTimer {
+        type Handler = &'static str;
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            rt.set_relay(crate::runtime::testing::PANEL, 5);
+            rt.every(Duration::from_secs(30), "slow").unwrap();
+            Ok(())
+        }
+        fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
+        fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+            Ok(())
+        }
+    }
+
+    fn slow_timer(
+        period: Duration,
+        end_after: Option<Duration>,
+    ) -> (Runner<SlowTimer>, crate::runtime::testing::TestRig) {
+        let mut r = crate::runtime::testing::TestRig::started();
+        let rt = r.shared_runtime();
+        let program = SlowTimer { rt: Rc::clone(&rt) };
+        let options = RunOptions {
+            period,
+            policy: ErrorPolicy::Stop,
+            end_after,
+            stop_flag: Arc::default(),
+            wake_latency: WakeLatency::Off,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        (runner, r)
+    }
+
+    #[test]
+    fn a_lost_devices_grace_end_holds_every_output_safe_at_once_whatever_the_period() {
+        for period in [Duration::from_millis(20), Duration::from_secs(10)] {
+            let (mut runner, r) = slow_timer(period, None);
+            runner.advance(Duration::from_millis(100));
+            assert_eq!(r.sim.relay("panel").unwrap(), 5, "at work");
+            r.sim.set_gone("io", true).unwrap();
+            // Lost at its next watchdog feed; held safe once lost for longer than grace (1 s).
+            let step = Duration::from_millis(10);
+            let started = r.clock.now();
+            while r.sim.relay("panel").unwrap() != 3
+                && r.clock.now() - started < Duration::from_secs(20)
+            {
+                runner.advance(step);
+            }
+            let held_at = r.clock.now();
+            let lost_at = runner.runtime().borrow().devices[crate::runtime::testing::IO]
+                .health()
+                .lost_at
+                .expect("io is lost");
+            let log = runner.runtime().borrow().log.lines().join("\n");
+            assert_eq!(r.sim.relay("panel").unwrap(), 3, "{period:?}: {log}");
+            let grace = Duration::from_secs(1);
+            assert!(
+                held_at <= lost_at + grace + step,
+                "{period:?}: lost at {lost_at:?}, the panel safe at {held_at:?}: {log}"
+            );
+            assert!(
+                log.contains("every output is held at its safe state"),
+                "{log}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_end_of_for_is_honoured_to_the_sleep_slice_not_the_period() {
+        let (mut runner, r) = slow_timer(Duration::from_secs(10), Some(Duration::from_secs(2)));
+        let status = runner.run();
+        assert_eq!(status, exit::OK);
+        let ended = r.clock.now();
+        assert!(
+            ended >= Duration::from_secs(2) && ended <= Duration::from_secs(2) + SLEEP_SLICE,
+            "ended at {ended:?}"
+        );
+        let log = runner.runtime().borrow().log.lines().join("\n");
+        assert!(log.contains("stopping: ran for 2s"), "{log}");
+    }
+
+    /// A program with `handlers` on_stop handlers, each taking `burn` of virtual time; the
+    /// one numbered `signal_in` (if any) "receives" SIGINT meanwhile.
+    struct StopBurner {
+        rt: Shared<()>,
+        clock: VirtualClock,
+        handlers: usize,
+        burn: Duration,
+        signal_in: Option<usize>,
+        flag: Arc<AtomicUsize>,
+        calls: usize,
+    }
+
+    impl Program for StopBurner {
+        type Handler = ();
+        fn start(&mut self) -> Result<(), Fault> {
+            let mut rt = self.rt.borrow_mut();
+            for _ in 0..self.handlers {
+                rt.on_stop(()).unwrap();
+            }
+            rt.every(Duration::from_secs(1), ()).unwrap();
+            Ok(())
+        }
+        fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+            // This program states no invariants.
+            Ok(true)
+        }
+        fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+            self.calls += 1;
+            self.clock.advance(self.burn);
+            if self.signal_in == Some(self.calls) {
+                self.flag.store(libc::SIGINT as usize, Ordering::SeqCst);
+            }
+            Ok(())
+        }
+    }
+
+    fn stop_burner(
+        handlers: usize,
+        burn: Duration,
+        signal_in: Option<usize>,
+    ) -> (Runner<StopBurner>, VirtualClock) {
+        let (r, clock) = runner(Duration::from_secs(3600), Duration::ZERO, ErrorPolicy::Stop);
+        let rt = Rc::clone(r.runtime());
+        let flag: Arc<AtomicUsize> = Arc::default();
+        let program = StopBurner {
+            rt: Rc::clone(&rt),
+            clock: clock.clone(),
+            handlers,
+            burn,
+            signal_in,
+            flag: Arc::clone(&flag),
+            calls: 0,
+        };
+        let options = RunOptions {
+            period: Duration::from_millis(20),
+            policy: ErrorPolicy::Stop,
+            end_after: None,
+            stop_flag: flag,
+            wake_latency: WakeLatency::Off,
+        };
+        let mut r = Runner::new(rt, program, options);
+        r.start();
+        (r, clock)
+    }
+
+    #[test]
+    fn on_stop_handlers_share_one_budget_and_the_rest_are_skipped() {
+        let (mut r, clock) = stop_burner(100, Duration::from_millis(300), None);
+        r.advance(Duration::from_millis(100));
+        let stopped_at = clock.now();
+        r.signal_stop();
+        // 300 ms each: the seventh starts before 2 s are spent and ends past them.
+        assert_eq!(r.program().calls, 7);
+        assert!(clock.now() - stopped_at <= STOP_BUDGET + Duration::from_millis(300));
+        let log = r.runtime().borrow().log.lines().join("\n");
+        assert!(
+            log.contains("the on_stop handlers' 2s are spent: 93 on_stop handler(s) skipped, straight to the safe state"),
+            "{log}"
+        );
+        assert_eq!(
+            r.status(),
+            Some(exit::TROUBLE),
+            "skipped handlers are failed ones"
+        );
+    }
+
+    #[test]
+    fn a_second_signal_while_stopping_skips_the_remaining_on_stop_handlers() {
+        let (mut r, _clock) = stop_burner(5, Duration::from_millis(10), Some(2));
+        r.advance(Duration::from_millis(100));
+        r.signal_stop();
+        assert_eq!(r.program().calls, 2, "none after the second signal");
+        let log = r.runtime().borrow().log.lines().join("\n");
+        let skipped = log
+            .find("SIGINT received while stopping: 3 on_stop handler(s) skipped, straight to the safe state")
+            .unwrap_or_else(|| panic!("{log}"));
+        let end = log
+            .find("stopped; exit status 143")
+            .unwrap_or_else(|| panic!("{log}"));
+        assert!(skipped < end, "{log}");
+        assert_eq!(r.status(), Some(exit::signal(SIGTERM)));
     }
 }

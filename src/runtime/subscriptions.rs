@@ -332,8 +332,32 @@ impl<H: Clone> Subscriptions<H> {
     }
 }
 
+/// The most `on_stop` handlers a script may register: together they get `STOP_BUDGET`, so
+/// more would only be cut off.
+pub const MAX_STOP_HANDLERS: usize = 100;
+
+/// How long all the `on_stop` handlers of a stop may take together (each also within the
+/// script's limits per call): a stop must reach the safe state whatever the script does.
+pub const STOP_BUDGET: Duration = Duration::from_secs(2);
+
+/// One `on_stop` too many (`MAX_STOP_HANDLERS`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "too many on_stop handlers (at most {MAX_STOP_HANDLERS}, with 2s for all of them): do the \
+     work of several in one"
+)]
+pub struct TooManyStopHandlers;
+
 /// The script's side: what its registrations do to the run's handlers.
 impl<H: Clone> Runtime<H> {
+    /// `on_stop(fn)`; refused past `MAX_STOP_HANDLERS`.
+    pub fn on_stop(&mut self, handler: H) -> Result<u64, TooManyStopHandlers> {
+        if self.handlers.stops.len() >= MAX_STOP_HANDLERS {
+            return Err(TooManyStopHandlers);
+        }
+        Ok(self.handlers.add(Source::Stop, handler, "on_stop".into()))
+    }
+
     /// Adds a handler; returns its id.
     pub fn subscribe(&mut self, source: Source, handler: H, label: String) -> u64 {
         self.handlers.add(source, handler, label)

@@ -687,10 +687,8 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("on_stop", move |f: FnPtr| -> R<i64> {
         a.check(&f, "on_stop", &[])?;
-        let id = r
-            .borrow_mut()
-            .subscribe(Source::Stop, f, "on_stop".to_string());
-        Ok(id_value(id))
+        let id = r.borrow_mut().on_stop(f);
+        id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let r = Rc::clone(rt);
     engine.register_fn("stop", move || -> R<()> { stop(&r, 0) });

@@ -18,6 +18,7 @@
 
 use crate::config::ScriptLimits;
 use crate::heap::{self, format_bytes};
+use crate::runtime::scan::StopLimit;
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
 use rhai::{Array, Dynamic, Engine, EvalAltResult, EvalContext, ImmutableString, Map, Position};
@@ -92,6 +93,14 @@ pub enum Breach {
         /// Heap the run held when it was noticed (`heap::RunHeap`).
         used: u64,
     },
+    /// An `on_stop` handler ran past what was left of the stop's budget for all of them.
+    StopBudget {
+        /// The budget of all the `on_stop` handlers together.
+        budget: Duration,
+    },
+    /// Another ending signal came while an `on_stop` handler ran: the stop goes straight to
+    /// the safe state.
+    StopCut,
     /// Function calls nested too deep.
     Depth,
     /// A string, array or map grew past its size limit.
@@ -111,7 +120,10 @@ impl Breach {
     pub fn is_runaway(&self) -> bool {
         matches!(
             self,
-            Breach::Operations { .. } | Breach::Time { .. } | Breach::Memory { .. }
+            Breach::Operations { .. }
+                | Breach::Time { .. }
+                | Breach::Memory { .. }
+                | Breach::StopBudget { .. }
         )
     }
 
@@ -136,6 +148,12 @@ impl Breach {
                 format_bytes(*used),
                 format_bytes(*limit)
             ),
+            Breach::StopBudget { budget } => format!(
+                "the on_stop handlers ran past the {} they have together (a stop must reach \
+                 the safe state whatever the script does): do less in on_stop",
+                format_duration(*budget)
+            ),
+            Breach::StopCut => "cut off by another signal while stopping".into(),
             Breach::Depth => format!(
                 "function calls nested more than {MAX_CALL_LEVELS} deep (runaway recursion?)"
             ),
@@ -166,6 +184,11 @@ pub struct Guard {
     breach: std::cell::RefCell<Option<Breach>>,
     cut_off_at: Cell<u64>,
     heap: heap::RunHeap,
+    /// Within a stop, for this call: when the stop's budget runs out, and the flag another
+    /// signal sets.
+    stop: std::cell::RefCell<Option<StopLimit>>,
+    /// Whether `stop` is set: the one thing looked at per operation outside a stop.
+    in_stop: Cell<bool>,
 }
 
 impl Guard {
@@ -187,6 +210,8 @@ impl Guard {
             breach: std::cell::RefCell::new(None),
             cut_off_at: Cell::new(0),
             heap: heap::RunHeap::start(),
+            stop: std::cell::RefCell::new(None),
+            in_stop: Cell::new(false),
         });
         guard.begin_call();
         // Rhai's own limits, beyond the guard's: a backstop for what the guard cannot see
@@ -217,6 +242,14 @@ impl Guard {
         self.seen_transactions
             .set(self.transactions.load(Ordering::Relaxed));
         self.breach.replace(None);
+        self.stop.replace(None);
+        self.in_stop.set(false);
+    }
+
+    /// The call that just began is an `on_stop` handler's, bounded by `limit` too.
+    pub fn within_stop(&self, limit: StopLimit) {
+        self.stop.replace(Some(limit));
+        self.in_stop.set(true);
     }
 
     /// The call has ended: the limit it went over, if any (whether or not the script caught
@@ -278,21 +311,49 @@ impl Guard {
                 used,
             });
         }
+        if self.in_stop.get() && self.stop_signalled() {
+            return Some(Breach::StopCut);
+        }
         let tx = self.transactions.load(Ordering::Relaxed);
         if ops % CLOCK_EVERY == 0 || tx != self.seen_transactions.get() {
             self.seen_transactions.set(tx);
-            let ran = self.clock.now().saturating_sub(self.started.get());
+            let now = self.clock.now();
+            let ran = now.saturating_sub(self.started.get());
             if ran > self.limits.handler_time {
                 return Some(Breach::Time {
                     limit: self.limits.handler_time,
                 });
             }
+            if let Some(budget) = self.in_stop.get().then(|| self.stop_over(now)).flatten() {
+                return Some(Breach::StopBudget { budget });
+            }
         }
         None
     }
 
+    /// Within a stop: whether another signal has come.
+    fn stop_signalled(&self) -> bool {
+        self.stop
+            .borrow()
+            .as_ref()
+            .is_some_and(|s| s.signal.load(Ordering::Relaxed) != 0)
+    }
+
+    /// Within a stop: its budget, if it is spent at `now`.
+    fn stop_over(&self, now: Duration) -> Option<Duration> {
+        let stop = self.stop.borrow();
+        let stop = stop.as_ref()?;
+        (now > stop.until).then_some(stop.budget)
+    }
+
     fn trip(&self, breach: Breach, ops: u64) {
-        self.cut_off_at.set(ops.saturating_add(GRACE_OPERATIONS));
+        // A stop's limits cut at the next operation: reaching the safe state matters more
+        // than a line for the error (each operation could be a device exchange).
+        let grace = match breach {
+            Breach::StopBudget { .. } | Breach::StopCut => 0,
+            _ => GRACE_OPERATIONS,
+        };
+        self.cut_off_at.set(ops.saturating_add(grace));
         self.breach.replace(Some(breach));
     }
 }
@@ -488,5 +549,58 @@ mod tests {
         let (text, pos) = limit_error(&err);
         assert!(text.contains("nested more than 48 deep"), "{text}");
         assert_eq!(pos.line(), Some(2), "{err:?}");
+    }
+
+    #[test]
+    fn a_call_in_a_stop_ends_with_the_stops_budget_or_another_signal() {
+        let clock = VirtualClock::at_epoch();
+        let transactions = Arc::new(AtomicU64::new(0));
+        let (mut e, guard) =
+            guarded_counting(ScriptLimits::default(), &clock, Arc::clone(&transactions));
+        let c = clock.clone();
+        // A device exchange that takes 100 ms of the run's time.
+        e.register_fn("slow", move || {
+            transactions.fetch_add(1, Ordering::Relaxed);
+            c.advance(Duration::from_millis(100));
+        });
+        let signal = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let limit = StopLimit {
+            until: clock.now() + Duration::from_millis(250),
+            budget: Duration::from_secs(2),
+            signal: Arc::clone(&signal),
+        };
+        guard.begin_call();
+        guard.within_stop(limit.clone());
+        let _ = e.run("loop {\n  slow();\n}").unwrap_err();
+        let breach = guard.end_call();
+        assert_eq!(
+            breach,
+            Some(Breach::StopBudget {
+                budget: Duration::from_secs(2)
+            })
+        );
+        let cause = breach.map(|b| b.cause()).unwrap_or_default();
+        assert!(
+            cause.contains("ran past the 2s they have together"),
+            "{cause}"
+        );
+        assert!(
+            clock.now() <= Duration::from_millis(400),
+            "{:?}",
+            clock.now()
+        );
+        // Another signal cuts it at once, budget or not.
+        guard.begin_call();
+        guard.within_stop(StopLimit {
+            until: clock.now() + Duration::from_secs(60),
+            ..limit
+        });
+        signal.store(15, Ordering::SeqCst);
+        let _ = e.run("let x = 0;\nloop { x += 1; }").unwrap_err();
+        assert_eq!(guard.end_call(), Some(Breach::StopCut));
+        // Outside a stop neither applies.
+        guard.begin_call();
+        e.run("let y = 0;\nwhile y < 10 { y += 1; }").unwrap();
+        assert_eq!(guard.end_call(), None);
     }
 }

@@ -13,5 +13,6 @@ pub mod program;
 pub mod reads;
 pub mod rig;
 pub mod scenario;
+pub mod stack;
 pub mod test_budget;
 pub mod values;

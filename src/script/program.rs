@@ -9,7 +9,7 @@ use super::error::{breach_fault, fault, innermost, is_stop};
 use super::reads::{ReadSet, ReadTracker};
 use crate::config::ScriptLimits;
 use crate::runtime::invariants::Check;
-use crate::runtime::scan::{Fault, Program};
+use crate::runtime::scan::{Fault, Program, StopLimit};
 use crate::runtime::subscriptions::{Arg, Call};
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
 use std::collections::BTreeMap;
@@ -131,6 +131,38 @@ impl ScriptProgram {
         }
     }
 
+    /// Runs one handler, within `stop` too when it is an `on_stop` handler's call in a stop.
+    fn call_limited(&mut self, call: &Call<FnPtr>, stop: Option<StopLimit>) -> Result<(), Fault> {
+        let n = self.arities.pick(&call.handler, call.args.len());
+        let args: Vec<Dynamic> = call
+            .args
+            .iter()
+            .take(n)
+            .map(|a| match a {
+                Arg::Int(i) => Dynamic::from(*i),
+                Arg::Str(s) => Dynamic::from(s.clone()),
+            })
+            .collect();
+        self.guard.begin_call();
+        if let Some(limit) = stop {
+            self.guard.within_stop(limit);
+        }
+        let result = call
+            .handler
+            .call::<Dynamic>(&self.engine, &self.ast, args)
+            .map(|_| ());
+        if let Some(c) = self.coverage.as_mut() {
+            match c.fired.get_mut(&call.label) {
+                Some(n) => *n = n.saturating_add(1),
+                None => {
+                    c.fired.insert(call.label.clone(), 1);
+                }
+            }
+        }
+        self.note_reads(None);
+        self.outcome(result, || self.body_start(&call.handler, n))
+    }
+
     /// A runtime error as a fault; a call Rhai found no function for is told in `check`'s
     /// words (its raw "Function not found: set_ouptut (TRP-C29U, i64, bool)" says little).
     fn fault(&self, err: &EvalAltResult, fallback: Position) -> Fault {
@@ -173,31 +205,11 @@ impl Program for ScriptProgram {
     }
 
     fn call(&mut self, call: &Call<FnPtr>) -> Result<(), Fault> {
-        let n = self.arities.pick(&call.handler, call.args.len());
-        let args: Vec<Dynamic> = call
-            .args
-            .iter()
-            .take(n)
-            .map(|a| match a {
-                Arg::Int(i) => Dynamic::from(*i),
-                Arg::Str(s) => Dynamic::from(s.clone()),
-            })
-            .collect();
-        self.guard.begin_call();
-        let result = call
-            .handler
-            .call::<Dynamic>(&self.engine, &self.ast, args)
-            .map(|_| ());
-        if let Some(c) = self.coverage.as_mut() {
-            match c.fired.get_mut(&call.label) {
-                Some(n) => *n = n.saturating_add(1),
-                None => {
-                    c.fired.insert(call.label.clone(), 1);
-                }
-            }
-        }
-        self.note_reads(None);
-        self.outcome(result, || self.body_start(&call.handler, n))
+        self.call_limited(call, None)
+    }
+
+    fn call_in_stop(&mut self, call: &Call<FnPtr>, limit: StopLimit) -> Result<(), Fault> {
+        self.call_limited(call, Some(limit))
     }
 
     fn holds(&mut self, check: &Check<FnPtr>) -> Result<bool, Fault> {

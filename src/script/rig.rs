@@ -6,21 +6,22 @@ use super::engine::sandboxed;
 use super::error::parse_error;
 use super::program::ScriptProgram;
 use crate::config::RigConfig;
+use crate::device::cancel::Cancel;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
-use crate::runtime::exit;
+use crate::runtime::devices::{open_devices, Device, OpenError, Opened, SimRig};
 use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::safety::Unavailable;
 use crate::runtime::scan::{panic_message, safe_after_panic, RunOptions, Runner};
 use crate::runtime::state::Runtime;
+use crate::runtime::{exit, signals};
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::cell::RefCell;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::rc::Rc;
-use std::sync::atomic::AtomicUsize;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -82,6 +83,10 @@ pub enum RigError {
     /// A device does not answer (exit 3).
     #[error(transparent)]
     Unavailable(#[from] Unavailable),
+    /// An ending signal came while the devices were being taken control of (exit 128 +
+    /// the signal); the devices already under control were left safe.
+    #[error("stopped during the start by {}", signals::name(*.0))]
+    Signal(i32),
     /// A bug: a panic while taking control of the devices (exit 70).
     #[error("internal error (a bug in rigscript; please report it): {0}")]
     Internal(String),
@@ -95,6 +100,7 @@ impl RigError {
             RigError::NoDevices { .. } | RigError::Records(_) => exit::USAGE,
             RigError::Open(_) | RigError::Unavailable(_) => exit::UNAVAILABLE,
             RigError::Internal(_) => exit::INTERNAL,
+            RigError::Signal(n) => exit::signal(*n),
         }
     }
 }
@@ -170,6 +176,9 @@ pub fn start_with(
         setup.config.grace,
     );
     runtime.handlers.set_max_timers(limits.timers);
+    // A signal during the start cuts its exchanges short from the first one: a silent module
+    // with long timeouts and many retries must not hold a stop for all of them.
+    runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));
     let rt = Rc::new(RefCell::new(runtime));
     let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
     let started = match started {
@@ -183,6 +192,31 @@ pub fn start_with(
     if let Err(e) = started {
         // Leave the devices that did start as a clean end would.
         let mut r = rt.borrow_mut();
+        let signal = setup.stop_flag.load(Ordering::SeqCst);
+        if signal != 0 {
+            let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
+            r.log.info(&format!(
+                "stopping during the start: {} received ({})",
+                signals::name(signal),
+                signals::likely_cause(signal)
+            ));
+            // A module not yet under control got from the start at most its safe values (the
+            // outputs it is taken control with); the end's tries on one that has not answered
+            // would cost all its timeouts, so it is left as it is.
+            let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut r.devices)
+                .into_iter()
+                .partition(|d| matches!(d, Device::C29u(c) if !c.controlled));
+            r.devices = taken;
+            for d in &untaken {
+                r.log.warn(&format!(
+                    "{}: not under control yet: left as it is (the start writes a module nothing \
+                     but its safe values)",
+                    d.name()
+                ));
+            }
+            r.end_safe("signal", true);
+            return Err(RigError::Signal(signal));
+        }
         r.end_safe("a device is not available", true);
         return Err(e.into());
     }

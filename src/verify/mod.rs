@@ -164,53 +164,59 @@ fn play_batch(
     let next = AtomicU64::new(range.start);
     let lowest_failure = AtomicU64::new(u64::MAX);
     let result = Mutex::new(Batch::default());
+    let work = || {
+        let mut mine = Batch::default();
+        loop {
+            let i = next.fetch_add(1, Ordering::SeqCst);
+            if i >= range.end || i > lowest_failure.load(Ordering::SeqCst) {
+                break;
+            }
+            let plan = field::generate(profile, run_seed(opts.seed, i), opts.faults);
+            let keep = Keep {
+                coverage: true,
+                observe: true,
+            };
+            match execute(target, &plan, keep) {
+                Ok(outcome) => {
+                    let played = plan.events.get(..outcome.played).unwrap_or(&[]);
+                    mine.events += played.len() as u64;
+                    mine.faults += played.iter().filter(|e| e.action.is_fault()).count() as u64;
+                    mine.observed.merge(&outcome.observed);
+                    if let Some(c) = &outcome.coverage {
+                        mine.coverage.merge(c);
+                    }
+                    if let Some(f) = outcome.finding.clone() {
+                        lowest_failure.fetch_min(i, Ordering::SeqCst);
+                        mine.failures.push((i, plan, outcome, f));
+                    }
+                }
+                Err(e) => {
+                    lowest_failure.fetch_min(i, Ordering::SeqCst);
+                    mine.error = Some((i, e));
+                }
+            }
+        }
+        let mut all = result.lock().unwrap_or_else(|e| e.into_inner());
+        all.coverage.merge(&mine.coverage);
+        all.observed.merge(&mine.observed);
+        all.events += mine.events;
+        all.faults += mine.faults;
+        all.failures.append(&mut mine.failures);
+        if let Some((i, e)) = mine.error {
+            if all.error.as_ref().map_or(true, |(j, _)| i < *j) {
+                all.error = Some((i, e));
+            }
+        }
+    };
+    // Each worker on a stack that holds whatever a script can build within its memory limit;
+    // where the system refuses one, this thread does the work.
+    let stack = crate::script::stack::size_for(target.config.limits.memory);
     std::thread::scope(|s| {
         for _ in 0..opts.jobs.max(1) {
-            s.spawn(|| {
-                let mut mine = Batch::default();
-                loop {
-                    let i = next.fetch_add(1, Ordering::SeqCst);
-                    if i >= range.end || i > lowest_failure.load(Ordering::SeqCst) {
-                        break;
-                    }
-                    let plan = field::generate(profile, run_seed(opts.seed, i), opts.faults);
-                    let keep = Keep {
-                        coverage: true,
-                        observe: true,
-                    };
-                    match execute(target, &plan, keep) {
-                        Ok(outcome) => {
-                            let played = plan.events.get(..outcome.played).unwrap_or(&[]);
-                            mine.events += played.len() as u64;
-                            mine.faults +=
-                                played.iter().filter(|e| e.action.is_fault()).count() as u64;
-                            mine.observed.merge(&outcome.observed);
-                            if let Some(c) = &outcome.coverage {
-                                mine.coverage.merge(c);
-                            }
-                            if let Some(f) = outcome.finding.clone() {
-                                lowest_failure.fetch_min(i, Ordering::SeqCst);
-                                mine.failures.push((i, plan, outcome, f));
-                            }
-                        }
-                        Err(e) => {
-                            lowest_failure.fetch_min(i, Ordering::SeqCst);
-                            mine.error = Some((i, e));
-                        }
-                    }
-                }
-                let mut all = result.lock().unwrap_or_else(|e| e.into_inner());
-                all.coverage.merge(&mine.coverage);
-                all.observed.merge(&mine.observed);
-                all.events += mine.events;
-                all.faults += mine.faults;
-                all.failures.append(&mut mine.failures);
-                if let Some((i, e)) = mine.error {
-                    if all.error.as_ref().map_or(true, |(j, _)| i < *j) {
-                        all.error = Some((i, e));
-                    }
-                }
-            });
+            let worker = std::thread::Builder::new().stack_size(stack);
+            if worker.spawn_scoped(s, work).is_err() {
+                work();
+            }
         }
     });
     result.into_inner().unwrap_or_else(|e| e.into_inner())

@@ -129,6 +129,36 @@ impl<H: Clone> Runtime<H> {
         self.check_grace();
     }
 
+    /// When the outputs are to be held safe for a lost device, if one is lost and they are
+    /// not held yet: the moment its grace time is over (the loop wakes for it between ticks,
+    /// whatever the period and the timers).
+    pub fn grace_ends(&self) -> Option<Duration> {
+        if self.held_safe {
+            return None;
+        }
+        let first_lost = self
+            .devices
+            .iter()
+            .filter_map(|d| d.health().lost_at)
+            .min()?;
+        // Held once lost for longer than the grace time, as `check_grace` has it.
+        Some(
+            first_lost
+                .saturating_add(self.grace)
+                .saturating_add(Duration::from_nanos(1)),
+        )
+    }
+
+    /// Between ticks, once a grace time is over (`grace_ends`) or supervision found one over:
+    /// every output held at its safe state at once, the safe values written now rather than
+    /// at the next tick. `was_held`: whether they were held before supervision looked.
+    pub fn hold_safe_between_ticks(&mut self, was_held: bool) {
+        self.check_grace();
+        if self.held_safe && !was_held {
+            self.flush_outputs();
+        }
+    }
+
     /// Holds everything safe once a device has been lost for longer than the grace time;
     /// lets go when every device is back.
     fn check_grace(&mut self) {
