@@ -131,15 +131,26 @@ enum Poller {
     },
 }
 
+/// User + system time of process `pid`'s threads and those of its children.
+fn process_tree_cpu(pid: u32) -> Duration {
+    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).expect("the master is running");
+    let own: Duration = tasks.flatten().map(|t| scheduled(&t.path())).sum();
+    let children =
+        std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap_or_default();
+    own + children
+        .split_whitespace()
+        .filter_map(|c| c.parse::<u32>().ok())
+        .map(process_tree_cpu)
+        .sum::<Duration>()
+}
+
 impl Poller {
     /// User + system time it has used so far, from the scheduler's accounting.
     fn cpu_time(&self) -> Duration {
         match self {
-            Poller::Process(child) => {
-                let tasks = std::fs::read_dir(format!("/proc/{}/task", child.id()))
-                    .expect("the master is running");
-                tasks.flatten().map(|t| scheduled(&t.path())).sum()
-            }
+            // `rigscript run` on a real port is a guardian with the runner as its child: the
+            // polling is the child's, so a process's children count with it.
+            Poller::Process(child) => process_tree_cpu(child.id()),
             Poller::Thread { tid, .. } => scheduled(Path::new(&format!(
                 "/proc/self/task/{}",
                 tid.load(Ordering::SeqCst)

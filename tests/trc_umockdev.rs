@@ -3,7 +3,7 @@
 //! against the model, and OUT packets must match the script byte for byte (umockdev fails an OUT
 //! that matches no line with an I/O error).
 
-use rigscript::protocol::trc1000::{Command, Packet, Rotary};
+use rigscript::protocol::trc1000::{Command, Packet, Relay, Rotary};
 use rigscript::sim::trc1000::Trc1000Sim;
 use rigscript::sim::PacketDevice;
 use std::fmt::Write as _;
@@ -136,6 +136,12 @@ impl Script {
 
 /// Runs `rigscript trc ARGS` with `devices` emulated and `script` on board 001:002.
 fn run_trc(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str]) -> Output {
+    let args: Vec<&str> = std::iter::once("trc").chain(args.iter().copied()).collect();
+    run_rigscript(dir, devices, script, &args)
+}
+
+/// Runs `rigscript ARGS` with `devices` emulated and `script` on board 001:002.
+fn run_rigscript(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str]) -> Output {
     let dev = dir.write("trc.umockdev", devices);
     let mut cmd = std::process::Command::new("umockdev-run");
     cmd.arg("-d").arg(&dev);
@@ -144,7 +150,7 @@ fn run_trc(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str])
         cmd.arg("-i")
             .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()));
     }
-    cmd.arg("--").arg(BIN).arg("trc").args(args);
+    cmd.arg("--").arg(BIN).args(args);
     output_of(cmd)
 }
 
@@ -376,4 +382,42 @@ fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
     let text = std::fs::read_to_string(&out).unwrap_or_default();
     assert_eq!(o.status.code(), Some(0), "{}\n{text}", stderr(&o));
     assert_eq!(text, "S3 pressed\nS41A +2 (now 2)\nS40 -3 (now 254)\n");
+}
+
+#[test]
+fn safe_selects_the_safe_relay_and_confirms_it_with_a_request_after_it() {
+    // What the guardian does for a board when its runner died: the relay selection gets no
+    // answer of its own, so the request after it is what confirms that a board took it.
+    let mut sim = Trc1000Sim::new();
+    let mut script = Script::default();
+    script
+        .ask(&mut sim, Command::SelectRelay(Relay::new(3).unwrap()))
+        .ask(&mut sim, Command::RequestInput);
+    let dir = TempDir::new("safe");
+    let config = dir.write(
+        "rig.toml",
+        "[devices.panel]\nkind = \"trc1000\"\nunit = 0\nsafe_relay = 3\n",
+    );
+    let config = config.display().to_string();
+    let o = run_rigscript(
+        &dir,
+        &one_board(),
+        Some(&script),
+        &["safe", "--config", &config],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_eq!(stdout(&o), "panel relay 3 (confirmed)\n");
+    assert_eq!(sim.relay().number(), 3);
+
+    // A board that takes the selection but never answers is not confirmed.
+    let mut silent = Script::default();
+    silent.out(Command::SelectRelay(Relay::new(3).unwrap()).encode());
+    let o = run_rigscript(
+        &dir,
+        &one_board(),
+        Some(&silent),
+        &["safe", "--config", &config],
+    );
+    assert_ne!(o.status.code(), Some(0), "{}", stdout(&o));
+    assert!(stderr(&o).contains("panel NOT confirmed"), "{}", stderr(&o));
 }
