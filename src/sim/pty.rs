@@ -512,7 +512,7 @@ mod tests {
     }
 
     #[test]
-    fn an_existing_path_is_never_replaced_and_only_its_own_link_is_removed() {
+    fn a_live_link_is_refused_with_its_holder_a_stale_one_replaced_and_only_its_own_removed() {
         let dir = std::env::temp_dir().join(format!("rigscript-pty-link-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -521,14 +521,7 @@ mod tests {
         let to_file = dir.join("to-file");
         std::os::unix::fs::symlink(&file, &to_file).unwrap();
         let other = PtyServer::open(Some(&dir.join("other"))).unwrap();
-        let dangling = dir.join("dangling");
-        std::os::unix::fs::symlink("/dev/pts/rigscript-gone", &dangling).unwrap();
-        for (at, was) in [
-            (&file, None),
-            (&to_file, Some(file.clone())),
-            (&dir.join("other"), Some(PathBuf::from(other.path()))),
-            (&dangling, Some(PathBuf::from("/dev/pts/rigscript-gone"))),
-        ] {
+        for (at, was) in [(&file, None), (&to_file, Some(file.clone()))] {
             let err = PtyServer::open(Some(at)).err().expect("refused");
             assert!(matches!(err, PtyError::Link { .. }), "{err}");
             let text = err.to_string();
@@ -543,6 +536,33 @@ mod tests {
                 at.display()
             );
         }
+        // Another server's link: refused, naming who holds its pty (this process).
+        let err = PtyServer::open(Some(&dir.join("other")))
+            .err()
+            .expect("refused");
+        let text = err.to_string();
+        assert!(matches!(err, PtyError::LinkInUse { .. }), "{text}");
+        assert!(
+            text.contains(&format!("it points to {}", other.path()))
+                && text.contains(&format!("this process, pid {}", std::process::id())),
+            "{text}"
+        );
+        assert_eq!(
+            std::fs::read_link(dir.join("other")).ok(),
+            Some(PathBuf::from(other.path()))
+        );
+        // A link to a pty that is gone is stale: replaced.
+        let dangling = dir.join("dangling");
+        std::os::unix::fs::symlink("/dev/pts/rigscript-gone", &dangling).unwrap();
+        let taker = PtyServer::open(Some(&dangling)).unwrap();
+        assert!(taker.replaced_stale_link());
+        assert!(!other.replaced_stale_link());
+        assert_eq!(
+            std::fs::read_link(&dangling).ok(),
+            Some(PathBuf::from(taker.path()))
+        );
+        drop(taker);
+        assert!(!dangling.is_symlink(), "the link it made is removed");
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep");
 
         // A link replaced behind the server's back is not the server's to remove.
