@@ -61,6 +61,7 @@ pub mod runtime;
 pub mod script;
 pub mod service;
 pub mod sim;
+pub mod suggest;
 pub mod text_file;
 pub mod time;
 pub mod verify;

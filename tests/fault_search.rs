@@ -12,7 +12,7 @@
 //! is deterministic for a given seed and count), `FAULT_SEARCH_SHRINK` (shrink runs per kind,
 //! default 150), `FAULT_SEARCH_ONLY` (kinds to report, comma-separated; the rest are ignored), `FAULT_SEARCH_MEMORY_MB` (heap growth that counts as unbounded, default 512),
 //! `FAULT_SEARCH_TRACE` (print each case to stderr before it runs).
-//! The soak (README "Fault search"):
+//! The soak (docs/benchmarks.md, "Fault search"):
 //! `FAULT_SEARCH_CASES=20000 FAULT_SEARCH_SEED=$RANDOM cargo test --release --test fault_search`.
 
 #[path = "fault_search/case.rs"]
@@ -447,8 +447,8 @@ fn the_oracle_sees_a_stored_safe_value_the_script_changed() {
     }
 }
 
-// ---- the minimal cases the search shrank each defect to (seed and count in the
-// ---- README's fault search notes), kept so they stay checked after the fixes. Each fails on
+// ---- the minimal cases the search shrank each defect to (seed and count in the fault search
+// ---- notes of docs/benchmarks.md), kept so they stay checked after the fixes. Each fails on
 // ---- the code the search first ran against.
 
 fn every(ms: u64, body: Vec<Stmt>) -> Stmt {
@@ -936,7 +936,7 @@ fn counter_readings(run: &harness::Run) -> Vec<(String, Vec<i64>)> {
 /// drops the second try's; the third try's, itself 1 s late, arrives at 11.3 s inside channel
 /// 1's read and is taken as channel 1's count (DI1 never changed). An ASCII counter answer
 /// does not name its channel, and an answer later than the timeout and the settle together
-/// gets past any settle, so this is a documented limit (README "Line timing"): the oracle does
+/// gets past any settle, so this is a documented limit (docs/benchmarks.md, "Line timing"): the oracle does
 /// not hold a reading against the runner over ASCII when an answer came later than twice the
 /// timeout just before it.
 #[test]

@@ -171,7 +171,7 @@ fn keys_of(text: &str) -> Vec<&'static str> {
         Err(ConfigError::Invalid(problems)) => problems
             .iter()
             .find_map(|p| match &p.kind {
-                ProblemKind::UnknownKey { known } => Some(known.to_vec()),
+                ProblemKind::UnknownKey { known, .. } => Some(known.to_vec()),
                 _ => None,
             })
             .unwrap_or_else(|| panic!("no unknown-key problem for {text:?}: {problems:?}")),
@@ -302,7 +302,12 @@ fn every_script_and_rig_toml_the_guide_shows_is_an_example_file() {
             .iter()
             .map(|p| std::fs::read_to_string(p).expect("an example"))
             .collect();
-        for (name, text) in pages() {
+        // The README's first script is one of the guide's too.
+        let readme = std::fs::read_to_string(guide_dir().join("../../README.md")).expect("README");
+        for (name, text) in pages()
+            .into_iter()
+            .chain([("README.md".to_string(), readme)])
+        {
             for block in blocks(&text, lang) {
                 assert!(
                     files.iter().any(|f| f.contains(&block)),

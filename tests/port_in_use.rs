@@ -157,11 +157,25 @@ fn sim_link_refuses_any_existing_path_and_leaves_it_as_it_was() {
     let to_file = d.path("to-notes");
     std::os::unix::fs::symlink(&file, &to_file).unwrap();
 
-    for (at, points_to) in [
-        (&theirs, Some(PathBuf::from(&other.path))),
-        (&to_file, Some(file.clone())),
-        (&file, None),
-    ] {
+    // A live simulator's link: the refusal names the process that serves it.
+    let (status, err) = sim_link(&theirs);
+    assert_eq!(status, Some(1), "{err}");
+    assert!(
+        err.contains(&format!(
+            "cannot create the link {}: it points to {}, which is still in use (",
+            theirs.display(),
+            other.path
+        )),
+        "{err}"
+    );
+    assert!(err.contains(&format!("pid {}", other.pid())), "{err}");
+    assert!(err.contains("another simulator serving there?"), "{err}");
+    assert_eq!(
+        std::fs::read_link(&theirs).ok(),
+        Some(PathBuf::from(&other.path))
+    );
+
+    for (at, points_to) in [(&to_file, Some(file.clone())), (&file, None)] {
         let (status, err) = sim_link(at);
         assert_eq!(status, Some(1), "{err}");
         assert!(
@@ -177,5 +191,22 @@ fn sim_link_refuses_any_existing_path_and_leaves_it_as_it_was() {
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     // The other simulator is still reachable through its link.
     let o = run(&["c29", "--port", theirs.to_str().unwrap(), "status"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}
+
+#[test]
+fn sim_link_replaces_the_stale_link_of_a_killed_simulator() {
+    let d = TempDir::new("sim-stale-link");
+    let at = d.path("c29u");
+    // What kill -9 leaves: the link, to a pty that is gone (a number no pty has here; a dead
+    // simulator's own number could be taken by another test's pty meanwhile).
+    std::os::unix::fs::symlink("/dev/pts/999999", &at).unwrap();
+    let mut next = SimProcess::start(&["--link", at.to_str().unwrap()]);
+    assert_eq!(
+        std::fs::read_link(&at).ok(),
+        Some(PathBuf::from(&next.path))
+    );
+    assert!(next.control("state").starts_with('{'));
+    let o = run(&["c29", "--port", at.to_str().unwrap(), "status"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
 }

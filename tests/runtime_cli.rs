@@ -322,7 +322,7 @@ fn a_short_period_holds_the_wake_latency_request_while_running_and_stats_say_so(
             out.contains("wake latency: not held (/dev/cpu_dma_latency: "),
             "{out}"
         );
-        assert!(err.contains("README \"Timing\""), "{err}");
+        assert!(err.contains("61-rigscript-wake-latency.rules"), "{err}");
     }
 }
 
@@ -658,4 +658,66 @@ fn a_full_disk_for_the_records_is_told_once_with_the_count_and_the_run_ends_5() 
         "{err}"
     );
     assert!(!err.contains("in top level"), "not a script error: {err}");
+}
+
+#[test]
+fn quiet_leaves_the_script_s_messages_warnings_errors_and_the_safe_state_only() {
+    let d = Dir::new("quiet");
+    let s = d.file(
+        "q.rhai",
+        "every(\"50ms\", || io.outputs = io.outputs ^ 1);\nprint(\"hello\");\nwarn(\"careful\");\n",
+    );
+    let o = run(&[
+        "run", "--sim", "--for", "300ms", "--period", "10ms", "-q", &s,
+    ]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    // Each line is "HH:MM:SS.mmm message": what is left once the time is cut off.
+    let lines: Vec<&str> = err
+        .lines()
+        .map(|l| l.split_once(' ').map_or(l, |(_, rest)| rest))
+        .collect();
+    assert_eq!(
+        lines,
+        [
+            "script: hello",
+            "warning: script: careful",
+            "safe state (end of run): io outputs 0x00, panel relay 0",
+        ],
+        "{err}"
+    );
+}
+
+#[test]
+fn a_missing_semicolon_is_reported_where_its_statement_ends() {
+    let d = Dir::new("syntax");
+    let s = d.file(
+        "syn.rhai",
+        "let io = device(\"io\");\nlet x = 1;\nlet y = 2\nio.outputs = x + y;\n",
+    );
+    let want = format!("{s}:3:10: Expecting ';' to terminate this statement");
+    let o = run(&["check", &s]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stdout(&o).contains(&want), "{}", stdout(&o));
+    let o = run(&["run", "--sim", "--for", "100ms", &s]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains(&want), "{}", stderr(&o));
+}
+
+#[test]
+fn test_without_paths_outside_the_repository_says_what_it_looks_for() {
+    let d = Dir::new("test-elsewhere");
+    let o = Command::new(rigscript())
+        .arg("test")
+        .current_dir(&d.0)
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("no test files given, and no scripts/tests/ in this directory"),
+        "{err}"
+    );
+    assert!(err.contains("rigscript test PATH.."), "{err}");
+    assert!(!err.contains("No such file or directory"), "{err}");
 }

@@ -53,7 +53,9 @@ pub struct RunArgs {
     /// At the end, print ticks, period jitter, tick work, overruns and transactions per tick.
     #[arg(long)]
     pub stats: bool,
-    /// Log only warnings, errors and the script's own messages.
+    /// Log only warnings, errors, the script's own messages (print, log, warn) and the safe
+    /// state the end wrote; leave out what the script does (outputs, events, timers) and the
+    /// runner's notices (start-up, wake latency, stopping, stopped).
     #[arg(short, long)]
     pub quiet: bool,
     /// CPU wake-up latency to hold while running, overriding rig.toml: "auto" (0 µs while the

@@ -144,6 +144,13 @@ const SWAPPED_FIRMWARE: FirmwareDate = FirmwareDate {
 pub enum Control {
     /// Set the energized inputs.
     Di(u8),
+    /// Energize one input (`di CH on`) or release it (`di CH off`), the others as they are.
+    DiChannel {
+        /// The input, 0-7.
+        channel: u8,
+        /// Energized.
+        on: bool,
+    },
     /// N full pulses on one input.
     Pulse {
         /// The input, 0-7.
@@ -179,7 +186,29 @@ pub struct ControlLine {
     pub control: Control,
 }
 
-/// Parses a control line: `[@ID] di BYTE | pulse CH N | reset | state`.
+/// The control lines, as the start-up line and a refusal list them.
+pub const CONTROL_FORMS: &[&str] = &[
+    "di BYTE",
+    "di CH on",
+    "di CH off",
+    "pulse CH N",
+    "reset",
+    "state",
+    "ignore-writes",
+    "refuse-writes CODE",
+    "accept-writes",
+    "swap NAME SAFE POWER_ON",
+];
+
+/// An input channel of a control line, 0-7.
+fn parse_channel(word: &str) -> Result<u8, String> {
+    match word.parse::<u8>() {
+        Ok(c) if c < 8 => Ok(c),
+        _ => Err(format!("`{word}` is not an input channel: write 0-7")),
+    }
+}
+
+/// Parses a control line: `[@ID]` and one of `CONTROL_FORMS`.
 pub fn parse_control(line: &str) -> Result<ControlLine, String> {
     let mut words = line.split_whitespace().peekable();
     let target = match words.peek() {
@@ -193,11 +222,16 @@ pub fn parse_control(line: &str) -> Result<ControlLine, String> {
     let words: Vec<&str> = words.collect();
     let control = match words.as_slice() {
         ["di", byte] => Control::Di(parse_byte(byte)?),
+        ["di", ch, state] => Control::DiChannel {
+            channel: parse_channel(ch)?,
+            on: match *state {
+                "on" => true,
+                "off" => false,
+                _ => return Err(format!("`{state}` is not an input state: write on or off")),
+            },
+        },
         ["pulse", ch, n] => {
-            let channel = match ch.parse::<u8>() {
-                Ok(c) if c < 8 => c,
-                _ => return Err(format!("`{ch}` is not an input channel: write 0-7")),
-            };
+            let channel = parse_channel(ch)?;
             let count = n
                 .parse::<u32>()
                 .map_err(|_| format!("`{n}` is not a pulse count: write a whole number"))?;
@@ -206,7 +240,9 @@ pub fn parse_control(line: &str) -> Result<ControlLine, String> {
         ["reset"] => Control::Reset,
         ["state"] => Control::State,
         ["ignore-writes"] => Control::OutputFault(Some(OutputFault::Ignore)),
-        ["refuse-writes", code] => Control::OutputFault(Some(OutputFault::Refuse(parse_byte(code)?))),
+        ["refuse-writes", code] => {
+            Control::OutputFault(Some(OutputFault::Refuse(parse_byte(code)?)))
+        }
         ["accept-writes"] => Control::OutputFault(None),
         ["swap", name, safe, power_on] => Control::Swap {
             name: (*name).to_string(),
@@ -214,10 +250,13 @@ pub fn parse_control(line: &str) -> Result<ControlLine, String> {
             power_on_value: parse_byte(power_on)?,
         },
         _ => {
+            let forms: Vec<String> = CONTROL_FORMS.iter().map(|f| format!("`{f}`")).collect();
+            let (last, rest) = forms.split_last().expect("control forms");
             return Err(format!(
-                "unknown control line `{}`: use `di BYTE`, `pulse CH N`, `reset`, `state`, `ignore-writes`, `refuse-writes CODE`, `accept-writes` or `swap NAME SAFE POWER_ON`, optionally after `@ID`",
-                line.trim()
-            ))
+                "unknown control line `{}`: use {} or {last}, optionally after `@ID`",
+                line.trim(),
+                rest.join(", ")
+            ));
         }
     };
     Ok(ControlLine { target, control })
@@ -248,6 +287,12 @@ pub fn apply_control(
     match parsed.control {
         Control::Di(byte) => {
             model.set_inputs(byte);
+            "ok".into()
+        }
+        Control::DiChannel { channel, on } => {
+            let bit = 1u8 << channel;
+            let inputs = model.inputs();
+            model.set_inputs(if on { inputs | bit } else { inputs & !bit });
             "ok".into()
         }
         Control::Pulse { channel, count } => match model.pulse(channel, count) {
@@ -369,16 +414,28 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
     }
 
     let mut server = PtyServer::open(args.link.as_deref()).map_err(|e| e.to_string())?;
+    if let (true, Some(link)) = (server.replaced_stale_link(), &args.link) {
+        eprintln!(
+            "replaced the stale link {} (its pty was gone: a simulator that did not get to \
+             remove it)",
+            link.display()
+        );
+    }
     {
         let mut out = std::io::stdout().lock();
         writeln!(out, "{}", server.path()).map_err(|e| e.to_string())?;
         out.flush().map_err(|e| e.to_string())?;
     }
     eprintln!(
-        "simulated TRP-C29U ({:?}, ID {}) on {}; control lines: di BYTE | pulse CH N | reset | state | ignore-writes | refuse-writes CODE | accept-writes | swap NAME SAFE POWER_ON; Ctrl-C to stop",
+        "simulated TRP-C29U ({:?}, ID {}) on {}; control lines: {}; Ctrl-C to stop",
         args.protocol,
-        modules.iter().map(|(id, _)| id.to_string()).collect::<Vec<_>>().join(","),
-        server.path()
+        modules
+            .iter()
+            .map(|(id, _)| id.to_string())
+            .collect::<Vec<_>>()
+            .join(","),
+        server.path(),
+        CONTROL_FORMS.join(" | ")
     );
 
     // Standard input may end (a pipe closed, </dev/null) without the simulator ending.
@@ -467,5 +524,37 @@ mod tests {
             .unwrap_err()
             .contains("unknown control line"));
         assert!(parse_control("di").is_err());
+        assert_eq!(
+            parse_control("di 3 on").map(|c| c.control),
+            Ok(Control::DiChannel {
+                channel: 3,
+                on: true
+            })
+        );
+        assert!(parse_control("di 8 on").unwrap_err().contains("0-7"));
+        assert!(parse_control("di 3 high")
+            .unwrap_err()
+            .contains("on or off"));
+    }
+
+    #[test]
+    fn one_input_is_set_and_released_the_others_left_as_they_are() {
+        let clock: SharedClock = SystemClock::shared();
+        let model: SharedModel = Arc::new(std::sync::Mutex::new(C29uModel::new(
+            Protocol::Modbus,
+            clock,
+            Eeprom::factory(),
+        )));
+        let modules = [(1u8, Arc::clone(&model))];
+        for (line, inputs) in [
+            ("di 0x05", 0x05),
+            ("di 3 on", 0x0d),
+            ("di 0 off", 0x0c),
+            ("di 0 off", 0x0c),
+            ("di 7 on", 0x8c),
+        ] {
+            assert_eq!(apply_control(line, &modules, None), "ok", "{line}");
+            assert_eq!(lock(&model).inputs(), inputs, "{line}");
+        }
     }
 }

@@ -33,6 +33,17 @@ pub fn run(args: TestArgs) -> i32 {
         }
     }
     let paths = if args.paths.is_empty() {
+        if !std::path::Path::new(DEFAULT_PATH).is_dir() {
+            let here = std::env::current_dir()
+                .map(|d| format!(" ({})", d.display()))
+                .unwrap_or_default();
+            eprintln!(
+                "rigscript test: no test files given, and no {DEFAULT_PATH}/ in this directory{here}, \
+                 where they are looked for by default; give the test files (*.test.rhai) or \
+                 directories of them: rigscript test PATH.."
+            );
+            return 2;
+        }
         vec![PathBuf::from(DEFAULT_PATH)]
     } else {
         args.paths

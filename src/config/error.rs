@@ -86,6 +86,8 @@ pub enum ProblemKind {
     UnknownKey {
         /// The keys that do.
         known: &'static [&'static str],
+        /// The known key nearest to it, when it looks like a slip of the keyboard.
+        near: Option<&'static str>,
     },
     /// A required key is absent.
     Missing {
@@ -127,8 +129,12 @@ pub enum ProblemKind {
 impl fmt::Display for ProblemKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            ProblemKind::UnknownKey { known } => {
-                write!(f, "unknown key; known keys here: {}", known.join(", "))
+            ProblemKind::UnknownKey { known, near } => {
+                f.write_str("unknown key")?;
+                if let Some(near) = near {
+                    write!(f, " (did you mean `{near}`?)")?;
+                }
+                write!(f, "; known keys here: {}", known.join(", "))
             }
             ProblemKind::Missing { hint } => write!(f, "missing; {hint}"),
             ProblemKind::WrongType { expected, found } => {

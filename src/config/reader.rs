@@ -65,7 +65,10 @@ impl<'t> Reader<'t> {
                 self.report(
                     &key.span(),
                     table.key_path(name),
-                    ProblemKind::UnknownKey { known },
+                    ProblemKind::UnknownKey {
+                        known,
+                        near: crate::suggest::closest(name, known.iter().copied()),
+                    },
                 );
             }
         }

@@ -523,11 +523,15 @@ fn bad_c29u_values() {
         ("id = 99999999999999999999", "rig.toml:4: devices.io.id: 99999999999999999999 is not a Modbus id"),
         (
             "prtocol = \"ascii\"",
-            "rig.toml:4: devices.io.prtocol: unknown key; known keys here: kind, port, protocol, id, \
+            "rig.toml:4: devices.io.prtocol: unknown key (did you mean `protocol`?); known keys here: kind, port, protocol, id, \
              baud, checksum, timeout, retries, watchdog, safe_value, power_on_value, di_active_low, \
              frame_gap",
         ),
-        ("safe_relay = 0", "rig.toml:4: devices.io.safe_relay: unknown key"),
+        ("safe_relay = 0", "rig.toml:4: devices.io.safe_relay: unknown key; known keys here"),
+        (
+            "timout = \"50ms\"",
+            "rig.toml:4: devices.io.timout: unknown key (did you mean `timeout`?); known keys here: kind,",
+        ),
     ];
     for (extra, want) in cases {
         let got = c29u_problem(extra);
@@ -565,11 +569,11 @@ fn missing_and_unknown_kinds() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key; known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
+        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key; known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
+        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
     );
 }
 

@@ -38,7 +38,11 @@ pub const REPEAT_SUMMARY: Duration = Duration::from_secs(3600);
 pub enum Level {
     /// What the script is doing (events, outputs, timers); left out with `--quiet`.
     Activity,
-    /// The script's own `print` and `log`, and the runner's notices.
+    /// The runner's notices (start-up, wake latency, stopping, stopped); left out with
+    /// `--quiet`.
+    Notice,
+    /// The script's own `print` and `log`, the safe state the end wrote, and a problem
+    /// settled.
     Info,
     /// Something the operator should look at.
     Warn,
@@ -51,7 +55,7 @@ impl Level {
     pub fn syslog_name(self) -> &'static str {
         match self {
             Level::Activity => "info",
-            Level::Info => "notice",
+            Level::Notice | Level::Info => "notice",
             Level::Warn => "warning",
             Level::Error => "error",
         }
@@ -115,7 +119,8 @@ impl Logger {
         log
     }
 
-    /// Leaves out activity lines (warnings, errors and script messages still show).
+    /// Leaves out activity lines and the runner's notices (warnings, errors, script messages
+    /// and the safe state still show).
     pub fn set_quiet(&mut self, quiet: bool) {
         self.quiet = quiet;
     }
@@ -152,7 +157,7 @@ impl Logger {
 
     /// Writes one line at `level`.
     pub fn line(&mut self, level: Level, message: &str) {
-        if level == Level::Activity && self.quiet {
+        if matches!(level, Level::Activity | Level::Notice) && self.quiet {
             return;
         }
         let wall = self.zone.at(self.clock.wall());
@@ -182,6 +187,11 @@ impl Logger {
     /// An activity line.
     pub fn activity(&mut self, message: &str) {
         self.line(Level::Activity, message);
+    }
+
+    /// A notice of the runner.
+    pub fn notice(&mut self, message: &str) {
+        self.line(Level::Notice, message);
     }
 
     /// An information line.
@@ -320,7 +330,7 @@ type Wall = chrono::DateTime<Zone>;
 fn text_line(wall: &Wall, level: Level, message: &str) -> String {
     let stamp = wall.format("%H:%M:%S%.3f");
     match level {
-        Level::Activity | Level::Info => format!("{stamp} {message}"),
+        Level::Activity | Level::Notice | Level::Info => format!("{stamp} {message}"),
         Level::Warn => format!("{stamp} warning: {message}"),
         Level::Error => format!("{stamp} error: {message}"),
     }
@@ -390,7 +400,7 @@ mod tests {
     }
 
     #[test]
-    fn lines_carry_the_wall_time_in_the_zone_and_quiet_drops_only_activity() {
+    fn lines_carry_the_wall_time_in_the_zone_and_quiet_drops_activity_and_notices() {
         let mut log = Logger::new(
             Arc::new(clock()),
             Zone::parse("Europe/Amsterdam").unwrap(),
@@ -401,12 +411,17 @@ mod tests {
         log.warn("late");
         log.set_quiet(true);
         log.activity("hidden");
+        log.notice("stopped; exit status 0");
+        log.info("script: mine");
+        log.info("safe state (end of run): io outputs 0x00");
         log.error("broken");
         assert_eq!(
             log.lines(),
             [
                 "13:00:01.020 io: outputs 0x00 -> 0x05",
                 "13:00:01.020 warning: late",
+                "13:00:01.020 script: mine",
+                "13:00:01.020 safe state (end of run): io outputs 0x00",
                 "13:00:01.020 error: broken"
             ]
         );

@@ -260,7 +260,7 @@ impl<P: Program> Runner<P> {
             Ok(()) => "granted".to_string(),
             Err(e) => {
                 let text = format!("refused ({e})");
-                self.rt.borrow_mut().log.info(&format!(
+                self.rt.borrow_mut().log.notice(&format!(
                     "prompt wake-ups (1 ns timer slack, short scheduler slice) {text}: ticks \
                      may start later under load"
                 ));
@@ -293,8 +293,9 @@ impl<P: Program> Runner<P> {
         let mut rt = self.rt.borrow_mut();
         let Some(limit) = wanted else {
             self.latency.hold = None;
-            rt.log
-                .info("CPU wake-up latency released: no handler needs ticks of 20 ms or less now");
+            rt.log.notice(
+                "CPU wake-up latency released: no handler needs ticks of 20 ms or less now",
+            );
             return;
         };
         self.latency.hold = None;
@@ -308,14 +309,14 @@ impl<P: Program> Runner<P> {
         });
         match outcome {
             Some(Ok(h)) => {
-                rt.log.info(&format!("CPU wake-up latency {text}{every}"));
+                rt.log.notice(&format!("CPU wake-up latency {text}{every}"));
                 self.latency.hold = Some(h);
             }
             _ => {
                 self.latency.refused = true;
-                rt.log.info(&format!(
+                rt.log.notice(&format!(
                     "CPU wake-up latency {text}: ticks may start up to milliseconds late; \
-                     give this user write access to it (README \"Timing\") or set \
+                     give this user write access to it (packaging/udev/61-rigscript-wake-latency.rules) or set \
                      wake_latency = \"off\""
                 ));
             }
@@ -699,7 +700,7 @@ impl<P: Program> Runner<P> {
         rt.log.error(message);
         rt.write_safe_state("script error");
         rt.reset_program();
-        rt.log.info(&format!(
+        rt.log.notice(&format!(
             "policy restart: starting the script again in {} (failure {} in a row); outputs \
              safe meanwhile",
             crate::time::duration::format_duration(wait),
@@ -717,7 +718,7 @@ impl<P: Program> Runner<P> {
             let mut rt = self.rt.borrow_mut();
             rt.reset_program();
             rt.cause = "top level".into();
-            rt.log.info("starting the script again");
+            rt.log.notice("starting the script again");
         }
         if let Err(f) = self.program.start() {
             let message = describe(&f, "top level");
@@ -741,7 +742,7 @@ impl<P: Program> Runner<P> {
             match &reason {
                 EndReason::Error(m) => rt.log.error(m),
                 EndReason::Signal(n) => {
-                    rt.log.info(&format!(
+                    rt.log.notice(&format!(
                         "stopping: {} received ({})",
                         signals::name(*n),
                         signals::likely_cause(*n)
@@ -749,9 +750,9 @@ impl<P: Program> Runner<P> {
                 }
                 EndReason::Stopped(code) => {
                     rt.log
-                        .info(&format!("stopping: the script called stop({code})"));
+                        .notice(&format!("stopping: the script called stop({code})"));
                 }
-                EndReason::Finished(why) => rt.log.info(&format!("stopping: {why}")),
+                EndReason::Finished(why) => rt.log.notice(&format!("stopping: {why}")),
                 // Logged with the tick's readings by `report_violation`.
                 EndReason::Violated(_) => {}
             }
@@ -816,7 +817,7 @@ impl<P: Program> Runner<P> {
         };
         match because {
             Some(why) => rt.log.warn(&format!("{why}: exit status {status}")),
-            None => rt.log.info(&format!("stopped; exit status {status}")),
+            None => rt.log.notice(&format!("stopped; exit status {status}")),
         }
         self.state = State::Stopped { status };
     }

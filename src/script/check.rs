@@ -23,6 +23,7 @@ use super::api::{
     no_relay, not_a_byte, register, takes_words, Arities, Io, Panel, BYTE_PROPERTIES,
 };
 use super::engine::{sandboxed, DEFAULT_BUDGET};
+use super::error::parse_position;
 use super::reads::ReadTracker;
 use crate::config::{DeviceConfig, RigConfig};
 use crate::protocol::trc1000::{Rotary, Switch};
@@ -31,6 +32,7 @@ use crate::runtime::log::Logger;
 use crate::runtime::records::Records;
 use crate::runtime::schedule::validate_cron;
 use crate::runtime::state::Runtime;
+use crate::suggest::closest;
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
@@ -294,7 +296,7 @@ pub fn check(source: &str, config: &RigConfig) -> Vec<Problem> {
     let ast = match engine.compile(source) {
         Ok(ast) => ast,
         Err(e) => {
-            let (line, column) = line_col(e.position());
+            let (line, column) = line_col(parse_position(source, &e));
             return vec![Problem {
                 line,
                 column,
@@ -548,44 +550,6 @@ fn closure_made_by(call: &FnCallExpr) -> Option<(String, Vec<String>)> {
         })
         .collect();
     Some((f.fn_name().to_string(), names))
-}
-
-/// Optimal string alignment distance (Levenshtein with transpositions), for suggestions.
-fn edit_distance(a: &str, b: &str) -> usize {
-    let a: Vec<char> = a.chars().collect();
-    let b: Vec<char> = b.chars().collect();
-    let mut rows = vec![vec![0usize; b.len() + 1]; a.len() + 1];
-    for (i, row) in rows.iter_mut().enumerate() {
-        row[0] = i;
-    }
-    for (j, cell) in rows[0].iter_mut().enumerate() {
-        *cell = j;
-    }
-    for i in 1..=a.len() {
-        for j in 1..=b.len() {
-            let cost = usize::from(a[i - 1] != b[j - 1]);
-            let mut d = (rows[i - 1][j] + 1)
-                .min(rows[i][j - 1] + 1)
-                .min(rows[i - 1][j - 1] + cost);
-            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
-                d = d.min(rows[i - 2][j - 2] + 1);
-            }
-            rows[i][j] = d;
-        }
-    }
-    rows[a.len()][b.len()]
-}
-
-/// The closest of `candidates` to `name`, if close enough to be a slip of the keyboard.
-fn closest<'c>(name: &str, candidates: impl IntoIterator<Item = &'c str>) -> Option<&'c str> {
-    let allowed = (name.chars().count() / 3).clamp(1, 3);
-    candidates
-        .into_iter()
-        .filter(|c| *c != name)
-        .map(|c| (edit_distance(name, c), c))
-        .filter(|(d, _)| *d <= allowed)
-        .min()
-        .map(|(_, c)| c)
 }
 
 fn suggestion(found: Option<&str>) -> String {
@@ -1465,19 +1429,6 @@ after("1s", || panel.set_output(1, true));
                  method gets its object as `this`)",
             ]
         );
-    }
-
-    #[test]
-    fn suggestions_come_only_for_near_names() {
-        assert_eq!(
-            closest("set_outptu", ["set_output", "output"]),
-            Some("set_output")
-        );
-        assert_eq!(closest("outputz", ["output", "outputs"]), Some("output"));
-        assert_eq!(closest("zzz", ["set_output", "print"]), None);
-        assert_eq!(closest("prnt", ["print"]), Some("print"));
-        assert_eq!(edit_distance("ab", "ba"), 1, "a transposition is one edit");
-        assert_eq!(edit_distance("", "abc"), 3);
     }
 
     /// Valid uses of the standard library, maps of functions, methods of the script, `this`,

@@ -4,7 +4,7 @@
 
 use super::engine::{Breach, LIMIT_MARKER, MAX_ARRAY, MAX_CALL_LEVELS, MAX_MAP, MAX_STRING};
 use crate::runtime::scan::Fault;
-use rhai::{EvalAltResult, ParseError, Position};
+use rhai::{EvalAltResult, ParseError, ParseErrorType, Position};
 
 /// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once (and a device
 /// operation a stop cut short).
@@ -117,13 +117,49 @@ pub fn breach_fault(
     }
 }
 
-/// A compile error as `file:line:column: message`.
-pub fn parse_error(file: &str, err: &ParseError) -> String {
+/// A compile error as `file:line:column: message`, at `parse_position`.
+pub fn parse_error(file: &str, source: &str, err: &ParseError) -> String {
     let message = err.err_type().to_string();
-    match location(file, err.position()) {
+    match location(file, parse_position(source, err)) {
         Some(at) => format!("{at}: {message}"),
         None => format!("{file}: {message}"),
     }
+}
+
+/// Where a compile error is: Rhai's position, except for a missing `;`, which Rhai finds only at
+/// the token after it, often on the next line; the statement to end is the last text before
+/// that token (comments aside), so the error is placed just after it.
+pub fn parse_position(source: &str, err: &ParseError) -> Position {
+    let pos = err.position();
+    let missing_semicolon =
+        matches!(err.err_type(), ParseErrorType::MissingToken(token, _) if token == ";");
+    let (Some(line), Some(column)) = (pos.line(), pos.position()) else {
+        return pos;
+    };
+    if !missing_semicolon {
+        return pos;
+    }
+    let lines: Vec<&str> = source.lines().collect();
+    let Some(current) = lines.get(line.wrapping_sub(1)) else {
+        return pos;
+    };
+    let before: String = current.chars().take(column.saturating_sub(1)).collect();
+    if !before.trim().is_empty() {
+        return pos;
+    }
+    for (index, text) in lines[..line - 1].iter().enumerate().rev() {
+        let code = text
+            .split_once("//")
+            .map_or(*text, |(code, _)| code)
+            .trim_end();
+        if !code.is_empty() {
+            return Position::new(
+                u16::try_from(index + 1).unwrap_or(u16::MAX),
+                u16::try_from(code.chars().count() + 1).unwrap_or(u16::MAX),
+            );
+        }
+    }
+    pos
 }
 
 #[cfg(test)]
@@ -147,9 +183,29 @@ mod tests {
         let e = rhai::Engine::new();
         let err = e.compile("let x = ;").unwrap_err();
         assert!(
-            parse_error("s.rhai", &err).starts_with("s.rhai:1:9: "),
+            parse_error("s.rhai", "let x = ;", &err).starts_with("s.rhai:1:9: "),
             "{}",
-            parse_error("s.rhai", &err)
+            parse_error("s.rhai", "let x = ;", &err)
         );
+    }
+
+    #[test]
+    fn a_missing_semicolon_is_placed_where_its_statement_ends() {
+        let e = rhai::Engine::new();
+        for source in [
+            "let a = 1;\nlet b = 2;\nlet c = 3\nlet d = 4;\n",
+            "let a = 1;\nlet b = 2;\nlet c = 3 // the third\n\n  // more\n  let d = 4;\n",
+        ] {
+            let err = e.compile(source).unwrap_err();
+            assert_eq!(
+                parse_error("syn.rhai", source, &err),
+                "syn.rhai:3:10: Expecting ';' to terminate this statement",
+                "{source:?}"
+            );
+        }
+        // On the statement's own line, Rhai's place is already the right one.
+        let source = "let c = 3 let d = 4;";
+        let err = e.compile(source).unwrap_err();
+        assert!(parse_error("s.rhai", source, &err).starts_with("s.rhai:1:11: "));
     }
 }

@@ -63,7 +63,7 @@ pub enum RigError {
             "simulate; --sim without --config gives the default rig: panel (a TRC1000) and io \
              (a TRP-C29U)"
         } else {
-            "drive; add a [devices.NAME] table for each device (see README), or try the script \
+            "drive; add a [devices.NAME] table for each device (docs/guide/05-rig-toml.md), or try the script \
              with --sim and no --config: the default rig, panel (a TRC1000) and io (a TRP-C29U)"
         }
     )]
@@ -152,7 +152,7 @@ pub fn start_with(
     let limits = setup.config.limits;
     let ast = sandboxed(limits.operations)
         .compile(source)
-        .map_err(|e| RigError::Script(parse_error(file, &e)))?;
+        .map_err(|e| RigError::Script(parse_error(file, source, &e)))?;
     let records = match setup.records.as_ref().or(setup.config.records.as_ref()) {
         Some(path) => Records::to_file(path)?,
         None => Records::in_memory(),
@@ -195,7 +195,7 @@ pub fn start_with(
         let signal = setup.stop_flag.load(Ordering::SeqCst);
         if signal != 0 {
             let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
-            r.log.info(&format!(
+            r.log.notice(&format!(
                 "stopping during the start: {} received ({})",
                 signals::name(signal),
                 signals::likely_cause(signal)

@@ -638,7 +638,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
         Err(e) => {
             push(TestResult {
                 name: format!("{file}::(compile)"),
-                failure: Some(parse_error(file, &e)),
+                failure: Some(parse_error(file, &source, &e)),
             });
             return results;
         }

@@ -4,8 +4,10 @@
 
 use super::wire::{Side, Timeline};
 use super::ByteDevice;
+use crate::link::holders::{holders_of, Holders};
 use serialport::{SerialPort, TTYPort};
 use std::io::{self, Read, Write};
+use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -25,6 +27,19 @@ pub enum PtyError {
         /// Why it could not be made.
         #[source]
         source: io::Error,
+    },
+    /// The link asked for points to a pty that a live process (another simulator) holds.
+    #[error(
+        "cannot create the link {path}: it points to {target}, which is still in use ({holders}): \
+         another simulator serving there? stop it, or pick another path"
+    )]
+    LinkInUse {
+        /// The path asked for.
+        path: PathBuf,
+        /// The pty it points to.
+        target: PathBuf,
+        /// Who holds that pty.
+        holders: Box<Holders>,
     },
     /// Reading or writing the pty failed.
     #[error("pseudo-terminal I/O failed: {0}")]
@@ -66,6 +81,7 @@ pub struct PtyServer {
     _slave: TTYPort,
     path: String,
     link: Option<PathBuf>,
+    replaced_stale: bool,
     strict: Option<StrictTiming>,
 }
 
@@ -108,21 +124,19 @@ impl Line {
 }
 
 impl PtyServer {
-    /// Creates the pty and, when `link` is given, a symlink to it (removed on drop). Anything
-    /// already at `link` is refused, a symlink as much as a file: it may be another
-    /// simulator's, still serving.
+    /// Creates the pty and, when `link` is given, a symlink to it (removed on drop). A symlink
+    /// already there whose pty is gone (a simulator killed with `kill -9`) is stale and
+    /// replaced; one whose pty lives is refused, naming its holders (it may be another
+    /// simulator's, still serving); anything else at that path is refused.
     pub fn open(link: Option<&Path>) -> Result<Self, PtyError> {
         let (master, slave) = TTYPort::pair().map_err(|e| PtyError::Open(e.description))?;
         let path = slave
             .name()
             .ok_or_else(|| PtyError::Open("the pty has no name".into()))?;
+        let mut replaced_stale = false;
         let link = match link {
             Some(at) => {
-                // symlink(2) fails with EEXIST on any existing path, dangling links included.
-                std::os::unix::fs::symlink(&path, at).map_err(|source| PtyError::Link {
-                    path: at.to_path_buf(),
-                    source,
-                })?;
+                replaced_stale = make_link(&path, at)?;
                 Some(at.to_path_buf())
             }
             None => None,
@@ -132,8 +146,14 @@ impl PtyServer {
             _slave: slave,
             path,
             link,
+            replaced_stale,
             strict: None,
         })
+    }
+
+    /// Whether `open` replaced a stale link (the caller says so).
+    pub fn replaced_stale_link(&self) -> bool {
+        self.replaced_stale
     }
 
     /// Times the line as `timing` says from now on.
@@ -260,6 +280,47 @@ pub fn prefer_realtime() {
     let param = libc::sched_param { sched_priority: 10 };
     // SAFETY: a valid sched_param for the calling thread; a refusal (no privilege) is harmless.
     let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+}
+
+/// Makes the symlink `at` to the pty `pty`; true when it replaced a stale one.
+fn make_link(pty: &str, at: &Path) -> Result<bool, PtyError> {
+    let refused = |source| PtyError::Link {
+        path: at.to_path_buf(),
+        source,
+    };
+    // symlink(2) fails with EEXIST on any existing path, dangling links included.
+    let err = match std::os::unix::fs::symlink(pty, at) {
+        Ok(()) => return Ok(false),
+        Err(e) if e.kind() == io::ErrorKind::AlreadyExists => e,
+        Err(e) => return Err(refused(e)),
+    };
+    let Ok(target) = std::fs::read_link(at) else {
+        return Err(refused(err));
+    };
+    let target = if target.is_relative() {
+        at.parent().unwrap_or(Path::new("")).join(target)
+    } else {
+        target
+    };
+    // A pty's node lives as long as its master is open: a link to one that is there is
+    // still served, unless it is the one just opened (the dead simulator's number, reused).
+    if target == Path::new(pty) {
+        return Ok(true);
+    }
+    match std::fs::metadata(&target) {
+        Ok(meta) if meta.file_type().is_char_device() => {
+            return Err(PtyError::LinkInUse {
+                path: at.to_path_buf(),
+                holders: Box::new(holders_of(&target)),
+                target,
+            })
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound && target.starts_with("/dev/pts") => {}
+        _ => return Err(refused(err)),
+    }
+    std::fs::remove_file(at).map_err(refused)?;
+    std::os::unix::fs::symlink(pty, at).map_err(refused)?;
+    Ok(true)
 }
 
 impl Drop for PtyServer {
@@ -451,7 +512,7 @@ mod tests {
     }
 
     #[test]
-    fn an_existing_path_is_never_replaced_and_only_its_own_link_is_removed() {
+    fn a_live_link_is_refused_with_its_holder_a_stale_one_replaced_and_only_its_own_removed() {
         let dir = std::env::temp_dir().join(format!("rigscript-pty-link-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
@@ -460,14 +521,7 @@ mod tests {
         let to_file = dir.join("to-file");
         std::os::unix::fs::symlink(&file, &to_file).unwrap();
         let other = PtyServer::open(Some(&dir.join("other"))).unwrap();
-        let dangling = dir.join("dangling");
-        std::os::unix::fs::symlink("/dev/pts/rigscript-gone", &dangling).unwrap();
-        for (at, was) in [
-            (&file, None),
-            (&to_file, Some(file.clone())),
-            (&dir.join("other"), Some(PathBuf::from(other.path()))),
-            (&dangling, Some(PathBuf::from("/dev/pts/rigscript-gone"))),
-        ] {
+        for (at, was) in [(&file, None), (&to_file, Some(file.clone()))] {
             let err = PtyServer::open(Some(at)).err().expect("refused");
             assert!(matches!(err, PtyError::Link { .. }), "{err}");
             let text = err.to_string();
@@ -482,6 +536,33 @@ mod tests {
                 at.display()
             );
         }
+        // Another server's link: refused, naming who holds its pty (this process).
+        let err = PtyServer::open(Some(&dir.join("other")))
+            .err()
+            .expect("refused");
+        let text = err.to_string();
+        assert!(matches!(err, PtyError::LinkInUse { .. }), "{text}");
+        assert!(
+            text.contains(&format!("it points to {}", other.path()))
+                && text.contains(&format!("this process, pid {}", std::process::id())),
+            "{text}"
+        );
+        assert_eq!(
+            std::fs::read_link(dir.join("other")).ok(),
+            Some(PathBuf::from(other.path()))
+        );
+        // A link to a pty that is gone is stale: replaced.
+        let dangling = dir.join("dangling");
+        std::os::unix::fs::symlink("/dev/pts/rigscript-gone", &dangling).unwrap();
+        let taker = PtyServer::open(Some(&dangling)).unwrap();
+        assert!(taker.replaced_stale_link());
+        assert!(!other.replaced_stale_link());
+        assert_eq!(
+            std::fs::read_link(&dangling).ok(),
+            Some(PathBuf::from(taker.path()))
+        );
+        drop(taker);
+        assert!(!dangling.is_symlink(), "the link it made is removed");
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep");
 
         // A link replaced behind the server's back is not the server's to remove.

@@ -71,6 +71,11 @@ impl SimProcess {
         }
     }
 
+    /// Its process ID.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// Sends one control line and returns the simulator's one-line reply.
     pub fn control(&mut self, line: &str) -> String {
         writeln!(self.stdin, "{line}").expect("write control line");

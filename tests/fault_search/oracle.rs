@@ -825,7 +825,7 @@ impl Facts<'_> {
     /// `Late` made later than the module's timeout and the settling silence after it (one
     /// timeout) together, over ASCII: such an answer gets past the settle and lands in a later
     /// exchange, and an ASCII counter or latch answer does not say which channel it is for, so
-    /// nothing on the line can tell it from that exchange's own (README "Line timing"). It
+    /// nothing on the line can tell it from that exchange's own (docs/benchmarks.md, "Line timing"). It
     /// arrives at the hit plus its delay, and is read in the tick that recorded the reading.
     fn answered_too_late(&self, i: usize, t: Duration) -> bool {
         let m = &self.run.modules[i];

@@ -37,7 +37,7 @@ impl<H: Clone> Runtime<H> {
             match self.try_take_control(idx) {
                 Ok(found) => {
                     for line in found {
-                        self.log.info(&line);
+                        self.log.notice(&line);
                     }
                 }
                 Err(source) => {
@@ -48,7 +48,7 @@ impl<H: Clone> Runtime<H> {
                 }
             }
             let summary = self.describe_control(idx);
-            self.log.info(&format!("{name}: {summary}"));
+            self.log.notice(&format!("{name}: {summary}"));
         }
         Ok(())
     }
@@ -99,7 +99,7 @@ impl<H: Clone> Runtime<H> {
         match self.try_take_control(idx) {
             Ok(found) => {
                 for line in found {
-                    self.log.info(&line);
+                    self.log.notice(&line);
                 }
                 let name = self.device_name(idx);
                 let done = format!("{name}: taken control of");

@@ -104,7 +104,7 @@ impl<H: Clone> Runtime<H> {
                         if let Some(d) = self.devices.get_mut(idx) {
                             d.health_mut().back();
                         }
-                        self.log.info(&format!(
+                        self.log.notice(&format!(
                             "{name}: back after {}; watchdog, safe value and outputs applied \
                              again",
                             format_duration(lost_for)
@@ -181,7 +181,7 @@ impl<H: Clone> Runtime<H> {
         } else if self.held_safe && all_back {
             self.held_safe = false;
             self.log
-                .info("every device is back: the script's outputs apply again");
+                .notice("every device is back: the script's outputs apply again");
         }
     }
 }
