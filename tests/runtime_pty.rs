@@ -165,3 +165,63 @@ fn a_module_swapped_behind_the_open_port_is_taken_control_of_and_goes_safe_after
     assert_eq!(s["do"], 0x05, "its new watchdog drove it safe: {s}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A rig in commissioning: the module on its real line, the panel not there yet and simulated
+/// (`sim = true` in its table, or `--sim-device panel`); the script uses both.
+fn mixed_rig_runs(panel_table: &str, extra: &[&str], tag: &str) {
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = std::env::temp_dir().join(format!("rigscript-pty-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("rig.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n\
+             [devices.panel]\nkind = \"trc1000\"\nsafe_relay = 0\n{panel_table}",
+            sim.path
+        ),
+    )
+    .unwrap();
+    let script = dir.join("both.rhai");
+    std::fs::write(
+        &script,
+        "every(\"50ms\", || { io.outputs = if panel.online && panel.pressed().len() == 0 { 0x3C } else { 0x01 }; });\n",
+    )
+    .unwrap();
+    let (config, script) = (config.display().to_string(), script.display().to_string());
+    let mut run = Command::new(rigscript())
+        .args(["run", "--config", &config, &script])
+        .args(extra)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0x3C);
+    signal(&run, "-TERM");
+    let status = run.wait().unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert_eq!(
+        s["do"], 0x3C,
+        "the real module driven from the simulated panel: {s}\n{err}"
+    );
+    assert_eq!(status.code(), Some(143), "{err}");
+    assert!(err.contains("panel: simulated TRC1000 panel"), "{err}");
+    assert!(err.contains("on serial port"), "io is real: {err}");
+    assert!(
+        err.contains("safe state (signal): io outputs 0x00, panel relay 0"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_rig_mixes_a_real_module_and_a_panel_marked_sim_in_rig_toml() {
+    mixed_rig_runs("sim = true\n", &[], "mixed-toml");
+}
+
+#[test]
+fn a_rig_mixes_a_real_module_and_a_panel_simulated_by_sim_device() {
+    mixed_rig_runs("", &["--sim-device", "panel"], "mixed-flag");
+}

@@ -92,6 +92,10 @@ pub struct RunArgs {
     /// module's own host watchdog.
     #[arg(long)]
     pub no_guardian: bool,
+    /// Simulate this device of rig.toml while the others are real (repeatable; the same as
+    /// `sim = true` in its table): commissioning a rig whose panel or module is not there yet.
+    #[arg(long, value_name = "NAME")]
+    pub sim_device: Vec<String>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -140,6 +144,18 @@ pub fn run(args: RunArgs) -> i32 {
     };
     if let Some(w) = args.wake_latency {
         config.wake_latency = w;
+    }
+    for name in &args.sim_device {
+        if !config.devices.contains_key(name) {
+            let known: Vec<&str> = config.devices.keys().map(String::as_str).collect();
+            say(&format!(
+                "rigscript run: --sim-device {name}: the rig has no device called {name} \
+                 (devices: {})",
+                known.join(", ")
+            ));
+            return exit::USAGE;
+        }
+        config.simulated.insert(name.clone());
     }
     let limits = &mut config.limits;
     limits.operations = args.budget.unwrap_or(limits.operations);

@@ -8,7 +8,7 @@ use crate::link::line::MAX_FRAME_GAP;
 use crate::protocol::c29u::{baud_code, BAUD_CODES};
 pub use crate::protocol::c29u::{Protocol, WatchdogTimeout};
 use crate::protocol::c29u_modbus::SLAVE_IDS;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -147,7 +147,7 @@ impl fmt::Display for Port {
     }
 }
 
-const DEVICE_KEYS_TRC1000: &[&str] = &["kind", "unit", "device", "safe_relay"];
+const DEVICE_KEYS_TRC1000: &[&str] = &["kind", "unit", "device", "safe_relay", "sim"];
 const DEVICE_KEYS_C29U: &[&str] = &[
     "kind",
     "port",
@@ -163,6 +163,7 @@ const DEVICE_KEYS_C29U: &[&str] = &[
     "di_active_low",
     "frame_gap",
     script_may_change::KEY,
+    "sim",
 ];
 
 /// Whether `name` can name a device: an identifier of ASCII letters, digits and `_`.
@@ -174,11 +175,14 @@ pub fn is_device_name(name: &str) -> bool {
 }
 
 /// Reads the `[devices]` table.
+/// Reads `[devices.NAME]` tables: the devices by name, and the names of those marked
+/// `sim = true` (simulated while the others are real).
 pub(super) fn read_devices(
     r: &mut Reader<'_>,
     devices: &TableRef<'_, '_>,
-) -> BTreeMap<String, DeviceConfig> {
+) -> (BTreeMap<String, DeviceConfig>, BTreeSet<String>) {
     let mut out = BTreeMap::new();
+    let mut simulated = BTreeSet::new();
     for (key, value) in devices.table.iter() {
         let name: &str = key.get_ref();
         if !is_device_name(name) {
@@ -210,14 +214,18 @@ pub(super) fn read_devices(
             span: value.span(),
             table,
         };
-        if let Some(device) = read_device(r, &t) {
+        let sim = r.read(&t, "sim", boolean).unwrap_or(false);
+        if sim {
+            simulated.insert(name.to_string());
+        }
+        if let Some(device) = read_device(r, &t, sim) {
             out.insert(name.to_string(), device);
         }
     }
-    out
+    (out, simulated)
 }
 
-fn read_device(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<DeviceConfig> {
+fn read_device(r: &mut Reader<'_>, t: &TableRef<'_, '_>, sim: bool) -> Option<DeviceConfig> {
     let Some(kind) = r.read(t, "kind", |v| {
         let s = string(v)?;
         match s.as_str() {
@@ -238,7 +246,7 @@ fn read_device(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<DeviceConfig>
         Some(DeviceConfig::Trc1000(read_trc1000(r, t)))
     } else {
         r.check_keys(t, DEVICE_KEYS_C29U);
-        read_c29u(r, t).map(DeviceConfig::C29u)
+        read_c29u(r, t, sim).map(DeviceConfig::C29u)
     }
 }
 
@@ -285,9 +293,10 @@ fn bus_address(v: &DeValue<'_>) -> Result<(u8, u8), ProblemKind> {
     })
 }
 
-fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
+fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>, sim: bool) -> Option<C29uConfig> {
     let port = r.read(t, "port", port);
-    if t.get("port").is_none() {
+    // A simulated module needs no port (one given is kept for when `sim` is taken out).
+    if t.get("port").is_none() && !sim {
         r.missing(
             t,
             "port",
@@ -366,6 +375,11 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Option<C29uConfig> {
     c.frame_gap = r.read(t, "frame_gap", frame_gap).unwrap_or(c.frame_gap);
     let listed = r.read(t, script_may_change::KEY, script_may_change::read);
     c.script_may_change = ScriptMayChange::of(t, &listed.unwrap_or_default());
+    let port = if sim {
+        Some(port.unwrap_or(Port::Simulated))
+    } else {
+        port
+    };
     port.map(|port| C29uConfig { port, ..c })
 }
 

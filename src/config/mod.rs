@@ -31,7 +31,7 @@ pub use wake_latency::WakeLatency;
 
 use crate::text_file::{read_text, TextKind};
 use reader::{duration, line_and_column, string, Reader, TableRef};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use toml::de::{DeTable, DeValue};
@@ -109,6 +109,8 @@ pub struct RigConfig {
     pub wake_latency: WakeLatency,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
+    /// The devices simulated while the others are real (`sim = true`, `run --sim-device`).
+    pub simulated: BTreeSet<String>,
     /// Devices by the name scripts use.
     pub devices: BTreeMap<String, DeviceConfig>,
 }
@@ -124,6 +126,7 @@ impl Default for RigConfig {
             wake_latency: WakeLatency::Auto,
             limits: ScriptLimits::default(),
             devices: BTreeMap::new(),
+            simulated: BTreeSet::new(),
         }
     }
 }
@@ -214,8 +217,8 @@ impl RigConfig {
                 }
             },
         };
-        let devices = match root.get("devices") {
-            None => BTreeMap::new(),
+        let (devices, simulated) = match root.get("devices") {
+            None => (BTreeMap::new(), BTreeSet::new()),
             Some(value) => match value.get_ref() {
                 DeValue::Table(table) => {
                     let t = TableRef {
@@ -223,10 +226,10 @@ impl RigConfig {
                         span: value.span(),
                         table,
                     };
-                    let devices = device::read_devices(&mut r, &t);
+                    let (devices, simulated) = device::read_devices(&mut r, &t);
                     clash::check(&mut r, &t, &devices);
                     feeding::check(&mut r, &t, &devices);
-                    devices
+                    (devices, simulated)
                 }
                 other => {
                     r.report(
@@ -237,7 +240,7 @@ impl RigConfig {
                             found: reader::type_name(other),
                         },
                     );
-                    BTreeMap::new()
+                    (BTreeMap::new(), BTreeSet::new())
                 }
             },
         };
@@ -253,16 +256,21 @@ impl RigConfig {
             wake_latency,
             limits,
             devices,
+            simulated,
         })
     }
 
-    /// Whether any device is real hardware (not `port = "simulator"`): only those outlive the
-    /// runner, and need its guardian.
+    /// Whether the device called `name` is simulated while the rig's others may be real
+    /// (`sim = true` in its table, `run --sim-device NAME`, or a module with no port).
+    pub fn is_simulated(&self, name: &str) -> bool {
+        self.simulated.contains(name)
+            || matches!(self.devices.get(name), Some(DeviceConfig::C29u(c)) if c.port == Port::Simulated)
+    }
+
+    /// Whether any device is real hardware: only those outlive the runner, and need its
+    /// guardian.
     pub fn has_real_devices(&self) -> bool {
-        self.devices.values().any(|d| match d {
-            DeviceConfig::C29u(c) => c.port != Port::Simulated,
-            DeviceConfig::Trc1000(_) => true,
-        })
+        self.devices.keys().any(|name| !self.is_simulated(name))
     }
 
     /// The rig `--sim` provides without a config: `panel`, a TRC1000 at unit 0 (safe relay 0),

@@ -120,6 +120,7 @@ fn the_example_reads_as_written() {
             wake_latency: WakeLatency::Limit(Duration::from_micros(50)),
             limits: ScriptLimits::default(),
             devices,
+            simulated: Default::default(),
         }
     );
 }
@@ -488,7 +489,7 @@ fn bad_trc1000_values() {
         ),
         (
             "port = \"/dev/ttyUSB0\"",
-            "rig.toml:3: devices.panel.port: unknown key; known keys here: kind, unit, device, safe_relay",
+            "rig.toml:3: devices.panel.port: unknown key; known keys here: kind, unit, device, safe_relay, sim",
         ),
     ];
     for (extra, want) in cases {
@@ -954,5 +955,31 @@ fn script_may_change_lists_what_a_script_may_change_of_what_rig_toml_sets() {
     }
     assert!(
         c29u_problem("script_may_change = \"watchdog\"").contains("expected a list of settings")
+    );
+}
+
+#[test]
+fn a_device_marked_sim_is_simulated_while_the_others_are_real() {
+    let c = parse(
+        "[devices.panel]\nkind = \"trc1000\"\nsim = true\n\
+         [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
+         [devices.spare]\nkind = \"trp-c29u\"\nid = 2\nsim = true\n",
+    )
+    .unwrap();
+    assert!(c.is_simulated("panel"));
+    assert!(c.is_simulated("spare"), "a simulated module needs no port");
+    assert!(!c.is_simulated("io"));
+    assert!(c.has_real_devices());
+    let all_sim = parse("[devices.panel]\nkind = \"trc1000\"\nsim = true\n").unwrap();
+    assert!(!all_sim.has_real_devices(), "nothing outlives the runner");
+    assert!(problems("[devices.io]\nkind = \"trp-c29u\"\nid = 2\n")
+        .iter()
+        .any(|p| p.contains("port")));
+    assert!(
+        problems("[devices.panel]\nkind = \"trc1000\"\nsim = 1\n")
+            .iter()
+            .any(|p| p.contains("devices.panel.sim")),
+        "{:?}",
+        problems("[devices.panel]\nkind = \"trc1000\"\nsim = 1\n")
     );
 }

@@ -2,7 +2,7 @@
 //! `rigscript safe` does by hand and the guardian does when the runner died. Nothing here needs
 //! the runner: each device is opened afresh, written, and read back.
 
-use crate::config::{DeviceConfig, Port, RigConfig};
+use crate::config::{DeviceConfig, RigConfig};
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::devices::{open_devices, Device, OpenError};
 use crate::runtime::safety::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed, END_TRIES};
@@ -26,6 +26,8 @@ pub enum Confirmed {
     Reading(SafeReading),
     /// A TRC1000 without a `safe_relay` in rig.toml: nothing to write.
     NoSafeRelay,
+    /// A simulated device: it lives in the runner and ended with it.
+    Simulated,
 }
 
 /// Why a device's safe state is not confirmed.
@@ -37,16 +39,13 @@ pub enum SafeError {
     /// It did not answer, or answered otherwise than its safe state.
     #[error(transparent)]
     Unconfirmed(#[from] Unconfirmed),
-    /// A simulated device lives inside the runner: nothing outside it can reach it.
-    #[error("simulated: it lives in the runner, nothing outside it can reach it")]
-    Simulated,
 }
 
 impl SafeError {
     /// Whether the device was not reached at all (as opposed to reached and not confirming).
     pub fn unreachable(&self) -> bool {
         match self {
-            SafeError::Open(_) | SafeError::Simulated => true,
+            SafeError::Open(_) => true,
             SafeError::Unconfirmed(u) => u.is_no_answer(),
         }
     }
@@ -60,6 +59,9 @@ impl fmt::Display for Confirmed {
             }
             Confirmed::Reading(SafeReading::Relay(r)) => write!(f, "relay {r} (confirmed)"),
             Confirmed::NoSafeRelay => f.write_str("no safe_relay in rig.toml: relay left as it is"),
+            Confirmed::Simulated => {
+                f.write_str("simulated: nothing outside the runner to make safe")
+            }
         }
     }
 }
@@ -92,10 +94,8 @@ fn make_one_safe(
     device: &DeviceConfig,
     clock: &SharedClock,
 ) -> Result<Confirmed, SafeError> {
-    if let DeviceConfig::C29u(c) = device {
-        if c.port == Port::Simulated {
-            return Err(SafeError::Simulated);
-        }
+    if config.is_simulated(name) {
+        return Ok(Confirmed::Simulated);
     }
     let alone = RigConfig {
         devices: BTreeMap::from([(name.to_string(), device.clone())]),
@@ -105,7 +105,7 @@ fn make_one_safe(
         .map_err(|e| SafeError::Open(Box::new(e)))?;
     match opened.devices.first_mut() {
         Some(d) => confirm(d),
-        None => Err(SafeError::Simulated),
+        None => Ok(Confirmed::Simulated),
     }
 }
 

@@ -42,8 +42,8 @@ pub struct Opened {
     pub sim: SimRig,
 }
 
-/// Opens every device `config` names: simulators for all when `simulate`, and for those whose
-/// port is `Port::Simulated` in any case. Every request is counted in `count`.
+/// Opens every device `config` names: simulators for all when `simulate`, and for those it
+/// marks simulated (`RigConfig::is_simulated`) in any case. Every request is counted in `count`.
 pub fn open_devices(
     config: &RigConfig,
     clock: &SharedClock,
@@ -54,6 +54,7 @@ pub fn open_devices(
     let mut sim = SimRig::default();
     let mut lines: BTreeMap<String, SharedLink> = BTreeMap::new();
     for (name, device) in &config.devices {
+        let simulate = simulate || config.is_simulated(name);
         let mut opened = match device {
             DeviceConfig::Trc1000(c) if simulate => {
                 let (d, s) = simulated_trc(name, c, clock, count);
@@ -61,7 +62,7 @@ pub fn open_devices(
                 Device::Trc(Box::new(d))
             }
             DeviceConfig::Trc1000(c) => Device::Trc(Box::new(real_trc(name, c, clock, count)?)),
-            DeviceConfig::C29u(c) if simulate || c.port == Port::Simulated => {
+            DeviceConfig::C29u(c) if simulate => {
                 let (d, s) = simulated_c29u(name, c, clock, count)?;
                 sim.insert(name, s);
                 Device::C29u(Box::new(d))
