@@ -224,3 +224,23 @@ fn a_report_whose_reader_went_away_ends_as_grep_would_and_a_run_keeps_its_status
     assert!(err.contains("safe state (stop())"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn api_shows_the_script_reference_in_the_terminal() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_rigscript"))
+        .args(["api", "every"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{text}");
+    assert!(text.starts_with("every(dur, |missed| ..)"), "{text}");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_rigscript"))
+        .args(["api", "evry"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("did you mean `every`?"),
+        "{out:?}"
+    );
+}

@@ -2,6 +2,7 @@
 
 use clap::{CommandFactory, Parser, Subcommand};
 
+pub mod api;
 pub mod c29;
 pub mod check;
 pub mod completions;
@@ -32,6 +33,8 @@ pub enum Command {
     Run(run::RunArgs),
     /// Write and confirm the safe state of every device in a rig (by hand, or systemd's ExecStopPost=)
     Safe(safe::SafeArgs),
+    /// Show the script API: every function, method and property, or one in full (`api every`)
+    Api(api::ApiArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
     Check(check::CheckArgs),
     /// Run scenario tests (*.test.rhai) in virtual time against the simulators
@@ -98,6 +101,7 @@ pub fn main() -> i32 {
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Safe(args) => safe::run(args),
+        Command::Api(args) => api::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.
         Command::Test(args) => crate::script::stack::on_script_stack(

@@ -42,8 +42,23 @@ impl From<ProtocolArg> for Protocol {
     }
 }
 
+/// What `sim c29u --help` says of the control lines (a test holds it to `CONTROL_FORMS`).
+pub const CONTROL_HELP: &str = "\
+Control lines, one a line on standard input (each answers `ok`, a JSON line or `error: ...`;
+`@ID` first addresses one module of several):
+  di BYTE                  set the energized inputs (bit n = DIn): di 0x05
+  di CH on, di CH off      energize or release one input, the others left as they are
+  pulse CH N               N pulses on input CH (0-7): its counter counts them
+  reset                    power cycle the module (back at its power-on value)
+  state                    the module's state as one JSON line
+  ignore-writes            the output stage fails: writes acknowledged, not applied
+  refuse-writes CODE       output writes refused with that Modbus exception code (4, 0xFF)
+  accept-writes            the output stage works again
+  swap NAME SAFE POWER_ON  another module answers in its place (its own name and stored values)";
+
 /// Options of `rigscript sim c29u`.
 #[derive(Debug, Args)]
+#[command(after_help = CONTROL_HELP)]
 pub struct C29uSimArgs {
     /// Protocol the module answers.
     #[arg(long, value_enum, default_value = "modbus")]
@@ -487,6 +502,16 @@ mod tests {
         assert_eq!(parse_byte("200"), Ok(200));
         assert!(parse_byte("256").is_err());
         assert!(parse_byte("0xZZ").unwrap_err().contains("not a byte"));
+    }
+
+    #[test]
+    fn the_help_shows_every_control_line() {
+        for form in CONTROL_FORMS {
+            assert!(
+                CONTROL_HELP.contains(form),
+                "sim c29u --help does not show `{form}`"
+            );
+        }
     }
 
     #[test]
