@@ -14,6 +14,10 @@ mod common;
 #[path = "common/args.rs"]
 mod args;
 
+#[path = "common/percentile.rs"]
+mod percentile;
+use percentile::percentile;
+
 use args::BenchArgs;
 use common::{rigscript, SimProcess, TempDir};
 use std::process::{Child, Command, Stdio};
@@ -149,14 +153,6 @@ fn resident_kib(pid: u32) -> Option<u64> {
         .lines()
         .find_map(|l| l.strip_prefix("VmRSS:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-}
-
-fn percentile(sorted: &[Duration], p: f64) -> Option<Duration> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let rank = ((sorted.len() - 1) as f64 * p / 100.0).round() as usize;
-    sorted.get(rank).copied()
 }
 
 fn ms(d: Option<Duration>) -> String {

@@ -29,8 +29,12 @@ mod common;
 
 #[path = "common/args.rs"]
 mod args;
+
+#[path = "common/percentile.rs"]
+mod percentile;
 use args::BenchArgs;
 use common::{counting_module, idle_after, Served};
+use percentile::percentile;
 use rigscript::device::c29u::{C29u, C29uOptions};
 use rigscript::link::line::wire_time;
 use rigscript::protocol::c29u::Protocol;
@@ -287,14 +291,6 @@ fn can_hold_wake_latency() -> Result<(), String> {
 /// The rigscript build `LINE_BENCH_BASELINE` names, if any.
 fn baseline() -> Option<PathBuf> {
     std::env::var_os("LINE_BENCH_BASELINE").map(PathBuf::from)
-}
-
-fn percentile(sorted: &[Duration], p: f64) -> Option<Duration> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let rank = ((sorted.len() - 1) as f64 * p / 100.0).round() as usize;
-    sorted.get(rank).copied()
 }
 
 fn ms(d: Option<Duration>) -> String {
