@@ -737,6 +737,13 @@ impl<P: Program> Runner<P> {
         self.state = State::Stopped {
             status: exit::ERROR,
         };
+        // The signal that stopped the run (if one did) has been seen: from here on the flag
+        // tells of another one, which cuts the `on_stop` handlers short (their exchanges, the
+        // handler under way, the ones left) and goes straight to the end's writes. Cleared
+        // before anything is logged: a second signal sent on seeing "stopping" must not be
+        // wiped out.
+        let flag = Arc::clone(&self.options.stop_flag);
+        flag.store(0, Ordering::SeqCst);
         {
             let mut rt = self.rt.borrow_mut();
             match &reason {
@@ -757,11 +764,6 @@ impl<P: Program> Runner<P> {
                 EndReason::Violated(_) => {}
             }
         }
-        // The signal that stopped the run (if one did) has been seen: the flag now tells of
-        // another one, which cuts the `on_stop` handlers short (their exchanges, the handler
-        // under way, the ones left) and goes straight to the end's writes.
-        let flag = Arc::clone(&self.options.stop_flag);
-        flag.store(0, Ordering::SeqCst);
         self.rt
             .borrow_mut()
             .set_cancel(&Cancel::when_set(Arc::clone(&flag)));
