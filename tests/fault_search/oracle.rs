@@ -220,7 +220,10 @@ impl Facts<'_> {
         }
         for (i, m) in self.run.modules.iter().enumerate() {
             // After a write whose answer was lost, writing again is the only way to be sure.
+            // A module swapped for another makes what the runner read of it before stale: a
+            // takeover under way when it happens writes from the old module's values.
             let answers_lost = self.case.faults.iter().any(|&(_, f)| match f {
+                Fault::Swap { dev, .. } => self.addresses(i, dev),
                 Fault::Drop { line, .. }
                 | Fault::Garble { line, .. }
                 | Fault::Late { line, .. }
@@ -313,12 +316,44 @@ impl Facts<'_> {
     /// Whether module `i` was swapped for another too shortly before `t` for the runner's
     /// periodic check to have found it (5 s, and the check's exchanges), or after it (no one
     /// is left to take control of the new one).
+    /// A frozen runner checks nothing, nor does one whose line to the module is down, so
+    /// that time between the swap and `t` does not count towards the check's window.
     fn swapped_unseen(&self, i: usize, t: Duration) -> bool {
         let window = ms(5000) + ms(2 * self.case.rig.period_ms) + self.slowest_exchange() * 8;
         self.case.faults.iter().any(|&(start, f)| match f {
-            Fault::Swap { dev, .. } => self.addresses(i, dev) && ms(start) + window >= t,
+            Fault::Swap { dev, .. } => {
+                let from = ms(start);
+                self.addresses(i, dev) && from + window + self.blind_between(i, from, t) >= t
+            }
             _ => false,
         })
+    }
+
+    /// How long, between `from` and `to`, the runner was frozen or module `i`'s line down
+    /// (overlaps counted once each: an over-estimate only widens the excuse by that much).
+    fn blind_between(&self, i: usize, from: Duration, to: Duration) -> Duration {
+        let line = self.run.modules[i].line;
+        self.case
+            .faults
+            .iter()
+            .filter_map(|&(start, f)| {
+                match f {
+                    Fault::Freeze { ms: d } => Some(d),
+                    Fault::LinkStall { line: l, ms: d }
+                    | Fault::Silence { line: l, ms: d }
+                    | Fault::Unplug { line: l, ms: d }
+                        if self.case.line(l) == line =>
+                    {
+                        Some(d)
+                    }
+                    _ => None,
+                }
+                .and_then(|d| {
+                    let (a, b) = (ms(start).max(from), (ms(start) + ms(d)).min(to));
+                    (b > a).then(|| b - a)
+                })
+            })
+            .sum()
     }
 
     /// The longest host watchdog module `i` may have: configured, or set by the script.
@@ -544,7 +579,8 @@ impl Facts<'_> {
             let now = self.run.at_end[i];
             let later = self.run.after_wait[i];
             let faulty = self.stage_faulty(i, self.end_began(), self.run.ended_at);
-            let unseen = self.swapped_unseen(i, self.runner_gone());
+            // The runner checks its modules until its end begins (or it is gone).
+            let unseen = self.swapped_unseen(i, self.end_began().min(self.runner_gone()));
             if self.reachable(m.line) {
                 let said = match &self.run.end {
                     End::Ran { log, .. } => log
