@@ -49,6 +49,8 @@ fn target(file: &str, run_for: Duration) -> Target {
     Target {
         source: std::fs::read_to_string(&path).expect("the script"),
         file: file.to_string(),
+        script: path.clone().into(),
+        config_file: None,
         config: RigConfig::simulated_default(),
         budget: DEFAULT_BUDGET,
         run_for,

@@ -4,14 +4,15 @@
 //! scenario test; after a pass, reports what was exercised.
 //!
 //! Exit status: 0 nothing found, 1 a counterexample, 2 usage or config error (a script that
-//! cannot run on the simulated rig says why, with the same messages as `check`).
+//! cannot run on the simulated rig says why, with the same messages as `check`), 70 a
+//! counterexample whose written test does not fail as its run did (a defect of `verify`).
 
 use super::check::fit_to_run;
 use crate::config::RigConfig;
 use crate::text_file::{read_text, TextKind};
 use crate::time::duration::{format_duration, parse_duration};
 use crate::verify::exec::Target;
-use crate::verify::{report, search, Options, SHRINK_BUDGET};
+use crate::verify::{report, reproduce, search, Options, SHRINK_BUDGET};
 use clap::Args;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -130,6 +131,8 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
     let target = Target {
         source,
         file: file.clone(),
+        script: args.script.clone(),
+        config_file: args.config.clone(),
         budget: args.budget.unwrap_or(config.limits.operations),
         config,
         run_for: args.run_for,
@@ -164,17 +167,15 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         eprintln!();
     }
     let mut test = None;
+    let mut defect = None;
     if let Some(c) = &summary.counterexample {
-        match report::write_test(
-            &args.out,
-            &args.script,
-            args.config.as_deref(),
-            &target,
-            &summary,
-            c,
-            &command(&args, seed),
-        ) {
-            Ok(p) => test = Some(p),
+        match report::write_test(&args.out, &target, &summary, c, &command(&args, seed)) {
+            // The file as written, through the same code as `rigscript test`: only a test that
+            // fails naming the same check is offered as the reproduction.
+            Ok(p) => match reproduce::check_file(&p, &c.finding.check) {
+                Ok(()) => test = Some(p),
+                Err(why) => defect = Some(report::defect(&p, c, &why)),
+            },
             Err(e) => eprintln!(
                 "rigscript verify: cannot write the counterexample's test under {}: {e}",
                 args.out.display()
@@ -182,11 +183,15 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         }
     }
     if args.json {
-        say(&report::to_json(&summary, &opts, test.as_deref()).to_string());
+        say(&report::to_json(&summary, &opts, test.as_deref(), defect.as_deref()).to_string());
     } else {
         for line in report::human(&summary, &opts, test.as_deref()) {
             say(&line);
         }
+    }
+    if let Some(d) = &defect {
+        eprintln!("rigscript verify: {d}");
+        return crate::runtime::exit::INTERNAL;
     }
     i32::from(summary.counterexample.is_some())
 }

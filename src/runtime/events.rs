@@ -148,8 +148,12 @@ impl<H: Clone> Runtime<H> {
     /// fire, not the timers there are); a spent timer's handler goes with it.
     fn timer_calls(&mut self, calls: &mut Vec<Call<H>>) {
         let now = self.now();
+        let boundary = self.tick_boundary.unwrap_or(now);
         let clock = &self.clock;
-        let fired = self.handlers.schedule.due(now, || clock.wall());
+        let fired = self
+            .handlers
+            .schedule
+            .due_at_tick(now, boundary, || clock.wall());
         let mut lines = Vec::new();
         for f in fired {
             let args = vec![Arg::Int(i64::try_from(f.missed).unwrap_or(i64::MAX))];

@@ -423,9 +423,16 @@ impl<P: Program> Runner<P> {
             self.wait_until(self.next_deadline, false);
             self.tick();
         }
+        self.wait_between_ticks(target);
+        true
+    }
+
+    /// Lets virtual time reach `target` without a tick, doing what falls due between ticks
+    /// on the way (feeds, retries, a grace time's end, the end of `--for`), as `advance`
+    /// does after its last tick.
+    pub fn wait_between_ticks(&mut self, target: Duration) {
         self.wait_until(target, false);
         self.clock.sleep_until(target);
-        true
     }
 
     /// Waits for the next deadline and runs one tick.
@@ -493,6 +500,7 @@ impl<P: Program> Runner<P> {
         {
             let mut rt = self.rt.borrow_mut();
             rt.tick = rt.tick.saturating_add(1);
+            rt.tick_boundary = Some(self.next_deadline.min(start));
         }
         if self.ended_by_signal() {
             return;

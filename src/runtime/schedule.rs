@@ -8,8 +8,9 @@
 //! Behaviour that matters:
 //! - An `every` timer that fell behind by several periods (a long handler, a stalled tick)
 //!   fires once, reports how many deadlines it skipped (`Fired::missed`), and re-arms at the
-//!   first period boundary after now, keeping its original phase. Overruns are counted, never
-//!   made up for with a burst.
+//!   first period boundary after the tick's own boundary (`due_at_tick`), keeping its original
+//!   phase: a deadline that passed while the tick ran fires in the next tick. Overruns are
+//!   counted, never made up for with a burst.
 //! - A `cron` timer works the same way when the wall clock jumps forward (suspend, NTP step):
 //!   once, with the skipped occurrences counted (up to `MAX_COUNTED_CRON_MISSES`). When the
 //!   wall clock steps back, it re-arms from the new wall time, so wall times that come round
@@ -26,7 +27,7 @@
 //! - A cron expression that matches no time at all (`0 0 30 2 *`) is refused when added; one
 //!   that stops matching later (a year field) ends after its last occurrence.
 
-use chrono::{DateTime, Local, TimeZone, Utc};
+use chrono::{DateTime, Local, TimeDelta, TimeZone, Utc};
 use croner::parser::{CronParser, Seconds};
 use croner::Cron;
 use std::collections::{BTreeMap, BTreeSet};
@@ -327,11 +328,29 @@ impl<Tz: TimeZone> Schedule<Tz> {
         now_mono: Duration,
         now_wall: impl FnOnce() -> DateTime<Utc>,
     ) -> Vec<Fired> {
+        self.due_at_tick(now_mono, now_mono, now_wall)
+    }
+
+    /// As `due`, for a tick that runs for the period boundary `boundary` (at or before
+    /// `now_mono`): what is due at `now_mono` fires, but deadlines are counted and re-armed
+    /// from `boundary`, not from now. A deadline that passed while a long tick ran (retries,
+    /// a module taken back, a slow handler) so falls to the catch-up tick that follows, on
+    /// the last boundary passed: an `every` at the scan period fires in every tick that reads
+    /// fresh inputs.
+    pub fn due_at_tick(
+        &mut self,
+        now_mono: Duration,
+        boundary: Duration,
+        now_wall: impl FnOnce() -> DateTime<Utc>,
+    ) -> Vec<Fired> {
+        let boundary = boundary.min(now_mono);
         let mono_due = self.by_mono.first().is_some_and(|(at, _)| *at <= now_mono);
         if !mono_due && self.by_wall.is_empty() && self.latest_search.is_none() {
             return Vec::new();
         }
         let now_wall = now_wall();
+        let behind = TimeDelta::from_std(now_mono.saturating_sub(boundary)).unwrap_or_default();
+        let boundary_wall = now_wall - behind;
         if self.latest_search.is_some_and(|l| now_wall < l) {
             self.search_again_after_step_back(now_wall);
         }
@@ -345,7 +364,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
             };
             match &mut timer.trigger {
                 Trigger::Every { period, next } => {
-                    let (missed, rearmed) = rearm_every(*next, *period, now_mono);
+                    let (missed, rearmed) = rearm_every(*next, *period, boundary);
                     *next = rearmed;
                     self.by_mono.insert((rearmed, id));
                     fired.push((late, id, missed, false));
@@ -370,7 +389,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
             else {
                 continue;
             };
-            let (missed, rearmed) = rearm_cron(cron, next, &now_wall.with_timezone(&self.tz));
+            let (missed, rearmed) = rearm_cron(cron, next, &boundary_wall.with_timezone(&self.tz));
             match rearmed {
                 Some(n) => {
                     self.by_wall.insert((n.with_timezone(&Utc), id));
@@ -488,7 +507,8 @@ fn take_due<K: Ord + Copy>(queue: &mut BTreeSet<(K, TimerId)>, now: K) -> Vec<(K
 }
 
 /// For an `every` timer due at `next` and polled at `now >= next`: how many further deadlines
-/// passed unfired, and the first period boundary strictly after `now`.
+/// passed unfired up to `now` (a tick's boundary, which may come before `next`), and the first
+/// period boundary strictly after `now`.
 fn rearm_every(next: Duration, period: Duration, now: Duration) -> (u64, Duration) {
     let period_ns = period.as_nanos().max(1);
     let passed = now.saturating_sub(next).as_nanos() / period_ns + 1;
@@ -575,6 +595,29 @@ mod tests {
         }
         clock.advance_to(until);
         out
+    }
+
+    #[test]
+    fn deadlines_that_pass_while_a_tick_runs_fall_to_the_catch_up_tick() {
+        let mut s = Schedule::with_time_zone(Utc);
+        let wall = || utc(2026, 3, 28, 12, 0, 0);
+        let id = s.every(ms(20), Duration::ZERO).unwrap();
+        let once = |missed| {
+            vec![Fired {
+                id,
+                missed,
+                last: false,
+            }]
+        };
+        // The tick of the 20 ms boundary reaches the timers at 65 ms (it ran long first).
+        assert_eq!(s.due_at_tick(ms(65), ms(20), wall), once(0));
+        // The catch-up tick on the last boundary passed (60 ms), at 66 ms: the deadlines of
+        // 40 and 60 ms passed meanwhile, so the timer fires once more, with one missed.
+        assert_eq!(s.due_at_tick(ms(66), ms(60), wall), once(1));
+        // And in the next tick, on time.
+        assert_eq!(s.due_at_tick(ms(80), ms(80), wall), once(0));
+        // `due` is a tick on time.
+        assert_eq!(s.due(ms(100), wall), once(0));
     }
 
     fn local_times<Tz: TimeZone>(tz: &Tz, fired: &[(DateTime<Utc>, Fired)]) -> Vec<String>

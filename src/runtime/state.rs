@@ -40,6 +40,10 @@ pub struct Runtime<H> {
     pub log: Logger,
     /// The current tick (0 while the top level runs at start).
     pub tick: u64,
+    /// The period boundary the current tick runs for (at or before its start): timer
+    /// deadlines are counted up to it, so one that passes while the tick runs falls to the
+    /// next tick (see `Schedule::due_at_tick`).
+    pub tick_boundary: Option<Duration>,
     /// Monotonic time the run started.
     pub started: Duration,
     /// The script asked to stop, with this exit status.
@@ -81,6 +85,7 @@ impl<H: Clone> Runtime<H> {
             records,
             log,
             tick: 0,
+            tick_boundary: None,
             started,
             stop_request: None,
             cause: "top level".into(),

@@ -617,23 +617,35 @@ fn test_engine(base: &Path) -> (Engine, Rc<TestBudget>, Rc<Guard>) {
 /// each in a fresh engine; calls `report` with each result as it comes.
 pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) -> Vec<TestResult> {
     let base: PathBuf = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    match read_text(path, TextKind::TestFile) {
+        Ok(source) => run_source(&source, &base, file, report),
+        Err(e) => {
+            let r = TestResult {
+                name: format!("{file}::(load)"),
+                failure: Some(format!("cannot read {file}: {e}")),
+            };
+            report(&r);
+            vec![r]
+        }
+    }
+}
+
+/// Runs every `test_*` function of a test file's text `source` as `run_file` does, its paths
+/// read from the directory `base` (`verify` runs a counterexample's test this way before it
+/// writes it).
+pub fn run_source(
+    source: &str,
+    base: &Path,
+    file: &str,
+    mut report: impl FnMut(&TestResult),
+) -> Vec<TestResult> {
     let mut results = Vec::new();
     let mut push = |r: TestResult| {
         report(&r);
         results.push(r);
     };
-    let source = match read_text(path, TextKind::TestFile) {
-        Ok(s) => s,
-        Err(e) => {
-            push(TestResult {
-                name: format!("{file}::(load)"),
-                failure: Some(format!("cannot read {file}: {e}")),
-            });
-            return results;
-        }
-    };
     let engine = sandboxed(TEST_BUDGET);
-    let ast = match engine.compile(&source) {
+    let ast = match engine.compile(source) {
         Ok(ast) => ast,
         Err(e) => {
             push(TestResult {
@@ -661,7 +673,7 @@ pub fn run_file(path: &Path, file: &str, mut report: impl FnMut(&TestResult)) ->
     // In the order they are written.
     tests.sort_by_key(|name| source.find(&format!("fn {name}(")).unwrap_or(usize::MAX));
     for name in tests {
-        let (engine, budget, guard) = test_engine(&base);
+        let (engine, budget, guard) = test_engine(base);
         let options = CallFnOptions::new().eval_ast(false);
         guard.begin_call();
         let result = engine

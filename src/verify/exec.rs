@@ -15,6 +15,7 @@ use crate::sim::answer_faults::AnswerFault;
 use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
 use chrono::{TimeDelta, Utc};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -25,6 +26,10 @@ pub struct Target {
     pub source: String,
     /// The script's path as messages name it.
     pub file: String,
+    /// The script's file (its counterexample's test loads it from there).
+    pub script: PathBuf,
+    /// The rig.toml it was given, if one was (the test loads it too).
+    pub config_file: Option<PathBuf>,
     /// The rig (every device simulated; no records file).
     pub config: RigConfig,
     /// Operations per handler call.
@@ -123,9 +128,11 @@ impl Player<'_> {
                 return found.or_else(|| self.watch.after_end(&self.rig, now));
             }
         }
-        self.clock.sleep_until(target);
+        self.rig.runner.wait_between_ticks(target);
+        // The planned wait, not how far the clock moved: a tick that ran past `target` would
+        // make the longer wait run the catch-up tick before the next event when replayed.
         // `r.advance("0s")` still runs the ticks that are due.
-        let by = self.clock.now().saturating_sub(from);
+        let by = target.saturating_sub(from);
         if !by.is_zero() || ticked {
             self.steps.push(Step::Advance(by));
         }
@@ -299,6 +306,8 @@ invariant("power only with DI3 closed", || io.outputs == 0 || io.input(3));
         Target {
             source: SCRIPT.into(),
             file: "t.rhai".into(),
+            script: "t.rhai".into(),
+            config_file: None,
             config: RigConfig::simulated_default(),
             budget: 100_000,
             run_for: Duration::from_secs(2),

@@ -18,6 +18,7 @@ pub mod field;
 pub mod plan;
 pub mod profile;
 pub mod report;
+pub mod reproduce;
 pub mod shrink;
 pub mod testfile;
 
@@ -75,6 +76,11 @@ pub struct Counterexample {
     pub exhausted: bool,
     /// Wall time shrinking took.
     pub shrink_time: Duration,
+    /// Candidates that failed in replay but whose written test did not (each a defect of
+    /// `verify`; none is kept).
+    pub not_reproduced: usize,
+    /// How the first of them failed to.
+    pub first_not_reproduced: Option<reproduce::NotReproduced>,
 }
 
 /// What a search came to.
@@ -222,8 +228,14 @@ fn play_batch(
     result.into_inner().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Replays `plan` until `horizon`; the outcome if it fails `check` again.
-fn replay(target: &Target, c: &Candidate, check: &checks::Check) -> Option<Outcome> {
+/// Replays `plan` until `horizon`; the outcome if it fails `check` again and so does the test it
+/// would be written as (one that does not is noted in `not_reproduced`).
+fn replay(
+    target: &Target,
+    c: &Candidate,
+    check: &checks::Check,
+    not_reproduced: &mut Vec<reproduce::NotReproduced>,
+) -> Option<Outcome> {
     let t = Target {
         run_for: c.horizon,
         ..target.clone()
@@ -233,8 +245,13 @@ fn replay(target: &Target, c: &Candidate, check: &checks::Check) -> Option<Outco
         observe: false,
     };
     let outcome = execute(&t, &c.plan, keep).ok()?;
-    let same = outcome.finding.as_ref().is_some_and(|f| f.check == *check);
-    same.then_some(outcome)
+    let finding = outcome.finding.as_ref().filter(|f| f.check == *check)?;
+    // A candidate counts only if its written test fails so too.
+    if let Err(e) = reproduce::check_steps(target, &c.plan.start, &outcome.steps, finding) {
+        not_reproduced.push(e);
+        return None;
+    }
+    Some(outcome)
 }
 
 /// Shrinks the failing run `run`.
@@ -254,10 +271,11 @@ fn minimise(
         plan,
         horizon: target.run_for,
     };
+    let mut not_reproduced = Vec::new();
     let s = shrink(
         candidate,
         outcome,
-        |c| replay(target, c, &check),
+        |c| replay(target, c, &check, &mut not_reproduced),
         opts.shrink,
         period.saturating_mul(2),
         field::quantum(period),
@@ -273,6 +291,8 @@ fn minimise(
         replays: s.replays,
         exhausted: s.exhausted,
         shrink_time: began.elapsed(),
+        not_reproduced: not_reproduced.len(),
+        first_not_reproduced: not_reproduced.into_iter().next(),
     }
 }
 

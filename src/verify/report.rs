@@ -2,10 +2,10 @@
 //! written to a file, or, after a pass, what was exercised and the warnings; or all of it as
 //! one JSON document.
 
-use super::checks::Watch;
 use super::exec::Target;
 use super::plan::{time_text, trace};
-use super::testfile::{relative, TestFile};
+use super::reproduce::{failure_text, render, NotReproduced};
+use super::testfile::absolute;
 use super::{Counterexample, Options, Summary};
 use crate::time::duration::format_duration;
 use serde_json::{json, Value};
@@ -39,30 +39,17 @@ pub fn test_path(out: &Path, script: &Path, seed: u64, c: &Counterexample) -> Pa
     ))
 }
 
-/// Absolute, with `.` and `..` resolved where the path exists.
-fn absolute(p: &Path) -> PathBuf {
-    std::fs::canonicalize(p).unwrap_or_else(|_| {
-        std::env::current_dir()
-            .map(|d| d.join(p))
-            .unwrap_or_else(|_| p.to_path_buf())
-    })
-}
-
 /// Writes the counterexample's scenario test under `out` (created if missing); its path.
 pub fn write_test(
     out: &Path,
-    script: &Path,
-    config: Option<&Path>,
     target: &Target,
     summary: &Summary,
     c: &Counterexample,
     command: &str,
 ) -> std::io::Result<PathBuf> {
     std::fs::create_dir_all(out)?;
-    let path = test_path(out, script, summary.seed, c);
+    let path = test_path(out, &target.script, summary.seed, c);
     let dir = absolute(out);
-    let script_rel = relative(&dir, &absolute(script));
-    let config_rel = config.map(|p| relative(&dir, &absolute(p)));
     let header = vec![
         format!(
             "Found by `{command}` (seed {}, run {} of {}): {} event(s), shrunk from {}.",
@@ -75,19 +62,21 @@ pub fn write_test(
         story(c),
         format!("Run it: rigscript test {}", path.display()),
     ];
-    let watch = Watch::new(&target.config);
-    let text = TestFile {
-        script: &script_rel,
-        config: config_rel.as_deref(),
-        start: &c.start,
-        steps: &c.steps,
-        finding: &c.finding,
-        safe_states: &watch.safe_states(),
-        header: &header,
-    }
-    .render();
+    let text = render(target, &dir, &c.start, &c.steps, &c.finding, &header);
     std::fs::write(&path, text)?;
     Ok(path)
+}
+
+/// What is said when the written test does not fail as the run did: a defect of `verify`,
+/// never a reproduction.
+pub fn defect(test: &Path, c: &Counterexample, why: &NotReproduced) -> String {
+    format!(
+        "defect of verify, not of the script: the test written to {} does not reproduce the \
+         counterexample ({} expected; {why}); the finding may still be real, but this test \
+         cannot show it: please report it with the command in the test's header",
+        test.display(),
+        failure_text(&c.finding.check)
+    )
 }
 
 /// The lines for people.
@@ -115,6 +104,13 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
                 }
             ));
             out.push(format!("  {}", story(c)));
+            if let Some(why) = &c.first_not_reproduced {
+                out.push(format!(
+                    "warning: {} shrinking candidate(s) failed when played but not as written \
+                     tests (a defect of verify; none was kept); the first: {why}",
+                    c.not_reproduced
+                ));
+            }
             if let Some(p) = test {
                 out.push(format!("written to {}", p.display()));
                 out.push(format!("reproduce: rigscript test {}", p.display()));
@@ -145,7 +141,12 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
 }
 
 /// The JSON document.
-pub fn to_json(summary: &Summary, opts: &Options, test: Option<&Path>) -> Value {
+pub fn to_json(
+    summary: &Summary,
+    opts: &Options,
+    test: Option<&Path>,
+    defect: Option<&str>,
+) -> Value {
     let counterexample = summary.counterexample.as_ref().map(|c| {
         let events: Vec<Value> = c
             .events
@@ -166,6 +167,9 @@ pub fn to_json(summary: &Summary, opts: &Options, test: Option<&Path>) -> Value 
             "start": c.start.wall_text(),
             "zone": c.start.zone,
             "test_file": test.map(|p| p.display().to_string()),
+            "reproduced": defect.is_none() && test.is_some(),
+            "defect": defect,
+            "candidates_not_reproduced": c.not_reproduced,
         })
     });
     let passed = summary.counterexample.is_none();

@@ -7,9 +7,18 @@
 use super::checks::{Check, Finding};
 use super::exec::Step;
 use super::plan::{wall_step_text, Action, StartPoint};
-use crate::time::duration::format_duration;
+use crate::time::duration::format_duration_exact;
 use std::fmt::Write;
 use std::path::{Component, Path, PathBuf};
+
+/// Absolute, with `.` and `..` resolved where the path exists.
+pub fn absolute(p: &Path) -> PathBuf {
+    std::fs::canonicalize(p).unwrap_or_else(|_| {
+        std::env::current_dir()
+            .map(|d| d.join(p))
+            .unwrap_or_else(|_| p.to_path_buf())
+    })
+}
 
 /// A Rhai string literal.
 fn quoted(text: &str) -> String {
@@ -72,7 +81,7 @@ fn action_line(a: &Action) -> String {
         Action::DropAnswers { dev, n } => format!("r.drop_answers({}, {n});", quoted(dev)),
         Action::GarbleAnswers { dev, n } => format!("r.garble_answers({}, {n});", quoted(dev)),
         Action::PowerCycle { dev } => format!("r.power_cycle({});", quoted(dev)),
-        Action::Stall { by } => format!("r.stall({});", quoted(&format_duration(*by))),
+        Action::Stall { by } => format!("r.stall({});", quoted(&format_duration_exact(*by))),
         Action::WallStep { seconds } => {
             format!("r.step_wall({});", quoted(&wall_step_text(*seconds)))
         }
@@ -127,7 +136,7 @@ impl TestFile<'_> {
         for (i, step) in self.steps.iter().enumerate() {
             let line = match step {
                 Step::Advance(d) => {
-                    let mut l = format!("r.advance({});", quoted(&format_duration(*d)));
+                    let mut l = format!("r.advance({});", quoted(&format_duration_exact(*d)));
                     if Some(i) == last_advance {
                         if let Check::Invariant(_) = self.finding.check {
                             let _ = write!(l, " // {} is found false here", self.finding.check);
