@@ -650,7 +650,7 @@ pub fn run_source(
         Err(e) => {
             push(TestResult {
                 name: format!("{file}::(compile)"),
-                failure: Some(parse_error(file, &source, &e)),
+                failure: Some(parse_error(file, source, &e)),
             });
             return results;
         }

@@ -202,7 +202,9 @@ impl Takeover {
             Write::Outputs => d.driver.write_outputs(self.outputs),
         };
         match result {
-            Err(C29uError::SafeMode { .. }) if !self.notes.left_safe_mode => {
+            Err(C29uError::SafeMode { .. })
+                if !self.notes.left_safe_mode && self.may_be_in_safe_mode(d) =>
+            {
                 return Ok(Stage::LeaveSafeMode { resume: step });
             }
             Err(C29uError::SafeMode { port, id }) => {
@@ -235,6 +237,16 @@ impl Takeover {
                 Stage::Watchdog
             }
         })
+    }
+
+    /// Whether a "safe mode" refusal can be one: safe mode is a watchdog that fired, so a
+    /// module whose watchdog was found off (or that is known to refuse writes) is refusing,
+    /// and turning its watchdog off again would only store what it holds already.
+    fn may_be_in_safe_mode(&self, d: &C29uDevice) -> bool {
+        !d.refusing
+            && self
+                .before
+                .map_or(true, |w| w.enabled || w.expired == Some(true))
     }
 
     /// The host watchdog on and fed: the wanted one, or the module's own when none is wanted

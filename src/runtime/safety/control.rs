@@ -504,3 +504,29 @@ mod tests {
         assert!(!r.rt.online(IO));
     }
 }
+
+#[cfg(test)]
+mod refusing_tests {
+    use crate::runtime::testing::{TestRig, RIG};
+    use crate::sim::c29u::OutputFault;
+    use crate::sim::c29u_line::lock;
+
+    #[test]
+    fn a_module_refusing_with_ff_while_its_watchdog_is_off_is_not_taken_out_of_safe_mode() {
+        // Safe mode is a watchdog that fired: with the watchdog found off, an FF refusal is a
+        // module refusing writes, and turning its watchdog off again would only wear its
+        // EEPROM with what it holds (found by the fault search, seed 121064 case 1055).
+        let toml = RIG.replace("watchdog = \"1s\"\n", "");
+        let mut r = TestRig::new(&toml);
+        r.sim
+            .set_output_fault("io", Some(OutputFault::Refuse(0xFF)))
+            .unwrap();
+        let refused = match r.rt.start_devices() {
+            Err(e) => e.to_string(),
+            Ok(()) => panic!("the module refuses its outputs, yet it was taken control of"),
+        };
+        let model = r.sim.c29u("io", "eeprom").unwrap();
+        assert_eq!(lock(&model).eeprom_rewrites(), 0, "{refused}");
+        assert!(refused.contains("it refuses writes"), "{refused}");
+    }
+}
