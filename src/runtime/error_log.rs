@@ -19,23 +19,31 @@ pub struct ScriptError {
 pub struct ErrorLog {
     kept: Vec<ScriptError>,
     total: u64,
+    last: Option<ScriptError>,
 }
 
 impl ErrorLog {
     /// Notes an error.
     pub fn push(&mut self, message: &str, over_budget: bool) {
         self.total = self.total.saturating_add(1);
+        let error = ScriptError {
+            message: message.to_string(),
+            over_budget,
+        };
         if self.kept.len() < MAX_KEPT_ERRORS {
-            self.kept.push(ScriptError {
-                message: message.to_string(),
-                over_budget,
-            });
+            self.kept.push(error.clone());
         }
+        self.last = Some(error);
     }
 
     /// The errors kept, oldest first.
     pub fn kept(&self) -> &[ScriptError] {
         &self.kept
+    }
+
+    /// The latest error, kept or not.
+    pub fn last(&self) -> Option<&ScriptError> {
+        self.last.as_ref()
     }
 
     /// How many errors there were in all (kept or not).
@@ -58,5 +66,10 @@ mod tests {
         assert_eq!(log.kept().len(), MAX_KEPT_ERRORS);
         assert!(log.kept()[0].over_budget);
         assert_eq!(log.kept()[1].message, "e1");
+        assert_eq!(
+            log.last().map(|e| e.message.as_str()),
+            Some(format!("e{}", MAX_KEPT_ERRORS + 4).as_str()),
+            "the latest is known past the kept ones"
+        );
     }
 }

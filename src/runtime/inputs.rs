@@ -2,6 +2,7 @@
 //! that reading; a lost device is not asked and answers with its last reading.
 
 use super::devices::{C29uDevice, Device, DeviceError, Snapshot, TrcDevice};
+use super::observe::{Reading, RunEvent};
 use super::state::Runtime;
 use crate::device::c29u::Latches;
 use crate::protocol::trc1000::{rotary_delta, Rotary, RotaryValues, SwitchSet};
@@ -12,54 +13,94 @@ struct Input<D, T> {
     device: fn(&mut Device) -> Option<&mut D>,
     snapshot: fn(&D) -> &Snapshot<T>,
     read: fn(&mut D, u64) -> Result<T, DeviceError>,
+    /// The reading as an event (`None`: not told; rotaries, latches).
+    event: fn(&T) -> Option<Reading>,
 }
 
 const SWITCHES: Input<TrcDevice, SwitchSet> = Input {
     device: Device::as_trc,
     snapshot: |d| &d.switches,
     read: TrcDevice::read_switches,
+    event: |s| {
+        Some(Reading::Switches {
+            pressed: s.pressed_names(),
+        })
+    },
 };
 
 const ROTARIES: Input<TrcDevice, RotaryValues> = Input {
     device: Device::as_trc,
     snapshot: |d| &d.rotaries,
     read: TrcDevice::read_rotaries,
+    event: |_| None,
 };
 
 const INPUTS: Input<C29uDevice, u8> = Input {
     device: Device::as_c29u,
     snapshot: |d| &d.inputs,
     read: C29uDevice::read_inputs,
+    event: |&value| Some(Reading::DigitalInputs { value }),
 };
 
 const COUNTERS: Input<C29uDevice, [u16; 8]> = Input {
     device: Device::as_c29u,
     snapshot: |d| &d.counters,
     read: C29uDevice::read_counters,
+    event: |&values| Some(Reading::Counters { values }),
 };
 
 const LATCHES: Input<C29uDevice, Latches> = Input {
     device: Device::as_c29u,
     snapshot: |d| &d.latches,
     read: C29uDevice::read_latches,
+    event: |_| None,
 };
 
 impl<H: Clone> Runtime<H> {
     /// `input` of the device at `idx`: read at the first access in a tick while the device
     /// answers (a communication failure marks it lost); the last reading otherwise. `None`
     /// if the device has no such input or was never read.
-    fn read_lazily<D, T: Copy>(&mut self, idx: usize, input: &Input<D, T>) -> Option<T> {
+    fn read_lazily<D, T: Copy + PartialEq>(
+        &mut self,
+        idx: usize,
+        input: &Input<D, T>,
+    ) -> Option<T> {
         self.input_accesses = self.input_accesses.wrapping_add(1);
         let tick = self.tick;
         let d = self.devices.get_mut(idx).and_then(input.device)?;
         if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {
             let d = self.devices.get_mut(idx).and_then(input.device)?;
-            if let Err(e) = (input.read)(d, tick) {
-                self.note_failure(idx, &e);
+            match (input.read)(d, tick) {
+                Err(e) => self.note_failure(idx, &e),
+                Ok(_) => self.tell_change(idx, input),
             }
         }
         let d = self.devices.get_mut(idx).and_then(input.device)?;
         (input.snapshot)(d).current
+    }
+
+    /// Tells the events a reading just made that differs from the one before.
+    fn tell_change<D, T: Copy + PartialEq>(&mut self, idx: usize, input: &Input<D, T>) {
+        if !self.events.watched() {
+            return;
+        }
+        let Some(device) = self.devices.get_mut(idx) else {
+            return;
+        };
+        let name = device.name().to_string();
+        let Some(d) = (input.device)(device) else {
+            return;
+        };
+        let snapshot = (input.snapshot)(d);
+        if snapshot.current == snapshot.previous {
+            return;
+        }
+        if let Some(reading) = snapshot.current.as_ref().and_then(input.event) {
+            self.events.publish(|| RunEvent::Inputs {
+                device: name,
+                reading,
+            });
+        }
     }
 
     /// The switches of the TRC1000 at `idx` (nothing pressed before the first reading).

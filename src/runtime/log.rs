@@ -10,6 +10,7 @@
 //! module keeps refusing) is logged once and then counted (`repeating`).
 
 use super::line_writer::{LineSink, LineWriter};
+use super::observe::{Events, RunEvent};
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
@@ -85,6 +86,7 @@ pub struct Logger {
     dropped_before_close: u64,
     kept: Option<Vec<String>>,
     repeats: HashMap<String, Repeat>,
+    events: Events,
 }
 
 /// A problem being counted instead of logged.
@@ -109,6 +111,7 @@ impl Logger {
             dropped_before_close: 0,
             kept: None,
             repeats: HashMap::new(),
+            events: Events::default(),
         }
     }
 
@@ -155,8 +158,22 @@ impl Logger {
             .map_or(self.dropped_before_close, LineWriter::dropped)
     }
 
+    /// Tells every line (quiet or not: that is the log's output only) to the run's events.
+    pub fn set_events(&mut self, events: Events) {
+        self.events = events;
+    }
+
+    /// The run's events, for what tells them beside a log line (records).
+    pub fn events(&self) -> &Events {
+        &self.events
+    }
+
     /// Writes one line at `level`.
     pub fn line(&mut self, level: Level, message: &str) {
+        self.events.publish(|| RunEvent::Log {
+            level: level.syslog_name(),
+            message: cut(&visible(message)).into_owned(),
+        });
         if matches!(level, Level::Activity | Level::Notice) && self.quiet {
             return;
         }

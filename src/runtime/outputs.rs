@@ -7,6 +7,7 @@
 
 use super::devices::Device;
 use super::log::Level;
+use super::observe::RunEvent;
 use super::state::Runtime;
 
 impl<H: Clone> Runtime<H> {
@@ -102,7 +103,15 @@ impl<H: Clone> Runtime<H> {
                                     before.map_or("?".to_string(), |r| r.to_string()),
                                 )
                             });
-                            d.select_relay(relay).map(|()| line)
+                            let (told, cause) = (d.name.clone(), cause.to_string());
+                            d.select_relay(relay).map(|()| {
+                                self.events.publish(|| RunEvent::Outputs {
+                                    device: told,
+                                    value: relay,
+                                    cause,
+                                });
+                                line
+                            })
                         }
                         _ => Ok(None),
                     }
@@ -119,7 +128,16 @@ impl<H: Clone> Runtime<H> {
                             before.map_or("?".to_string(), |v| format!("{v:#04x}")),
                             if held { "held safe" } else { &d.outputs_cause }
                         );
-                        d.write_outputs(target).map(|()| Some(line))
+                        let cause = if held { "held safe" } else { &d.outputs_cause };
+                        let (told, cause) = (d.name.clone(), cause.to_string());
+                        d.write_outputs(target).map(|()| {
+                            self.events.publish(|| RunEvent::Outputs {
+                                device: told,
+                                value: target,
+                                cause,
+                            });
+                            Some(line)
+                        })
                     }
                 }
                 None => Ok(None),

@@ -8,6 +8,7 @@
 
 use super::line_writer::{LineWriter, Pushed};
 use super::log::{Level, Logger};
+use super::observe::RunEvent;
 pub use super::records_file::RecordError;
 use super::records_file::{open_for_appending, refusals, RecordSink, RecordTarget, SharedRefusals};
 use serde_json::{json, Map, Value};
@@ -225,6 +226,9 @@ impl Records {
     }
 
     fn append(&mut self, record: Value, log: &mut Logger) {
+        log.events().publish(|| RunEvent::Record {
+            line: record.to_string(),
+        });
         if let Some(f) = &mut self.file {
             f.sent = f.sent.saturating_add(1);
             // One line per record: the writer writes it whole or not at all.

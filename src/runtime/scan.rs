@@ -11,8 +11,13 @@
 use super::error_log::ErrorLog;
 use super::exit;
 use super::invariants::{Check, Violation};
+use super::observe::{Events, RunEvent};
+use super::requests::{Answer, Request, Requests};
 use super::safety::DeviceEnd;
 use super::signals;
+use super::snapshot::{
+    micros, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
+};
 use super::state::Runtime;
 use super::stats::Stats;
 use super::subscriptions::{Call, STOP_BUDGET};
@@ -22,6 +27,7 @@ use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use signal_hook::consts::SIGTERM;
 use std::cell::RefCell;
+use std::collections::BTreeSet;
 use std::io::Write;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
@@ -124,6 +130,21 @@ pub enum EndReason {
     Error(String),
     /// An invariant was found false (`runtime::invariants`).
     Violated(String),
+    /// Someone asked for a stop through the control queue (`runtime::requests`): who.
+    Requested(String),
+}
+
+impl std::fmt::Display for EndReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            EndReason::Finished(why) => write!(f, "{why}"),
+            EndReason::Stopped(code) => write!(f, "the script called stop({code})"),
+            EndReason::Signal(n) => write!(f, "{} received", signals::name(*n)),
+            EndReason::Error(m) => write!(f, "script error: {m}"),
+            EndReason::Violated(m) => write!(f, "{m}"),
+            EndReason::Requested(by) => write!(f, "stop asked by {by}"),
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -156,6 +177,23 @@ pub struct Runner<P: Program> {
     end_report: Vec<DeviceEnd>,
     /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
     pub service: Option<crate::service::notify::Notifier>,
+    /// Where the loop tells what happens.
+    events: Events,
+    /// What is asked of the loop from outside, once `serve` attached it.
+    served: Option<Served>,
+    /// Times the script was started again.
+    restarts: u64,
+}
+
+/// A run served to askers from outside the loop (`Runner::serve`).
+struct Served {
+    requests: Requests,
+    /// The script's file, for the snapshot.
+    script: String,
+    /// The devices that are simulators.
+    simulated: BTreeSet<String>,
+    /// The snapshot made for this tick, if one was asked for.
+    made: Option<(u64, Arc<RigSnapshot>)>,
 }
 
 impl<P: Program> Runner<P> {
@@ -165,6 +203,7 @@ impl<P: Program> Runner<P> {
         rt.borrow_mut()
             .set_cancel(&Cancel::when_set(Arc::clone(&options.stop_flag)));
         let clock = Arc::clone(&rt.borrow().clock);
+        let events = rt.borrow().events.clone();
         let now = clock.now();
         Self {
             rt,
@@ -183,6 +222,100 @@ impl<P: Program> Runner<P> {
             violation: None,
             end_report: Vec::new(),
             service: None,
+            events,
+            served: None,
+            restarts: 0,
+        }
+    }
+
+    /// Answers `requests` from now on, at tick boundaries and in the sleep slices, for the run
+    /// of `script` whose `simulated` devices are simulators.
+    pub fn serve(&mut self, requests: Requests, script: &str, simulated: BTreeSet<String>) {
+        self.served = Some(Served {
+            requests,
+            script: script.to_string(),
+            simulated,
+            made: None,
+        });
+    }
+
+    /// The run's event stream, to attach consumers to.
+    pub fn events(&self) -> &Events {
+        &self.events
+    }
+
+    /// The run as it stands (see `runtime::snapshot`).
+    pub fn snapshot(&self) -> RigSnapshot {
+        let rt = self.rt.borrow();
+        let now = rt.now();
+        let (script, simulated) = match &self.served {
+            Some(s) => (s.script.clone(), Some(&s.simulated)),
+            None => (String::new(), None),
+        };
+        let state = match self.state {
+            State::Running => "running",
+            State::Restarting { .. } => "restarting",
+            State::Stopped { .. } => "ended",
+        };
+        RigSnapshot {
+            version: SNAPSHOT_VERSION,
+            script: ScriptState {
+                file: script,
+                state: state.into(),
+                uptime_ms: u64::try_from(rt.uptime().as_millis()).unwrap_or(u64::MAX),
+                errors: self.errors.total(),
+                last_error: self.errors.last().map(|e| e.message.clone()),
+                restarts: self.restarts,
+            },
+            devices: rt
+                .devices
+                .iter()
+                .map(|d| {
+                    let sim = simulated.is_some_and(|s| s.contains(d.name()));
+                    (d.name().to_string(), DeviceState::of(d, sim, now))
+                })
+                .collect(),
+            held_safe: rt.held_safe,
+            ticks: TickFigures {
+                period_us: micros(self.options.period),
+                count: self.stats.ticks,
+                overruns: self.stats.overruns,
+                jitter_p99_us: micros(self.stats.jitter.quantile(0.99)),
+                work_p99_us: micros(self.stats.work.quantile(0.99)),
+                transactions: self.stats.transactions,
+            },
+            dropped: self.events.dropped(),
+            log_dropped: rt.log.dropped(),
+        }
+    }
+
+    /// Answers what waits in the control queue (a snapshot made at most once a tick).
+    fn answer_requests(&mut self) {
+        let Some(served) = &self.served else {
+            return;
+        };
+        let tick = self.stats.ticks;
+        let mut made = served.made.clone().filter(|(at, _)| *at == tick);
+        let mut asked = false;
+        // Made lazily, only if a request needs it: the closure cannot borrow `self` whole.
+        let snapshot = std::cell::OnceCell::new();
+        served.requests.drain(|request| match request {
+            Request::Snapshot => {
+                asked = true;
+                let s = match &made {
+                    Some((_, s)) => Arc::clone(s),
+                    None => Arc::clone(snapshot.get_or_init(|| Arc::new(self.snapshot()))),
+                };
+                Answer::Snapshot(s)
+            }
+        });
+        if asked && made.is_none() {
+            made = snapshot.into_inner().map(|s| (tick, s));
+        }
+        if let Some(served) = &mut self.served {
+            if made.is_some() {
+                served.made = made;
+            }
         }
     }
 
@@ -229,11 +362,34 @@ impl<P: Program> Runner<P> {
     fn start_program(&mut self) {
         self.rt.borrow_mut().cause = "top level".into();
         self.last_start = self.clock.now();
-        if let Err(f) = self.program.start() {
-            let message = describe(&f, "top level");
-            self.errors.push(&message, f.over_budget);
-            self.finish(EndReason::Error(message));
+        match self.program.start() {
+            Ok(()) => self.tell_started(),
+            Err(f) => {
+                let message = describe(&f, "top level");
+                self.note_fault(&message, f.over_budget);
+                self.finish(EndReason::Error(message));
+            }
         }
+    }
+
+    /// Tells the events the script's top level ran.
+    fn tell_started(&self) {
+        let restarts = self.restarts;
+        self.events.publish(|| RunEvent::ScriptStarted {
+            script: self
+                .served
+                .as_ref()
+                .map_or_else(String::new, |s| s.script.clone()),
+            restarts,
+        });
+    }
+
+    /// Counts a script error and tells the events of it.
+    fn note_fault(&mut self, message: &str, over_budget: bool) {
+        self.errors.push(message, over_budget);
+        self.events.publish(|| RunEvent::ScriptFailed {
+            message: message.to_string(),
+        });
     }
 
     /// Runs until the run ends, sleeping between ticks; returns the exit status.
@@ -362,7 +518,14 @@ impl<P: Program> Runner<P> {
             for due in [feed, retry, grace, end].into_iter().flatten() {
                 until = until.min(due.max(now));
             }
-            self.clock.sleep_until(until);
+            match &self.served {
+                Some(s) => {
+                    let bell = s.requests.bell().clone();
+                    self.clock.sleep_until_rung(until, &bell);
+                    self.answer_requests();
+                }
+                None => self.clock.sleep_until(until),
+            }
             // A lost device is tried when its time comes, not at the next tick: with a long
             // period its watchdog would go unfed past its timeout.
             let retried = retry.is_some_and(|due| self.clock.now() >= due);
@@ -465,13 +628,15 @@ impl<P: Program> Runner<P> {
 
     /// Ends the run if a signal asked it to stop; true if it did.
     fn ended_by_signal(&mut self) -> bool {
-        match self.stop_signal() {
-            Some(signal) => {
-                self.finish(EndReason::Signal(signal));
-                true
-            }
-            None => false,
+        let Some(signal) = self.stop_signal() else {
+            return false;
+        };
+        let asked = self.served.as_ref().and_then(|s| s.requests.stopped_by());
+        match asked {
+            Some(by) if signal == SIGTERM => self.finish(EndReason::Requested(by)),
+            _ => self.finish(EndReason::Signal(signal)),
         }
+        true
     }
 
     /// The signal that asked the run to stop, if one did.
@@ -556,7 +721,19 @@ impl<P: Program> Runner<P> {
             .saturating_sub(transactions_before);
         self.stats.transactions = self.stats.transactions.saturating_add(spent);
         self.stats.max_transactions = self.stats.max_transactions.max(spent);
+        let deadline = self.next_deadline;
         self.schedule_next(end);
+        if self.events.watched() {
+            let tick = self.stats.ticks;
+            let overrun = end > deadline.saturating_add(self.options.period);
+            self.events.publish(|| RunEvent::Tick {
+                tick,
+                late_us: micros(start.saturating_sub(deadline)),
+                work_us: micros(end.saturating_sub(start)),
+                overrun,
+            });
+        }
+        self.answer_requests();
     }
 
     /// Moves the deadline one period on; past it already, counts an overrun and skips to the
@@ -611,7 +788,7 @@ impl<P: Program> Runner<P> {
                     // error is told (often of the same cause: an exchange the stop cut, a
                     // write past the file size limit as SIGXFSZ came).
                     let message = describe(&f, &call.label);
-                    self.errors.push(&message, f.over_budget);
+                    self.note_fault(&message, f.over_budget);
                     self.rt.borrow_mut().log.error(&message);
                     return;
                 }
@@ -654,7 +831,7 @@ impl<P: Program> Runner<P> {
                 }
                 Err(f) => {
                     let message = describe(&f, &check.call.label);
-                    self.errors.push(&message, f.over_budget);
+                    self.note_fault(&message, f.over_budget);
                     self.finish(EndReason::Error(message));
                     return false;
                 }
@@ -668,7 +845,7 @@ impl<P: Program> Runner<P> {
     /// Applies the error policy to a failed handler; true if the tick goes on.
     fn handle_fault(&mut self, fault: &Fault, label: &str) -> bool {
         let message = describe(fault, label);
-        self.errors.push(&message, fault.over_budget);
+        self.note_fault(&message, fault.over_budget);
         let policy = match (self.options.policy, fault.over_budget) {
             // A runaway handler is never skipped: it would run away again.
             (ErrorPolicy::Skip, true) => ErrorPolicy::Stop,
@@ -717,10 +894,15 @@ impl<P: Program> Runner<P> {
         self.state = State::Restarting {
             at: now.saturating_add(wait),
         };
+        drop(rt);
+        self.events.publish(|| RunEvent::ScriptRestarting {
+            after_ms: u64::try_from(wait.as_millis()).unwrap_or(u64::MAX),
+        });
     }
 
     fn restart(&mut self) {
         self.state = State::Running;
+        self.restarts = self.restarts.saturating_add(1);
         self.last_start = self.clock.now();
         {
             let mut rt = self.rt.borrow_mut();
@@ -728,10 +910,13 @@ impl<P: Program> Runner<P> {
             rt.cause = "top level".into();
             rt.log.notice("starting the script again");
         }
-        if let Err(f) = self.program.start() {
-            let message = describe(&f, "top level");
-            self.errors.push(&message, f.over_budget);
-            self.schedule_restart(&message);
+        match self.program.start() {
+            Ok(()) => self.tell_started(),
+            Err(f) => {
+                let message = describe(&f, "top level");
+                self.note_fault(&message, f.over_budget);
+                self.schedule_restart(&message);
+            }
         }
     }
 
@@ -768,6 +953,7 @@ impl<P: Program> Runner<P> {
                         .notice(&format!("stopping: the script called stop({code})"));
                 }
                 EndReason::Finished(why) => rt.log.notice(&format!("stopping: {why}")),
+                EndReason::Requested(by) => rt.log.notice(&format!("stopping: asked by {by}")),
                 // Logged with the tick's readings by `report_violation`.
                 EndReason::Violated(_) => {}
             }
@@ -798,6 +984,7 @@ impl<P: Program> Runner<P> {
             EndReason::Signal(_) => "signal",
             EndReason::Stopped(_) => "stop()",
             EndReason::Finished(_) => "end of run",
+            EndReason::Requested(_) => "stop requested",
         };
         self.end_report = rt.end_safe(why, true);
         self.trouble.unreached_at_end = self
@@ -823,13 +1010,32 @@ impl<P: Program> Runner<P> {
                 Some(format!("{failed} measurement(s) out of limits")),
             ),
             EndReason::Signal(n) => (exit::signal(n), None),
+            // As for SIGTERM: whoever stops a rig by hand or by systemd sees one status.
+            EndReason::Requested(_) => (exit::signal(SIGTERM), None),
             _ => (exit::OK, None),
         };
         match because {
             Some(why) => rt.log.warn(&format!("{why}: exit status {status}")),
             None => rt.log.notice(&format!("stopped; exit status {status}")),
         }
+        drop(rt);
         self.state = State::Stopped { status };
+        self.tell_end(status, &reason);
+    }
+
+    /// Tells the events how the run ended, answers the askers waiting with the final
+    /// snapshot, and lets the control queue go (later askers are told the run has ended).
+    fn tell_end(&mut self, status: i32, reason: &EndReason) {
+        let (safe, unconfirmed): (Vec<_>, Vec<_>) =
+            self.end_report.iter().partition(|d| !d.needs_safe_state());
+        self.events.publish(|| RunEvent::Ended {
+            status,
+            reason: reason.to_string(),
+            safe: safe.into_iter().map(|d| d.device.clone()).collect(),
+            unconfirmed: unconfirmed.into_iter().map(|d| d.device.clone()).collect(),
+        });
+        self.answer_requests();
+        self.served = None;
     }
 }
 
@@ -883,7 +1089,7 @@ impl<P: Program> Runner<P> {
                 }
                 Err(f) => {
                     let message = describe(&f, &call.label);
-                    self.errors.push(&message, f.over_budget);
+                    self.note_fault(&message, f.over_budget);
                     self.rt.borrow_mut().log.error(&message);
                     self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
                 }

@@ -9,6 +9,7 @@ use super::devices::links::TransactionCounter;
 use super::devices::Device;
 use super::invariants::Invariant;
 use super::log::Logger;
+use super::observe::Events;
 use super::records::Records;
 use super::subscriptions::Subscriptions;
 use crate::device::cancel::Cancel;
@@ -60,6 +61,8 @@ pub struct Runtime<H> {
     /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
     /// runs; supervision also stops trying lost devices once it is set.
     pub cancel: Cancel,
+    /// Where what happens is told to whoever watches the run (`observe`).
+    pub events: Events,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -69,11 +72,13 @@ impl<H: Clone> Runtime<H> {
         zone: Zone,
         devices: Vec<Device>,
         records: Records,
-        log: Logger,
+        mut log: Logger,
         transactions: TransactionCounter,
         grace: Duration,
     ) -> Self {
         let started = clock.now();
+        let events = Events::default();
+        log.set_events(events.clone());
         Self {
             clock,
             zone,
@@ -93,6 +98,7 @@ impl<H: Clone> Runtime<H> {
             transactions,
             grace,
             cancel: Cancel::never(),
+            events,
         }
     }
 

@@ -3,6 +3,7 @@
 //! Monotonic time is a `Duration` since the clock's origin, so virtual time is just a number
 //! that tests move forward; wall time (for records and cron) comes from the same clock.
 
+use super::doorbell::Doorbell;
 use chrono::{DateTime, Utc};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -16,6 +17,12 @@ pub trait Clock: Send + Sync {
     fn wall(&self) -> DateTime<Utc>;
     /// Waits until monotonic time `deadline` (returns at once if it has passed).
     fn sleep_until(&self, deadline: Duration);
+    /// As `sleep_until`, returning early when `bell` rings (real time; virtual time has no
+    /// one to ring during a jump, so it just jumps).
+    fn sleep_until_rung(&self, deadline: Duration, bell: &Doorbell) {
+        let _ = bell;
+        self.sleep_until(deadline);
+    }
 }
 
 /// The monotonic clock in nanoseconds. Read about fifteen times a scan tick: `Instant`'s
@@ -78,6 +85,13 @@ impl Clock for SystemClock {
         let now = self.now();
         if deadline > now {
             std::thread::sleep(deadline - now);
+        }
+    }
+
+    fn sleep_until_rung(&self, deadline: Duration, bell: &Doorbell) {
+        let now = self.now();
+        if deadline > now {
+            bell.wait(deadline - now);
         }
     }
 }

@@ -2,5 +2,6 @@
 //! tests), durations as people write them, and the time zone of cron, `now()` and the log.
 
 pub mod clock;
+pub mod doorbell;
 pub mod duration;
 pub mod zone;

@@ -3,6 +3,7 @@
 //! past the grace time every output is held safe until all devices are back.
 
 use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::observe::RunEvent;
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
 use std::time::Duration;
@@ -51,6 +52,10 @@ impl<H: Clone> Runtime<H> {
                 };
                 self.log
                     .warn(&format!("{name}: lost: {error}; trying again {when}"));
+                self.events.publish(|| RunEvent::DeviceLost {
+                    device: name,
+                    cause: error.to_string(),
+                });
             }
         }
     }
@@ -109,6 +114,8 @@ impl<H: Clone> Runtime<H> {
                              again",
                             format_duration(lost_for)
                         ));
+                        self.events
+                            .publish(|| RunEvent::DeviceBack { device: name });
                     } else if let Some(d) = self.devices.get_mut(idx) {
                         // Only a lost answer moves the retry time on (`note_failure`); after a
                         // refusal it would stay past, and the device be tried every tick.

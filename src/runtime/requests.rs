@@ -1,0 +1,226 @@
+//! The one way into a running loop: a bounded queue of typed requests, drained by the loop at
+//! tick boundaries and in its sleep slices, each answered (`Answer`). Whoever asks (the
+//! control socket, later the web page or the broker) holds a `Requester` and never touches the
+//! runtime.
+//!
+//! A stop is urgent and may come from a signal handler, which can only set a word: stops go
+//! through the run's stop flag (`RunOptions::stop_flag`: it also cuts an exchange under way
+//! short), signals by their number, a requested stop as `SIGTERM` with who asked kept beside
+//! it. Everything else waits in the queue for the loop.
+
+use super::snapshot::RigSnapshot;
+use crate::time::doorbell::Doorbell;
+use signal_hook::consts::SIGTERM;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+/// Requests waiting for the loop at most; one more is refused at once (`AskError::Busy`).
+pub const QUEUE: usize = 64;
+
+/// Requests the loop answers in one go at most, so a flood costs one slice a bounded time.
+pub const PER_TURN: usize = 16;
+
+/// What can be asked of a running loop.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Request {
+    /// The run as it stands.
+    Snapshot,
+}
+
+/// The loop's answer to a request.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Answer {
+    /// The snapshot asked for.
+    Snapshot(Arc<RigSnapshot>),
+    /// Done as asked.
+    Accepted,
+    /// Not done, and why.
+    Refused(String),
+}
+
+/// Why a request got no answer.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum AskError {
+    /// The queue is full: the loop is behind on requests.
+    #[error("the run has {QUEUE} requests waiting already; try again")]
+    Busy,
+    /// The run has ended (or is ending) and answers nothing more.
+    #[error("the run has ended")]
+    Gone,
+    /// No answer in time.
+    #[error("no answer from the run within {}", crate::time::duration::format_duration(*.0))]
+    NoAnswer(Duration),
+}
+
+struct Envelope {
+    request: Request,
+    reply: SyncSender<Answer>,
+}
+
+/// What asks: cheap to clone, `Send`, one per service.
+#[derive(Clone)]
+pub struct Requester {
+    queue: SyncSender<Envelope>,
+    stop: Arc<AtomicUsize>,
+    stopped_by: Arc<Mutex<Option<String>>>,
+    bell: Doorbell,
+}
+
+/// What the loop drains.
+pub struct Requests {
+    queue: Receiver<Envelope>,
+    stopped_by: Arc<Mutex<Option<String>>>,
+    bell: Doorbell,
+}
+
+/// A queue into a loop whose stop flag is `stop`.
+pub fn queue(stop: &Arc<AtomicUsize>) -> (Requester, Requests) {
+    let (tx, rx) = mpsc::sync_channel(QUEUE);
+    let stopped_by = Arc::new(Mutex::new(None));
+    let bell = Doorbell::default();
+    (
+        Requester {
+            queue: tx,
+            stop: Arc::clone(stop),
+            stopped_by: Arc::clone(&stopped_by),
+            bell: bell.clone(),
+        },
+        Requests {
+            queue: rx,
+            stopped_by,
+            bell,
+        },
+    )
+}
+
+impl Requester {
+    /// Asks `request` and waits at most `wait` for the answer.
+    pub fn ask(&self, request: Request, wait: Duration) -> Result<Answer, AskError> {
+        let (reply, answer) = mpsc::sync_channel(1);
+        match self.queue.try_send(Envelope { request, reply }) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) => return Err(AskError::Busy),
+            Err(TrySendError::Disconnected(_)) => return Err(AskError::Gone),
+        }
+        self.bell.ring();
+        match answer.recv_timeout(wait) {
+            Ok(a) => Ok(a),
+            Err(RecvTimeoutError::Timeout) => Err(AskError::NoAnswer(wait)),
+            Err(RecvTimeoutError::Disconnected) => Err(AskError::Gone),
+        }
+    }
+
+    /// Asks the run to stop as SIGTERM would (on_stop, the safe state, exit status 143),
+    /// saying who asked (`by`, for the log); an ending already under way is left as it is.
+    pub fn stop(&self, by: &str) {
+        *lock(&self.stopped_by) = Some(by.to_string());
+        let first = self
+            .stop
+            .compare_exchange(
+                0,
+                usize::try_from(SIGTERM).unwrap_or(15),
+                Ordering::SeqCst,
+                Ordering::SeqCst,
+            )
+            .is_ok();
+        if !first {
+            // A signal (or an earlier request) is ending the run: the log names that one.
+            *lock(&self.stopped_by) = None;
+        }
+        self.bell.ring();
+    }
+}
+
+impl Requests {
+    /// Answers the requests waiting (at most `PER_TURN`), each with `answer`.
+    pub fn drain(&self, mut answer: impl FnMut(&Request) -> Answer) {
+        for envelope in self.queue.try_iter().take(PER_TURN) {
+            // An asker that gave up is no concern of the loop's.
+            let _ = envelope.reply.try_send(answer(&envelope.request));
+        }
+    }
+
+    /// Who asked for the stop under way, if it was asked for rather than signalled.
+    pub fn stopped_by(&self) -> Option<String> {
+        lock(&self.stopped_by).clone()
+    }
+
+    /// What wakes the loop's sleep when a request comes.
+    pub fn bell(&self) -> &Doorbell {
+        &self.bell
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_request_is_answered_by_whoever_drains_the_queue() {
+        let stop = Arc::new(AtomicUsize::new(0));
+        let (ask, requests) = queue(&stop);
+        let loop_side = std::thread::spawn(move || {
+            while !requests.bell().wait(Duration::from_secs(10)) {}
+            requests.drain(|_| Answer::Refused("not today".into()));
+        });
+        let answer = ask.ask(Request::Snapshot, Duration::from_secs(10));
+        assert_eq!(answer, Ok(Answer::Refused("not today".into())));
+        loop_side.join().unwrap();
+    }
+
+    #[test]
+    fn a_full_queue_refuses_at_once_and_a_gone_loop_is_told() {
+        let stop = Arc::new(AtomicUsize::new(0));
+        let (ask, requests) = queue(&stop);
+        let waiting: Vec<_> = (0..QUEUE)
+            .map(|_| {
+                let ask = ask.clone();
+                std::thread::spawn(move || ask.ask(Request::Snapshot, Duration::from_secs(10)))
+            })
+            .collect();
+        // Until all are queued: the next one is then refused.
+        let busy = loop {
+            match ask.ask(Request::Snapshot, Duration::ZERO) {
+                Err(AskError::Busy) => break true,
+                Err(AskError::NoAnswer(_)) => std::thread::yield_now(),
+                other => panic!("{other:?}"),
+            }
+        };
+        assert!(busy);
+        drop(requests);
+        for w in waiting {
+            assert_eq!(w.join().unwrap(), Err(AskError::Gone));
+        }
+        assert_eq!(
+            ask.ask(Request::Snapshot, Duration::from_secs(1)),
+            Err(AskError::Gone)
+        );
+    }
+
+    #[test]
+    fn a_stop_sets_the_flag_as_sigterm_says_who_asked_and_leaves_a_signal_as_it_is() {
+        let stop = Arc::new(AtomicUsize::new(0));
+        let (ask, requests) = queue(&stop);
+        ask.stop("rigscript stop (pid 7)");
+        assert_eq!(stop.load(Ordering::SeqCst), SIGTERM as usize);
+        assert_eq!(
+            requests.stopped_by().as_deref(),
+            Some("rigscript stop (pid 7)")
+        );
+        assert!(requests.bell().wait(Duration::ZERO), "the loop is woken");
+        stop.store(2, Ordering::SeqCst);
+        ask.stop("again");
+        assert_eq!(stop.load(Ordering::SeqCst), 2);
+        assert_eq!(
+            requests.stopped_by(),
+            None,
+            "the signal's stop is told as the signal's"
+        );
+    }
+}
