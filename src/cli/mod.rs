@@ -13,6 +13,7 @@ pub mod run_outputs;
 pub mod safe;
 pub mod scan;
 pub mod sim;
+pub mod status;
 pub mod test;
 pub mod trc;
 pub mod verify;
@@ -33,6 +34,13 @@ pub enum Command {
     Run(run::RunArgs),
     /// Write and confirm the safe state of every device in a rig (by hand, or systemd's ExecStopPost=)
     Safe(safe::SafeArgs),
+    /// Show a running rig: devices, inputs and outputs, the script's state, tick figures
+    Status(status::StatusArgs),
+    /// List the rigs running on this machine
+    #[command(visible_alias = "ps")]
+    List(status::ListArgs),
+    /// Stop a running rig as SIGTERM would: on_stop, the safe state, exit status 143
+    Stop(status::StopArgs),
     /// Show the script API: every function, method and property, or one in full (`api every`)
     Api(api::ApiArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
@@ -101,6 +109,9 @@ pub fn main() -> i32 {
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Safe(args) => safe::run(args),
+        Command::Status(args) => status::status(args),
+        Command::List(args) => status::list(&args),
+        Command::Stop(args) => status::stop(&args),
         Command::Api(args) => api::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.
