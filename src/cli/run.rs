@@ -18,7 +18,7 @@ use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
 use crate::script::stack;
 use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
-use crate::service::control_socket::{self, Claim, ClaimError};
+use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::rig_dir;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::SystemClock;
@@ -197,6 +197,7 @@ pub fn run(args: RunArgs) -> i32 {
     let control = ControlSetup {
         queue: requests::queue(&stop_flag),
         rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
+        named: config.name.is_some(),
         config: args.config.as_ref().map(|p| p.display().to_string()),
         simulated: config
             .devices
@@ -258,6 +259,8 @@ pub fn run(args: RunArgs) -> i32 {
 struct ControlSetup {
     queue: (Requester, Requests),
     rig: String,
+    /// Whether rig.toml gave the name (else it came from a file's stem).
+    named: bool,
     config: Option<String>,
     simulated: BTreeSet<String>,
 }
@@ -278,7 +281,12 @@ impl ControlSetup {
             config: self.config.clone(),
             started: chrono::Local::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, false),
         };
-        control_socket::claim(&dir, hello)
+        let naming = if self.named {
+            Naming::Configured
+        } else {
+            Naming::Derived
+        };
+        control_socket::claim(&dir, hello, naming)
     }
 }
 
@@ -293,6 +301,15 @@ fn run_started(
     control: ControlSetup,
 ) -> i32 {
     let claim = match control.claim(file) {
+        Ok(c) if c.hello().rig != control.rig => {
+            say(&format!(
+                "rigscript run: rig {} is running already: this run is rig {} (`name = \"...\"` \
+                 in rig.toml names it)",
+                control.rig,
+                c.hello().rig
+            ));
+            Some(c)
+        }
         Ok(c) => Some(c),
         // A rig directory that cannot be written costs the view from outside, not the run.
         Err(e @ ClaimError::Io { .. }) => {

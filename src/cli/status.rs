@@ -70,17 +70,9 @@ impl Unreached {
     }
 }
 
-/// The rig directory, or why not.
-fn dir() -> Result<PathBuf, Unreached> {
-    rig_dir::rig_dir().map_err(|e| Unreached {
-        message: format!("cannot open the rig directory: {e}"),
-        status: exit::ERROR,
-    })
-}
-
 /// What runs, in words, for a message about a rig that does not.
-fn running_list(dir: &Path) -> String {
-    let rigs = rig_dir::running(dir);
+fn running_list() -> String {
+    let rigs = rig_dir::running_anywhere();
     if rigs.is_empty() {
         "no rig is running on this machine (for this user)".into()
     } else {
@@ -94,7 +86,6 @@ fn running_list(dir: &Path) -> String {
 
 /// The socket of the rig asked for: by name, by config, or the only one running.
 fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connection, Unreached> {
-    let dir = dir()?;
     let name = match (rig, config) {
         (Some(r), _) => r.to_string(),
         (None, Some(path)) => {
@@ -105,7 +96,7 @@ fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connection, Unreache
             rig_dir::rig_name(c.name.as_deref(), Some(path), Path::new(""))
         }
         (None, None) => {
-            let rigs = rig_dir::running(&dir);
+            let rigs = rig_dir::running_anywhere();
             match rigs.as_slice() {
                 [one] => one.rig.clone(),
                 [] => {
@@ -116,28 +107,27 @@ fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connection, Unreache
                 }
                 _ => {
                     return Err(Unreached {
-                        message: format!(
-                            "several rigs are running; name one ({})",
-                            running_list(&dir)
-                        ),
+                        message: format!("several rigs are running; name one ({})", running_list()),
                         status: exit::USAGE,
                     })
                 }
             }
         }
     };
-    let path = rig_dir::socket_path(&dir, &name);
-    let not_running = |dir: &Path| Unreached {
-        message: format!("no rig called {name} is running; {}", running_list(dir)),
+    let not_running = || Unreached {
+        message: format!("no rig called {name} is running; {}", running_list()),
         status: exit::UNAVAILABLE,
+    };
+    let Some(path) = rig_dir::find_socket(&name) else {
+        return Err(not_running());
     };
     match rig_dir::knock(&path) {
         Knock::Answered(_) => {}
         Knock::Stale => {
             let _ = std::fs::remove_file(&path);
-            return Err(not_running(&dir));
+            return Err(not_running());
         }
-        Knock::Absent => return Err(not_running(&dir)),
+        Knock::Absent => return Err(not_running()),
     }
     Connection::open(&path, ANSWER_WAIT).map_err(|e| Unreached {
         message: format!("rig {name} did not answer: {e}"),
@@ -211,16 +201,12 @@ fn say_failed(command: &str, e: &std::io::Error) -> i32 {
 
 /// Runs `rigscript list`.
 pub fn list(args: &ListArgs) -> i32 {
-    let dir = match dir() {
-        Ok(d) => d,
-        Err(e) => return e.say("list"),
-    };
-    let rigs: Vec<(Hello, Option<RigSnapshot>)> = rig_dir::running(&dir)
+    let rigs: Vec<(Hello, Option<RigSnapshot>)> = rig_dir::running_anywhere()
         .into_iter()
         .map(|h| {
-            let snapshot = Connection::open(&rig_dir::socket_path(&dir, &h.rig), ANSWER_WAIT)
-                .and_then(|mut c| c.status())
-                .ok();
+            let snapshot = rig_dir::find_socket(&h.rig)
+                .and_then(|p| Connection::open(&p, ANSWER_WAIT).ok())
+                .and_then(|mut c| c.status().ok());
             (h, snapshot)
         })
         .collect();

@@ -192,8 +192,8 @@ struct Served {
     script: String,
     /// The devices that are simulators.
     simulated: BTreeSet<String>,
-    /// The snapshot made for this tick, if one was asked for.
-    made: Option<(u64, Arc<RigSnapshot>)>,
+    /// The snapshot last made, with the tick and the exchange count it was made at.
+    made: Option<((u64, u64), Arc<RigSnapshot>)>,
 }
 
 impl<P: Program> Runner<P> {
@@ -294,7 +294,9 @@ impl<P: Program> Runner<P> {
         let Some(served) = &self.served else {
             return;
         };
-        let tick = self.stats.ticks;
+        // Between ticks only the devices' upkeep (feeds, retries) changes what is shown, and
+        // each of its exchanges counts: a snapshot stands until the next tick or exchange.
+        let tick = (self.stats.ticks, self.rt.borrow().transaction_count());
         let mut made = served.made.clone().filter(|(at, _)| *at == tick);
         let mut asked = false;
         // Made lazily, only if a request needs it: the closure cannot borrow `self` whole.

@@ -76,34 +76,87 @@ pub struct Claim {
     hello: Hello,
 }
 
-/// Binds the socket of rig `hello.rig` in `dir`, replacing one a dead run left; refuses when a
-/// live run answers on it.
-pub fn claim(dir: &Path, hello: Hello) -> Result<Claim, ClaimError> {
+/// Names a run may take when the one it was given is in use, besides that one: `NAME-2` to
+/// `NAME-MAX_SUFFIX`.
+pub const MAX_SUFFIX: u32 = 99;
+
+/// How a run came by its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Naming {
+    /// rig.toml's `name`: the rig is that one, and a live run of it refuses this one.
+    Configured,
+    /// From a file's stem: when a live run has it, this run takes the first free `NAME-N`.
+    Derived,
+}
+
+/// Binds the socket of rig `hello.rig` in `dir`, replacing one a dead run left. When a live
+/// run answers on it, a `Configured` name is refused and a `Derived` one goes on to the next
+/// free `NAME-N` (`Claim::hello` says which it took).
+pub fn claim(dir: &Path, mut hello: Hello, naming: Naming) -> Result<Claim, ClaimError> {
+    let base = hello.rig.clone();
+    let mut first_taken = None;
+    for n in 1..=MAX_SUFFIX {
+        hello.rig = if n == 1 {
+            base.clone()
+        } else {
+            format!("{base}-{n}")
+        };
+        match claim_name(dir, &hello) {
+            Ok(listener) => return Ok(listener),
+            Err(ClaimError::Running { rig, pid, script }) => {
+                if naming == Naming::Configured {
+                    return Err(ClaimError::Running { rig, pid, script });
+                }
+                first_taken.get_or_insert(ClaimError::Running { rig, pid, script });
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Err(first_taken.unwrap_or(ClaimError::Io {
+        path: rig_dir::socket_path(dir, &base),
+        source: std::io::Error::other("no free name"),
+    }))
+}
+
+fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
     let path = rig_dir::socket_path(dir, &hello.rig);
     let io = |source| ClaimError::Io {
         path: path.clone(),
         source,
     };
+    let running = |other: Hello| ClaimError::Running {
+        rig: other.rig,
+        pid: other.pid,
+        script: other.script,
+    };
     match rig_dir::knock(&path) {
-        Knock::Answered(other) => {
-            return Err(ClaimError::Running {
-                rig: other.rig,
-                pid: other.pid,
-                script: other.script,
-            })
-        }
+        Knock::Answered(other) => return Err(running(other)),
         // Left by a run that died (kill -9, a power cut): nobody listens.
-        Knock::Stale => std::fs::remove_file(&path).map_err(io)?,
+        Knock::Stale => match std::fs::remove_file(&path) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(io(e)),
+        },
         Knock::Absent => {}
     }
-    let listener = UnixListener::bind(&path).map_err(io)?;
+    let listener = match UnixListener::bind(&path) {
+        Ok(l) => l,
+        // Another run bound it between the knock and here: knock again for who.
+        Err(e) if e.kind() == std::io::ErrorKind::AddrInUse => {
+            return Err(match rig_dir::knock(&path) {
+                Knock::Answered(other) => running(other),
+                _ => io(e),
+            })
+        }
+        Err(e) => return Err(io(e)),
+    };
     std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).map_err(io)?;
     let meta = std::fs::metadata(&path).map_err(io)?;
     Ok(Claim {
         listener,
         path,
         inode: (meta.dev(), meta.ino()),
-        hello,
+        hello: hello.clone(),
     })
 }
 
@@ -111,6 +164,11 @@ impl Claim {
     /// Where the socket is.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Who the run is, under the name it took.
+    pub fn hello(&self) -> &Hello {
+        &self.hello
     }
 
     /// Serves the socket from now on: requests through `ask`, subscriptions from `events`.
@@ -172,30 +230,53 @@ struct Shared {
 impl Drop for Server {
     fn drop(&mut self) {
         self.shared.closing.store(true, Ordering::SeqCst);
-        if let Some(claim) = &self.claim {
-            // Wakes the accept thread's blocking accept.
-            let _ = UnixStream::connect(&claim.path);
-        }
-        if let Some(t) = self.accept.take() {
-            let _ = t.join();
-        }
         for s in lock(&self.shared.streams).values() {
             let _ = s.shutdown(std::net::Shutdown::Read);
         }
+        // Bounded: the end of a run never waits on a client (the threads left go with the
+        // process).
         let until = Instant::now() + FLUSH_WAIT;
-        while self.shared.clients.load(Ordering::SeqCst) > 0 && Instant::now() < until {
+        let busy = |s: &Self| {
+            s.shared.clients.load(Ordering::SeqCst) > 0
+                || s.accept.as_ref().is_some_and(|t| !t.is_finished())
+        };
+        while busy(self) && Instant::now() < until {
             std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(t) = self.accept.take().filter(JoinHandle::is_finished) {
+            let _ = t.join();
         }
         self.claim.take();
     }
 }
 
+/// How often the accept thread looks whether the socket is closing.
+const ACCEPT_SLICE: Duration = Duration::from_millis(100);
+
+/// Waits up to `ACCEPT_SLICE` for a connection to accept; true if one waits.
+fn connection_waiting(listener: &UnixListener) -> bool {
+    let mut fd = libc::pollfd {
+        fd: listener.as_raw_fd(),
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ms = libc::c_int::try_from(ACCEPT_SLICE.as_millis()).unwrap_or(100);
+    // SAFETY: one valid pollfd for the listener's own descriptor.
+    let ready = unsafe { libc::poll(&mut fd, 1, ms) };
+    ready > 0 && fd.revents & libc::POLLIN != 0
+}
+
 fn accept_loop(listener: &UnixListener, shared: &Arc<Shared>) {
-    for (number, stream) in (0u64..).zip(listener.incoming()) {
+    let mut number = 0u64;
+    loop {
         if shared.closing.load(Ordering::SeqCst) {
             return;
         }
-        let Ok(mut stream) = stream else {
+        if !connection_waiting(listener) {
+            continue;
+        }
+        number = number.wrapping_add(1);
+        let Ok((mut stream, _)) = listener.accept() else {
             // Out of descriptors, most likely: a moment, then on.
             std::thread::sleep(Duration::from_millis(10));
             continue;

@@ -55,6 +55,41 @@ pub fn rig_dir() -> io::Result<PathBuf> {
     Ok(dir)
 }
 
+/// Where systemd's units keep their rigs' directories (`RuntimeDirectory=rigscript/%i`).
+pub const SYSTEM_RIGS: &str = "/run/rigscript";
+
+/// Every rig directory this user can look into: its own (`rig_dir`), then each unit's under
+/// `SYSTEM_RIGS` it may read (root may read them all).
+pub fn search_dirs() -> Vec<PathBuf> {
+    let mut dirs: Vec<PathBuf> = rig_dir().into_iter().collect();
+    if let Ok(entries) = std::fs::read_dir(SYSTEM_RIGS) {
+        let mut units: Vec<PathBuf> = entries
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.is_dir() && std::fs::read_dir(p).is_ok())
+            .collect();
+        units.sort();
+        dirs.extend(units);
+    }
+    dirs.dedup();
+    dirs
+}
+
+/// The socket of rig `name`: in the first searched directory that has one.
+pub fn find_socket(name: &str) -> Option<PathBuf> {
+    search_dirs()
+        .iter()
+        .map(|d| socket_path(d, name))
+        .find(|p| std::fs::symlink_metadata(p).is_ok())
+}
+
+/// The rigs running in every searched directory (`search_dirs`), by name.
+pub fn running_anywhere() -> Vec<Hello> {
+    let mut rigs: Vec<Hello> = search_dirs().iter().flat_map(|d| running(d)).collect();
+    rigs.sort_by(|a, b| a.rig.cmp(&b.rig));
+    rigs
+}
+
 /// The socket of rig `name` in `dir`.
 pub fn socket_path(dir: &Path, name: &str) -> PathBuf {
     dir.join(format!("{name}.sock"))
