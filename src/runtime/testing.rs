@@ -4,7 +4,7 @@ use super::devices::links::TransactionCounter;
 use super::devices::{open_devices, SimRig};
 use super::log::Logger;
 use super::records::Records;
-use super::scan::Shared;
+use super::runner::Shared;
 use super::state::Runtime;
 use crate::config::RigConfig;
 use crate::time::clock::{SharedClock, VirtualClock};

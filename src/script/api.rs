@@ -17,7 +17,7 @@ use crate::device::c29u::{C29uError, Latches, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::{Device, DeviceError};
 use crate::runtime::records::Limits;
-use crate::runtime::scan::Shared;
+use crate::runtime::runner::Shared;
 use crate::runtime::subscriptions::Source;
 use crate::time::duration::{duration_from_millis_f64, duration_from_millis_i64, parse_duration};
 use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, NativeCallContext, Position, AST};

@@ -18,7 +18,7 @@
 
 use crate::config::ScriptLimits;
 use crate::heap::{self, format_bytes};
-use crate::runtime::scan::StopLimit;
+use crate::runtime::runner::StopLimit;
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
 use rhai::{Array, Dynamic, Engine, EvalAltResult, EvalContext, ImmutableString, Map, Position};

@@ -3,7 +3,7 @@
 //! A call stopped by a limit says which limit and how to raise it.
 
 use super::engine::{Breach, LIMIT_MARKER, MAX_ARRAY, MAX_CALL_LEVELS, MAX_MAP, MAX_STRING};
-use crate::runtime::scan::Fault;
+use crate::runtime::runner::Fault;
 use rhai::{EvalAltResult, ParseError, ParseErrorType, Position};
 
 /// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once (and a device

@@ -9,7 +9,7 @@ use super::error::{breach_fault, fault, innermost, is_stop};
 use super::reads::{ReadSet, ReadTracker};
 use crate::config::ScriptLimits;
 use crate::runtime::invariants::Check;
-use crate::runtime::scan::{Fault, Program, StopLimit};
+use crate::runtime::runner::{Fault, Program, StopLimit};
 use crate::runtime::subscriptions::{Arg, Call};
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
 use std::collections::BTreeMap;

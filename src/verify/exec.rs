@@ -8,7 +8,7 @@ use super::plan::{Action, Plan};
 use super::profile::Observed;
 use crate::config::RigConfig;
 use crate::runtime::devices::{open_devices, FieldError};
-use crate::runtime::scan::EndReason;
+use crate::runtime::runner::EndReason;
 use crate::script::builder::RigBuilder;
 use crate::script::rig::{start_with, Rig, RigError};
 use crate::sim::answer_faults::AnswerFault;

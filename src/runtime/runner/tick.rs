@@ -1,0 +1,221 @@
+//! One scan tick: supervision, handlers, invariants, the writes and feeds, the next deadline.
+
+use super::contract::{describe, EndReason, Program};
+use super::{Runner, State};
+use crate::runtime::invariants::Violation;
+use crate::runtime::observe::RunEvent;
+use crate::runtime::snapshot::micros;
+use std::time::Duration;
+
+/// How often each device is checked (`Runtime::check_devices`: a module reset, swapped or
+/// changed behind the runner's back, or outputs that do not read as written, are set right
+/// within this time) and the relays selected again.
+pub const CHECK_INTERVAL: Duration = Duration::from_secs(5);
+
+impl<P: Program> Runner<P> {
+    /// One scan tick at the current time.
+    pub fn tick(&mut self) {
+        self.guarded(Self::scan_tick);
+    }
+
+    fn scan_tick(&mut self) {
+        if self.status().is_some() {
+            return;
+        }
+        let start = self.clock.now();
+        let transactions_before = self.rt.borrow().transaction_count();
+        self.stats.ticks = self.stats.ticks.saturating_add(1);
+        self.stats
+            .jitter
+            .add(start.saturating_sub(self.next_deadline));
+        {
+            let mut rt = self.rt.borrow_mut();
+            rt.tick = rt.tick.saturating_add(1);
+            rt.tick_boundary = Some(self.next_deadline.min(start));
+        }
+        if self.ended_by_signal() {
+            return;
+        }
+        if self.end_if_over() {
+            return;
+        }
+        self.rt.borrow_mut().supervise();
+        if self.ended_by_signal() {
+            return;
+        }
+        match self.state {
+            State::Restarting { at } if start >= at => self.restart(),
+            State::Running => self.run_handlers(),
+            _ => {}
+        }
+        // A signal that came during the handlers ends the run before the tick's writes: the
+        // end writes the safe state anyway, and each exchange could be a silent module's.
+        if self.status().is_some() || self.ended_by_signal() {
+            return;
+        }
+        if self.state == State::Running && !self.check_invariants() {
+            return;
+        }
+        let stop = self.rt.borrow().stop_request;
+        if let Some(code) = stop {
+            self.finish(EndReason::Stopped(code));
+            return;
+        }
+        {
+            let mut rt = self.rt.borrow_mut();
+            rt.flush_outputs();
+            rt.feed_watchdogs();
+            let now = rt.now();
+            if now.saturating_sub(self.last_check) >= CHECK_INTERVAL {
+                self.last_check = now;
+                rt.check_devices();
+                rt.flush_outputs();
+            }
+        }
+        if self.state == State::Running && !self.rt.borrow().has_work() {
+            self.finish(EndReason::Finished(
+                "the script has no handlers or timers left".into(),
+            ));
+            return;
+        }
+        let end = self.clock.now();
+        self.stats.work.add(end.saturating_sub(start));
+        let spent = self
+            .rt
+            .borrow()
+            .transaction_count()
+            .saturating_sub(transactions_before);
+        self.stats.transactions = self.stats.transactions.saturating_add(spent);
+        self.stats.max_transactions = self.stats.max_transactions.max(spent);
+        let deadline = self.next_deadline;
+        self.schedule_next(end);
+        if self.events.watched() {
+            let tick = self.stats.ticks;
+            let overrun = end > deadline.saturating_add(self.options.period);
+            self.events.publish(|| RunEvent::Tick {
+                tick,
+                late_us: micros(start.saturating_sub(deadline)),
+                work_us: micros(end.saturating_sub(start)),
+                overrun,
+            });
+        }
+        self.answer_requests();
+    }
+
+    /// Moves the deadline one period on; past it already, counts an overrun and skips to the
+    /// first period boundary after `now`. When no handler polls inputs, ticks that would have
+    /// nothing to do are skipped too: the next deadline is the first period boundary at or
+    /// after the next timer, watchdog feed, device check, retry, pending write or end (idle
+    /// runs cost no CPU, and a day of a cron script in virtual time takes a moment).
+    fn schedule_next(&mut self, now: Duration) {
+        let period = self.options.period.max(Duration::from_micros(1));
+        self.next_deadline = self.next_deadline.saturating_add(period);
+        if now > self.next_deadline {
+            self.stats.overruns = self.stats.overruns.saturating_add(1);
+            // Already late: the next tick starts at once, on the last boundary passed.
+            self.next_deadline =
+                boundary_at_or_after(self.next_deadline, period, now).saturating_sub(period);
+        }
+        if let Some(idle) = self.idle_until() {
+            if idle > self.next_deadline {
+                self.next_deadline = boundary_at_or_after(self.next_deadline, period, idle);
+            }
+        }
+    }
+
+    /// When the next tick has work, if no handler polls inputs (see `schedule_next`).
+    fn idle_until(&self) -> Option<Duration> {
+        let mut next = self.rt.borrow().idle_until()?;
+        next = next.min(self.last_check.saturating_add(CHECK_INTERVAL));
+        if let State::Restarting { at } = self.state {
+            next = next.min(at);
+        }
+        if let Some(end) = self.options.end_after {
+            next = next.min(self.rt.borrow().started.saturating_add(end));
+        }
+        Some(next)
+    }
+
+    /// Runs the tick's handlers one by one; a signal that comes meanwhile ends the run before
+    /// the next one (a tick with thousands of timers due must not delay SIGTERM).
+    fn run_handlers(&mut self) {
+        let calls = self.rt.borrow_mut().collect_calls();
+        for call in calls {
+            {
+                let mut rt = self.rt.borrow_mut();
+                // A handler's own work is not an exchange; feed what fell due meanwhile.
+                rt.feed_watchdogs();
+                rt.cause.clone_from(&call.label);
+            }
+            let result = self.program.call(&call);
+            if let Err(f) = result {
+                if self.stop_signal().is_some() {
+                    // The signal came while the handler ran, and the run ends by it; the
+                    // error is told (often of the same cause: an exchange the stop cut, a
+                    // write past the file size limit as SIGXFSZ came).
+                    let message = describe(&f, &call.label);
+                    self.note_fault(&message, f.over_budget);
+                    self.rt.borrow_mut().log.error(&message);
+                    return;
+                }
+                if !self.handle_fault(&f, &call.label) {
+                    return;
+                }
+            }
+            if self.rt.borrow().stop_request.is_some() || self.stop_signal().is_some() {
+                return;
+            }
+        }
+    }
+
+    /// Checks every invariant after the handlers, before the outputs are written; false if
+    /// the run ended: an invariant found false (the safe state is written instead of this
+    /// tick's outputs, status 1 whatever the policy), or one that could not be evaluated (a
+    /// script error that is never skipped or restarted: it could not vouch for the outputs).
+    fn check_invariants(&mut self) -> bool {
+        let checks = self.rt.borrow().invariant_checks();
+        let accesses = self.rt.borrow().input_accesses;
+        for check in checks {
+            self.rt.borrow_mut().cause.clone_from(&check.call.label);
+            match self.program.holds(&check) {
+                Ok(true) => {}
+                Ok(false) => {
+                    let violation = {
+                        let rt = self.rt.borrow();
+                        Violation {
+                            name: check.name,
+                            at: check.at,
+                            uptime: rt.uptime(),
+                            devices: rt.readings(),
+                        }
+                    };
+                    self.rt.borrow_mut().report_violation(&violation);
+                    let message = violation.to_string();
+                    self.violation = Some(violation);
+                    self.finish(EndReason::Violated(message));
+                    return false;
+                }
+                Err(f) => {
+                    let message = describe(&f, &check.call.label);
+                    self.note_fault(&message, f.over_budget);
+                    self.finish(EndReason::Error(message));
+                    return false;
+                }
+            }
+        }
+        let mut rt = self.rt.borrow_mut();
+        rt.invariants_read_inputs = rt.input_accesses != accesses;
+        true
+    }
+}
+
+/// The first of the deadlines `start + k * period` that is at or after `t`.
+pub(super) fn boundary_at_or_after(start: Duration, period: Duration, t: Duration) -> Duration {
+    if t <= start {
+        return start;
+    }
+    let behind = t.saturating_sub(start).as_nanos();
+    let periods = behind.div_ceil(period.as_nanos().max(1));
+    let skip = u32::try_from(periods).unwrap_or(u32::MAX);
+    start.saturating_add(period.saturating_mul(skip))
+}
