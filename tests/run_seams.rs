@@ -24,8 +24,8 @@ fn started() -> (rigscript::Rig, requests::Requester, Arc<AtomicUsize>) {
         .start(SCRIPT, "mirror.rhai")
         .unwrap();
     let (ask, requests) = requests::queue(&flag);
-    let simulated = ["io", "panel"].iter().map(|s| s.to_string()).collect();
-    rig.runner.serve(requests, "mirror.rhai", simulated);
+    let field = rig.sim.clone();
+    rig.runner.serve(requests, "mirror.rhai", field);
     (rig, ask, flag)
 }
 

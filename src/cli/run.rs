@@ -25,7 +25,6 @@ use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
 use clap::Args;
-use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
@@ -199,12 +198,6 @@ pub fn run(args: RunArgs) -> i32 {
         rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
         named: config.name.is_some(),
         config: args.config.as_ref().map(|p| p.display().to_string()),
-        simulated: config
-            .devices
-            .keys()
-            .filter(|n| args.sim || config.is_simulated(n))
-            .cloned()
-            .collect(),
     };
     let setup = RigSetup {
         config,
@@ -262,7 +255,6 @@ struct ControlSetup {
     /// Whether rig.toml gave the name (else it came from a file's stem).
     named: bool,
     config: Option<String>,
-    simulated: BTreeSet<String>,
 }
 
 impl ControlSetup {
@@ -340,7 +332,8 @@ fn run_started(
     };
     outputs.started(&mut rig);
     let (requester, requests) = control.queue;
-    rig.runner.serve(requests, file, control.simulated);
+    let field = rig.sim.clone();
+    rig.runner.serve(requests, file, field);
     let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));
     let status = rig.runner.run();
     // The last events to the subscribers (`rigscript stop` waits for the end's), then the

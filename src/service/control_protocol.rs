@@ -2,6 +2,7 @@
 //! a line from the run (DESIGN.md "Control socket"). A `subscribe` turns the connection into
 //! the run's event stream, one event a line, until either side closes it.
 
+use crate::runtime::requests::Drive;
 use crate::runtime::snapshot::RigSnapshot;
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +25,9 @@ pub enum ClientRequest {
     Stop,
     /// Send the run's events from now on.
     Subscribe,
+    /// Act on a simulated device (`{"request":"drive","device":"panel","action":"press",
+    /// "name":"S12"}`), at the next tick boundary.
+    Drive(Drive),
 }
 
 /// Who a run is: answered to `hello`, and what `rigscript list` shows.
@@ -94,7 +98,7 @@ pub fn parse_request(line: &str) -> Result<ClientRequest, String> {
     serde_json::from_str(line.trim()).map_err(|e| {
         format!(
             "not a request ({e}); send one JSON object a line: {{\"request\": \"hello\"}}, \
-             \"status\", \"stop\" or \"subscribe\""
+             \"status\", \"stop\", \"subscribe\" or \"drive\""
         )
     })
 }
@@ -102,6 +106,7 @@ pub fn parse_request(line: &str) -> Result<ClientRequest, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::runtime::requests::FieldAction;
 
     #[test]
     fn requests_read_from_their_json_lines_and_garbage_is_told() {
@@ -113,6 +118,19 @@ mod tests {
             parse_request(r#" {"request": "subscribe"} "#),
             Ok(ClientRequest::Subscribe)
         );
+        assert_eq!(
+            parse_request(
+                r#"{"request":"drive","device":"io","action":"set_input","channel":3,"on":true}"#
+            ),
+            Ok(ClientRequest::Drive(Drive {
+                device: "io".into(),
+                action: FieldAction::SetInput {
+                    channel: 3,
+                    on: true
+                }
+            }))
+        );
+        assert!(parse_request(r#"{"request":"drive","device":"io","action":"melt"}"#).is_err());
         let e = parse_request("{\"request\":\"format_disk\"}").unwrap_err();
         assert!(
             e.contains("not a request") && e.contains("\"status\""),

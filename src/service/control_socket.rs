@@ -392,6 +392,12 @@ fn answer(request: ClientRequest, shared: &Shared, client: &UnixStream) -> Reply
             Reply::done()
         }
         ClientRequest::Subscribe => Reply::refused("subscribe is answered by the stream"),
+        ClientRequest::Drive(drive) => match shared.ask.ask(Request::Drive(drive), ANSWER_WAIT) {
+            Ok(Answer::Accepted) => Reply::done(),
+            Ok(Answer::Refused(why)) => Reply::refused(why),
+            Ok(Answer::Snapshot(_)) => Reply::refused("the run answered with a snapshot"),
+            Err(e) => Reply::refused(e.to_string()),
+        },
     }
 }
 
