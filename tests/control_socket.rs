@@ -340,3 +340,71 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
     assert_eq!(wait_exit(&mut run), 143);
     drop(stalled);
 }
+
+#[test]
+fn drive_acts_on_the_simulated_field_between_ticks_and_refuses_a_real_device() {
+    let rigs = Rigs::new("ctl-drive");
+    let script = rigs.dir.file(
+        "knob.rhai",
+        "panel.on_turn(\"S41A\", |d, v| { panel.relay = v % 8; });\n\
+         every(\"20ms\", || { io.outputs = io.inputs; let p = panel.pressed(); });\n",
+    );
+    let mut run = rigs.run(&["--sim", &script]);
+    rigs.status("knob");
+    for args in [
+        vec!["turn", "S41A", "+3"],
+        vec!["press", "S12"],
+        vec!["set-input", "io", "3", "on"],
+        vec!["pulse", "io", "2", "4"],
+    ] {
+        let out = rigs.output(&[&["drive", "knob"], &args[..]].concat());
+        assert!(out.status.success(), "{args:?}: {out:?}");
+    }
+    let seen = until(Duration::from_secs(10), || {
+        let s = rigs.status("knob");
+        let (io, panel) = (&s["devices"]["io"], &s["devices"]["panel"]);
+        (panel["relay_written"] == 3
+            && panel["pressed"] == serde_json::json!(["S12"])
+            && io["outputs_written"] == 0x08)
+            .then_some(s)
+    })
+    .expect("the script saw the knob, the switch and the input");
+    assert_eq!(seen["devices"]["panel"]["relay"], 3);
+    let bad = rigs.output(&["drive", "knob", "press", "S99"]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&bad.stderr).contains("S99"),
+        "{bad:?}"
+    );
+    let none = rigs.output(&["drive", "knob", "fail", "pump"]);
+    assert!(
+        String::from_utf8_lossy(&none.stderr).contains("pump is not a simulated device"),
+        "{none:?}"
+    );
+    assert_eq!(rigs.output(&["stop", "knob"]).status.code(), Some(0));
+    assert_eq!(wait_exit(&mut run), 143);
+    // A rig of real devices is not driven.
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let config = rigs.dir.file(
+        "real.toml",
+        &format!(
+            "[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nwatchdog = \"1s\"\n",
+            sim.path
+        ),
+    );
+    let real = rigs.dir.file(
+        "real.rhai",
+        "every(\"20ms\", || { io.outputs = io.inputs; });\n",
+    );
+    let mut run = rigs.run(&["--config", &config, &real]);
+    rigs.status("real");
+    let refused = rigs.output(&["drive", "real", "set-inputs", "io", "0xff"]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("drive acts on simulators only"),
+        "{refused:?}"
+    );
+    assert_eq!(sim.state()["di"], 0, "the module's inputs were not touched");
+    assert_eq!(rigs.output(&["stop", "real"]).status.code(), Some(0));
+    assert_eq!(wait_exit(&mut run), 143);
+}

@@ -6,6 +6,7 @@ pub mod api;
 pub mod c29;
 pub mod check;
 pub mod completions;
+pub mod drive;
 pub mod man;
 pub mod output;
 pub mod run;
@@ -41,6 +42,8 @@ pub enum Command {
     List(status::ListArgs),
     /// Stop a running rig as SIGTERM would: on_stop, the safe state, exit status 143
     Stop(status::StopArgs),
+    /// Act on a running rig's simulated devices: press, turn, set inputs, pulse, fail, restore
+    Drive(drive::DriveArgs),
     /// Show the script API: every function, method and property, or one in full (`api every`)
     Api(api::ApiArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
@@ -112,6 +115,7 @@ pub fn main() -> i32 {
         Command::Status(args) => status::status(args),
         Command::List(args) => status::list(&args),
         Command::Stop(args) => status::stop(&args),
+        Command::Drive(args) => drive::run(args),
         Command::Api(args) => api::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.

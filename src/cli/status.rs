@@ -58,13 +58,14 @@ pub struct StopArgs {
 }
 
 /// Why a rig could not be reached, with the exit status it calls for.
-struct Unreached {
+pub(super) struct Unreached {
     message: String,
     status: i32,
 }
 
 impl Unreached {
-    fn say(&self, command: &str) -> i32 {
+    /// Tells it on stderr as `rigscript COMMAND: ...`; the exit status.
+    pub(super) fn say(&self, command: &str) -> i32 {
         say(&format!("rigscript {command}: {}", self.message));
         self.status
     }
@@ -85,7 +86,7 @@ fn running_list() -> String {
 }
 
 /// The socket of the rig asked for: by name, by config, or the only one running.
-fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connection, Unreached> {
+pub(super) fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connection, Unreached> {
     let name = match (rig, config) {
         (Some(r), _) => r.to_string(),
         (None, Some(path)) => {
