@@ -6,9 +6,9 @@
 # a run of one tick and taken off.
 #
 # Run from the crate root: sh benches/tick_instructions.sh [BINARY]
-# (default target/profiling/rigscript: the release code with the debug info callgrind needs to
-# name functions, `cargo build --profile profiling`; give another build to compare). Needs
-# valgrind (apt-get install valgrind).
+# (default target/profiling/rigscript, `cargo build --profile profiling`: the release code with
+# debug info, so a kept callgrind output shows source lines; give another build to compare).
+# Needs valgrind (apt-get install valgrind).
 set -eu
 binary=${1:-target/profiling/rigscript}
 if ! command -v valgrind >/dev/null; then
