@@ -10,18 +10,19 @@
 # threads serving them too), an upper bound on what watching costs the loop.
 #
 # Run from the crate root: sh benches/tick_instructions.sh [BINARY]
-# (default target/release/rigscript; give another build to compare). Needs valgrind
-# (apt-get install valgrind).
+# (default target/profiling/rigscript, `cargo build --profile profiling`: the release code with
+# debug info, so a kept callgrind output shows source lines; give another build to compare).
+# Needs valgrind (apt-get install valgrind).
 set -eu
-binary=${1:-target/release/rigscript}
+binary=${1:-target/profiling/rigscript}
 if ! command -v valgrind >/dev/null; then
     echo "tick_instructions.sh: needs valgrind (apt-get install valgrind)" >&2
     exit 2
 fi
-[ "$binary" != target/release/rigscript ] || cargo build --release --quiet
+cargo build --profile profiling --quiet
 dir=$(mktemp -d)
 trap 'kill "$sim" 2>/dev/null; rm -rf "$dir"' EXIT
-target/release/rigscript sim c29u --baud 115200 --link "$dir/pty" >/dev/null 2>&1 &
+target/profiling/rigscript sim c29u --baud 115200 --link "$dir/pty" >/dev/null 2>&1 &
 sim=$!
 for _ in 1 2 3 4 5 6 7 8 9 10; do [ -e "$dir/pty" ] && break; sleep 0.2; done
 printf '[devices.io]\nkind = "trp-c29u"\nport = "%s"\nbaud = 115200\n' "$dir/pty" >"$dir/rig.toml"

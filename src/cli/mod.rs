@@ -19,9 +19,18 @@ pub mod test;
 pub mod trc;
 pub mod verify;
 
+/// What `rigscript --version` prints after the name: the version and the commit built from
+/// (build.rs asks git; `unknown commit` outside a checkout).
+pub const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (",
+    env!("RIGSCRIPT_BUILT_FROM"),
+    ")"
+);
+
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
 #[derive(Debug, Parser)]
-#[command(name = "rigscript", version, about)]
+#[command(name = "rigscript", version = VERSION, about)]
 pub struct Cli {
     /// What to do.
     #[command(subcommand)]
