@@ -10,8 +10,10 @@
 use super::check::fit_to_run;
 use crate::config::RigConfig;
 use crate::text_file::{read_text, TextKind};
-use crate::time::duration::{format_duration, parse_duration};
+use crate::time::duration::{format_duration, format_duration_exact, parse_duration};
 use crate::verify::exec::Target;
+use crate::verify::facts::Facts;
+use crate::verify::horizon::Horizon;
 use crate::verify::{report, reproduce, search, Options, SHRINK_BUDGET};
 use clap::Args;
 use std::io::{IsTerminal, Write};
@@ -32,9 +34,10 @@ pub struct VerifyArgs {
     /// How many runs at most.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
     pub runs: u64,
-    /// Virtual time each run lasts ("60s", "5m").
-    #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = run_for)]
-    pub run_for: Duration,
+    /// Virtual time each run lasts ("60s", "5m"; default: a minute, longer when the script's
+    /// timers or cron schedule need it, up to 10 minutes).
+    #[arg(long = "for", value_name = "DURATION", value_parser = run_for)]
+    pub run_for: Option<Duration>,
     /// The seed of the search (printed; the same seed gives the same runs and result).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -69,8 +72,8 @@ fn command(args: &VerifyArgs, seed: u64) -> String {
     if let Some(p) = &args.config {
         c.push_str(&format!(" --config {}", p.display()));
     }
-    if args.run_for != Duration::from_secs(60) {
-        c.push_str(&format!(" --for {}", format_duration(args.run_for)));
+    if let Some(d) = args.run_for {
+        c.push_str(&format!(" --for {}", format_duration_exact(d)));
     }
     if args.no_faults {
         c.push_str(" --no-faults");
@@ -128,6 +131,7 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         faults: !args.no_faults,
         shrink: SHRINK_BUDGET,
     };
+    let horizon = Horizon::of(&Facts::read(&source), args.run_for);
     let target = Target {
         source,
         file: file.clone(),
@@ -135,17 +139,20 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         config_file: args.config.clone(),
         budget: args.budget.unwrap_or(config.limits.operations),
         config,
-        run_for: args.run_for,
+        run_for: horizon.run_for,
     };
     if !args.json {
         say(&format!(
             "verify {file}: seed {seed}, up to {} runs of {} at {} per tick, faults {}, {jobs} \
              job(s)",
             args.runs,
-            format_duration(args.run_for),
+            format_duration(horizon.run_for),
             format_duration(target.config.period),
             if args.no_faults { "off" } else { "on" }
         ));
+        for line in horizon.notes() {
+            say(&line);
+        }
     }
     let show_progress = !args.json && std::io::stderr().is_terminal();
     let total = args.runs;
@@ -183,7 +190,14 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         }
     }
     if args.json {
-        say(&report::to_json(&summary, &opts, test.as_deref(), defect.as_deref()).to_string());
+        let doc = report::to_json(
+            &summary,
+            &opts,
+            &horizon,
+            test.as_deref(),
+            defect.as_deref(),
+        );
+        say(&doc.to_string());
     } else {
         for line in report::human(&summary, &opts, test.as_deref()) {
             say(&line);

@@ -13,8 +13,10 @@
 pub mod checks;
 pub mod coverage;
 pub mod exec;
+pub mod facts;
 pub mod faults;
 pub mod field;
+pub mod horizon;
 pub mod plan;
 pub mod profile;
 pub mod report;

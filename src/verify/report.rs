@@ -3,6 +3,7 @@
 //! one JSON document.
 
 use super::exec::Target;
+use super::horizon::Horizon;
 use super::plan::{time_text, trace};
 use super::reproduce::{failure_text, render, NotReproduced};
 use super::testfile::absolute;
@@ -144,6 +145,7 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
 pub fn to_json(
     summary: &Summary,
     opts: &Options,
+    horizon: &Horizon,
     test: Option<&Path>,
     defect: Option<&str>,
 ) -> Value {
@@ -177,6 +179,8 @@ pub fn to_json(
         "seed": summary.seed,
         "runs": summary.runs,
         "run_for_ms": summary.run_for.as_secs_f64() * 1000.0,
+        "run_for_stretched_for": horizon.stretched_for,
+        "run_for_short_of": horizon.short_of,
         "faults": opts.faults,
         "search_s": summary.search_time.as_secs_f64(),
         "result": if counterexample.is_some() { "counterexample" } else { "pass" },
