@@ -5,7 +5,10 @@
 //!
 //! Exit status: 0 nothing found, 1 a counterexample, 2 usage or config error (a script that
 //! cannot run on the simulated rig says why, with the same messages as `check`), 70 a
-//! counterexample whose written test does not fail as its run did (a defect of `verify`).
+//! counterexample whose written test does not fail as its run did (a defect of `verify`),
+//! 130 (SIGINT, Ctrl-C) or 143 (SIGTERM) stopped before the runs were done and nothing found
+//! so far: the summary of the runs played is printed, with the seed that repeats them. A
+//! second signal ends it at once with the same status.
 
 use super::check::fit_to_run;
 use crate::config::RigConfig;
@@ -18,6 +21,8 @@ use crate::verify::{report, reproduce, search, Options, SHRINK_BUDGET};
 use clap::Args;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Where counterexamples go unless told otherwise.
@@ -86,6 +91,24 @@ fn say(line: &str) {
     let _ = writeln!(std::io::stdout().lock(), "{line}");
 }
 
+/// Makes SIGINT and SIGTERM set `interrupt` to their number, so that the search stops and
+/// reports; a second one while it is set ends the process at once (128 + its number).
+fn watch_signals(interrupt: &Arc<AtomicUsize>) -> std::io::Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let asked = Arc::new(AtomicBool::new(false));
+    for signal in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(
+            signal,
+            crate::runtime::exit::signal(signal),
+            Arc::clone(&asked),
+        )?;
+        signal_hook::flag::register(signal, Arc::clone(&asked))?;
+        let number = usize::try_from(signal).unwrap_or(1);
+        signal_hook::flag::register_usize(signal, Arc::clone(interrupt), number)?;
+    }
+    Ok(())
+}
+
 /// Runs `rigscript verify`; returns the exit status.
 pub fn run(args: VerifyArgs) -> i32 {
     let mut config = match &args.config {
@@ -124,12 +147,17 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         || std::thread::available_parallelism().map_or(1, usize::from),
         |j| usize::try_from(j).unwrap_or(1),
     );
+    let interrupt = Arc::new(AtomicUsize::new(0));
+    if let Err(e) = watch_signals(&interrupt) {
+        eprintln!("rigscript verify: cannot watch for Ctrl-C: {e}");
+    }
     let opts = Options {
         runs: args.runs,
         seed,
         jobs,
         faults: !args.no_faults,
         shrink: SHRINK_BUDGET,
+        interrupt: Some(Arc::clone(&interrupt)),
     };
     let horizon = Horizon::of(&Facts::read(&source), args.run_for);
     let target = Target {
@@ -202,10 +230,23 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         for line in report::human(&summary, &opts, test.as_deref()) {
             say(&line);
         }
+        if summary.interrupted && summary.counterexample.is_none() {
+            say(&format!(
+                "to repeat these runs: {} --runs {}",
+                command(&args, seed),
+                summary.runs.max(1)
+            ));
+        }
     }
     if let Some(d) = &defect {
         eprintln!("rigscript verify: {d}");
         return crate::runtime::exit::INTERNAL;
     }
-    i32::from(summary.counterexample.is_some())
+    if summary.counterexample.is_some() {
+        return 1;
+    }
+    match i32::try_from(interrupt.load(Ordering::Relaxed)) {
+        Ok(signal) if signal > 0 && summary.interrupted => crate::runtime::exit::signal(signal),
+        _ => 0,
+    }
 }
