@@ -174,10 +174,16 @@ impl Coverage {
     /// Starts following a rig.
     pub fn start(rig: &Rig) -> Self {
         let rt = rig.runner.runtime().borrow();
+        let last: Vec<Shown> = rt.devices.iter().map(Shown::of).collect();
+        let mut ranges = BTreeMap::new();
+        for (idx, shown) in last.iter().enumerate() {
+            note_ranges(&mut ranges, idx, shown);
+        }
         Self {
             runs: 1,
             devices: rt.devices.iter().map(|d| d.name().to_string()).collect(),
-            last: rt.devices.iter().map(Shown::of).collect(),
+            last,
+            ranges,
             ..Self::default()
         }
     }
@@ -192,9 +198,14 @@ impl Coverage {
             let Some(before) = self.last.get_mut(idx) else {
                 continue;
             };
+            // Ranges only when a value moved: a lookup per counter and rotary every tick would
+            // cost a tenth of the search.
+            let moved = now.counters != before.counters || now.rotaries != before.rotaries;
             let changed = now.changed(before);
             *before = now;
-            note_ranges(&mut self.ranges, idx, &now);
+            if moved {
+                note_ranges(&mut self.ranges, idx, &now);
+            }
             if changed == 0 {
                 continue;
             }
