@@ -1,7 +1,8 @@
 //! `rigscript verify` as people run it: planted bugs found, shrunk and written as scenario tests
-//! that fail with the invariant's name; the five scripts pass with a bounded budget; the same
-//! seed gives the same result whatever the number of jobs; the built-in checks; coverage
-//! warnings; exit statuses. And invariants in `run`: a violation is a fault with exit 1.
+//! that fail with the invariant's name (one behind a 75 s timer and one at a count of 300 at the
+//! defaults); the five scripts pass with a bounded budget; the same seed gives the same result
+//! whatever the number of jobs; the built-in checks; coverage warnings; exit statuses, Ctrl-C's
+//! too. And invariants in `run`: a violation is a fault with exit 1.
 
 mod common;
 
