@@ -1,7 +1,8 @@
 //! `rigscript verify` as people run it: planted bugs found, shrunk and written as scenario tests
-//! that fail with the invariant's name; the five scripts pass with a bounded budget; the same
-//! seed gives the same result whatever the number of jobs; the built-in checks; coverage
-//! warnings; exit statuses. And invariants in `run`: a violation is a fault with exit 1.
+//! that fail with the invariant's name (one behind a 75 s timer and one at a count of 300 at the
+//! defaults); the five scripts pass with a bounded budget; the same seed gives the same result
+//! whatever the number of jobs; the built-in checks; coverage warnings; exit statuses, Ctrl-C's
+//! too. And invariants in `run`: a violation is a fault with exit 1.
 
 mod common;
 
@@ -469,4 +470,85 @@ fn every_written_counterexample_reproduces_for_several_seeds() {
             let _ = std::fs::remove_dir_all(&out);
         }
     }
+}
+
+#[test]
+fn a_bug_behind_a_long_timer_or_a_count_of_hundreds_is_found_at_the_defaults() {
+    // (file, invariant, what stretched the runs, seed). One seed each keeps the test short (a
+    // replay of the timer's bug plays 75 s of ticks); `cargo bench --bench verify search`
+    // tries seeds 1-15.
+    let cases = [
+        (
+            "tests/verify/cure_cycle_end_leaves_heater_on.rhai",
+            "the door unlocks only with the heater off",
+            Some("its 1m15s timer"),
+            "3",
+        ),
+        (
+            "tests/verify/tool_life_misses_the_last_stroke.rhai",
+            "the press is enabled only while the tool has strokes left",
+            None,
+            "1",
+        ),
+    ];
+    for (file, invariant, stretched, seed) in cases {
+        let out = fresh_dir("verify-defaults");
+        let (status, doc) = verify_json(&[file, "--seed", seed], &out);
+        assert_eq!(status, 1, "{file}: {doc:#}");
+        assert_eq!(doc["run_for_stretched_for"].as_str(), stretched, "{doc:#}");
+        let c = &doc["counterexample"];
+        assert_eq!(c["name"], invariant, "{file}: {c:#}");
+        assert_eq!(c["reproduced"], true, "{file}: {c:#}");
+        let test = c["test_file"].as_str().expect("a test file");
+        let o = run(&["test", test]);
+        let stdout = text(&o.stdout);
+        assert_eq!(o.status.code(), Some(1), "{file}: {stdout}");
+        assert!(
+            stdout.contains(&format!("invariant {invariant:?} is false")),
+            "{file}: {stdout}"
+        );
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}
+
+#[test]
+fn ctrl_c_prints_the_summary_so_far_with_the_seed_and_ends_with_130() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let (dir, s) = script(
+        "verify-interrupt",
+        "idle.rhai",
+        "let io = device(\"io\");\nevery(\"20ms\", || io.inputs);\n",
+    );
+    let mut child = Command::new(rigscript())
+        .args([
+            "verify", &s, "--runs", "1000000", "--for", "5s", "--seed", "5",
+        ])
+        .args(["--no-faults", "--out", &dir.join("out").to_string_lossy()])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("run rigscript");
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    // The first line comes once the signals are watched.
+    assert!(first.contains("seed 5"), "{first}");
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{rest}");
+    assert!(rest.contains("interrupted: "), "{rest}");
+    assert!(rest.contains("no counterexample in "), "{rest}");
+    assert!(rest.contains("; seed 5"), "{rest}");
+    assert!(
+        rest.contains(&format!(
+            "to repeat these runs: rigscript verify {s} --seed 5 --for 5s"
+        )),
+        "{rest}"
+    );
 }

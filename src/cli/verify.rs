@@ -5,17 +5,24 @@
 //!
 //! Exit status: 0 nothing found, 1 a counterexample, 2 usage or config error (a script that
 //! cannot run on the simulated rig says why, with the same messages as `check`), 70 a
-//! counterexample whose written test does not fail as its run did (a defect of `verify`).
+//! counterexample whose written test does not fail as its run did (a defect of `verify`),
+//! 130 (SIGINT, Ctrl-C) or 143 (SIGTERM) stopped before the runs were done and nothing found
+//! so far: the summary of the runs played is printed, with the seed that repeats them. A
+//! second signal ends it at once with the same status.
 
 use super::check::fit_to_run;
 use crate::config::RigConfig;
 use crate::text_file::{read_text, TextKind};
-use crate::time::duration::{format_duration, parse_duration};
+use crate::time::duration::{format_duration, format_duration_exact, parse_duration};
 use crate::verify::exec::Target;
+use crate::verify::facts::Facts;
+use crate::verify::horizon::Horizon;
 use crate::verify::{report, reproduce, search, Options, SHRINK_BUDGET};
 use clap::Args;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Where counterexamples go unless told otherwise.
@@ -32,9 +39,10 @@ pub struct VerifyArgs {
     /// How many runs at most.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
     pub runs: u64,
-    /// Virtual time each run lasts ("60s", "5m").
-    #[arg(long = "for", value_name = "DURATION", default_value = "60s", value_parser = run_for)]
-    pub run_for: Duration,
+    /// Virtual time each run lasts ("60s", "5m"; default: a minute, longer when the script's
+    /// timers or cron schedule need it, up to 10 minutes).
+    #[arg(long = "for", value_name = "DURATION", value_parser = run_for)]
+    pub run_for: Option<Duration>,
     /// The seed of the search (printed; the same seed gives the same runs and result).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -69,8 +77,8 @@ fn command(args: &VerifyArgs, seed: u64) -> String {
     if let Some(p) = &args.config {
         c.push_str(&format!(" --config {}", p.display()));
     }
-    if args.run_for != Duration::from_secs(60) {
-        c.push_str(&format!(" --for {}", format_duration(args.run_for)));
+    if let Some(d) = args.run_for {
+        c.push_str(&format!(" --for {}", format_duration_exact(d)));
     }
     if args.no_faults {
         c.push_str(" --no-faults");
@@ -81,6 +89,24 @@ fn command(args: &VerifyArgs, seed: u64) -> String {
 /// Prints a line on standard output; a reader that went away (`| head`) is no error.
 fn say(line: &str) {
     let _ = writeln!(std::io::stdout().lock(), "{line}");
+}
+
+/// Makes SIGINT and SIGTERM set `interrupt` to their number, so that the search stops and
+/// reports; a second one while it is set ends the process at once (128 + its number).
+fn watch_signals(interrupt: &Arc<AtomicUsize>) -> std::io::Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let asked = Arc::new(AtomicBool::new(false));
+    for signal in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(
+            signal,
+            crate::runtime::exit::signal(signal),
+            Arc::clone(&asked),
+        )?;
+        signal_hook::flag::register(signal, Arc::clone(&asked))?;
+        let number = usize::try_from(signal).unwrap_or(1);
+        signal_hook::flag::register_usize(signal, Arc::clone(interrupt), number)?;
+    }
+    Ok(())
 }
 
 /// Runs `rigscript verify`; returns the exit status.
@@ -121,13 +147,19 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         || std::thread::available_parallelism().map_or(1, usize::from),
         |j| usize::try_from(j).unwrap_or(1),
     );
+    let interrupt = Arc::new(AtomicUsize::new(0));
+    if let Err(e) = watch_signals(&interrupt) {
+        eprintln!("rigscript verify: cannot watch for Ctrl-C: {e}");
+    }
     let opts = Options {
         runs: args.runs,
         seed,
         jobs,
         faults: !args.no_faults,
         shrink: SHRINK_BUDGET,
+        interrupt: Some(Arc::clone(&interrupt)),
     };
+    let horizon = Horizon::of(&Facts::read(&source), args.run_for);
     let target = Target {
         source,
         file: file.clone(),
@@ -135,17 +167,20 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         config_file: args.config.clone(),
         budget: args.budget.unwrap_or(config.limits.operations),
         config,
-        run_for: args.run_for,
+        run_for: horizon.run_for,
     };
     if !args.json {
         say(&format!(
             "verify {file}: seed {seed}, up to {} runs of {} at {} per tick, faults {}, {jobs} \
              job(s)",
             args.runs,
-            format_duration(args.run_for),
+            format_duration(horizon.run_for),
             format_duration(target.config.period),
             if args.no_faults { "off" } else { "on" }
         ));
+        for line in horizon.notes() {
+            say(&line);
+        }
     }
     let show_progress = !args.json && std::io::stderr().is_terminal();
     let total = args.runs;
@@ -183,15 +218,35 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         }
     }
     if args.json {
-        say(&report::to_json(&summary, &opts, test.as_deref(), defect.as_deref()).to_string());
+        let doc = report::to_json(
+            &summary,
+            &opts,
+            &horizon,
+            test.as_deref(),
+            defect.as_deref(),
+        );
+        say(&doc.to_string());
     } else {
         for line in report::human(&summary, &opts, test.as_deref()) {
             say(&line);
+        }
+        if summary.interrupted && summary.counterexample.is_none() {
+            say(&format!(
+                "to repeat these runs: {} --runs {}",
+                command(&args, seed),
+                summary.runs.max(1)
+            ));
         }
     }
     if let Some(d) = &defect {
         eprintln!("rigscript verify: {d}");
         return crate::runtime::exit::INTERNAL;
     }
-    i32::from(summary.counterexample.is_some())
+    if summary.counterexample.is_some() {
+        return 1;
+    }
+    match i32::try_from(interrupt.load(Ordering::Relaxed)) {
+        Ok(signal) if signal > 0 && summary.interrupted => crate::runtime::exit::signal(signal),
+        _ => 0,
+    }
 }

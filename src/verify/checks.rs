@@ -6,7 +6,10 @@
 //! the run has ended.
 
 use crate::config::{DeviceConfig, RigConfig};
-use crate::runtime::devices::SimRig;
+use crate::protocol::trc1000::{Rotary, Switch};
+use crate::runtime::devices::{Device, SimRig};
+use crate::runtime::invariants::Violation;
+use crate::script::reads::Item;
 use crate::script::rig::Rig;
 use std::fmt;
 use std::time::Duration;
@@ -122,6 +125,83 @@ fn unsafe_device(sim: &SimRig, name: &str, safe: &Safe) -> Option<String> {
     }
 }
 
+/// What device `d` showed of the items in `mask` (the invariant's reads), as read in the tick:
+/// `io outputs 0x01, inputs 0x0f, counter DI0 300, latches on 0x01 off 0x00 (lost)`.
+fn device_as_read(d: &Device, mask: u128) -> String {
+    let reads = |item: Item| mask & item.mask() != 0;
+    let mut parts = Vec::new();
+    let online = match d {
+        Device::C29u(c) => {
+            parts.push(format!("{} outputs {:#04x}", c.name, c.outputs));
+            if (0..8).any(|ch| reads(Item::Input(ch))) {
+                parts.push(match c.inputs.current {
+                    Some(i) => format!("inputs {i:#04x}"),
+                    None => "inputs not read".into(),
+                });
+            }
+            for ch in (0..8).filter(|ch| reads(Item::Counter(*ch))) {
+                parts.push(match c.counters.current {
+                    Some(n) => format!("counter DI{ch} {}", n.get(usize::from(ch)).unwrap_or(&0)),
+                    None => format!("counter DI{ch} not read"),
+                });
+            }
+            if reads(Item::Latches) {
+                parts.push(match c.latches.current {
+                    Some(l) => format!("latches on {:#04x} off {:#04x}", l.energized, l.released),
+                    None => "latches not read".into(),
+                });
+            }
+            c.health.online()
+        }
+        Device::Trc(t) => {
+            parts.push(format!("{} relay {}", t.name, t.relay));
+            if Switch::all().any(|s| reads(Item::Switch(s))) {
+                parts.push(match t.switches.current {
+                    Some(s) if s.pressed_names().is_empty() => "pressed none".into(),
+                    Some(s) => format!("pressed {}", s.pressed_names().join(" ")),
+                    None => "switches not read".into(),
+                });
+            }
+            for r in Rotary::ALL.into_iter().filter(|r| reads(Item::Rotary(*r))) {
+                parts.push(match t.rotaries.current {
+                    Some(v) => format!("{} {}", r.name(), v.get(r)),
+                    None => format!("{} not read", r.name()),
+                });
+            }
+            t.health.online()
+        }
+    };
+    let mut text = parts.join(", ");
+    if !online {
+        text.push_str(" (lost)");
+    }
+    text
+}
+
+/// The violation's readings with every input the invariant read, as read in that tick: the
+/// runtime's line (DI bytes, switches, outputs) for the devices it read nothing of, and for
+/// the others their outputs and each item it read (counters, rotaries, latches too).
+fn as_read(rig: &Rig, v: &Violation) -> String {
+    let reads = rig
+        .runner
+        .program()
+        .coverage()
+        .and_then(|c| c.invariant_reads.get(&v.name))
+        .cloned()
+        .unwrap_or_default();
+    let rt = rig.runner.runtime().borrow();
+    let mut parts = Vec::new();
+    for (idx, d) in rt.devices.iter().enumerate() {
+        let mask = reads.mask(idx) & !(Item::Outputs.mask() | Item::Relay.mask());
+        if mask & !Item::Online.mask() != 0 {
+            parts.push(device_as_read(d, mask));
+        } else if let Some(r) = v.devices.iter().find(|r| r.name() == d.name()) {
+            parts.push(r.to_string());
+        }
+    }
+    parts.join("; ")
+}
+
 impl Watch {
     /// A watch for a run of the rig `config` describes.
     pub fn new(config: &RigConfig) -> Self {
@@ -209,7 +289,7 @@ impl Watch {
             return Some(Finding {
                 check: Check::Invariant(v.name.clone()),
                 at,
-                detail: v.readings(),
+                detail: as_read(rig, v),
                 devices: Vec::new(),
             });
         }
@@ -250,5 +330,71 @@ mod tests {
         assert_eq!(Check::Invariant("?!".into()).slug(), "invariant");
         let long = Check::Invariant("power only with all guards closed and no stop pressed".into());
         assert_eq!(long.slug(), "power_only_with_all_guards_closed_and_no_stop");
+    }
+
+    #[test]
+    fn a_violation_shows_every_input_the_invariant_read_as_read() {
+        use super::super::exec::{execute, Keep, Target};
+        use super::super::plan::{Action, Event, Plan, StartPoint};
+        use std::sync::Arc;
+        let source = r#"
+let io = device("io");
+let panel = device("panel");
+io.outputs = 1;
+invariant("counted and turned", || {
+    let l = io.latched();
+    io.outputs == 0 || io.counter(2) < 300 || panel.rotary("S41A") != 4
+});
+every("20ms", || {});
+"#;
+        let target = Target {
+            source: source.into(),
+            file: "t.rhai".into(),
+            script: "t.rhai".into(),
+            config_file: None,
+            config: RigConfig::simulated_default(),
+            budget: 100_000,
+            run_for: Duration::from_secs(1),
+        };
+        let at = |ms, action| Event {
+            at: Duration::from_millis(ms),
+            action,
+        };
+        let plan = Plan {
+            start: StartPoint {
+                wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
+                zone: "UTC".into(),
+            },
+            events: vec![
+                at(
+                    10,
+                    Action::Turn {
+                        dev: Arc::from("panel"),
+                        rotary: Rotary::S41A,
+                        half_turns: 4,
+                    },
+                ),
+                at(
+                    30,
+                    Action::CounterTo {
+                        dev: Arc::from("io"),
+                        ch: 2,
+                        value: 300,
+                    },
+                ),
+            ],
+        };
+        let keep = Keep {
+            coverage: false,
+            observe: false,
+        };
+        let f = execute(&target, &plan, keep)
+            .unwrap()
+            .finding
+            .expect("found false");
+        assert_eq!(
+            f.detail,
+            "io outputs 0x01, counter DI2 300, latches on 0x04 off 0x04; panel relay 0, S41A 4"
+        );
     }
 }

@@ -1,6 +1,8 @@
 //! Coverage, so a pass means something: how often each handler fired, how often the values
-//! each invariant reads changed, and which values the script reads never changed at all.
-//! A handler that never fired or an invariant whose values never changed is a warning.
+//! each invariant reads changed, which values the script reads never changed at all, and the
+//! range each counter and rotary went through against the values the script compares it with.
+//! A handler that never fired, an invariant whose values never changed or a value compared with
+//! that its counter or rotary never reached is a warning.
 
 use crate::device::c29u::Latches;
 use crate::protocol::trc1000::{Rotary, RotaryValues, Switch, SwitchSet};
@@ -110,6 +112,36 @@ impl Shown {
     }
 }
 
+/// Takes `value` into the range of `key`.
+fn widen(ranges: &mut BTreeMap<(usize, Item), (i64, i64)>, key: (usize, Item), value: i64) {
+    let r = ranges.entry(key).or_insert((value, value));
+    r.0 = r.0.min(value);
+    r.1 = r.1.max(value);
+}
+
+/// Takes the counters and rotaries device `idx` shows into their ranges.
+fn note_ranges(ranges: &mut BTreeMap<(usize, Item), (i64, i64)>, idx: usize, shown: &Shown) {
+    if let Some(counters) = shown.counters {
+        for (ch, n) in (0u8..).zip(counters) {
+            widen(ranges, (idx, Item::Counter(ch)), i64::from(n));
+        }
+    }
+    if let Some(rotaries) = shown.rotaries {
+        for r in Rotary::ALL {
+            widen(ranges, (idx, Item::Rotary(r)), i64::from(rotaries.get(r)));
+        }
+    }
+}
+
+/// A counter or rotary the script reads: the range its ticks read, and the values it is
+/// compared with that the range does not reach.
+struct Reach {
+    name: String,
+    range: Option<(i64, i64)>,
+    compared: Vec<i64>,
+    missed: Vec<i64>,
+}
+
 /// What one run exercised (and, summed, what all runs did).
 #[derive(Debug, Clone, Default)]
 pub struct Coverage {
@@ -131,6 +163,10 @@ pub struct Coverage {
     pub invariant_changes: BTreeMap<String, u64>,
     /// (device, item) → ticks in which it changed.
     pub changes: BTreeMap<(usize, Item), u64>,
+    /// (device, counter or rotary) → the lowest and highest value a tick read.
+    pub ranges: BTreeMap<(usize, Item), (i64, i64)>,
+    /// Counter or rotary → the values the script compares it with (from its text).
+    pub compared: BTreeMap<Item, BTreeSet<i64>>,
     last: Vec<Shown>,
 }
 
@@ -138,10 +174,16 @@ impl Coverage {
     /// Starts following a rig.
     pub fn start(rig: &Rig) -> Self {
         let rt = rig.runner.runtime().borrow();
+        let last: Vec<Shown> = rt.devices.iter().map(Shown::of).collect();
+        let mut ranges = BTreeMap::new();
+        for (idx, shown) in last.iter().enumerate() {
+            note_ranges(&mut ranges, idx, shown);
+        }
         Self {
             runs: 1,
             devices: rt.devices.iter().map(|d| d.name().to_string()).collect(),
-            last: rt.devices.iter().map(Shown::of).collect(),
+            last,
+            ranges,
             ..Self::default()
         }
     }
@@ -156,8 +198,14 @@ impl Coverage {
             let Some(before) = self.last.get_mut(idx) else {
                 continue;
             };
+            // Ranges only when a value moved: a lookup per counter and rotary every tick would
+            // cost a tenth of the search.
+            let moved = now.counters != before.counters || now.rotaries != before.rotaries;
             let changed = now.changed(before);
             *before = now;
+            if moved {
+                note_ranges(&mut self.ranges, idx, &now);
+            }
             if changed == 0 {
                 continue;
             }
@@ -224,6 +272,16 @@ impl Coverage {
         for (k, v) in &other.changes {
             *self.changes.entry(*k).or_default() += v;
         }
+        for (k, (lo, hi)) in &other.ranges {
+            widen(&mut self.ranges, *k, *lo);
+            widen(&mut self.ranges, *k, *hi);
+        }
+        for (k, v) in &other.compared {
+            self.compared
+                .entry(*k)
+                .or_default()
+                .extend(v.iter().copied());
+        }
     }
 
     fn item_name(&self, dev: usize, item: Item) -> String {
@@ -252,7 +310,37 @@ impl Coverage {
             .collect()
     }
 
-    /// The warnings: handlers that never fired, invariants whose values never changed.
+    /// Each counter and rotary the script reads, with its range and the values it is
+    /// compared with.
+    fn reaches(&self) -> Vec<Reach> {
+        self.all_reads()
+            .items()
+            .into_iter()
+            .filter(|(_, item)| matches!(item, Item::Counter(_) | Item::Rotary(_)))
+            .map(|(dev, item)| {
+                let range = self.ranges.get(&(dev, item)).copied();
+                let compared: Vec<i64> = self
+                    .compared
+                    .get(&item)
+                    .map(|s| s.iter().copied().collect())
+                    .unwrap_or_default();
+                let missed = compared
+                    .iter()
+                    .copied()
+                    .filter(|v| !range.is_some_and(|(lo, hi)| (lo..=hi).contains(v)))
+                    .collect();
+                Reach {
+                    name: self.item_name(dev, item),
+                    range,
+                    compared,
+                    missed,
+                }
+            })
+            .collect()
+    }
+
+    /// The warnings: handlers that never fired, invariants whose values never changed, values
+    /// compared with that a counter or rotary never reached.
     pub fn warnings(&self) -> Vec<String> {
         let mut out = Vec::new();
         for h in &self.handlers {
@@ -265,6 +353,19 @@ impl Coverage {
                 out.push(format!(
                     "invariant {name:?}: the values it reads never changed, so it was never \
                      put to the test"
+                ));
+            }
+        }
+        for r in self.reaches() {
+            if !r.missed.is_empty() {
+                out.push(format!(
+                    "{} never reached {}, which the script compares it with ({})",
+                    r.name,
+                    words(&r.missed),
+                    match r.range {
+                        Some((lo, hi)) => format!("the runs read {lo}-{hi}"),
+                        None => "never read".into(),
+                    }
                 ));
             }
         }
@@ -296,6 +397,23 @@ impl Coverage {
                     what.join(", ")
                 }
             ));
+        }
+        for r in self.reaches() {
+            let range = r
+                .range
+                .map_or_else(|| "never read".into(), |(lo, hi)| format!("read {lo}-{hi}"));
+            let compared = if r.compared.is_empty() {
+                String::new()
+            } else if r.missed.is_empty() {
+                format!(", compared with {}: all reached", words(&r.compared))
+            } else {
+                format!(
+                    ", compared with {}: {} not reached",
+                    words(&r.compared),
+                    words(&r.missed)
+                )
+            };
+            out.push(format!("  {}: {range}{compared}", r.name));
         }
         let unchanged = self.unchanged_inputs();
         if !unchanged.is_empty() {
@@ -332,13 +450,85 @@ impl Coverage {
             .iter()
             .map(|h| (h.clone(), json!(self.fired.get(h).copied().unwrap_or(0))))
             .collect();
+        let ranges: serde_json::Map<String, Value> = self
+            .reaches()
+            .into_iter()
+            .map(|r| {
+                (
+                    r.name,
+                    json!({
+                        "min": r.range.map(|x| x.0),
+                        "max": r.range.map(|x| x.1),
+                        "compared": r.compared,
+                        "not_reached": r.missed,
+                    }),
+                )
+            })
+            .collect();
         json!({
             "runs": self.runs,
             "ticks": self.ticks,
             "handlers": handlers,
+            "ranges": ranges,
             "invariants": invariants,
             "unchanged_inputs": self.unchanged_inputs(),
             "warnings": self.warnings(),
         })
+    }
+}
+
+/// `300`, `12 and 300`, `1, 12 and 300`.
+fn words(values: &[i64]) -> String {
+    let texts: Vec<String> = values.iter().map(ToString::to_string).collect();
+    match texts.split_last() {
+        Some((last, [])) => last.clone(),
+        Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
+        None => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counters_and_rotaries_report_their_range_against_the_values_compared_with() {
+        let mut c = Coverage {
+            devices: vec!["io".into(), "panel".into()],
+            ..Coverage::default()
+        };
+        c.script_reads.add(0, Item::Counter(0));
+        c.script_reads.add(1, Item::Rotary(Rotary::S41A));
+        c.compared
+            .insert(Item::Counter(0), BTreeSet::from([12, 300]));
+        c.compared
+            .insert(Item::Rotary(Rotary::S41A), BTreeSet::from([4]));
+        widen(&mut c.ranges, (0, Item::Counter(0)), 0);
+        widen(&mut c.ranges, (0, Item::Counter(0)), 45);
+        widen(&mut c.ranges, (1, Item::Rotary(Rotary::S41A)), 250);
+        widen(&mut c.ranges, (1, Item::Rotary(Rotary::S41A)), 3);
+        let lines = c.lines();
+        assert!(
+            lines.contains(
+                &"  io counter DI0: read 0-45, compared with 12 and 300: 300 not reached".into()
+            ),
+            "{lines:#?}"
+        );
+        assert!(
+            lines.contains(&"  panel S41A: read 3-250, compared with 4: all reached".into()),
+            "{lines:#?}"
+        );
+        assert_eq!(
+            c.warnings(),
+            vec![
+                "io counter DI0 never reached 300, which the script compares it with (the runs \
+                 read 0-45)"
+                    .to_string()
+            ]
+        );
+        let mut other = Coverage::default();
+        widen(&mut other.ranges, (0, Item::Counter(0)), 301);
+        c.merge(&other);
+        assert!(c.warnings().is_empty(), "{:?}", c.warnings());
     }
 }

@@ -145,10 +145,9 @@ impl Player<'_> {
             Action::Input { dev, ch, on } => sim.set_input(dev, *ch, *on).map(|()| true),
             Action::Inputs { dev, byte } => sim.set_inputs(dev, *byte).map(|()| true),
             Action::Pulse { dev, ch, n } => sim.pulse(dev, *ch, *n).map(|()| true),
-            Action::CounterNearWrap { dev, ch, below } => {
+            Action::CounterTo { dev, ch, value } => {
                 let now = sim.counter(dev, *ch)?;
-                let to = 65535u16.saturating_sub(*below);
-                let n = u32::from(to.wrapping_sub(now));
+                let n = u32::from(value.saturating_sub(now));
                 if n > 0 {
                     sim.pulse(dev, *ch, n)?;
                     self.steps.push(Step::Act(Action::Pulse {
@@ -390,10 +389,10 @@ invariant("power only with DI3 closed", || io.outputs == 0 || io.input(3));
         let mut p = plan();
         p.events = vec![Event {
             at: Duration::from_millis(10),
-            action: Action::CounterNearWrap {
+            action: Action::CounterTo {
                 dev: Arc::from("io"),
                 ch: 2,
-                below: 3,
+                value: 65532,
             },
         }];
         let keep = Keep {

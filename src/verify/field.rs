@@ -1,9 +1,10 @@
 //! A random but plausible field for one run: inputs opening and closing (with contact bounce),
-//! counter pulses (and counters carried to their 16-bit wrap), switches pressed and released
-//! (several at once too), rotaries turned both ways across their wrap; and, with faults on,
-//! the faults of `verify::faults`. Choices lean toward what the script reads and the gaps
-//! between events toward its timers, grace time and watchdogs. The same seed makes the same
-//! plan.
+//! counter pulses in steps of every size (to the values the script compares counters with, and
+//! to their 16-bit wrap), switches pressed and released (several at once too), rotaries turned
+//! both ways across their wrap; and, with faults on, the faults of `verify::faults`. Choices
+//! lean toward what the script reads (each item it reads is left out of some runs, so none
+//! starves another) and the gaps between events toward its timers, grace time and watchdogs.
+//! The same seed makes the same plan.
 
 use super::plan::{Action, Event, Plan, StartPoint};
 use super::profile::{Kind, Profile};
@@ -15,7 +16,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-/// Weight of an item the script reads, against 1 for one it does not.
+/// Weight of an item the script reads, at least, against 1 for one it does not.
 pub const READ_WEIGHT: u32 = 10;
 
 /// Chance that the next event is a fault, when faults are on.
@@ -90,15 +91,10 @@ pub(super) fn next_cron(
 
 impl<'a> Gen<'a> {
     pub(super) fn new(profile: &'a Profile, seed: u64) -> Self {
+        let mut rng = fastrand::Rng::with_seed(seed);
         let mut targets = Vec::new();
         for (idx, d) in profile.devices.iter().enumerate() {
-            let weight = |item: Item| {
-                if profile.reads.contains(idx, item) {
-                    READ_WEIGHT
-                } else {
-                    1
-                }
-            };
+            let weight = |item: Item| u32::from(profile.reads.contains(idx, item));
             match d.kind {
                 Kind::Trc => {
                     for s in Switch::all() {
@@ -116,8 +112,8 @@ impl<'a> Gen<'a> {
                 }
             }
         }
+        Self::weigh(&mut rng, &mut targets);
         let total_weight = targets.iter().map(|(_, w)| *w).sum();
-        let mut rng = fastrand::Rng::with_seed(seed);
         let start = Self::start_point(&mut rng, profile);
         Self {
             rng,
@@ -132,6 +128,31 @@ impl<'a> Gen<'a> {
             stopped: false,
             targets,
             total_weight,
+        }
+    }
+
+    /// Weighs the targets (marked 1 if read, 0 if not) for one run. Each item the script
+    /// reads is left out of the run by a coin toss (at least one stays), so that no input
+    /// starves another: in some runs a count builds with its reset button never pressed, a
+    /// guard stays put while the buttons are tried. Those that stay weigh `READ_WEIGHT`, or
+    /// half the number of items not read if that is more, and together the items not read
+    /// weigh at most twice one read item: something the script never looks at is rarely worth
+    /// an event, but not never.
+    fn weigh(rng: &mut fastrand::Rng, targets: &mut [(Target, u32)]) {
+        let read: Vec<usize> = (0..targets.len())
+            .filter(|i| targets.get(*i).is_some_and(|t| t.1 > 0))
+            .collect();
+        let unread = u32::try_from(targets.len() - read.len()).unwrap_or(u32::MAX);
+        let keep = read.get(rng.usize(0..read.len().max(1))).copied();
+        let weight = READ_WEIGHT.max(unread / 2);
+        for (i, t) in targets.iter_mut().enumerate() {
+            t.1 = if t.1 == 0 {
+                1
+            } else if Some(i) == keep || rng.bool() {
+                weight
+            } else {
+                0
+            };
         }
     }
 
@@ -341,22 +362,37 @@ impl<'a> Gen<'a> {
         self.t = at;
     }
 
+    /// A counter event, in steps of every size: a few pulses, tens, hundreds or thousands;
+    /// to just below, at or just above a value the script compares the counter with (carried
+    /// there from zero, or that many pulses from wherever it is: a count since a baseline); or
+    /// to just below the 16-bit wrap.
     fn counter(&mut self, dev: usize, ch: u8) {
-        let name = self.name(dev);
-        if self.rng.f64() < 0.15 {
-            let below = self.rng.u16(0..6);
-            self.push(
-                self.t,
-                Action::CounterNearWrap {
-                    dev: name,
-                    ch,
-                    below,
-                },
-            );
+        let dev = self.name(dev);
+        let marks = self.profile.facts.counter_values(ch);
+        let aim = if marks.is_empty() { 0.0 } else { 0.35 };
+        let roll = self.rng.f64();
+        let action = if roll < aim {
+            let mark = marks[self.rng.usize(0..marks.len())];
+            let value = mark.saturating_add_signed(self.rng.i16(-5..=1));
+            if self.rng.bool() {
+                Action::CounterTo { dev, ch, value }
+            } else {
+                let n = u32::from(value.max(1));
+                Action::Pulse { dev, ch, n }
+            }
+        } else if roll < aim + 0.12 {
+            let value = u16::MAX - self.rng.u16(0..6);
+            Action::CounterTo { dev, ch, value }
         } else {
-            let n = self.rng.u32(1..6);
-            self.push(self.t, Action::Pulse { dev: name, ch, n });
-        }
+            let n = match self.rng.u8(0..20) {
+                0..=11 => self.rng.u32(1..6),
+                12..=16 => self.rng.u32(6..60),
+                17..=18 => self.rng.u32(60..1000),
+                _ => self.rng.u32(1000..20_000),
+            };
+            Action::Pulse { dev, ch, n }
+        };
+        self.push(self.t, action);
     }
 
     fn field_event(&mut self) {
@@ -479,5 +515,66 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A profile of a script that reads counter DI0 of `io` and resets it on DI7.
+    fn counting(source: &str) -> Profile {
+        let config = RigConfig::simulated_default();
+        let mut p = Profile::new(
+            &config,
+            source,
+            Duration::from_millis(20),
+            Duration::from_secs(60),
+        );
+        let io = p.devices.iter().position(|d| d.kind == Kind::C29u).unwrap();
+        p.reads.add(io, Item::Counter(0));
+        p.reads.add(io, Item::Input(7));
+        p
+    }
+
+    #[test]
+    fn counter_events_come_in_steps_of_every_size_and_reach_the_values_compared_with() {
+        let p = counting("let io = device(\"io\"); every(\"20ms\", || io.counter(0) >= 300);");
+        let (mut near, mut sizes) = (0, std::collections::BTreeSet::new());
+        for seed in 0..100 {
+            for e in generate(&p, seed, false).events {
+                let (to, n) = match e.action {
+                    Action::CounterTo { ch: 0, value, .. } => (u32::from(value), None),
+                    Action::Pulse { ch: 0, n, .. } => (n, Some(n)),
+                    _ => continue,
+                };
+                if (295..=301).contains(&to) {
+                    near += 1;
+                } else if let Some(n) = n {
+                    sizes.insert(n.ilog10());
+                }
+            }
+        }
+        assert!(near > 100, "{near} events to just below, at or above 300");
+        assert_eq!(
+            sizes,
+            (0..=4).collect(),
+            "ones, tens, hundreds, thousands, ten thousands"
+        );
+    }
+
+    #[test]
+    fn no_input_the_script_reads_starves_another() {
+        // The reset button (DI7) weighs as much as the counter, yet some runs leave it alone
+        // so that a count can build.
+        let p = counting("");
+        let alone = (0..100)
+            .map(|seed| generate(&p, seed, false).events)
+            .filter(|events| {
+                let counts = events
+                    .iter()
+                    .any(|e| matches!(e.action, Action::Pulse { ch: 0, .. }));
+                let resets = events
+                    .iter()
+                    .any(|e| matches!(e.action, Action::Input { ch: 7, .. }));
+                counts && !resets
+            })
+            .count();
+        assert!(alone >= 20, "{alone} of 100 runs count with no reset");
     }
 }

@@ -13,8 +13,10 @@
 pub mod checks;
 pub mod coverage;
 pub mod exec;
+pub mod facts;
 pub mod faults;
 pub mod field;
+pub mod horizon;
 pub mod plan;
 pub mod profile;
 pub mod report;
@@ -28,8 +30,8 @@ use exec::{execute, ExecError, Keep, Outcome, Step, Target};
 use plan::{Event, Plan, StartPoint};
 use profile::{Observed, Profile};
 use shrink::{shrink, Budget, Candidate, Replay};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// How a search is run.
@@ -45,6 +47,18 @@ pub struct Options {
     pub faults: bool,
     /// What shrinking may cost.
     pub shrink: Budget,
+    /// Set (to a signal's number) to stop early: no run is begun after it, and shrinking stops
+    /// at the next candidate; the summary says how far the search got.
+    pub interrupt: Option<Arc<AtomicUsize>>,
+}
+
+impl Options {
+    /// Whether the search was asked to stop.
+    pub fn interrupted(&self) -> bool {
+        self.interrupt
+            .as_ref()
+            .is_some_and(|i| i.load(Ordering::Relaxed) != 0)
+    }
 }
 
 /// The budget shrinking gets unless told otherwise.
@@ -81,6 +95,8 @@ pub struct Counterexample {
     pub not_reproduced: usize,
     /// How the first of them failed to.
     pub first_not_reproduced: Option<reproduce::NotReproduced>,
+    /// Shrinking was cut short by `Options::interrupt`.
+    pub interrupted: bool,
 }
 
 /// What a search came to.
@@ -102,6 +118,8 @@ pub struct Summary {
     pub counterexample: Option<Counterexample>,
     /// What the runs exercised.
     pub coverage: Coverage,
+    /// The search stopped early (`Options::interrupt`); `runs` counts the runs played whole.
+    pub interrupted: bool,
 }
 
 /// Why a search could not be made.
@@ -153,6 +171,8 @@ impl Replay for Outcome {
 /// What the runs of a batch brought back.
 #[derive(Default)]
 struct Batch {
+    /// Runs played whole.
+    done: u64,
     coverage: Coverage,
     observed: Observed,
     events: u64,
@@ -174,7 +194,7 @@ fn play_batch(
         let mut mine = Batch::default();
         loop {
             let i = next.fetch_add(1, Ordering::SeqCst);
-            if i >= range.end || i > lowest_failure.load(Ordering::SeqCst) {
+            if i >= range.end || i > lowest_failure.load(Ordering::SeqCst) || opts.interrupted() {
                 break;
             }
             let plan = field::generate(profile, run_seed(opts.seed, i), opts.faults);
@@ -184,6 +204,7 @@ fn play_batch(
             };
             match execute(target, &plan, keep) {
                 Ok(outcome) => {
+                    mine.done += 1;
                     let played = plan.events.get(..outcome.played).unwrap_or(&[]);
                     mine.events += played.len() as u64;
                     mine.faults += played.iter().filter(|e| e.action.is_fault()).count() as u64;
@@ -205,6 +226,7 @@ fn play_batch(
         let mut all = result.lock().unwrap_or_else(|e| e.into_inner());
         all.coverage.merge(&mine.coverage);
         all.observed.merge(&mine.observed);
+        all.done += mine.done;
         all.events += mine.events;
         all.faults += mine.faults;
         all.failures.append(&mut mine.failures);
@@ -275,7 +297,13 @@ fn minimise(
     let s = shrink(
         candidate,
         outcome,
-        |c| replay(target, c, &check, &mut not_reproduced),
+        |c| {
+            // Stopped: every candidate fails to help, so shrinking ends within a pass.
+            if opts.interrupted() {
+                return None;
+            }
+            replay(target, c, &check, &mut not_reproduced)
+        },
         opts.shrink,
         period.saturating_mul(2),
         field::quantum(period),
@@ -293,6 +321,7 @@ fn minimise(
         shrink_time: began.elapsed(),
         not_reproduced: not_reproduced.len(),
         first_not_reproduced: not_reproduced.into_iter().next(),
+        interrupted: opts.interrupted(),
     }
 }
 
@@ -314,6 +343,7 @@ pub fn search(
         search_time: Duration::ZERO,
         counterexample: None,
         coverage: Coverage::default(),
+        interrupted: false,
     };
     let mut start = 0;
     while start < opts.runs {
@@ -330,6 +360,7 @@ pub fn search(
         summary.coverage.merge(&batch.coverage);
         profile.learn(&batch.observed);
         batch.failures.sort_by_key(|f| f.0);
+        let done = summary.runs + batch.done;
         if let Some((run, plan, outcome, found)) = batch.failures.into_iter().next() {
             summary.runs = run + 1;
             summary.search_time = began.elapsed();
@@ -338,10 +369,16 @@ pub fn search(
                 Some(minimise(target, opts, period, run, plan, outcome, found));
             return Ok(summary);
         }
+        if opts.interrupted() {
+            summary.runs = done;
+            summary.interrupted = true;
+            break;
+        }
         summary.runs = end;
         progress(end);
         start = end;
     }
     summary.search_time = began.elapsed();
+    summary.coverage.compared = profile.facts.compared.clone();
     Ok(summary)
 }

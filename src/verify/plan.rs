@@ -9,6 +9,9 @@ use std::fmt;
 use std::sync::Arc;
 use std::time::Duration;
 
+/// Counts from which a counter is near its wrap (65535, then 0).
+pub const NEAR_WRAP: u16 = 65530;
+
 /// One thing that happens to the rig.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Action {
@@ -37,14 +40,15 @@ pub enum Action {
         /// How many.
         n: u32,
     },
-    /// Pulses that bring a counter to `65535 - below` (a counter carried to its wrap).
-    CounterNearWrap {
+    /// Pulses that bring a counter up to `value` (none if it shows as much already): to a
+    /// value the script compares it with, or to just below its 16-bit wrap.
+    CounterTo {
         /// Device name.
         dev: Arc<str>,
         /// Channel 0-7.
         ch: u8,
-        /// How far below 65535 it ends.
-        below: u16,
+        /// The count it ends at.
+        value: u16,
     },
     /// A TRC1000 switch pressed.
     Press {
@@ -139,12 +143,8 @@ impl fmt::Display for Action {
             }
             Action::Inputs { dev, byte } => write!(f, "{dev} inputs {byte:#04x}"),
             Action::Pulse { dev, ch, n } => write!(f, "{dev} DI{ch} {n} pulse(s)"),
-            Action::CounterNearWrap { dev, ch, below } => {
-                write!(
-                    f,
-                    "{dev} counter DI{ch} carried to {}",
-                    65535 - u32::from(*below)
-                )
+            Action::CounterTo { dev, ch, value } => {
+                write!(f, "{dev} counter DI{ch} carried to {value}")
             }
             Action::Press { dev, switch } => write!(f, "{dev} {switch} pressed"),
             Action::Release { dev, switch } => write!(f, "{dev} {switch} released"),
@@ -210,11 +210,11 @@ impl Action {
                     });
                 }
             }
-            Action::CounterNearWrap { dev, ch, below } if *below > 0 => {
-                out.push(Action::CounterNearWrap {
+            Action::CounterTo { dev, ch, value } if (NEAR_WRAP..u16::MAX).contains(value) => {
+                out.push(Action::CounterTo {
                     dev: Arc::clone(dev),
                     ch: *ch,
-                    below: 0,
+                    value: u16::MAX,
                 });
             }
             Action::Turn {

@@ -1,8 +1,10 @@
 //! What `verify` knows about the script and its rig when it makes up a field: the devices,
 //! what the script reads (from the switch and rotary names its source mentions, then from what
-//! earlier runs saw it read), its timers, cron expressions and watchdogs, the grace time and
-//! the scan period. The field is weighted toward these.
+//! earlier runs saw it read), its timers, cron expressions and watchdogs (from its text, then
+//! from what runs registered), the values it compares counters and rotaries with, the grace
+//! time and the scan period. The field is weighted toward these.
 
+use super::facts::Facts;
 use crate::config::{DeviceConfig, RigConfig};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::Device;
@@ -99,6 +101,9 @@ pub struct Profile {
     pub period: Duration,
     /// How long each run lasts.
     pub run_for: Duration,
+    /// What the script's text says: its timers and the values it compares counters and
+    /// rotaries with.
+    pub facts: Facts,
 }
 
 /// The string literals of `source` (without escapes resolved: names need none).
@@ -157,14 +162,16 @@ impl Profile {
                 }
             }
         }
+        let facts = Facts::read(source);
         Self {
             devices,
             reads,
-            timers: BTreeSet::new(),
-            crons: BTreeSet::new(),
+            timers: facts.timers.clone(),
+            crons: facts.crons.clone(),
             grace: config.grace,
             period,
             run_for,
+            facts,
         }
     }
 

@@ -3,6 +3,7 @@
 //! one JSON document.
 
 use super::exec::Target;
+use super::horizon::Horizon;
 use super::plan::{time_text, trace};
 use super::reproduce::{failure_text, render, NotReproduced};
 use super::testfile::absolute;
@@ -97,7 +98,9 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
                 c.events.len(),
                 c.replays,
                 c.shrink_time.as_secs_f64(),
-                if c.exhausted {
+                if c.interrupted {
+                    ", cut short by a signal"
+                } else if c.exhausted {
                     ", stopped at the shrinking budget"
                 } else {
                     ""
@@ -117,6 +120,12 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
             }
         }
         None => {
+            if summary.interrupted {
+                out.push(format!(
+                    "interrupted: {} of up to {} runs played whole before the signal",
+                    summary.runs, opts.runs
+                ));
+            }
             out.push(format!(
                 "no counterexample in {} runs of {} ({} ticks, {} events, {} of them faults) \
                  in {:.1} s; seed {}",
@@ -144,6 +153,7 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
 pub fn to_json(
     summary: &Summary,
     opts: &Options,
+    horizon: &Horizon,
     test: Option<&Path>,
     defect: Option<&str>,
 ) -> Value {
@@ -170,6 +180,7 @@ pub fn to_json(
             "reproduced": defect.is_none() && test.is_some(),
             "defect": defect,
             "candidates_not_reproduced": c.not_reproduced,
+            "shrink_interrupted": c.interrupted,
         })
     });
     let passed = summary.counterexample.is_none();
@@ -177,9 +188,15 @@ pub fn to_json(
         "seed": summary.seed,
         "runs": summary.runs,
         "run_for_ms": summary.run_for.as_secs_f64() * 1000.0,
+        "run_for_stretched_for": horizon.stretched_for,
+        "run_for_short_of": horizon.short_of,
         "faults": opts.faults,
         "search_s": summary.search_time.as_secs_f64(),
-        "result": if counterexample.is_some() { "counterexample" } else { "pass" },
+        "result": match (&counterexample, summary.interrupted) {
+            (Some(_), _) => "counterexample",
+            (None, true) => "interrupted",
+            (None, false) => "pass",
+        },
         "counterexample": counterexample,
         // Totals and coverage only after a pass: when a run failed, runs after it may or may
         // not have finished, so they would differ between invocations.

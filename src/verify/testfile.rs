@@ -56,9 +56,8 @@ fn action_line(a: &Action) -> String {
         Action::Input { dev, ch, on } => format!("r.set_input({}, {ch}, {on});", quoted(dev)),
         Action::Inputs { dev, byte } => format!("r.set_inputs({}, {byte:#04x});", quoted(dev)),
         Action::Pulse { dev, ch, n } => format!("r.pulse({}, {ch}, {n});", quoted(dev)),
-        Action::CounterNearWrap { dev, ch, below } => format!(
-            "r.pulse({d}, {ch}, ({} - r.counter({d}, {ch}) + 65536) % 65536); // to the wrap",
-            65535 - u32::from(*below),
+        Action::CounterTo { dev, ch, value } => format!(
+            "if r.counter({d}, {ch}) < {value} {{ r.pulse({d}, {ch}, {value} - r.counter({d}, {ch})); }}",
             d = quoted(dev),
         ),
         Action::Press { dev, switch } => {
