@@ -1,7 +1,9 @@
 //! The state of one run that scripts act on: the clock, the devices, the handlers, records,
 //! the log and the stop request. Its jobs live beside it: `registry` (devices by name and
 //! index), `inputs` (lazy reads), `outputs` (what the script wants written), `safety`
-//! (supervision), `subscriptions` and `events` (handlers and what fires them).
+//! (supervision), `registrations` and `events` (handlers and what fires them),
+//! `invariant_checks`. The types it holds come from modules below it (`subscriptions`,
+//! `invariants`), which never import it back.
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
