@@ -3,7 +3,7 @@
 
 use super::devices::Device;
 use super::invariants::{
-    Check, DeviceReading, Invariant, InvariantError, Violation, MAX_INVARIANTS,
+    DeviceReading, Invariant, InvariantCheck, InvariantError, Violation, MAX_INVARIANTS,
 };
 use super::state::Runtime;
 use super::subscriptions::Call;
@@ -34,10 +34,10 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// How to evaluate each invariant, in the order they were stated.
-    pub fn invariant_checks(&self) -> Vec<Check<H>> {
+    pub fn invariant_checks(&self) -> Vec<InvariantCheck<H>> {
         self.invariants
             .iter()
-            .map(|i| Check {
+            .map(|i| InvariantCheck {
                 call: Call {
                     handler: i.handler.clone(),
                     args: Vec::new(),

@@ -26,7 +26,7 @@ pub struct Invariant<H> {
 
 /// One invariant to evaluate this tick.
 #[derive(Debug, Clone)]
-pub struct Check<H> {
+pub struct InvariantCheck<H> {
     /// The call that evaluates it (label `invariant "name"`).
     pub call: Call<H>,
     /// Its name.
