@@ -49,8 +49,8 @@ pub struct Runtime<H> {
     pub tick_boundary: Option<Duration>,
     /// Monotonic time the run started.
     pub started: Duration,
-    /// The script asked to stop, with this exit status.
-    pub stop_request: Option<i64>,
+    /// The script asked to stop, with this exit status (`request_stop`).
+    stop_request: Option<i64>,
     /// The handler running now, for the log lines of the outputs it changes.
     pub cause: String,
     /// A device has been lost for longer than its grace time: every device is held at its
@@ -165,6 +165,17 @@ impl<H: Clone> Runtime<H> {
         self.handlers.signature()
     }
 
+    /// The script's `stop(code)`: the run ends at the end of this tick with `code`; the first
+    /// request made stands.
+    pub fn request_stop(&mut self, code: i64) {
+        self.stop_request.get_or_insert(code);
+    }
+
+    /// The exit status the script asked to stop with, if it did.
+    pub fn stop_requested(&self) -> Option<i64> {
+        self.stop_request
+    }
+
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {
@@ -249,13 +260,13 @@ mod tests {
         let mut r = TestRig::started();
         r.rt.every(Duration::from_secs(1), "t").unwrap();
         r.rt.subscribe(Source::Stop, "s", "on_stop".into());
-        r.rt.stop_request = Some(3);
+        r.rt.request_stop(3);
         r.rt.set_outputs(IO, 0x99);
         r.rt.set_relay(PANEL, 7);
         r.rt.reset_program();
         assert!(r.rt.handlers.is_empty());
         assert!(!r.rt.has_work());
-        assert_eq!(r.rt.stop_request, None);
+        assert_eq!(r.rt.stop_requested(), None);
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
         assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
     }

@@ -742,10 +742,7 @@ fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &st
 
 /// `stop(code)`: asks the runner to stop, and ends the handler at once.
 fn stop(rt: &Rt, code: i64) -> R<()> {
-    let mut r = rt.borrow_mut();
-    if r.stop_request.is_none() {
-        r.stop_request = Some(code);
-    }
+    rt.borrow_mut().request_stop(code);
     end_handler()
 }
 
