@@ -23,7 +23,7 @@ use std::time::Duration;
 /// The state of one run.
 pub struct Runtime<H> {
     /// The one source of time.
-    pub clock: SharedClock,
+    pub(super) clock: SharedClock,
     /// The zone of cron, `now()` and the log.
     pub zone: Zone,
     /// The devices, in name order.
@@ -55,9 +55,9 @@ pub struct Runtime<H> {
     pub cause: String,
     /// A device has been lost for longer than its grace time: every device is held at its
     /// safe state until all are back.
-    pub held_safe: bool,
+    pub(super) held_safe: bool,
     /// Requests sent on all links.
-    pub transactions: TransactionCounter,
+    pub(super) transactions: TransactionCounter,
     /// How long a device may be lost before everything goes safe.
     pub grace: Duration,
     /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
@@ -124,6 +124,23 @@ impl<H: Clone> Runtime<H> {
     /// Requests sent so far on all links.
     pub fn transaction_count(&self) -> u64 {
         self.transactions.load(Ordering::Relaxed)
+    }
+
+    /// The run's clock, for what measures time on it (the script's limits per call).
+    pub fn clock(&self) -> &SharedClock {
+        &self.clock
+    }
+
+    /// The counter of requests sent on all links, shared with what watches it (the script's
+    /// limits read the clock again after each new request: an exchange takes time).
+    pub fn transaction_counter(&self) -> &TransactionCounter {
+        &self.transactions
+    }
+
+    /// Whether every device is held at its safe state: one has been lost for longer than its
+    /// grace time and not all are back.
+    pub fn held_safe(&self) -> bool {
+        self.held_safe
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest

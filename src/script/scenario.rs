@@ -512,7 +512,7 @@ fn register_observations(engine: &mut Engine) {
         i64::try_from(r.0.borrow().rig.runner.stats.overruns).unwrap_or(i64::MAX)
     });
     engine.register_fn("held_safe", |r: &mut RigHandle| -> bool {
-        r.0.borrow().rig.runner.runtime().borrow().held_safe
+        r.0.borrow().rig.runner.runtime().borrow().held_safe()
     });
     engine.register_fn("errors", |r: &mut RigHandle| -> Array {
         let mut s = r.0.borrow_mut();

@@ -216,7 +216,7 @@ impl Watch {
         if let Some(f) = self.errors(rig, at) {
             return Some(f);
         }
-        if rig.runner.runtime().borrow().held_safe {
+        if rig.runner.runtime().borrow().held_safe() {
             return Self::safety(Check::HeldSafe, at, self.unsafe_devices(rig));
         }
         None
