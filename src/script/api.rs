@@ -575,7 +575,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
             m.driver.reset()?;
             // The module comes back at its power-on value; the script's outputs are written
             // again at the end of the tick, and the periodic check knows this reset.
-            m.outputs_written = None;
+            m.forget_outputs_written();
             m.reset_by_script = true;
             Ok(())
         })
