@@ -81,7 +81,7 @@ impl RunOutputs {
             return status;
         }
         let rt = rig.runner.runtime().borrow();
-        let records = rt.records.kept();
+        let records = rt.records_kept();
         let problems: Vec<String> = rt
             .log
             .lines()

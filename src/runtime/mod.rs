@@ -12,6 +12,7 @@ pub mod line_writer;
 pub mod log;
 pub mod observe;
 mod outputs;
+mod recording;
 pub mod records;
 mod records_file;
 mod registrations;

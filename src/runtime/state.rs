@@ -38,7 +38,7 @@ pub struct Runtime<H> {
     /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
     pub input_accesses: u64,
     /// Records and measurements.
-    pub records: Records,
+    pub(super) records: Records,
     /// The log.
     pub log: Logger,
     /// The current tick (0 while the top level runs at start).

@@ -784,35 +784,12 @@ fn limits(map: &Map) -> R<Limits> {
 fn register_records(engine: &mut Engine, rt: &Rt) {
     let r = Rc::clone(rt);
     engine.register_fn("record", move |name: &str, value: Dynamic| -> R<()> {
-        let mut guard = r.borrow_mut();
-        let rt = &mut *guard;
-        let time = rt.wall_text();
-        rt.records.record(&time, name, to_json(&value), &mut rt.log);
+        r.borrow_mut().record(name, to_json(&value));
         Ok(())
     });
     let measure = move |rt: &Rt, name: &str, value: &Dynamic, l: &Limits| -> R<bool> {
         let v = number(value, "a measured value")?;
-        let mut guard = rt.borrow_mut();
-        let r = &mut *guard;
-        let time = r.wall_text();
-        let pass = r.records.measure(&time, name, v, l, &mut r.log);
-        let unit = l.unit.as_deref().unwrap_or("");
-        let range = match (l.min, l.max) {
-            (Some(a), Some(b)) => format!(" [{a}, {b}]"),
-            (Some(a), None) => format!(" [>= {a}]"),
-            (None, Some(b)) => format!(" [<= {b}]"),
-            (None, None) => String::new(),
-        };
-        let line = format!(
-            "measure {name} = {v}{unit}{range}: {}",
-            if pass { "pass" } else { "FAIL" }
-        );
-        if pass {
-            r.log.activity(&line);
-        } else {
-            r.log.warn(&line);
-        }
-        Ok(pass)
+        Ok(rt.borrow_mut().measure(name, v, l))
     };
     let r = Rc::clone(rt);
     engine.register_fn(

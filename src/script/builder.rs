@@ -223,7 +223,7 @@ impl Rig {
 
     /// The records and measurements kept so far, oldest first, as JSON objects.
     pub fn records(&self) -> Vec<Value> {
-        self.runner.runtime().borrow().records.kept().to_vec()
+        self.runner.runtime().borrow().records_kept().to_vec()
     }
 }
 

@@ -484,7 +484,7 @@ fn register_observations(engine: &mut Engine) {
     engine.register_fn("records", |r: &mut RigHandle| -> Array {
         let s = r.0.borrow();
         let rt = s.rig.runner.runtime().borrow();
-        rt.records.kept().iter().map(from_json).collect()
+        rt.records_kept().iter().map(from_json).collect()
     });
     engine.register_fn("stopped", |r: &mut RigHandle| {
         r.0.borrow().rig.runner.status().is_some()

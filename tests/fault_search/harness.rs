@@ -333,7 +333,7 @@ pub fn run(case: &Case) -> Run {
                 Ok(status) => End::Ran {
                     status,
                     log: r.log.lines().to_vec(),
-                    records: r.records.kept().to_vec(),
+                    records: r.records_kept().to_vec(),
                     ticks,
                 },
                 Err(_) => End::Panicked,
