@@ -29,9 +29,9 @@ pub struct Runtime<H> {
     /// The devices, in name order.
     pub devices: Vec<Device>,
     /// The script's handlers and timers.
-    pub handlers: Subscriptions<H>,
+    pub(super) handlers: Subscriptions<H>,
     /// What the script states must hold after every tick (`invariants`).
-    pub invariants: Vec<Invariant<H>>,
+    pub(super) invariants: Vec<Invariant<H>>,
     /// Whether the invariants read device inputs when last evaluated (or have not been yet):
     /// then every tick runs, so the inputs they read are read every tick.
     pub invariants_read_inputs: bool,
@@ -177,6 +177,28 @@ impl<H: Clone> Runtime<H> {
         self.handlers.fastest_every().map(|every| every.max(period))
     }
 
+    /// The script's handlers and timers, to look at (`verify`'s coverage and profile).
+    pub fn handlers(&self) -> &Subscriptions<H> {
+        &self.handlers
+    }
+
+    /// The invariants the script stated, in that order.
+    pub fn invariants(&self) -> &[Invariant<H>] {
+        &self.invariants
+    }
+
+    /// Caps the timers the script may have at once (its limits).
+    pub fn limit_timers(&mut self, max: usize) {
+        self.handlers.set_max_timers(max);
+    }
+
+    /// Drops every handler, timer and invariant, and with them the script's closures that
+    /// hold handles to this runtime (a cycle of `Rc`s otherwise).
+    pub fn forget_handlers(&mut self) {
+        self.handlers.clear();
+        self.invariants.clear();
+    }
+
     /// Something that changes when handlers come or go (their count and the next id).
     pub fn handlers_signature(&self) -> (usize, u64) {
         self.handlers.signature()
@@ -196,8 +218,7 @@ impl<H: Clone> Runtime<H> {
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {
-        self.handlers.clear();
-        self.invariants.clear();
+        self.forget_handlers();
         self.invariants_read_inputs = true;
         self.stop_request = None;
         self.reset_outputs();

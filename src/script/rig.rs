@@ -120,8 +120,7 @@ impl Drop for Rig {
     /// `verify` run's, for as long as the process lives).
     fn drop(&mut self) {
         if let Ok(mut rt) = self.runner.runtime().try_borrow_mut() {
-            rt.handlers.clear();
-            rt.invariants.clear();
+            rt.forget_handlers();
         }
     }
 }
@@ -175,7 +174,7 @@ pub fn start_with(
         count,
         setup.config.grace,
     );
-    runtime.handlers.set_max_timers(limits.timers);
+    runtime.limit_timers(limits.timers);
     // A signal during the start cuts its exchanges short from the first one: a silent module
     // with long timeouts and many retries must not hold a stop for all of them.
     runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));

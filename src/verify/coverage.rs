@@ -182,7 +182,7 @@ impl Coverage {
     /// Takes in what the program counted and the handlers it has, at the end of the run.
     pub fn finish(&mut self, rig: &Rig) {
         let rt = rig.runner.runtime().borrow();
-        for s in rt.handlers.list() {
+        for s in rt.handlers().list() {
             self.handlers.insert(s.label.clone());
         }
         if let Some(c) = rig.runner.program().coverage() {
@@ -198,7 +198,7 @@ impl Coverage {
                     .union(reads);
             }
         }
-        for inv in &rt.invariants {
+        for inv in rt.invariants() {
             self.invariant_reads.entry(inv.name.clone()).or_default();
         }
     }
