@@ -25,7 +25,7 @@ pub struct Runtime<H> {
     /// The one source of time.
     pub(super) clock: SharedClock,
     /// The zone of cron, `now()` and the log.
-    pub zone: Zone,
+    pub(super) zone: Zone,
     /// The devices, in name order.
     pub devices: Vec<Device>,
     /// The script's handlers and timers.
@@ -34,37 +34,37 @@ pub struct Runtime<H> {
     pub(super) invariants: Vec<Invariant<H>>,
     /// Whether the invariants read device inputs when last evaluated (or have not been yet):
     /// then every tick runs, so the inputs they read are read every tick.
-    pub invariants_read_inputs: bool,
+    pub(super) invariants_read_inputs: bool,
     /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
-    pub input_accesses: u64,
+    pub(super) input_accesses: u64,
     /// Records and measurements.
     pub(super) records: Records,
     /// The log.
     pub log: Logger,
     /// The current tick (0 while the top level runs at start).
-    pub tick: u64,
+    pub(super) tick: u64,
     /// The period boundary the current tick runs for (at or before its start): timer
     /// deadlines are counted up to it, so one that passes while the tick runs falls to the
     /// next tick (see `Schedule::due_at_tick`).
-    pub tick_boundary: Option<Duration>,
+    pub(super) tick_boundary: Option<Duration>,
     /// Monotonic time the run started.
-    pub started: Duration,
+    pub(super) started: Duration,
     /// The script asked to stop, with this exit status (`request_stop`).
     stop_request: Option<i64>,
     /// The handler running now, for the log lines of the outputs it changes.
-    pub cause: String,
+    pub(super) cause: String,
     /// A device has been lost for longer than its grace time: every device is held at its
     /// safe state until all are back.
     pub(super) held_safe: bool,
     /// Requests sent on all links.
     pub(super) transactions: TransactionCounter,
     /// How long a device may be lost before everything goes safe.
-    pub grace: Duration,
+    pub(super) grace: Duration,
     /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
     /// runs; supervision also stops trying lost devices once it is set.
-    pub cancel: Cancel,
+    pub(super) cancel: Cancel,
     /// Where what happens is told to whoever watches the run (`observe`).
-    pub events: Events,
+    pub(super) events: Events,
 }
 
 impl<H: Clone> Runtime<H> {
