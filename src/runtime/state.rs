@@ -27,7 +27,7 @@ pub struct Runtime<H> {
     /// The zone of cron, `now()` and the log.
     pub(super) zone: Zone,
     /// The devices, in name order.
-    pub devices: Vec<Device>,
+    pub(super) devices: Vec<Device>,
     /// The script's handlers and timers.
     pub(super) handlers: Subscriptions<H>,
     /// What the script states must hold after every tick (`invariants`).

@@ -264,7 +264,7 @@ fn setter<T: rhai::Variant + Clone>(
 /// The handle of the device at `idx`.
 fn handle(rt: &Rt, idx: usize, reads: &ReadTracker) -> Option<Dynamic> {
     let r = rt.borrow();
-    let d = r.devices.get(idx)?;
+    let d = r.devices().get(idx)?;
     let name: Rc<str> = Rc::from(d.name());
     let reads = reads.clone();
     Some(match d {
@@ -308,7 +308,7 @@ pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads:
     let (r, t) = (Rc::clone(rt), reads.clone());
     let names: Vec<(String, usize)> = {
         let b = rt.borrow();
-        b.devices
+        b.devices()
             .iter()
             .enumerate()
             .map(|(i, d)| (d.name().to_string(), i))

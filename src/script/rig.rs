@@ -8,7 +8,7 @@ use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::device::cancel::Cancel;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError, Opened, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
 use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::runner::{panic_message, safe_after_panic, RunOptions, Runner};
@@ -202,11 +202,7 @@ pub fn start_with(
             // A module not yet under control got from the start at most its safe values (the
             // outputs it is taken control with); the end's tries on one that has not answered
             // would cost all its timeouts, so it is left as it is.
-            let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut r.devices)
-                .into_iter()
-                .partition(|d| matches!(d, Device::C29u(c) if !c.controlled));
-            r.devices = taken;
-            for d in &untaken {
+            for d in &r.take_out_uncontrolled() {
                 r.log.warn(&format!(
                     "{}: not under control yet: left as it is (the start writes a module nothing \
                      but its safe values)",

@@ -140,8 +140,8 @@ impl Coverage {
         let rt = rig.runner.runtime().borrow();
         Self {
             runs: 1,
-            devices: rt.devices.iter().map(|d| d.name().to_string()).collect(),
-            last: rt.devices.iter().map(Shown::of).collect(),
+            devices: rt.devices().iter().map(|d| d.name().to_string()).collect(),
+            last: rt.devices().iter().map(Shown::of).collect(),
             ..Self::default()
         }
     }
@@ -151,7 +151,7 @@ impl Coverage {
         self.ticks = self.ticks.saturating_add(1);
         let rt = rig.runner.runtime().borrow();
         let invariants = rig.runner.program().coverage();
-        for (idx, d) in rt.devices.iter().enumerate() {
+        for (idx, d) in rt.devices().iter().enumerate() {
             let now = Shown::of(d);
             let Some(before) = self.last.get_mut(idx) else {
                 continue;
