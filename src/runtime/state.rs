@@ -40,7 +40,7 @@ pub struct Runtime<H> {
     /// Records and measurements.
     pub(super) records: Records,
     /// The log.
-    pub log: Logger,
+    pub(super) log: Logger,
     /// The current tick (0 while the top level runs at start).
     pub(super) tick: u64,
     /// The period boundary the current tick runs for (at or before its start): timer
@@ -175,6 +175,22 @@ impl<H: Clone> Runtime<H> {
             return Some(period);
         }
         self.handlers.fastest_every().map(|every| every.max(period))
+    }
+
+    /// The log, to write a line to.
+    pub fn log_mut(&mut self) -> &mut Logger {
+        &mut self.log
+    }
+
+    /// The log lines kept (by a run that keeps them: tests, the JUnit report), oldest first.
+    pub fn log_lines(&self) -> &[String] {
+        self.log.lines()
+    }
+
+    /// Closes the log, with a bounded wait for its last lines; how many lines it dropped.
+    pub fn close_log(&mut self) -> u64 {
+        self.log.close();
+        self.log.dropped()
     }
 
     /// The script's handlers and timers, to look at (`verify`'s coverage and profile).

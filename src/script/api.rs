@@ -706,16 +706,16 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         i64::try_from(r.borrow().uptime().as_millis()).unwrap_or(i64::MAX)
     });
     let r = Rc::clone(rt);
-    engine.on_print(move |s| r.borrow_mut().log.info(&format!("script: {s}")));
+    engine.on_print(move |s| r.borrow_mut().log_mut().info(&format!("script: {s}")));
     let r = Rc::clone(rt);
-    engine.on_debug(move |s, _, _| r.borrow_mut().log.info(&format!("script: {s}")));
+    engine.on_debug(move |s, _, _| r.borrow_mut().log_mut().info(&format!("script: {s}")));
     let r = Rc::clone(rt);
     engine.register_fn("log", move |m: Dynamic| {
-        r.borrow_mut().log.info(&format!("script: {m}"));
+        r.borrow_mut().log_mut().info(&format!("script: {m}"));
     });
     let r = Rc::clone(rt);
     engine.register_fn("warn", move |m: Dynamic| {
-        r.borrow_mut().log.warn(&format!("script: {m}"));
+        r.borrow_mut().log_mut().warn(&format!("script: {m}"));
     });
 }
 

@@ -218,7 +218,7 @@ impl RigBuilder {
 impl Rig {
     /// The log lines kept so far (with `RigBuilder::keep_log`).
     pub fn log(&self) -> Vec<String> {
-        self.runner.runtime().borrow().log.lines().to_vec()
+        self.runner.runtime().borrow().log_lines().to_vec()
     }
 
     /// The records and measurements kept so far, oldest first, as JSON objects.

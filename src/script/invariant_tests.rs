@@ -21,7 +21,7 @@ fn rig(script: &str, policy: ErrorPolicy, budget: u64) -> Rig {
 }
 
 fn log(r: &Rig) -> String {
-    r.runner.runtime().borrow().log.lines().join("\n")
+    r.runner.runtime().borrow().log_lines().join("\n")
 }
 
 const GUARDED: &str = r#"

@@ -499,8 +499,7 @@ fn register_observations(engine: &mut Engine) {
     engine.register_fn("log", |r: &mut RigHandle| -> Array {
         let s = r.0.borrow();
         let rt = s.rig.runner.runtime().borrow();
-        rt.log
-            .lines()
+        rt.log_lines()
             .iter()
             .map(|l| Dynamic::from(l.clone()))
             .collect()

@@ -332,7 +332,7 @@ pub fn run(case: &Case) -> Run {
             let end = match ran {
                 Ok(status) => End::Ran {
                     status,
-                    log: r.log.lines().to_vec(),
+                    log: r.log_lines().to_vec(),
                     records: r.records_kept().to_vec(),
                     ticks,
                 },
