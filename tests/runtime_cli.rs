@@ -366,9 +366,9 @@ fn run_help_shows_the_exit_statuses() {
     for line in [
         "Exit status (the first that applies):",
         "    5  the run ended, but something failed on the way: script errors recovered",
-        "  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15)",
+        "  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15) or by",
         "Before the run starts: 2 usage or rig.toml error, or a script `rigscript check`",
-        "rejects; 3 a device not available (missing, busy, no answer).",
+        "rejects; 3 a device not available (missing, busy, no answer), or a run of the",
     ] {
         assert!(out.contains(line), "{line}: {out}");
     }

@@ -337,6 +337,13 @@ impl CommandError for CliError {
             _ => EXIT_FAILED,
         }
     }
+
+    fn held_by(&self) -> Vec<u32> {
+        match self {
+            CliError::Device(C29uError::Link(e)) => e.held_by(),
+            _ => Vec::new(),
+        }
+    }
 }
 
 impl C29Args {

@@ -6,6 +6,7 @@ pub mod api;
 pub mod c29;
 pub mod check;
 pub mod completions;
+pub mod drive;
 pub mod man;
 pub mod output;
 pub mod run;
@@ -13,13 +14,23 @@ pub mod run_outputs;
 pub mod safe;
 pub mod scan;
 pub mod sim;
+pub mod status;
 pub mod test;
 pub mod trc;
 pub mod verify;
 
+/// What `rigscript --version` prints after the name: the version and the commit built from
+/// (build.rs asks git; `unknown commit` outside a checkout).
+pub const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (",
+    env!("RIGSCRIPT_BUILT_FROM"),
+    ")"
+);
+
 /// rigscript: scripted, supervised, fail-safe control of TRC1000 panels and TRP-C29U modules.
 #[derive(Debug, Parser)]
-#[command(name = "rigscript", version, about)]
+#[command(name = "rigscript", version = VERSION, about)]
 pub struct Cli {
     /// What to do.
     #[command(subcommand)]
@@ -33,6 +44,15 @@ pub enum Command {
     Run(run::RunArgs),
     /// Write and confirm the safe state of every device in a rig (by hand, or systemd's ExecStopPost=)
     Safe(safe::SafeArgs),
+    /// Show a running rig: devices, inputs and outputs, the script's state, tick figures
+    Status(status::StatusArgs),
+    /// List the rigs running on this machine
+    #[command(visible_alias = "ps")]
+    List(status::ListArgs),
+    /// Stop a running rig as SIGTERM would: on_stop, the safe state, exit status 143
+    Stop(status::StopArgs),
+    /// Act on a running rig's simulated devices: press, turn, set inputs, pulse, fail, restore
+    Drive(drive::DriveArgs),
     /// Show the script API: every function, method and property, or one in full (`api every`)
     Api(api::ApiArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
@@ -101,6 +121,10 @@ pub fn main() -> i32 {
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Safe(args) => safe::run(args),
+        Command::Status(args) => status::status(args),
+        Command::List(args) => status::list(&args),
+        Command::Stop(args) => status::stop(&args),
+        Command::Drive(args) => drive::run(args),
         Command::Api(args) => api::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.

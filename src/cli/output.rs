@@ -20,13 +20,35 @@ pub const EXIT_UNREACHABLE: i32 = 3;
 pub trait CommandError: Display {
     /// One of the `EXIT_*` statuses.
     fn exit_status(&self) -> i32;
+    /// The processes that hold the device busy, when that is what went wrong.
+    fn held_by(&self) -> Vec<u32> {
+        Vec::new()
+    }
+}
+
+/// For a device a running rig holds: which rig, and the commands that see and stop it.
+fn rig_holding(pids: &[u32]) -> Option<String> {
+    if pids.is_empty() {
+        return None;
+    }
+    let rig = crate::service::rig_dir::running_anywhere()
+        .into_iter()
+        .find(|h| pids.contains(&h.pid))?;
+    Some(format!(
+        "it is held by rig {name} (`rigscript status {name}` shows it, `rigscript stop {name}` \
+         stops it)",
+        name = rig.rig
+    ))
 }
 
 /// Prints `e` for people on standard error and, with `json`, as `{"error", "status"}` on `out`;
 /// returns the exit status.
 pub fn report_error(e: &dyn CommandError, json: bool, out: &mut dyn Write) -> i32 {
     let status = e.exit_status();
-    say(&format!("error: {e}"));
+    match rig_holding(&e.held_by()) {
+        Some(rig) => say(&format!("error: {e}; {rig}")),
+        None => say(&format!("error: {e}")),
+    }
     if json {
         let _ = writeln!(
             out,

@@ -13,9 +13,13 @@ use super::run_outputs::RunOutputs;
 use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
 use crate::runtime::log::LogFormat;
+use crate::runtime::requests::{self, Requester, Requests};
 use crate::runtime::{exit, signals};
 use crate::script::rig::{start, RigSetup};
 use crate::script::stack;
+use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
+use crate::service::control_socket::{self, Claim, ClaimError, Naming};
+use crate::service::rig_dir;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
@@ -189,6 +193,12 @@ pub fn run(args: RunArgs) -> i32 {
         say(&format!("rigscript run: cannot watch for signals: {e}"));
         return exit::ERROR;
     }
+    let control = ControlSetup {
+        queue: requests::queue(&stop_flag),
+        rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
+        named: config.name.is_some(),
+        config: args.config.as_ref().map(|p| p.display().to_string()),
+    };
     let setup = RigSetup {
         config,
         simulate: args.sim,
@@ -226,8 +236,50 @@ pub fn run(args: RunArgs) -> i32 {
     let memory = setup.config.limits.memory;
     let stats = args.stats;
     stack::on_script_stack(memory, move || {
-        run_started(&source, &file, setup, &mut outputs, guardian, stats)
+        run_started(
+            &source,
+            &file,
+            setup,
+            &mut outputs,
+            guardian,
+            stats,
+            control,
+        )
     })
+}
+
+/// What the run's control socket needs (`service::control_socket`).
+struct ControlSetup {
+    queue: (Requester, Requests),
+    rig: String,
+    /// Whether rig.toml gave the name (else it came from a file's stem).
+    named: bool,
+    config: Option<String>,
+}
+
+impl ControlSetup {
+    /// Claims the rig's socket (before any device is touched: a second run of a rig must not
+    /// take its devices).
+    fn claim(&self, file: &str) -> Result<Claim, ClaimError> {
+        let dir = rig_dir::rig_dir().map_err(|source| ClaimError::Io {
+            path: PathBuf::from("the rig directory"),
+            source,
+        })?;
+        let hello = Hello {
+            protocol: PROTOCOL_VERSION,
+            rig: self.rig.clone(),
+            pid: std::process::id(),
+            script: file.to_string(),
+            config: self.config.clone(),
+            started: chrono::Local::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, false),
+        };
+        let naming = if self.named {
+            Naming::Configured
+        } else {
+            Naming::Derived
+        };
+        control_socket::claim(&dir, hello, naming)
+    }
 }
 
 /// The run itself, from taking control of the devices to the last log line.
@@ -238,7 +290,35 @@ fn run_started(
     outputs: &mut RunOutputs,
     guardian: Option<Confirmation>,
     stats: bool,
+    control: ControlSetup,
 ) -> i32 {
+    let claim = match control.claim(file) {
+        Ok(c) if c.hello().rig != control.rig => {
+            say(&format!(
+                "rigscript run: rig {} is running already: this run is rig {} (`name = \"...\"` \
+                 in rig.toml names it)",
+                control.rig,
+                c.hello().rig
+            ));
+            Some(c)
+        }
+        Ok(c) => Some(c),
+        // A rig directory that cannot be written costs the view from outside, not the run.
+        Err(e @ ClaimError::Io { .. }) => {
+            say(&format!(
+                "rigscript run: warning: {e}; `rigscript status` will not see this run"
+            ));
+            None
+        }
+        Err(e) => {
+            say(&format!("rigscript run: {e}"));
+            if let Some(g) = guardian {
+                // Nothing was touched: there is nothing for the guardian to make safe.
+                g.confirm();
+            }
+            return outputs.not_started(exit::UNAVAILABLE, &e.to_string());
+        }
+    };
     let mut rig = match start(source, file, setup) {
         Ok(r) => r,
         Err(e) => {
@@ -251,7 +331,14 @@ fn run_started(
         }
     };
     outputs.started(&mut rig);
+    let (requester, requests) = control.queue;
+    let field = rig.sim.clone();
+    rig.runner.serve(requests, file, field);
+    let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));
     let status = rig.runner.run();
+    // The last events to the subscribers (`rigscript stop` waits for the end's), then the
+    // socket goes.
+    drop(server);
     if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
         g.confirm();
     }

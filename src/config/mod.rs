@@ -57,10 +57,33 @@ pub fn check_period(period: Duration) -> Result<Duration, &'static str> {
     Ok(period)
 }
 
+/// The longest rig name.
+pub const MAX_RIG_NAME: usize = 64;
+
+/// Whether `name` can name a rig: 1-64 letters, digits, `.`, `_` or `-`, not starting with
+/// `.` (it names the rig's control socket file).
+pub fn check_rig_name(name: &str) -> Result<(), String> {
+    let fits = !name.is_empty()
+        && name.len() <= MAX_RIG_NAME
+        && !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
+    if fits {
+        Ok(())
+    } else {
+        Err(format!(
+            "is not a rig name: use 1-{MAX_RIG_NAME} letters, digits, '.', '_' or '-', not \
+             starting with '.'"
+        ))
+    }
+}
+
 /// How long a device may be lost before its safe state is enforced, when not configured.
 pub const DEFAULT_GRACE: Duration = Duration::from_secs(1);
 
 const TOP_KEYS: &[&str] = &[
+    "name",
     "period",
     "on_error",
     "records",
@@ -96,6 +119,9 @@ impl ErrorPolicy {
 /// A whole rig: loop settings and named devices.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RigConfig {
+    /// The rig's name on this machine (`rigscript status NAME`; default: the config file's
+    /// stem, else the script's).
+    pub name: Option<String>,
     /// Scan period (above zero; default `DEFAULT_PERIOD`).
     pub period: Duration,
     /// What a handler error does (default stop).
@@ -119,6 +145,7 @@ impl Default for RigConfig {
     /// No devices, every setting at its default.
     fn default() -> Self {
         Self {
+            name: None,
             period: DEFAULT_PERIOD,
             on_error: ErrorPolicy::Stop,
             records: None,
@@ -161,6 +188,11 @@ impl RigConfig {
         };
         r.check_keys(&root, TOP_KEYS);
         let defaults = Self::default();
+        let name = r.read(&root, "name", |v| {
+            let s = string(v)?;
+            check_rig_name(&s).map_err(|why| reader::bad(v, why))?;
+            Ok(s)
+        });
         let period = r
             .read(&root, "period", |v| {
                 check_period(duration(v)?).map_err(|why| reader::bad(v, why))
@@ -249,6 +281,7 @@ impl RigConfig {
             return Err(ConfigError::Invalid(problems));
         }
         Ok(Self {
+            name,
             period,
             on_error,
             records,

@@ -113,6 +113,7 @@ fn the_example_reads_as_written() {
     assert_eq!(
         c,
         RigConfig {
+            name: None,
             period: Duration::from_millis(20),
             on_error: ErrorPolicy::Stop,
             records: Some("records.jsonl".into()),
@@ -567,14 +568,32 @@ fn missing_and_unknown_kinds() {
 }
 
 #[test]
+fn a_rig_name_names_a_socket_file_or_is_refused() {
+    assert_eq!(
+        parse("name = \"bench-2.a_b\"\n").unwrap().name.as_deref(),
+        Some("bench-2.a_b")
+    );
+    for bad in ["", ".hidden", "a/b", "two words", "ü"] {
+        let text = format!("name = {bad:?}\n");
+        let p = problems(&text);
+        assert!(
+            p.len() == 1 && p[0].contains("is not a rig name"),
+            "{bad:?}: {p:?}"
+        );
+    }
+    let long = format!("name = \"{}\"\n", "x".repeat(65));
+    assert_eq!(problems(&long).len(), 1);
+}
+
+#[test]
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
+        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, limits, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: period, on_error, records, grace, wake_latency, limits, devices"]
+        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, limits, devices"]
     );
 }
 

@@ -75,6 +75,16 @@ pub enum LinkError {
     },
 }
 
+impl LinkError {
+    /// The processes holding the device, when it is busy.
+    pub fn held_by(&self) -> Vec<u32> {
+        match self {
+            LinkError::Busy { holders, .. } => holders.locking.iter().map(|h| h.pid).collect(),
+            _ => Vec::new(),
+        }
+    }
+}
+
 /// A byte stream to one device (or one bus of devices) with per-call timeouts.
 pub trait ByteLink: Send {
     /// Writes all of `bytes`, handing them to the line without waiting for them to leave it

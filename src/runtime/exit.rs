@@ -46,14 +46,16 @@ Exit status (the first that applies):
        confirm (read back), an on_stop handler that failed, records the
        records file did not take (a full disk, a pipe nobody reads)
     4  a measurement out of its limits
-  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15); any other
+  130  stopped by SIGINT (128 + 2); 143: stopped by SIGTERM (128 + 15) or by
+       `rigscript stop`; any other
        ending signal 128 + its number: 129 SIGHUP, 131 SIGQUIT, 138 SIGUSR1,
        140 SIGUSR2, 142 SIGALRM, 153 SIGXFSZ (a file past ulimit -f)
     0  the run ended as planned (--for, stop(), nothing left to do)
   128 + N  the runner died of signal N (137 kill -9 or the OOM killer, 134 an abort,
        139 a crash): its guardian wrote and read back the safe state (the log says)
 Before the run starts: 2 usage or rig.toml error, or a script `rigscript check`
-rejects; 3 a device not available (missing, busy, no answer).";
+rejects; 3 a device not available (missing, busy, no answer), or a run of the
+same rig already running.";
 
 #[cfg(test)]
 mod tests {

@@ -8,8 +8,10 @@
 //! short), signals by their number, a requested stop as `SIGTERM` with who asked kept beside
 //! it. Everything else waits in the queue for the loop.
 
+use super::devices::SimRig;
 use super::snapshot::RigSnapshot;
 use crate::time::doorbell::Doorbell;
+use serde::{Deserialize, Serialize};
 use signal_hook::consts::SIGTERM;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
@@ -27,6 +29,98 @@ pub const PER_TURN: usize = 16;
 pub enum Request {
     /// The run as it stands.
     Snapshot,
+    /// An action on a simulated device's field, applied at a tick boundary.
+    Drive(Drive),
+}
+
+/// The most pulses one `pulse` action gives (a counter counts to 65535 and wraps).
+pub const MAX_PULSES: u32 = 65_536;
+
+/// An action on a simulated device, named as the scenario API names it (`r.press`, ...).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Drive {
+    /// The device's name in the rig.
+    pub device: String,
+    /// What to do to it.
+    #[serde(flatten)]
+    pub action: FieldAction,
+}
+
+/// What can be done to a simulated device's field.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "action", rename_all = "snake_case")]
+pub enum FieldAction {
+    /// Presses a TRC1000 switch (`S12`).
+    Press {
+        /// The switch.
+        name: String,
+    },
+    /// Releases a TRC1000 switch.
+    Release {
+        /// The switch.
+        name: String,
+    },
+    /// Turns a TRC1000 rotary (`S41A`) by half turns (negative: the other way).
+    Turn {
+        /// The rotary.
+        name: String,
+        /// How far.
+        half_turns: i32,
+    },
+    /// Sets a TRP-C29U's energized inputs (bit n: DIn).
+    SetInputs {
+        /// The byte.
+        value: u8,
+    },
+    /// Energizes or releases one TRP-C29U input.
+    SetInput {
+        /// The channel, 0-7.
+        channel: u8,
+        /// Energized or not.
+        on: bool,
+    },
+    /// Gives pulses to one TRP-C29U input (its counter counts them).
+    Pulse {
+        /// The channel, 0-7.
+        channel: u8,
+        /// How many (at most `MAX_PULSES`).
+        count: u32,
+    },
+    /// Makes the device stop answering (a pulled cable).
+    Fail,
+    /// Makes it answer again.
+    Restore,
+}
+
+impl Drive {
+    /// Does it to `field`'s simulator of the device; says why not when it cannot be done.
+    pub fn apply(&self, field: &SimRig) -> Result<(), String> {
+        let d = self.device.as_str();
+        if field.get(d).is_err() {
+            return Err(if field.is_empty() {
+                "this run drives real devices: drive acts on simulators only (run --sim, \
+                 --sim-device, or sim = true in rig.toml)"
+                    .to_string()
+            } else {
+                let known = field.names().join(", ");
+                format!("{d} is not a simulated device of this rig (simulated: {known})")
+            });
+        }
+        let done = match &self.action {
+            FieldAction::Press { name } => field.set_switch(d, name, true),
+            FieldAction::Release { name } => field.set_switch(d, name, false),
+            FieldAction::Turn { name, half_turns } => field.turn(d, name, *half_turns),
+            FieldAction::SetInputs { value } => field.set_inputs(d, *value),
+            FieldAction::SetInput { channel, on } => field.set_input(d, *channel, *on),
+            FieldAction::Pulse { count, .. } if *count > MAX_PULSES => {
+                return Err(format!("at most {MAX_PULSES} pulses at once"))
+            }
+            FieldAction::Pulse { channel, count } => field.pulse(d, *channel, *count),
+            FieldAction::Fail => field.set_gone(d, true),
+            FieldAction::Restore => field.set_gone(d, false),
+        };
+        done.map_err(|e| e.to_string())
+    }
 }
 
 /// The loop's answer to a request.

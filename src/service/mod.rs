@@ -1,4 +1,9 @@
-//! Running under a service manager: the systemd notification protocol (readiness, status, the
-//! service watchdog fed from the scan loop).
+//! Services around a run, off the scan loop: the systemd notification protocol (readiness,
+//! status, the service watchdog fed from the scan loop) and the control socket through which
+//! `rigscript status`, `list` and `stop` see and drive a running rig.
 
+pub mod control_client;
+pub mod control_protocol;
+pub mod control_socket;
 pub mod notify;
+pub mod rig_dir;

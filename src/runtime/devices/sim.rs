@@ -110,6 +110,11 @@ impl SimRig {
         self.devices.insert(name.to_string(), device);
     }
 
+    /// The simulated devices' names, in order.
+    pub fn names(&self) -> Vec<String> {
+        self.devices.keys().cloned().collect()
+    }
+
     /// Whether there are no simulators.
     pub fn is_empty(&self) -> bool {
         self.devices.is_empty()

@@ -3,12 +3,12 @@
 
 use super::contract::Program;
 use super::{Runner, State};
+use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{Answer, Request, Requests};
 use crate::runtime::snapshot::{
     micros, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
-use std::collections::BTreeSet;
 use std::sync::Arc;
 
 /// A run served to askers from outside the loop (`Runner::serve`).
@@ -16,20 +16,20 @@ pub(super) struct Served {
     pub(super) requests: Requests,
     /// The script's file, for the snapshot.
     pub(super) script: String,
-    /// The devices that are simulators.
-    simulated: BTreeSet<String>,
-    /// The snapshot made for this tick, if one was asked for.
-    made: Option<(u64, Arc<RigSnapshot>)>,
+    /// The simulators of the rig's simulated devices, for `Request::Drive`.
+    field: SimRig,
+    /// The snapshot last made, with the tick and the exchange count it was made at.
+    made: Option<((u64, u64), Arc<RigSnapshot>)>,
 }
 
 impl<P: Program> Runner<P> {
     /// Answers `requests` from now on, at tick boundaries and in the sleep slices, for the run
-    /// of `script` whose `simulated` devices are simulators.
-    pub fn serve(&mut self, requests: Requests, script: &str, simulated: BTreeSet<String>) {
+    /// of `script` whose simulated devices `field` holds.
+    pub fn serve(&mut self, requests: Requests, script: &str, field: SimRig) {
         self.served = Some(Served {
             requests,
             script: script.to_string(),
-            simulated,
+            field,
             made: None,
         });
     }
@@ -44,7 +44,7 @@ impl<P: Program> Runner<P> {
         let rt = self.rt.borrow();
         let now = rt.now();
         let (script, simulated) = match &self.served {
-            Some(s) => (s.script.clone(), Some(&s.simulated)),
+            Some(s) => (s.script.clone(), Some(&s.field)),
             None => (String::new(), None),
         };
         let state = match self.state {
@@ -66,7 +66,7 @@ impl<P: Program> Runner<P> {
                 .devices
                 .iter()
                 .map(|d| {
-                    let sim = simulated.is_some_and(|s| s.contains(d.name()));
+                    let sim = simulated.is_some_and(|s| s.get(d.name()).is_ok());
                     (d.name().to_string(), DeviceState::of(d, sim, now))
                 })
                 .collect(),
@@ -89,7 +89,9 @@ impl<P: Program> Runner<P> {
         let Some(served) = &self.served else {
             return;
         };
-        let tick = self.stats.ticks;
+        // Between ticks only the devices' upkeep (feeds, retries) changes what is shown, and
+        // each of its exchanges counts: a snapshot stands until the next tick or exchange.
+        let tick = (self.stats.ticks, self.rt.borrow().transaction_count());
         let mut made = served.made.clone().filter(|(at, _)| *at == tick);
         let mut asked = false;
         // Made lazily, only if a request needs it: the closure cannot borrow `self` whole.
@@ -103,6 +105,10 @@ impl<P: Program> Runner<P> {
                 };
                 Answer::Snapshot(s)
             }
+            Request::Drive(drive) => match drive.apply(&served.field) {
+                Ok(()) => Answer::Accepted,
+                Err(why) => Answer::Refused(why),
+            },
         });
         if asked && made.is_none() {
             made = snapshot.into_inner().map(|s| (tick, s));

@@ -1,0 +1,500 @@
+//! `rigscript status`, `list` and `stop`: a running rig seen and stopped from another terminal,
+//! through its control socket (`service::control_socket`).
+//!
+//! Exit statuses: 0 done; 2 usage; 3 no such rig running (the running ones are listed); 1 the
+//! rig did not answer.
+
+use super::output::say;
+use crate::config::RigConfig;
+use crate::runtime::exit;
+use crate::runtime::snapshot::{DeviceState, RigSnapshot};
+use crate::service::control_client::Connection;
+use crate::service::control_protocol::{ClientRequest, Hello};
+use crate::service::rig_dir::{self, Knock};
+use clap::Args;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// How long `status` and `list` wait for a rig's answer.
+const ANSWER_WAIT: Duration = Duration::from_secs(3);
+
+/// How long `stop` waits for the rig's end (its on_stop handlers have 2 s, the end's writes
+/// their own bounded tries).
+const STOP_WAIT: Duration = Duration::from_secs(30);
+
+/// How often `status --watch` asks.
+const WATCH_EVERY: Duration = Duration::from_millis(250);
+
+/// Options of `rigscript status`.
+#[derive(Debug, Args)]
+pub struct StatusArgs {
+    /// The rig (as `rigscript list` names it); without it, the one rig running.
+    pub rig: Option<String>,
+    /// The rig of this rig.toml (its `name`, else the file's stem).
+    #[arg(long, conflicts_with = "rig")]
+    pub config: Option<PathBuf>,
+    /// One JSON object (the snapshot, versioned: see docs/reference.md) for programs.
+    #[arg(long)]
+    pub json: bool,
+    /// Redraw whenever something changes, until Ctrl-C or the run ends.
+    #[arg(long)]
+    pub watch: bool,
+}
+
+/// Options of `rigscript list`.
+#[derive(Debug, Args)]
+pub struct ListArgs {
+    /// One JSON array of the rigs (name, pid, script, config, started, state).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Options of `rigscript stop`.
+#[derive(Debug, Args)]
+pub struct StopArgs {
+    /// The rig to stop (as `rigscript list` names it).
+    pub rig: String,
+}
+
+/// Why a rig could not be reached, with the exit status it calls for.
+pub(super) struct Unreached {
+    message: String,
+    status: i32,
+}
+
+impl Unreached {
+    /// Tells it on stderr as `rigscript COMMAND: ...`; the exit status.
+    pub(super) fn say(&self, command: &str) -> i32 {
+        say(&format!("rigscript {command}: {}", self.message));
+        self.status
+    }
+}
+
+/// What runs, in words, for a message about a rig that does not.
+fn running_list() -> String {
+    let rigs = rig_dir::running_anywhere();
+    if rigs.is_empty() {
+        "no rig is running on this machine (for this user)".into()
+    } else {
+        let names: Vec<String> = rigs
+            .iter()
+            .map(|h| format!("{} (pid {})", h.rig, h.pid))
+            .collect();
+        format!("running: {}", names.join(", "))
+    }
+}
+
+/// The socket of the rig asked for: by name, by config, or the only one running.
+pub(super) fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connection, Unreached> {
+    let name = match (rig, config) {
+        (Some(r), _) => r.to_string(),
+        (None, Some(path)) => {
+            let c = RigConfig::load(path).map_err(|e| Unreached {
+                message: e.to_string(),
+                status: exit::USAGE,
+            })?;
+            rig_dir::rig_name(c.name.as_deref(), Some(path), Path::new(""))
+        }
+        (None, None) => {
+            let rigs = rig_dir::running_anywhere();
+            match rigs.as_slice() {
+                [one] => one.rig.clone(),
+                [] => {
+                    return Err(Unreached {
+                        message: "no rig is running on this machine (for this user)".into(),
+                        status: exit::UNAVAILABLE,
+                    })
+                }
+                _ => {
+                    return Err(Unreached {
+                        message: format!("several rigs are running; name one ({})", running_list()),
+                        status: exit::USAGE,
+                    })
+                }
+            }
+        }
+    };
+    let not_running = || Unreached {
+        message: format!("no rig called {name} is running; {}", running_list()),
+        status: exit::UNAVAILABLE,
+    };
+    let Some(path) = rig_dir::find_socket(&name) else {
+        return Err(not_running());
+    };
+    match rig_dir::knock(&path) {
+        Knock::Answered(_) => {}
+        Knock::Stale => {
+            let _ = std::fs::remove_file(&path);
+            return Err(not_running());
+        }
+        Knock::Absent => return Err(not_running()),
+    }
+    Connection::open(&path, ANSWER_WAIT).map_err(|e| Unreached {
+        message: format!("rig {name} did not answer: {e}"),
+        status: exit::ERROR,
+    })
+}
+
+/// Runs `rigscript status`.
+pub fn status(args: StatusArgs) -> i32 {
+    let mut c = match find(args.rig.as_deref(), args.config.as_deref()) {
+        Ok(c) => c,
+        Err(e) => return e.say("status"),
+    };
+    let hello = match c.hello() {
+        Ok(h) => h,
+        Err(e) => return say_failed("status", &e),
+    };
+    let mut shown: Option<RigSnapshot> = None;
+    loop {
+        let snapshot = match c.status() {
+            Ok(s) => s,
+            // The run ended while watched: its last state was shown.
+            Err(_) if args.watch && shown.is_some() => {
+                println!("rig {} has ended", hello.rig);
+                return exit::OK;
+            }
+            Err(e) => return say_failed("status", &e),
+        };
+        let text = if args.json {
+            serde_json::to_string(&snapshot).unwrap_or_default()
+        } else {
+            render(&hello, &snapshot)
+        };
+        let changed = shown.as_ref().map_or(true, |s| !same_state(s, &snapshot));
+        if changed {
+            let mut out = std::io::stdout();
+            let cleared = if args.watch && !args.json {
+                "\x1b[H\x1b[2J"
+            } else {
+                ""
+            };
+            if writeln!(out, "{cleared}{text}").is_err() {
+                return exit::OK;
+            }
+            let _ = out.flush();
+        }
+        if !args.watch {
+            return exit::OK;
+        }
+        shown = Some(snapshot);
+        std::thread::sleep(WATCH_EVERY);
+    }
+}
+
+/// Whether two snapshots show the same thing to a person (the clock and the tick count move
+/// on always).
+fn same_state(a: &RigSnapshot, b: &RigSnapshot) -> bool {
+    a.devices == b.devices
+        && a.script.state == b.script.state
+        && a.script.errors == b.script.errors
+        && a.held_safe == b.held_safe
+        && a.ticks.overruns == b.ticks.overruns
+        && a.dropped == b.dropped
+        && a.script.uptime_ms / 1000 == b.script.uptime_ms / 1000
+}
+
+fn say_failed(command: &str, e: &std::io::Error) -> i32 {
+    say(&format!("rigscript {command}: the rig did not answer: {e}"));
+    exit::ERROR
+}
+
+/// Runs `rigscript list`.
+pub fn list(args: &ListArgs) -> i32 {
+    let rigs: Vec<(Hello, Option<RigSnapshot>)> = rig_dir::running_anywhere()
+        .into_iter()
+        .map(|h| {
+            let snapshot = rig_dir::find_socket(&h.rig)
+                .and_then(|p| Connection::open(&p, ANSWER_WAIT).ok())
+                .and_then(|mut c| c.status().ok());
+            (h, snapshot)
+        })
+        .collect();
+    let text = if args.json {
+        let rows: Vec<serde_json::Value> = rigs
+            .iter()
+            .map(|(h, s)| {
+                serde_json::json!({
+                    "rig": h.rig, "pid": h.pid, "script": h.script, "config": h.config,
+                    "started": h.started,
+                    "state": s.as_ref().map(|s| s.script.state.clone()),
+                    "uptime_ms": s.as_ref().map(|s| s.script.uptime_ms),
+                })
+            })
+            .collect();
+        serde_json::Value::Array(rows).to_string()
+    } else if rigs.is_empty() {
+        "no rig is running on this machine (for this user)".to_string()
+    } else {
+        let mut lines = vec![format!(
+            "{:<20} {:>8} {:>10} {:<11} {:<28} CONFIG",
+            "RIG", "PID", "UPTIME", "STATE", "SCRIPT"
+        )];
+        for (h, s) in &rigs {
+            let (uptime, state) = s.as_ref().map_or(("?".into(), "no answer"), |s| {
+                (uptime(s.script.uptime_ms), s.script.state.as_str())
+            });
+            lines.push(format!(
+                "{:<20} {:>8} {:>10} {:<11} {:<28} {}",
+                h.rig,
+                h.pid,
+                uptime,
+                state,
+                h.script,
+                h.config.as_deref().unwrap_or("(--sim)")
+            ));
+        }
+        lines.join("\n")
+    };
+    let _ = writeln!(std::io::stdout(), "{text}");
+    exit::OK
+}
+
+/// Runs `rigscript stop`: asks the rig to stop, then waits for its end and tells how it left
+/// the devices.
+pub fn stop(args: &StopArgs) -> i32 {
+    let mut events = match find(Some(&args.rig), None) {
+        Ok(c) => c,
+        Err(e) => return e.say("stop"),
+    };
+    // Subscribed first, so the end is not missed between the request and the wait.
+    if let Err(e) = events.subscribe() {
+        return say_failed("stop", &e);
+    }
+    let asked = find(Some(&args.rig), None)
+        .map_err(|e| e.message)
+        .and_then(|mut c| c.ask(&ClientRequest::Stop).map_err(|e| e.to_string()));
+    if let Err(e) = asked {
+        say(&format!("rigscript stop: {}: {e}", args.rig));
+        return exit::ERROR;
+    }
+    let until = Instant::now() + STOP_WAIT;
+    loop {
+        let left = until.saturating_duration_since(Instant::now());
+        if left.is_zero() || events.set_read_wait(Some(left)).is_err() {
+            break;
+        }
+        match events.next_event() {
+            Ok(Some(e)) if e["event"] == "ended" => {
+                let status = e["status"].as_i64().unwrap_or(-1);
+                let list = |key: &str| -> Vec<String> {
+                    e[key]
+                        .as_array()
+                        .map(|a| {
+                            a.iter()
+                                .filter_map(|v| v.as_str().map(String::from))
+                                .collect()
+                        })
+                        .unwrap_or_default()
+                };
+                let (safe, unconfirmed) = (list("safe"), list("unconfirmed"));
+                let mut line = format!("rig {} stopped: exit status {status}", args.rig);
+                if !safe.is_empty() {
+                    line.push_str(&format!("; safe state confirmed: {}", safe.join(", ")));
+                }
+                if !unconfirmed.is_empty() {
+                    line.push_str(&format!(
+                        "; safe state NOT confirmed: {} (see the rig's log)",
+                        unconfirmed.join(", ")
+                    ));
+                    println!("{line}");
+                    return exit::TROUBLE;
+                }
+                println!("{line}");
+                return exit::OK;
+            }
+            Ok(Some(_)) => {}
+            Ok(None) | Err(_) => break,
+        }
+    }
+    say(&format!(
+        "rigscript stop: {} was asked to stop, but its end was not seen within {}s; see its \
+         log (the outputs go safe when it ends)",
+        args.rig,
+        STOP_WAIT.as_secs()
+    ));
+    exit::ERROR
+}
+
+/// `status` for people.
+pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
+    let mut out = Vec::new();
+    out.push(format!(
+        "rig {} (pid {}): {} {}, up {}",
+        hello.rig,
+        hello.pid,
+        s.script.file,
+        s.script.state,
+        uptime(s.script.uptime_ms)
+    ));
+    if let Some(config) = &hello.config {
+        out.push(format!("  config: {config}"));
+    }
+    let mut errors = format!(
+        "  script errors: {}, restarts: {}",
+        s.script.errors, s.script.restarts
+    );
+    if let Some(last) = &s.script.last_error {
+        errors.push_str(&format!("; last: {last}"));
+    }
+    out.push(errors);
+    if s.held_safe {
+        out.push("  HELD SAFE: a device was lost past its grace time".into());
+    }
+    for (name, d) in &s.devices {
+        out.extend(render_device(name, d));
+    }
+    out.push(format!(
+        "ticks: {} every {}; jitter p99 {}; work p99 {}; overruns {}; transactions {}",
+        s.ticks.count,
+        micros_text(s.ticks.period_us),
+        micros_text(s.ticks.jitter_p99_us),
+        micros_text(s.ticks.work_p99_us),
+        s.ticks.overruns,
+        s.ticks.transactions
+    ));
+    let lost: Vec<String> = s
+        .dropped
+        .iter()
+        .filter(|d| d.events > 0)
+        .map(|d| format!("{} lost {}", d.consumer, d.events))
+        .collect();
+    if !lost.is_empty() || s.log_dropped > 0 {
+        out.push(format!(
+            "dropped: {}{}",
+            lost.join(", "),
+            if s.log_dropped > 0 {
+                format!(" log lines {}", s.log_dropped)
+            } else {
+                String::new()
+            }
+        ));
+    }
+    out.join("\n")
+}
+
+fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
+    let online = |online: bool, why: &Option<String>| match (online, why) {
+        (true, _) => "online".to_string(),
+        (false, Some(why)) => format!("OFFLINE: {why}"),
+        (false, None) => "OFFLINE".to_string(),
+    };
+    let sim = |s: bool| if s { ", simulated" } else { "" };
+    match d {
+        DeviceState::C29u {
+            online: on,
+            offline_reason,
+            simulated,
+            inputs,
+            outputs,
+            outputs_written,
+            counters,
+            latches,
+            watchdog_ms,
+            safe_value,
+            safe_mode,
+        } => {
+            let mut lines = vec![format!(
+                "{name} (TRP-C29U{}): {}",
+                sim(*simulated),
+                online(*on, offline_reason)
+            )];
+            lines.push(format!(
+                "  DI 0-7: {}",
+                inputs.map_or("not read by the script".to_string(), bits)
+            ));
+            let written = match outputs_written {
+                Some(w) if w == outputs => String::new(),
+                Some(w) => format!(" (module holds {w:#04x})"),
+                None => " (not written yet)".to_string(),
+            };
+            lines.push(format!("  DO 0-7: {}{written}", bits(*outputs)));
+            if let Some(c) = counters {
+                let c: Vec<String> = c.iter().map(u16::to_string).collect();
+                lines.push(format!("  counters: {}", c.join(" ")));
+            }
+            if let Some(l) = latches {
+                lines.push(format!(
+                    "  latches: energized {:08b}, released {:08b} (channel 7 first)",
+                    l.energized, l.released
+                ));
+            }
+            lines.push(format!(
+                "  watchdog: {}; safe value {safe_value:#04x}{}",
+                watchdog_ms.map_or("off".to_string(), |ms| format!("{}s", ms as f64 / 1000.0)),
+                if *safe_mode {
+                    "; IN SAFE MODE (refusing writes)"
+                } else {
+                    ""
+                }
+            ));
+            lines
+        }
+        DeviceState::Trc {
+            online: on,
+            offline_reason,
+            simulated,
+            relay,
+            relay_written,
+            pressed,
+            rotaries,
+        } => {
+            let mut lines = vec![format!(
+                "{name} (TRC1000{}): {}",
+                sim(*simulated),
+                online(*on, offline_reason)
+            )];
+            let written = match relay_written {
+                Some(w) if w == relay => String::new(),
+                Some(w) => format!(" (board holds {w})"),
+                None => " (not selected yet)".to_string(),
+            };
+            lines.push(format!("  relay: {relay}{written}"));
+            lines.push(format!(
+                "  pressed: {}",
+                match pressed {
+                    None => "not read by the script".to_string(),
+                    Some(p) if p.is_empty() => "none".to_string(),
+                    Some(p) => p.join(" "),
+                }
+            ));
+            if let Some(r) = rotaries {
+                let r: Vec<String> = r.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                lines.push(format!("  rotaries: {}", r.join(" ")));
+            }
+            lines
+        }
+    }
+}
+
+/// A byte as its eight channels, channel 0 first, and in hex.
+fn bits(value: u8) -> String {
+    let chans: Vec<&str> = (0..8)
+        .map(|n| if value & (1 << n) != 0 { "1" } else { "0" })
+        .collect();
+    format!("{} ({value:#04x})", chans.join(" "))
+}
+
+fn uptime(ms: u64) -> String {
+    crate::time::duration::format_duration(Duration::from_secs(ms / 1000))
+}
+
+fn micros_text(us: u64) -> String {
+    if us >= 1000 {
+        format!("{:.3}ms", us as f64 / 1000.0)
+    } else {
+        format!("{us}us")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bits_read_channel_0_first() {
+        assert_eq!(bits(0x05), "1 0 1 0 0 0 0 0 (0x05)");
+        assert_eq!(bits(0x80), "0 0 0 0 0 0 0 1 (0x80)");
+    }
+}

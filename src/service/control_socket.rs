@@ -1,0 +1,477 @@
+//! The run's control socket: a Unix socket in the rig directory (`rig_dir`) through which
+//! `rigscript status`, `list` and `stop` (and later the web page) see and drive a running rig.
+//! It lives off the scan loop: an accept thread and one thread per client, each request
+//! answered through the control queue (`runtime::requests`) or from the event stream
+//! (`runtime::observe`), never by touching the runtime.
+//!
+//! Hostile clients cost the loop nothing: reads are bounded (`MAX_REQUEST`), a client that
+//! sends nothing is let go (`FIRST_REQUEST`, `IDLE`), one that does not read is let go
+//! (`WRITE_WAIT`), and at most `MAX_CLIENTS` are served at once (the next is told so).
+
+use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_REQUEST};
+use super::rig_dir::{self, Knock};
+use crate::runtime::observe::{Events, RunEvent, DEFAULT_QUEUE};
+use crate::runtime::requests::{Answer, Request, Requester};
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::os::unix::io::AsRawFd;
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Clients served at once; the next one is told so and let go.
+pub const MAX_CLIENTS: usize = 16;
+
+/// How long a new client may take to send its first request.
+pub const FIRST_REQUEST: Duration = Duration::from_secs(5);
+
+/// How long a client may wait between requests (a subscriber is not waiting: it reads).
+pub const IDLE: Duration = Duration::from_secs(60);
+
+/// How long an answer may wait for a client that does not read it.
+pub const WRITE_WAIT: Duration = Duration::from_secs(2);
+
+/// How long a request waits for the loop's answer.
+pub const ANSWER_WAIT: Duration = Duration::from_secs(2);
+
+/// How long the end waits for subscribers to be sent the last events.
+pub const FLUSH_WAIT: Duration = Duration::from_secs(1);
+
+/// Why the rig's socket could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ClaimError {
+    /// Another run of this rig answers on it.
+    #[error(
+        "a rig called {rig} is running already (pid {pid}, script {script}); see it with \
+         `rigscript status {rig}`, stop it with `rigscript stop {rig}`, or give this run \
+         another name (`name = \"...\"` in rig.toml)"
+    )]
+    Running {
+        /// The rig's name.
+        rig: String,
+        /// The other run's pid.
+        pid: u32,
+        /// Its script.
+        script: String,
+    },
+    /// The rig directory or the socket could not be made.
+    #[error("cannot make the control socket {}: {source}", path.display())]
+    Io {
+        /// The socket's path.
+        path: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+}
+
+/// The rig's socket, bound and not served yet: the name is this run's.
+pub struct Claim {
+    listener: UnixListener,
+    path: PathBuf,
+    inode: (u64, u64),
+    hello: Hello,
+}
+
+/// Names a run may take when the one it was given is in use, besides that one: `NAME-2` to
+/// `NAME-MAX_SUFFIX`.
+pub const MAX_SUFFIX: u32 = 99;
+
+/// How a run came by its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Naming {
+    /// rig.toml's `name`: the rig is that one, and a live run of it refuses this one.
+    Configured,
+    /// From a file's stem: when a live run has it, this run takes the first free `NAME-N`.
+    Derived,
+}
+
+/// Binds the socket of rig `hello.rig` in `dir`, replacing one a dead run left. When a live
+/// run answers on it, a `Configured` name is refused and a `Derived` one goes on to the next
+/// free `NAME-N` (`Claim::hello` says which it took).
+pub fn claim(dir: &Path, mut hello: Hello, naming: Naming) -> Result<Claim, ClaimError> {
+    let base = hello.rig.clone();
+    let mut first_taken = None;
+    for n in 1..=MAX_SUFFIX {
+        hello.rig = if n == 1 {
+            base.clone()
+        } else {
+            format!("{base}-{n}")
+        };
+        match claim_name(dir, &hello) {
+            Ok(listener) => return Ok(listener),
+            Err(ClaimError::Running { rig, pid, script }) => {
+                if naming == Naming::Configured {
+                    return Err(ClaimError::Running { rig, pid, script });
+                }
+                first_taken.get_or_insert(ClaimError::Running { rig, pid, script });
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Err(first_taken.unwrap_or(ClaimError::Io {
+        path: rig_dir::socket_path(dir, &base),
+        source: std::io::Error::other("no free name"),
+    }))
+}
+
+fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
+    let path = rig_dir::socket_path(dir, &hello.rig);
+    let io = |source| ClaimError::Io {
+        path: path.clone(),
+        source,
+    };
+    let running = |other: Hello| ClaimError::Running {
+        rig: other.rig,
+        pid: other.pid,
+        script: other.script,
+    };
+    match rig_dir::knock(&path) {
+        Knock::Answered(other) => return Err(running(other)),
+        // Left by a run that died (kill -9, a power cut): nobody listens.
+        Knock::Stale => match std::fs::remove_file(&path) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(io(e)),
+        },
+        Knock::Absent => {}
+    }
+    let listener = match UnixListener::bind(&path) {
+        Ok(l) => l,
+        // Another run bound it between the knock and here: knock again for who.
+        Err(e) if e.kind() == std::io::ErrorKind::AddrInUse => {
+            return Err(match rig_dir::knock(&path) {
+                Knock::Answered(other) => running(other),
+                _ => io(e),
+            })
+        }
+        Err(e) => return Err(io(e)),
+    };
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).map_err(io)?;
+    let meta = std::fs::metadata(&path).map_err(io)?;
+    Ok(Claim {
+        listener,
+        path,
+        inode: (meta.dev(), meta.ino()),
+        hello: hello.clone(),
+    })
+}
+
+impl Claim {
+    /// Where the socket is.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Who the run is, under the name it took.
+    pub fn hello(&self) -> &Hello {
+        &self.hello
+    }
+
+    /// Serves the socket from now on: requests through `ask`, subscriptions from `events`.
+    pub fn serve(self, ask: Requester, events: Events) -> Server {
+        let shared = Arc::new(Shared {
+            hello: self.hello.clone(),
+            ask,
+            events,
+            closing: AtomicBool::new(false),
+            clients: AtomicUsize::new(0),
+            streams: Mutex::new(HashMap::new()),
+        });
+        let listener = self.listener.try_clone();
+        let theirs = Arc::clone(&shared);
+        let accept = listener.ok().and_then(|l| {
+            std::thread::Builder::new()
+                .name("control socket".into())
+                .spawn(move || accept_loop(&l, &theirs))
+                .ok()
+        });
+        Server {
+            claim: Some(self),
+            shared,
+            accept,
+        }
+    }
+}
+
+impl Drop for Claim {
+    fn drop(&mut self) {
+        // Only the file this run made: a later run's is not ours to remove.
+        let ours = std::fs::metadata(&self.path)
+            .map(|m| (m.dev(), m.ino()) == self.inode)
+            .unwrap_or(false);
+        if ours {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// A served socket; dropping it stops serving, gives subscribers a bounded time to be sent
+/// the last events, and removes the socket.
+pub struct Server {
+    claim: Option<Claim>,
+    shared: Arc<Shared>,
+    accept: Option<JoinHandle<()>>,
+}
+
+struct Shared {
+    hello: Hello,
+    ask: Requester,
+    events: Events,
+    closing: AtomicBool,
+    clients: AtomicUsize,
+    /// The clients' connections by number, to end their reads when the run ends.
+    streams: Mutex<HashMap<u64, UnixStream>>,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.shared.closing.store(true, Ordering::SeqCst);
+        for s in lock(&self.shared.streams).values() {
+            let _ = s.shutdown(std::net::Shutdown::Read);
+        }
+        // Bounded: the end of a run never waits on a client (the threads left go with the
+        // process).
+        let until = Instant::now() + FLUSH_WAIT;
+        let busy = |s: &Self| {
+            s.shared.clients.load(Ordering::SeqCst) > 0
+                || s.accept.as_ref().is_some_and(|t| !t.is_finished())
+        };
+        while busy(self) && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(t) = self.accept.take().filter(JoinHandle::is_finished) {
+            let _ = t.join();
+        }
+        self.claim.take();
+    }
+}
+
+/// How often the accept thread looks whether the socket is closing.
+const ACCEPT_SLICE: Duration = Duration::from_millis(100);
+
+/// Waits up to `ACCEPT_SLICE` for a connection to accept; true if one waits.
+fn connection_waiting(listener: &UnixListener) -> bool {
+    let mut fd = libc::pollfd {
+        fd: listener.as_raw_fd(),
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ms = libc::c_int::try_from(ACCEPT_SLICE.as_millis()).unwrap_or(100);
+    // SAFETY: one valid pollfd for the listener's own descriptor.
+    let ready = unsafe { libc::poll(&mut fd, 1, ms) };
+    ready > 0 && fd.revents & libc::POLLIN != 0
+}
+
+fn accept_loop(listener: &UnixListener, shared: &Arc<Shared>) {
+    let mut number = 0u64;
+    loop {
+        if shared.closing.load(Ordering::SeqCst) {
+            return;
+        }
+        if !connection_waiting(listener) {
+            continue;
+        }
+        number = number.wrapping_add(1);
+        let Ok((mut stream, _)) = listener.accept() else {
+            // Out of descriptors, most likely: a moment, then on.
+            std::thread::sleep(Duration::from_millis(10));
+            continue;
+        };
+        let _ = stream.set_write_timeout(Some(WRITE_WAIT));
+        if shared.clients.load(Ordering::SeqCst) >= MAX_CLIENTS {
+            let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
+            let why = format!("{MAX_CLIENTS} clients are connected to this rig already; try again");
+            let _ = stream.write_all(Reply::refused(why).line().as_bytes());
+            continue;
+        }
+        shared.clients.fetch_add(1, Ordering::SeqCst);
+        if let Ok(copy) = stream.try_clone() {
+            lock(&shared.streams).insert(number, copy);
+        }
+        let theirs = Arc::clone(shared);
+        let spawned = std::thread::Builder::new()
+            .name("control client".into())
+            .spawn(move || {
+                serve_client(stream, &theirs);
+                lock(&theirs.streams).remove(&number);
+                theirs.clients.fetch_sub(1, Ordering::SeqCst);
+            });
+        if spawned.is_err() {
+            lock(&shared.streams).remove(&number);
+            shared.clients.fetch_sub(1, Ordering::SeqCst);
+        }
+    }
+}
+
+/// What a client's read gave.
+enum Line {
+    Request(String),
+    TooLong,
+    NotText,
+    Closed,
+}
+
+fn read_request(reader: &mut BufReader<UnixStream>) -> Line {
+    let mut buf = Vec::new();
+    match reader
+        .by_ref()
+        .take(MAX_REQUEST as u64 + 1)
+        .read_until(b'\n', &mut buf)
+    {
+        Ok(0) | Err(_) => Line::Closed,
+        Ok(_) if buf.len() > MAX_REQUEST => Line::TooLong,
+        Ok(_) => match String::from_utf8(buf) {
+            Ok(s) => Line::Request(s),
+            Err(_) => Line::NotText,
+        },
+    }
+}
+
+fn serve_client(stream: UnixStream, shared: &Shared) {
+    let Ok(reading) = stream.try_clone() else {
+        return;
+    };
+    let mut out = stream;
+    let mut reader = BufReader::new(reading);
+    let _ = reader.get_ref().set_read_timeout(Some(FIRST_REQUEST));
+    loop {
+        let reply = match read_request(&mut reader) {
+            Line::Closed => return,
+            Line::TooLong => {
+                let why = format!("a request is one line of at most {MAX_REQUEST} bytes");
+                let _ = out.write_all(Reply::refused(why).line().as_bytes());
+                return;
+            }
+            Line::NotText => {
+                let why = "a request is a line of UTF-8 text (JSON)";
+                let _ = out.write_all(Reply::refused(why).line().as_bytes());
+                return;
+            }
+            Line::Request(text) if text.trim().is_empty() => continue,
+            Line::Request(text) => match parse_request(&text) {
+                Err(why) => Reply::refused(why),
+                Ok(ClientRequest::Subscribe) => {
+                    stream_events(&mut out, shared);
+                    return;
+                }
+                Ok(request) => answer(request, shared, &out),
+            },
+        };
+        if out.write_all(reply.line().as_bytes()).is_err() {
+            return;
+        }
+        let _ = reader.get_ref().set_read_timeout(Some(IDLE));
+    }
+}
+
+fn answer(request: ClientRequest, shared: &Shared, client: &UnixStream) -> Reply {
+    match request {
+        ClientRequest::Hello => Reply {
+            hello: Some(shared.hello.clone()),
+            ..Reply::done()
+        },
+        ClientRequest::Status => match shared.ask.ask(Request::Snapshot, ANSWER_WAIT) {
+            Ok(Answer::Snapshot(s)) => Reply {
+                status: Some((*s).clone()),
+                ..Reply::done()
+            },
+            Ok(Answer::Refused(why)) => Reply::refused(why),
+            Ok(Answer::Accepted) => Reply::done(),
+            Err(e) => Reply::refused(e.to_string()),
+        },
+        ClientRequest::Stop => {
+            let by = match peer_of(client) {
+                Some((pid, uid)) => format!("rigscript stop (pid {pid}, uid {uid})"),
+                None => "a client of the control socket".to_string(),
+            };
+            shared.ask.stop(&by);
+            Reply::done()
+        }
+        ClientRequest::Subscribe => Reply::refused("subscribe is answered by the stream"),
+        ClientRequest::Drive(drive) => match shared.ask.ask(Request::Drive(drive), ANSWER_WAIT) {
+            Ok(Answer::Accepted) => Reply::done(),
+            Ok(Answer::Refused(why)) => Reply::refused(why),
+            Ok(Answer::Snapshot(_)) => Reply::refused("the run answered with a snapshot"),
+            Err(e) => Reply::refused(e.to_string()),
+        },
+    }
+}
+
+/// Sends the run's events, one JSON line each, until the client goes, the run ends, or the
+/// socket closes; lost events are told as `{"event":"dropped","events":N}`.
+fn stream_events(out: &mut UnixStream, shared: &Shared) {
+    let who = peer_of(out).map_or("socket client".to_string(), |(pid, _)| {
+        format!("socket client pid {pid}")
+    });
+    let mut events = match shared.events.subscribe(&who, DEFAULT_QUEUE) {
+        Ok(s) => s,
+        Err(e) => {
+            let _ = out.write_all(Reply::refused(e.to_string()).line().as_bytes());
+            return;
+        }
+    };
+    if out.write_all(Reply::done().line().as_bytes()).is_err() {
+        return;
+    }
+    loop {
+        let closing = shared.closing.load(Ordering::SeqCst);
+        let wait = if closing {
+            Duration::ZERO
+        } else {
+            Duration::from_millis(200)
+        };
+        let next = events.next(wait);
+        let lost = events.newly_dropped();
+        if lost > 0 {
+            let line = format!("{{\"event\":\"dropped\",\"events\":{lost}}}\n");
+            if out.write_all(line.as_bytes()).is_err() {
+                return;
+            }
+        }
+        match next {
+            Ok(event) => {
+                let mut line = serde_json::to_string(&*event).unwrap_or_default();
+                line.push('\n');
+                if out.write_all(line.as_bytes()).is_err() {
+                    return;
+                }
+                if matches!(*event, RunEvent::Ended { .. }) {
+                    return;
+                }
+            }
+            Err(_) if closing => return,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+        }
+    }
+}
+
+/// The pid and uid of the process at the other end of `stream`.
+fn peer_of(stream: &UnixStream) -> Option<(i32, u32)> {
+    let mut cred = libc::ucred {
+        pid: 0,
+        uid: 0,
+        gid: 0,
+    };
+    let mut len = libc::socklen_t::try_from(std::mem::size_of::<libc::ucred>()).ok()?;
+    // SAFETY: `cred` and `len` are valid for writes of the size passed; the descriptor is
+    // the stream's own.
+    let got = unsafe {
+        libc::getsockopt(
+            stream.as_raw_fd(),
+            libc::SOL_SOCKET,
+            libc::SO_PEERCRED,
+            std::ptr::addr_of_mut!(cred).cast(),
+            &mut len,
+        )
+    };
+    (got == 0 && cred.pid != 0).then_some((cred.pid, cred.uid))
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
