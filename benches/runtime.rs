@@ -310,7 +310,7 @@ fn cron_day(sizes: &Sizes) -> (Duration, u64, usize) {
         n += 1;
     }
     let wall = t.elapsed();
-    let records = rig.runner.runtime().borrow().records.kept().len();
+    let records = rig.runner.runtime().borrow().records_kept().len();
     (wall, rig.runner.stats.ticks, records)
 }
 

@@ -26,7 +26,7 @@ mod probe;
 #[path = "fault_search/render.rs"]
 mod render;
 
-use case::{Case, Fault, Module, Policy, Proto, Rig, Stmt};
+use case::{Case, InjectedFault, Module, Policy, Proto, Rig, Stmt};
 use proptest::strategy::{Strategy, ValueTree};
 use proptest::test_runner::{Config, RngSeed, TestRng, TestRunner};
 use std::collections::BTreeMap;
@@ -288,35 +288,35 @@ fn a_run_with_recoverable_faults_keeps_every_promise() {
             faults: vec![
                 (
                     500,
-                    Fault::Input {
+                    InjectedFault::Input {
                         dev: 0,
                         value: 0x02,
                     },
                 ),
                 (
                     1200,
-                    Fault::Drop {
+                    InjectedFault::Drop {
                         line: 0,
                         answers: 1,
                     },
                 ),
                 (
                     2000,
-                    Fault::Garble {
+                    InjectedFault::Garble {
                         line: 0,
                         at: 3,
                         xor: 0x10,
                     },
                 ),
-                (2600, Fault::Silence { line: 0, ms: 3000 }),
+                (2600, InjectedFault::Silence { line: 0, ms: 3000 }),
                 (
                     7000,
-                    Fault::Input {
+                    InjectedFault::Input {
                         dev: 0,
                         value: 0x00,
                     },
                 ),
-                (8000, Fault::Sigterm),
+                (8000, InjectedFault::Sigterm),
             ],
         });
     }
@@ -333,13 +333,13 @@ fn a_faulty_output_stage_is_owned_up_to_and_left_to_its_watchdog() {
                 faults: vec![
                     (
                         1500,
-                        Fault::OutputStage {
+                        InjectedFault::OutputStage {
                             dev: 0,
                             refuse,
                             ms: 12_000,
                         },
                     ),
-                    (3000, Fault::Sigterm),
+                    (3000, InjectedFault::Sigterm),
                 ],
             };
             let run = harness::run(&case);
@@ -372,13 +372,13 @@ fn a_module_swapped_behind_the_open_line_is_taken_control_of_before_a_kill() {
             faults: vec![
                 (
                     1000,
-                    Fault::Swap {
+                    InjectedFault::Swap {
                         dev: 0,
                         safe: 0xFF,
                         power_on: 0xA6,
                     },
                 ),
-                (8000, Fault::Kill),
+                (8000, InjectedFault::Kill),
             ],
         };
         let run = harness::run(&case);
@@ -401,7 +401,7 @@ fn a_killed_runner_leaves_the_module_to_its_watchdog() {
     let case = Case {
         rig: rig(20, vec![module(Proto::Modbus)]),
         script: toggling(),
-        faults: vec![(2000, Fault::Kill)],
+        faults: vec![(2000, InjectedFault::Kill)],
     };
     let run = harness::run(&case);
     assert_eq!(run.killed_at, Some(std::time::Duration::from_secs(2)));
@@ -433,7 +433,7 @@ fn the_oracle_sees_a_stored_safe_value_the_script_changed() {
                 }],
             },
         ],
-        faults: vec![(1000, Fault::Kill)],
+        faults: vec![(1000, InjectedFault::Kill)],
     };
     let run = harness::run(&case);
     let kinds: Vec<&str> = oracle::check(&case, &run).iter().map(|v| v.kind).collect();
@@ -552,7 +552,7 @@ fn defect_5_the_script_cannot_turn_the_watchdog_off_under_a_kill() {
     assert_keeps_promises(&Case {
         rig: bare(100, 5000, plain(Proto::Modbus, Some(10), 0x05)),
         script: vec![Stmt::WatchdogOff { dev: 0 }, every(100, vec![set(0x30)])],
-        faults: vec![(1000, Fault::Kill)],
+        faults: vec![(1000, InjectedFault::Kill)],
     });
 }
 
@@ -569,7 +569,7 @@ fn defect_5_the_script_cannot_lengthen_the_watchdog() {
         )],
         faults: vec![(
             1,
-            Fault::Drop {
+            InjectedFault::Drop {
                 line: 0,
                 answers: 1,
             },
@@ -592,7 +592,7 @@ fn defect_7_a_panic_under_the_runner_leaves_the_outputs_safe() {
                 body: vec![],
             },
         ],
-        faults: vec![(501, Fault::Panic { line: 0 })],
+        faults: vec![(501, InjectedFault::Panic { line: 0 })],
     });
 }
 
@@ -620,8 +620,8 @@ fn defect_8_a_stop_during_reconnection_writes_the_safe_state() {
         rig: bare(20, 10_000, plain(Proto::Modbus, None, 0x05)),
         script: vec![every(100, vec![set(0x30)])],
         faults: vec![
-            (2000, Fault::Silence { line: 0, ms: 3500 }),
-            (5600, Fault::Sigterm),
+            (2000, InjectedFault::Silence { line: 0, ms: 3500 }),
+            (5600, InjectedFault::Sigterm),
         ],
     });
 }
@@ -632,8 +632,8 @@ fn defect_8_the_end_of_the_run_during_reconnection_writes_the_safe_state() {
         rig: bare(2000, 16_001, plain(Proto::Modbus, None, 0x05)),
         script: vec![every(100, vec![])],
         faults: vec![
-            (13_001, Fault::Unplug { line: 0, ms: 3000 }),
-            (8001, Fault::Unplug { line: 0, ms: 8000 }),
+            (13_001, InjectedFault::Unplug { line: 0, ms: 3000 }),
+            (8001, InjectedFault::Unplug { line: 0, ms: 8000 }),
         ],
     });
 }
@@ -652,7 +652,7 @@ fn defect_9_no_wait_is_unbounded() {
         script: vec![every(100, vec![])],
         faults: vec![(
             0,
-            Fault::Drop {
+            InjectedFault::Drop {
                 line: 0,
                 answers: 1,
             },
@@ -675,7 +675,7 @@ fn defect_10_outputs_come_back_at_once_after_a_stall() {
                 },
             ],
         }],
-        faults: vec![(501, Fault::Freeze { ms: 1500 })],
+        faults: vec![(501, InjectedFault::Freeze { ms: 1500 })],
     });
 }
 
@@ -686,7 +686,7 @@ fn defect_11_a_failed_safe_state_write_is_not_exit_0() {
         script: vec![every(100, vec![])],
         faults: vec![(
             20_001,
-            Fault::Drop {
+            InjectedFault::Drop {
                 line: 0,
                 answers: 1,
             },
@@ -704,7 +704,7 @@ fn defect_11_an_on_stop_that_throws_is_not_exit_0() {
                 body: vec![Stmt::Throw { on_call: 1 }],
             },
         ],
-        faults: vec![(1000, Fault::Sigterm)],
+        faults: vec![(1000, InjectedFault::Sigterm)],
     });
 }
 
@@ -715,7 +715,7 @@ fn defect_11_a_device_lost_to_the_end_is_not_exit_0() {
         script: vec![every(100, vec![set(0x30)])],
         faults: vec![(
             1000,
-            Fault::Unplug {
+            InjectedFault::Unplug {
                 line: 0,
                 ms: 20_000,
             },
@@ -743,7 +743,7 @@ fn defect_13_a_late_answer_is_never_taken_for_the_next_one() {
                 body: vec![],
             },
         ],
-        faults: vec![(1, Fault::Late { line: 0, ms: 250 })],
+        faults: vec![(1, InjectedFault::Late { line: 0, ms: 250 })],
     });
 }
 
@@ -811,7 +811,7 @@ fn defect_11_a_safe_state_that_did_not_reach_a_module_is_not_exit_0() {
             ..bare(100, 16_701, m)
         },
         script: vec![every(100, vec![])],
-        faults: vec![(15_001, Fault::Late { line: 0, ms: 250 })],
+        faults: vec![(15_001, InjectedFault::Late { line: 0, ms: 250 })],
     });
 }
 
@@ -831,8 +831,8 @@ fn defect_13_counters_are_never_shifted_by_a_late_answer() {
         ),
         script: vec![every(100, vec![Stmt::RecordCounters { dev: 0 }])],
         faults: vec![
-            (0, Fault::Input { dev: 0, value: 1 }),
-            (1, Fault::Late { line: 0, ms: 250 }),
+            (0, InjectedFault::Input { dev: 0, value: 1 }),
+            (1, InjectedFault::Late { line: 0, ms: 250 }),
         ],
     });
 }
@@ -850,7 +850,7 @@ fn one_lost_answer_does_not_let_a_short_watchdog_fire() {
         )],
         faults: vec![(
             1,
-            Fault::Drop {
+            InjectedFault::Drop {
                 line: 0,
                 answers: 1,
             },
@@ -864,7 +864,7 @@ fn one_lost_answer_does_not_let_a_short_watchdog_fire() {
         script: vec![every(100, vec![])],
         faults: vec![(
             6001,
-            Fault::Drop {
+            InjectedFault::Drop {
                 line: 0,
                 answers: 1,
             },
@@ -897,7 +897,7 @@ fn the_answers_to_earlier_tries_are_never_taken_for_the_next_request() {
                 body: vec![],
             },
         ],
-        faults: vec![(1, Fault::Late { line: 0, ms: 1000 })],
+        faults: vec![(1, InjectedFault::Late { line: 0, ms: 1000 })],
     };
     let run = harness::run(&case);
     let readings = counter_readings(&run);
@@ -961,9 +961,9 @@ fn an_ascii_answer_later_than_the_timeout_and_the_settle_is_not_held_against_the
             every(100, vec![Stmt::Throw { on_call: 5 }]),
         ],
         faults: vec![
-            (0, Fault::Input { dev: 0, value: 1 }),
-            (9_001, Fault::Late { line: 0, ms: 1000 }),
-            (10_001, Fault::Late { line: 0, ms: 1000 }),
+            (0, InjectedFault::Input { dev: 0, value: 1 }),
+            (9_001, InjectedFault::Late { line: 0, ms: 1000 }),
+            (10_001, InjectedFault::Late { line: 0, ms: 1000 }),
         ],
     };
     let run = harness::run(&case);
@@ -1016,14 +1016,14 @@ fn a_watchdog_that_fires_while_an_answer_fault_keeps_its_module_lost_is_explaine
             faults: vec![
                 (
                     10_001,
-                    Fault::Drop {
+                    InjectedFault::Drop {
                         line: 0,
                         answers: 3,
                     },
                 ),
                 (
                     10_001,
-                    Fault::Drop {
+                    InjectedFault::Drop {
                         line: 0,
                         answers: 2,
                     },
@@ -1035,8 +1035,8 @@ fn a_watchdog_that_fires_while_an_answer_fault_keeps_its_module_lost_is_explaine
             rig: bare(100, 16_701, plain(Proto::Modbus, Some(20), 0x00)),
             script: vec![every(100, vec![])],
             faults: vec![
-                (1, Fault::Silence { line: 0, ms: 8000 }),
-                (10_001, Fault::Late { line: 0, ms: 1000 }),
+                (1, InjectedFault::Silence { line: 0, ms: 8000 }),
+                (10_001, InjectedFault::Late { line: 0, ms: 1000 }),
             ],
         },
         // Seed 2026: two answers lost from the first read after a restart back-off, 4 s after
@@ -1067,7 +1067,7 @@ fn a_watchdog_that_fires_while_an_answer_fault_keeps_its_module_lost_is_explaine
             ],
             faults: vec![(
                 5001,
-                Fault::Drop {
+                InjectedFault::Drop {
                     line: 0,
                     answers: 2,
                 },
@@ -1094,13 +1094,13 @@ fn a_watchdog_that_fires_while_an_answer_fault_keeps_its_module_lost_is_explaine
 #[test]
 fn overlapping_line_faults_keep_the_line_down_until_the_longest_ends() {
     for long in [
-        Fault::Silence { line: 0, ms: 8000 },
-        Fault::Unplug { line: 0, ms: 8000 },
+        InjectedFault::Silence { line: 0, ms: 8000 },
+        InjectedFault::Unplug { line: 0, ms: 8000 },
     ] {
         let case = Case {
             rig: bare(100, 3101, plain(Proto::Modbus, None, 0x00)),
             script: vec![every(100, vec![])],
-            faults: vec![(1, long), (1, Fault::Silence { line: 0, ms: 1500 })],
+            faults: vec![(1, long), (1, InjectedFault::Silence { line: 0, ms: 1500 })],
         };
         let run = harness::run(&case);
         let harness::End::Ran { status, .. } = &run.end else {
@@ -1145,7 +1145,7 @@ fn an_end_that_an_error_began_counts_from_that_error() {
                 ],
             ),
         ],
-        faults: vec![(1, Fault::Silence { line: 0, ms: 1500 })],
+        faults: vec![(1, InjectedFault::Silence { line: 0, ms: 1500 })],
     };
     let run = harness::run(&case);
     assert_eq!(run.at_end[0].outputs, 0x30, "{}", describe(&case, &run));
@@ -1163,9 +1163,9 @@ fn an_ascii_answer_garbled_into_another_well_formed_one_is_not_held_against_the_
         rig: bare(100, run_for_ms, plain(Proto::Ascii, None, 0x00)),
         script: vec![every(100, vec![Stmt::RecordInputs { dev: 0 }])],
         faults: input
-            .map(|value| (0, Fault::Input { dev: 0, value }))
+            .map(|value| (0, InjectedFault::Input { dev: 0, value }))
             .into_iter()
-            .chain([(garble_at, Fault::Garble { line: 0, at, xor })])
+            .chain([(garble_at, InjectedFault::Garble { line: 0, at, xor })])
             .collect(),
     };
     for (case, wrong) in [

@@ -9,10 +9,10 @@ mod common;
 
 use common::{rigscript, run, SimProcess};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions, Protocol};
+use rigscript::link::far_end::ByteDevice;
 use rigscript::link::memory::MemoryByteLink;
 use rigscript::sim::c29u::{C29uModel as Model, Eeprom};
 use rigscript::sim::c29u_line::{lock, SimulatedC29u};
-use rigscript::sim::ByteDevice;
 use rigscript::time::clock::{Clock, VirtualClock};
 use std::process::Output;
 use std::sync::Arc;

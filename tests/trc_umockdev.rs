@@ -3,9 +3,9 @@
 //! against the model, and OUT packets must match the script byte for byte (umockdev fails an OUT
 //! that matches no line with an I/O error).
 
+use rigscript::link::far_end::PacketDevice;
 use rigscript::protocol::trc1000::{Command, Packet, Relay, Rotary};
 use rigscript::sim::trc1000::Trc1000Sim;
-use rigscript::sim::PacketDevice;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Output;

@@ -1,12 +1,12 @@
 //! What the benchmarks share: a simulated TRP-C29U served on a pty in a thread of the benchmark,
 //! counting the requests it answers.
 
+use rigscript::link::far_end::ByteDevice;
 use rigscript::protocol::c29u::{baud_code, Protocol};
 use rigscript::protocol::c29u_modbus::silence_gap;
 use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig};
 use rigscript::sim::c29u_line::SimulatedC29u;
 use rigscript::sim::pty::{Faults, PtyServer};
-use rigscript::sim::ByteDevice;
 use rigscript::time::clock::SystemClock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;

@@ -345,9 +345,7 @@ fn run_started(
     let status = outputs.finished(&mut rig, status);
     let dropped = {
         // The last lines out (at most a second's wait for a stderr nobody reads).
-        let mut rt = rig.runner.runtime().borrow_mut();
-        rt.log.close();
-        rt.log.dropped()
+        rig.runner.runtime().borrow_mut().close_log()
     };
     rig.runner.stats.log_dropped = dropped;
     if stats {

@@ -74,17 +74,16 @@ impl RunOutputs {
         if let Some(notifier) = rig.runner.service.take() {
             notifier.stopping(&format!("stopped; exit status {status}"));
             if let Some(report) = notifier.failure_report() {
-                rig.runner.runtime().borrow_mut().log.warn(&report);
+                rig.runner.runtime().borrow_mut().log_mut().warn(&report);
             }
         }
         if self.junit.is_none() {
             return status;
         }
         let rt = rig.runner.runtime().borrow();
-        let records = rt.records.kept();
+        let records = rt.records_kept();
         let problems: Vec<String> = rt
-            .log
-            .lines()
+            .log_lines()
             .iter()
             .filter(|l| l.contains(" warning: ") || l.contains(" error: "))
             .cloned()

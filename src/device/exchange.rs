@@ -378,8 +378,8 @@ impl<L: crate::link::PacketLink> crate::link::PacketLink for TracedPacketLink<L>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::link::far_end::ByteDevice;
     use crate::link::memory::MemoryByteLink;
-    use crate::sim::ByteDevice;
     use crate::time::clock::VirtualClock;
     use std::collections::VecDeque;
     use std::sync::{Arc, Mutex};

@@ -283,9 +283,9 @@ pub fn rotary_changes(old: &RotaryValues, new: &RotaryValues) -> Vec<RotaryChang
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::link::far_end::PacketDevice;
     use crate::link::memory::MemoryPacketLink;
     use crate::sim::trc1000::Trc1000Sim;
-    use crate::sim::PacketDevice;
     use crate::time::clock::VirtualClock;
     use std::collections::VecDeque;
     use std::sync::Arc;

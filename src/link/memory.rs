@@ -2,7 +2,7 @@
 
 use super::line::LineState;
 use super::{ByteLink, LinkError, PacketLink};
-use crate::sim::{ByteDevice, PacketDevice};
+use crate::link::far_end::{ByteDevice, PacketDevice};
 use crate::time::clock::SharedClock;
 use std::collections::VecDeque;
 use std::time::Duration;

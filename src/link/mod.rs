@@ -114,6 +114,7 @@ pub trait PacketLink: Send {
     fn describe(&self) -> String;
 }
 
+pub mod far_end;
 pub mod fd;
 pub mod holders;
 pub mod line;

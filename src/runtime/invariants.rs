@@ -1,11 +1,10 @@
 //! Invariants a script states (`invariant(name, || bool)`): what must hold after every tick's
 //! handlers, before the tick's outputs are written. A false one is a fault: the outputs of that
 //! tick are not written, the safe state is, and the run ends with status 1 whatever the error
-//! policy says (an interlock that contradicts itself must stop). This module holds them and
-//! describes a violation with the inputs and outputs of the tick it happened in.
+//! policy says (an interlock that contradicts itself must stop). This module says what they
+//! are and describes a violation with the inputs and outputs of the tick it happened in;
+//! stating and checking them on the run is `invariant_checks`.
 
-use super::devices::Device;
-use super::state::Runtime;
 use super::subscriptions::Call;
 use serde_json::{json, Value};
 use std::fmt;
@@ -27,7 +26,7 @@ pub struct Invariant<H> {
 
 /// One invariant to evaluate this tick.
 #[derive(Debug, Clone)]
-pub struct Check<H> {
+pub struct InvariantCheck<H> {
     /// The call that evaluates it (label `invariant "name"`).
     pub call: Call<H>,
     /// Its name.
@@ -182,86 +181,5 @@ impl fmt::Display for Violation {
             write!(f, " (stated at {at})")?;
         }
         write!(f, ": {}", self.readings())
-    }
-}
-
-impl<H: Clone> Runtime<H> {
-    /// States an invariant (checked from the next tick on).
-    pub fn add_invariant(
-        &mut self,
-        name: &str,
-        handler: H,
-        at: Option<String>,
-    ) -> Result<(), InvariantError> {
-        if name.trim().is_empty() {
-            return Err(InvariantError::NoName);
-        }
-        if self.invariants.iter().any(|i| i.name == name) {
-            return Err(InvariantError::Duplicate(name.to_string()));
-        }
-        if self.invariants.len() >= MAX_INVARIANTS {
-            return Err(InvariantError::TooMany);
-        }
-        self.invariants.push(Invariant {
-            name: name.to_string(),
-            handler,
-            at,
-        });
-        Ok(())
-    }
-
-    /// How to evaluate each invariant, in the order they were stated.
-    pub fn invariant_checks(&self) -> Vec<Check<H>> {
-        self.invariants
-            .iter()
-            .map(|i| Check {
-                call: Call {
-                    handler: i.handler.clone(),
-                    args: Vec::new(),
-                    label: format!("invariant {:?}", i.name),
-                },
-                name: i.name.clone(),
-                at: i.at.clone(),
-            })
-            .collect()
-    }
-
-    /// What each device the script uses shows now: the last inputs read and the outputs the
-    /// script wants (a device never read and still at its safe state is left out).
-    pub fn readings(&self) -> Vec<DeviceReading> {
-        self.devices
-            .iter()
-            .filter(|d| match d {
-                Device::C29u(c) => c.inputs.current.is_some() || c.outputs != c.config.safe_value,
-                Device::Trc(t) => {
-                    t.switches.current.is_some() || Some(t.relay) != t.config.safe_relay
-                }
-            })
-            .map(|d| match d {
-                Device::C29u(c) => DeviceReading::C29u {
-                    name: c.name.clone(),
-                    inputs: c.inputs.current,
-                    outputs: c.outputs,
-                    online: c.health.online(),
-                },
-                Device::Trc(t) => DeviceReading::Trc {
-                    name: t.name.clone(),
-                    pressed: t.switches.current.map(|s| s.pressed_names()),
-                    relay: t.relay,
-                    online: t.health.online(),
-                },
-            })
-            .collect()
-    }
-
-    /// Records and logs a violation: the invariant, where it was stated, and the tick's
-    /// inputs and outputs.
-    pub fn report_violation(&mut self, v: &Violation) {
-        self.log.error(&format!(
-            "{v}; the outputs of this tick are not written, the safe state is"
-        ));
-        let time = self.wall_text();
-        self.records
-            .record(&time, "invariant_violated", v.to_json(), &mut self.log);
     }
 }

@@ -59,7 +59,7 @@ impl<H: Clone> Runtime<H> {
                 && match d {
                     Device::C29u(c) => {
                         let target = if held { c.config.safe_value } else { c.outputs };
-                        c.outputs_written != Some(target)
+                        c.outputs_written() != Some(target)
                     }
                     Device::Trc(t) => {
                         let target = if held {
@@ -118,10 +118,10 @@ impl<H: Clone> Runtime<H> {
                 }
                 Some(Device::C29u(d)) => {
                     let target = if held { d.config.safe_value } else { d.outputs };
-                    if d.outputs_written == Some(target) {
+                    if d.outputs_written() == Some(target) {
                         Ok(None)
                     } else {
-                        let before = d.outputs_written;
+                        let before = d.outputs_written();
                         let line = format!(
                             "{}: outputs {} -> {target:#04x} ({})",
                             d.name,
@@ -162,7 +162,7 @@ impl<H: Clone> Runtime<H> {
                         let name = self.device_name(idx);
                         if let Some(d) = self.c29u(idx) {
                             // Unconfirmed: what the module drives is not known.
-                            d.outputs_written = None;
+                            d.forget_outputs_written();
                             d.refusing = true;
                             d.refused_writes = d.refused_writes.saturating_add(1);
                         }

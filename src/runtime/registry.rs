@@ -12,6 +12,21 @@ impl<H: Clone> Runtime<H> {
         self.devices.iter().position(|d| d.name() == name)
     }
 
+    /// The devices, in name order, to look at.
+    pub fn devices(&self) -> &[Device] {
+        &self.devices
+    }
+
+    /// Takes the modules not under control yet out of the run (a stop during the start): the
+    /// end then neither writes them nor waits out their timeouts.
+    pub fn take_out_uncontrolled(&mut self) -> Vec<Device> {
+        let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut self.devices)
+            .into_iter()
+            .partition(|d| matches!(d, Device::C29u(c) if !c.controlled));
+        self.devices = taken;
+        untaken
+    }
+
     /// The device names, for messages.
     pub fn device_names(&self) -> String {
         let names: Vec<&str> = self.devices.iter().map(Device::name).collect();

@@ -147,7 +147,7 @@ impl DeviceState {
                 simulated,
                 inputs: c.inputs.current,
                 outputs: c.outputs,
-                outputs_written: c.outputs_written,
+                outputs_written: c.outputs_written(),
                 counters: c.counters.current,
                 latches: c.latches.current.map(|l| LatchState {
                     energized: l.energized,

@@ -1,7 +1,9 @@
 //! The state of one run that scripts act on: the clock, the devices, the handlers, records,
 //! the log and the stop request. Its jobs live beside it: `registry` (devices by name and
 //! index), `inputs` (lazy reads), `outputs` (what the script wants written), `safety`
-//! (supervision), `subscriptions` and `events` (handlers and what fires them).
+//! (supervision), `registrations` and `events` (handlers and what fires them),
+//! `invariant_checks`. The types it holds come from modules below it (`subscriptions`,
+//! `invariants`), which never import it back.
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
@@ -21,48 +23,48 @@ use std::time::Duration;
 /// The state of one run.
 pub struct Runtime<H> {
     /// The one source of time.
-    pub clock: SharedClock,
+    pub(super) clock: SharedClock,
     /// The zone of cron, `now()` and the log.
-    pub zone: Zone,
+    pub(super) zone: Zone,
     /// The devices, in name order.
-    pub devices: Vec<Device>,
+    pub(super) devices: Vec<Device>,
     /// The script's handlers and timers.
-    pub handlers: Subscriptions<H>,
+    pub(super) handlers: Subscriptions<H>,
     /// What the script states must hold after every tick (`invariants`).
-    pub invariants: Vec<Invariant<H>>,
+    pub(super) invariants: Vec<Invariant<H>>,
     /// Whether the invariants read device inputs when last evaluated (or have not been yet):
     /// then every tick runs, so the inputs they read are read every tick.
-    pub invariants_read_inputs: bool,
+    pub(super) invariants_read_inputs: bool,
     /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
-    pub input_accesses: u64,
+    pub(super) input_accesses: u64,
     /// Records and measurements.
-    pub records: Records,
+    pub(super) records: Records,
     /// The log.
-    pub log: Logger,
+    pub(super) log: Logger,
     /// The current tick (0 while the top level runs at start).
-    pub tick: u64,
+    pub(super) tick: u64,
     /// The period boundary the current tick runs for (at or before its start): timer
     /// deadlines are counted up to it, so one that passes while the tick runs falls to the
     /// next tick (see `Schedule::due_at_tick`).
-    pub tick_boundary: Option<Duration>,
+    pub(super) tick_boundary: Option<Duration>,
     /// Monotonic time the run started.
-    pub started: Duration,
-    /// The script asked to stop, with this exit status.
-    pub stop_request: Option<i64>,
+    pub(super) started: Duration,
+    /// The script asked to stop, with this exit status (`request_stop`).
+    stop_request: Option<i64>,
     /// The handler running now, for the log lines of the outputs it changes.
-    pub cause: String,
+    pub(super) cause: String,
     /// A device has been lost for longer than its grace time: every device is held at its
     /// safe state until all are back.
-    pub held_safe: bool,
+    pub(super) held_safe: bool,
     /// Requests sent on all links.
-    pub transactions: TransactionCounter,
+    pub(super) transactions: TransactionCounter,
     /// How long a device may be lost before everything goes safe.
-    pub grace: Duration,
+    pub(super) grace: Duration,
     /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
     /// runs; supervision also stops trying lost devices once it is set.
-    pub cancel: Cancel,
+    pub(super) cancel: Cancel,
     /// Where what happens is told to whoever watches the run (`observe`).
-    pub events: Events,
+    pub(super) events: Events,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -124,6 +126,23 @@ impl<H: Clone> Runtime<H> {
         self.transactions.load(Ordering::Relaxed)
     }
 
+    /// The run's clock, for what measures time on it (the script's limits per call).
+    pub fn clock(&self) -> &SharedClock {
+        &self.clock
+    }
+
+    /// The counter of requests sent on all links, shared with what watches it (the script's
+    /// limits read the clock again after each new request: an exchange takes time).
+    pub fn transaction_counter(&self) -> &TransactionCounter {
+        &self.transactions
+    }
+
+    /// Whether every device is held at its safe state: one has been lost for longer than its
+    /// grace time and not all are back.
+    pub fn held_safe(&self) -> bool {
+        self.held_safe
+    }
+
     /// When the next tick has something to do, if no handler polls inputs: the earliest
     /// timer or retry of a lost device, or now while outputs wait to be written (a refused
     /// write is tried again at the next tick; watchdogs are fed between ticks). `None` when every
@@ -158,16 +177,64 @@ impl<H: Clone> Runtime<H> {
         self.handlers.fastest_every().map(|every| every.max(period))
     }
 
+    /// The log, to write a line to.
+    pub fn log_mut(&mut self) -> &mut Logger {
+        &mut self.log
+    }
+
+    /// The log lines kept (by a run that keeps them: tests, the JUnit report), oldest first.
+    pub fn log_lines(&self) -> &[String] {
+        self.log.lines()
+    }
+
+    /// Closes the log, with a bounded wait for its last lines; how many lines it dropped.
+    pub fn close_log(&mut self) -> u64 {
+        self.log.close();
+        self.log.dropped()
+    }
+
+    /// The script's handlers and timers, to look at (`verify`'s coverage and profile).
+    pub fn handlers(&self) -> &Subscriptions<H> {
+        &self.handlers
+    }
+
+    /// The invariants the script stated, in that order.
+    pub fn invariants(&self) -> &[Invariant<H>] {
+        &self.invariants
+    }
+
+    /// Caps the timers the script may have at once (its limits).
+    pub fn limit_timers(&mut self, max: usize) {
+        self.handlers.set_max_timers(max);
+    }
+
+    /// Drops every handler, timer and invariant, and with them the script's closures that
+    /// hold handles to this runtime (a cycle of `Rc`s otherwise).
+    pub fn forget_handlers(&mut self) {
+        self.handlers.clear();
+        self.invariants.clear();
+    }
+
     /// Something that changes when handlers come or go (their count and the next id).
     pub fn handlers_signature(&self) -> (usize, u64) {
         self.handlers.signature()
     }
 
+    /// The script's `stop(code)`: the run ends at the end of this tick with `code`; the first
+    /// request made stands.
+    pub fn request_stop(&mut self, code: i64) {
+        self.stop_request.get_or_insert(code);
+    }
+
+    /// The exit status the script asked to stop with, if it did.
+    pub fn stop_requested(&self) -> Option<i64> {
+        self.stop_request
+    }
+
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {
-        self.handlers.clear();
-        self.invariants.clear();
+        self.forget_handlers();
         self.invariants_read_inputs = true;
         self.stop_request = None;
         self.reset_outputs();
@@ -247,13 +314,13 @@ mod tests {
         let mut r = TestRig::started();
         r.rt.every(Duration::from_secs(1), "t").unwrap();
         r.rt.subscribe(Source::Stop, "s", "on_stop".into());
-        r.rt.stop_request = Some(3);
+        r.rt.request_stop(3);
         r.rt.set_outputs(IO, 0x99);
         r.rt.set_relay(PANEL, 7);
         r.rt.reset_program();
         assert!(r.rt.handlers.is_empty());
         assert!(!r.rt.has_work());
-        assert_eq!(r.rt.stop_request, None);
+        assert_eq!(r.rt.stop_requested(), None);
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
         assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
     }

@@ -264,7 +264,7 @@ fn setter<T: rhai::Variant + Clone>(
 /// The handle of the device at `idx`.
 fn handle(rt: &Rt, idx: usize, reads: &ReadTracker) -> Option<Dynamic> {
     let r = rt.borrow();
-    let d = r.devices.get(idx)?;
+    let d = r.devices().get(idx)?;
     let name: Rc<str> = Rc::from(d.name());
     let reads = reads.clone();
     Some(match d {
@@ -308,7 +308,7 @@ pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads:
     let (r, t) = (Rc::clone(rt), reads.clone());
     let names: Vec<(String, usize)> = {
         let b = rt.borrow();
-        b.devices
+        b.devices()
             .iter()
             .enumerate()
             .map(|(i, d)| (d.name().to_string(), i))
@@ -575,7 +575,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
             m.driver.reset()?;
             // The module comes back at its power-on value; the script's outputs are written
             // again at the end of the tick, and the periodic check knows this reset.
-            m.outputs_written = None;
+            m.forget_outputs_written();
             m.reset_by_script = true;
             Ok(())
         })
@@ -706,16 +706,16 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         i64::try_from(r.borrow().uptime().as_millis()).unwrap_or(i64::MAX)
     });
     let r = Rc::clone(rt);
-    engine.on_print(move |s| r.borrow_mut().log.info(&format!("script: {s}")));
+    engine.on_print(move |s| r.borrow_mut().log_mut().info(&format!("script: {s}")));
     let r = Rc::clone(rt);
-    engine.on_debug(move |s, _, _| r.borrow_mut().log.info(&format!("script: {s}")));
+    engine.on_debug(move |s, _, _| r.borrow_mut().log_mut().info(&format!("script: {s}")));
     let r = Rc::clone(rt);
     engine.register_fn("log", move |m: Dynamic| {
-        r.borrow_mut().log.info(&format!("script: {m}"));
+        r.borrow_mut().log_mut().info(&format!("script: {m}"));
     });
     let r = Rc::clone(rt);
     engine.register_fn("warn", move |m: Dynamic| {
-        r.borrow_mut().log.warn(&format!("script: {m}"));
+        r.borrow_mut().log_mut().warn(&format!("script: {m}"));
     });
 }
 
@@ -742,10 +742,7 @@ fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &st
 
 /// `stop(code)`: asks the runner to stop, and ends the handler at once.
 fn stop(rt: &Rt, code: i64) -> R<()> {
-    let mut r = rt.borrow_mut();
-    if r.stop_request.is_none() {
-        r.stop_request = Some(code);
-    }
+    rt.borrow_mut().request_stop(code);
     end_handler()
 }
 
@@ -787,35 +784,12 @@ fn limits(map: &Map) -> R<Limits> {
 fn register_records(engine: &mut Engine, rt: &Rt) {
     let r = Rc::clone(rt);
     engine.register_fn("record", move |name: &str, value: Dynamic| -> R<()> {
-        let mut guard = r.borrow_mut();
-        let rt = &mut *guard;
-        let time = rt.wall_text();
-        rt.records.record(&time, name, to_json(&value), &mut rt.log);
+        r.borrow_mut().record(name, to_json(&value));
         Ok(())
     });
     let measure = move |rt: &Rt, name: &str, value: &Dynamic, l: &Limits| -> R<bool> {
         let v = number(value, "a measured value")?;
-        let mut guard = rt.borrow_mut();
-        let r = &mut *guard;
-        let time = r.wall_text();
-        let pass = r.records.measure(&time, name, v, l, &mut r.log);
-        let unit = l.unit.as_deref().unwrap_or("");
-        let range = match (l.min, l.max) {
-            (Some(a), Some(b)) => format!(" [{a}, {b}]"),
-            (Some(a), None) => format!(" [>= {a}]"),
-            (None, Some(b)) => format!(" [<= {b}]"),
-            (None, None) => String::new(),
-        };
-        let line = format!(
-            "measure {name} = {v}{unit}{range}: {}",
-            if pass { "pass" } else { "FAIL" }
-        );
-        if pass {
-            r.log.activity(&line);
-        } else {
-            r.log.warn(&line);
-        }
-        Ok(pass)
+        Ok(rt.borrow_mut().measure(name, v, l))
     };
     let r = Rc::clone(rt);
     engine.register_fn(

@@ -218,12 +218,12 @@ impl RigBuilder {
 impl Rig {
     /// The log lines kept so far (with `RigBuilder::keep_log`).
     pub fn log(&self) -> Vec<String> {
-        self.runner.runtime().borrow().log.lines().to_vec()
+        self.runner.runtime().borrow().log_lines().to_vec()
     }
 
     /// The records and measurements kept so far, oldest first, as JSON objects.
     pub fn records(&self) -> Vec<Value> {
-        self.runner.runtime().borrow().records.kept().to_vec()
+        self.runner.runtime().borrow().records_kept().to_vec()
     }
 }
 

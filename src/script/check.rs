@@ -1503,7 +1503,7 @@ after("1s", || panel.set_output(1, true));
         };
         let mut rig = start(source, "t.rhai", setup).expect("the rig starts");
         rig.runner.advance(Duration::from_millis(3500));
-        let log = rig.runner.runtime().borrow().log.lines().join("\n");
+        let log = rig.runner.runtime().borrow().log_lines().join("\n");
         (rig.runner.status(), log)
     }
 

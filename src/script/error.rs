@@ -3,7 +3,7 @@
 //! A call stopped by a limit says which limit and how to raise it.
 
 use super::engine::{Breach, LIMIT_MARKER, MAX_ARRAY, MAX_CALL_LEVELS, MAX_MAP, MAX_STRING};
-use crate::runtime::runner::Fault;
+use crate::runtime::runner::HandlerFault;
 use rhai::{EvalAltResult, ParseError, ParseErrorType, Position};
 
 /// Marks the `ErrorTerminated` that `stop()` raises to end the handler at once (and a device
@@ -88,9 +88,9 @@ pub fn is_stop(err: &EvalAltResult) -> bool {
 /// A runtime error as a fault for the scan loop; `fallback` places it when Rhai does not (its
 /// own limit errors inside a function come out without a position): the start of the
 /// handler that was running.
-pub fn fault(file: &str, err: &EvalAltResult, fallback: Position) -> Fault {
+pub fn fault(file: &str, err: &EvalAltResult, fallback: Position) -> HandlerFault {
     let (inner, pos) = innermost(err);
-    Fault {
+    HandlerFault {
         location: location(file, if pos.is_none() { fallback } else { pos }),
         cause: cause(inner),
         over_budget: matches!(inner, EvalAltResult::ErrorTooManyOperations(_)),
@@ -105,12 +105,12 @@ pub fn breach_fault(
     breach: &Breach,
     result: Result<(), &EvalAltResult>,
     fallback: Position,
-) -> Fault {
+) -> HandlerFault {
     let pos = match result {
         Err(e) => innermost(e).1,
         Ok(()) => Position::NONE,
     };
-    Fault {
+    HandlerFault {
         location: location(file, if pos.is_none() { fallback } else { pos }),
         cause: breach.cause(),
         over_budget: breach.is_runaway(),

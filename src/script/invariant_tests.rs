@@ -21,7 +21,7 @@ fn rig(script: &str, policy: ErrorPolicy, budget: u64) -> Rig {
 }
 
 fn log(r: &Rig) -> String {
-    r.runner.runtime().borrow().log.lines().join("\n")
+    r.runner.runtime().borrow().log_lines().join("\n")
 }
 
 const GUARDED: &str = r#"
@@ -57,7 +57,7 @@ fn a_false_invariant_writes_the_safe_state_instead_of_the_outputs_and_ends_with_
         "{log}"
     );
     let rt = r.runner.runtime().borrow();
-    let rec = rt.records.kept().last().unwrap().clone();
+    let rec = rt.records_kept().last().unwrap().clone();
     assert_eq!(rec["name"], "invariant_violated");
     assert_eq!(rec["value"]["invariant"], "power only with DI0 closed");
     assert_eq!(rec["value"]["devices"]["io"]["inputs"], 2);

@@ -8,8 +8,8 @@ use super::engine::{sandboxed, Guard};
 use super::error::{breach_fault, fault, innermost, is_stop};
 use super::reads::{ReadSet, ReadTracker};
 use crate::config::ScriptLimits;
-use crate::runtime::invariants::Check;
-use crate::runtime::runner::{Fault, Program, StopLimit};
+use crate::runtime::invariants::InvariantCheck;
+use crate::runtime::runner::{HandlerFault, Program, StopLimit};
 use crate::runtime::subscriptions::{Arg, Call};
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
 use std::collections::BTreeMap;
@@ -48,7 +48,7 @@ impl ScriptProgram {
         let mut engine = sandboxed(limits.operations);
         let (clock, transactions) = {
             let r = rt.borrow();
-            (Arc::clone(&r.clock), Arc::clone(&r.transactions))
+            (Arc::clone(r.clock()), Arc::clone(r.transaction_counter()))
         };
         let guard = Guard::install(&mut engine, limits, clock, transactions);
         let arities = Arities::default();
@@ -116,7 +116,7 @@ impl ScriptProgram {
         &self,
         result: Result<(), Box<EvalAltResult>>,
         fallback: impl FnOnce() -> Position,
-    ) -> Result<(), Fault> {
+    ) -> Result<(), HandlerFault> {
         let breach = self.guard.end_call();
         match (result, breach) {
             (result, Some(b)) => Err(breach_fault(
@@ -132,7 +132,11 @@ impl ScriptProgram {
     }
 
     /// Runs one handler, within `stop` too when it is an `on_stop` handler's call in a stop.
-    fn call_limited(&mut self, call: &Call<FnPtr>, stop: Option<StopLimit>) -> Result<(), Fault> {
+    fn call_limited(
+        &mut self,
+        call: &Call<FnPtr>,
+        stop: Option<StopLimit>,
+    ) -> Result<(), HandlerFault> {
         let n = self.arities.pick(&call.handler, call.args.len());
         let args: Vec<Dynamic> = call
             .args
@@ -165,7 +169,7 @@ impl ScriptProgram {
 
     /// A runtime error as a fault; a call Rhai found no function for is told in `check`'s
     /// words (its raw "Function not found: set_ouptut (TRP-C29U, i64, bool)" says little).
-    fn fault(&self, err: &EvalAltResult, fallback: Position) -> Fault {
+    fn fault(&self, err: &EvalAltResult, fallback: Position) -> HandlerFault {
         let mut f = fault(&self.file, err, fallback);
         let words = || self.not_found.get_or_init(|| NotFound::new(&self.engine));
         let said = match innermost(err).0 {
@@ -197,28 +201,28 @@ impl ScriptProgram {
 impl Program for ScriptProgram {
     type Handler = FnPtr;
 
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         self.guard.begin_call();
         let result = self.engine.run_ast_with_scope(&mut Scope::new(), &self.ast);
         self.note_reads(None);
         self.outcome(result, || Position::NONE)
     }
 
-    fn call(&mut self, call: &Call<FnPtr>) -> Result<(), Fault> {
+    fn call(&mut self, call: &Call<FnPtr>) -> Result<(), HandlerFault> {
         self.call_limited(call, None)
     }
 
-    fn call_in_stop(&mut self, call: &Call<FnPtr>, limit: StopLimit) -> Result<(), Fault> {
+    fn call_in_stop(&mut self, call: &Call<FnPtr>, limit: StopLimit) -> Result<(), HandlerFault> {
         self.call_limited(call, Some(limit))
     }
 
-    fn holds(&mut self, check: &Check<FnPtr>) -> Result<bool, Fault> {
+    fn holds(&mut self, check: &InvariantCheck<FnPtr>) -> Result<bool, HandlerFault> {
         let (call, at) = (&check.call, check.at.as_deref());
         self.guard.begin_call();
         let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, ());
         self.note_reads(Some(&check.name));
         // Where nothing places an error (Rhai's own limits), it is the invariant's.
-        let placed = |mut f: Fault| {
+        let placed = |mut f: HandlerFault| {
             if f.location.is_none() {
                 f.location = at.map(str::to_string);
             }
@@ -229,7 +233,7 @@ impl Program for ScriptProgram {
             return Err(placed(breach_fault(&self.file, &b, ended, Position::NONE)));
         }
         match result {
-            Ok(v) => v.as_bool().map_err(|_| Fault {
+            Ok(v) => v.as_bool().map_err(|_| HandlerFault {
                 location: at.map(str::to_string),
                 cause: format!(
                     "{} returned {} ({}), not true or false",

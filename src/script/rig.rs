@@ -8,7 +8,7 @@ use super::program::ScriptProgram;
 use crate::config::RigConfig;
 use crate::device::cancel::Cancel;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError, Opened, SimRig};
+use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
 use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::runner::{panic_message, safe_after_panic, RunOptions, Runner};
@@ -120,8 +120,7 @@ impl Drop for Rig {
     /// `verify` run's, for as long as the process lives).
     fn drop(&mut self) {
         if let Ok(mut rt) = self.runner.runtime().try_borrow_mut() {
-            rt.handlers.clear();
-            rt.invariants.clear();
+            rt.forget_handlers();
         }
     }
 }
@@ -175,7 +174,7 @@ pub fn start_with(
         count,
         setup.config.grace,
     );
-    runtime.handlers.set_max_timers(limits.timers);
+    runtime.limit_timers(limits.timers);
     // A signal during the start cuts its exchanges short from the first one: a silent module
     // with long timeouts and many retries must not hold a stop for all of them.
     runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));
@@ -195,7 +194,7 @@ pub fn start_with(
         let signal = setup.stop_flag.load(Ordering::SeqCst);
         if signal != 0 {
             let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
-            r.log.notice(&format!(
+            r.log_mut().notice(&format!(
                 "stopping during the start: {} received ({})",
                 signals::name(signal),
                 signals::likely_cause(signal)
@@ -203,12 +202,8 @@ pub fn start_with(
             // A module not yet under control got from the start at most its safe values (the
             // outputs it is taken control with); the end's tries on one that has not answered
             // would cost all its timeouts, so it is left as it is.
-            let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut r.devices)
-                .into_iter()
-                .partition(|d| matches!(d, Device::C29u(c) if !c.controlled));
-            r.devices = taken;
-            for d in &untaken {
-                r.log.warn(&format!(
+            for d in &r.take_out_uncontrolled() {
+                r.log_mut().warn(&format!(
                     "{}: not under control yet: left as it is (the start writes a module nothing \
                      but its safe values)",
                     d.name()
@@ -275,7 +270,7 @@ mod tests {
         rig.sim.set_switch("panel", "S1", true).unwrap();
         rig.runner.advance(Duration::from_millis(40));
         assert_eq!(rig.sim.outputs("io").unwrap(), 5);
-        let log = rig.runner.runtime().borrow().log.lines().join("\n");
+        let log = rig.runner.runtime().borrow().log_lines().join("\n");
         assert!(log.contains("panel: S1 pressed"), "{log}");
         assert!(
             log.contains("io: outputs 0x00 -> 0x05 (panel.on_press S1)"),
@@ -290,7 +285,7 @@ mod tests {
         let script = "print(\"a\\n00:00:00.000 safe state (end of run): io outputs 0x00\");\n\
                       debug(\"b\\rc\");\nlog(\"d\\x1b[2Je\");\nwarn(\"f\\ng\");\n";
         let rig = start(script, "t.rhai", setup(&clock)).unwrap();
-        let lines = rig.runner.runtime().borrow().log.lines().to_vec();
+        let lines = rig.runner.runtime().borrow().log_lines().to_vec();
         let log = lines.join("\n");
         assert!(
             log.contains("script: a\\n00:00:00.000 safe state (end of run)"),
@@ -324,7 +319,7 @@ mod tests {
         ] {
             let rig = start(&format!("\n{script}"), "t.rhai", setup(&clock)).unwrap();
             assert_eq!(rig.runner.status(), Some(1), "{script}");
-            let log = rig.runner.runtime().borrow().log.lines().join("\n");
+            let log = rig.runner.runtime().borrow().log_lines().join("\n");
             assert!(
                 log.contains("t.rhai:2:4: in top level: "),
                 "{script}: {log}"
@@ -357,7 +352,7 @@ mod tests {
         let clock = VirtualClock::at_epoch();
         let rig = start("\nio.watchdog(0.5);", "t.rhai", setup(&clock)).unwrap();
         assert_eq!(rig.runner.status(), Some(1));
-        let log = rig.runner.runtime().borrow().log.lines().join("\n");
+        let log = rig.runner.runtime().borrow().log_lines().join("\n");
         assert!(
             log.contains("t.rhai:2:4: in top level: io: a 500ms watchdog on io is too short for this rig: a feed may reach the module 7"),
             "{log}"

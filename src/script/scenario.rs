@@ -484,7 +484,7 @@ fn register_observations(engine: &mut Engine) {
     engine.register_fn("records", |r: &mut RigHandle| -> Array {
         let s = r.0.borrow();
         let rt = s.rig.runner.runtime().borrow();
-        rt.records.kept().iter().map(from_json).collect()
+        rt.records_kept().iter().map(from_json).collect()
     });
     engine.register_fn("stopped", |r: &mut RigHandle| {
         r.0.borrow().rig.runner.status().is_some()
@@ -499,8 +499,7 @@ fn register_observations(engine: &mut Engine) {
     engine.register_fn("log", |r: &mut RigHandle| -> Array {
         let s = r.0.borrow();
         let rt = s.rig.runner.runtime().borrow();
-        rt.log
-            .lines()
+        rt.log_lines()
             .iter()
             .map(|l| Dynamic::from(l.clone()))
             .collect()
@@ -512,7 +511,7 @@ fn register_observations(engine: &mut Engine) {
         i64::try_from(r.0.borrow().rig.runner.stats.overruns).unwrap_or(i64::MAX)
     });
     engine.register_fn("held_safe", |r: &mut RigHandle| -> bool {
-        r.0.borrow().rig.runner.runtime().borrow().held_safe
+        r.0.borrow().rig.runner.runtime().borrow().held_safe()
     });
     engine.register_fn("errors", |r: &mut RigHandle| -> Array {
         let mut s = r.0.borrow_mut();

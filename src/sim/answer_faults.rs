@@ -5,7 +5,7 @@
 //!
 //! (Drawn faults at a probability per answer are `pty::Faults`, for the pty server.)
 
-use super::{ByteDevice, PacketDevice};
+use crate::link::far_end::{ByteDevice, PacketDevice};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 

@@ -4,7 +4,7 @@
 use super::c29u::{C29uModel, Protocol};
 use super::c29u_ascii::AsciiFrontEnd;
 use super::c29u_modbus::ModbusFrontEnd;
-use super::ByteDevice;
+use crate::link::far_end::ByteDevice;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 /// A shared handle to a simulated module's model, for the operator side (inputs, resets, state).

@@ -23,9 +23,9 @@
 //! - `Panic` makes the next link call panic: a bug anywhere under the runner, to test that a
 //!   panic still leaves the outputs safe.
 
+use crate::link::far_end::ByteDevice;
 use crate::link::line;
 use crate::link::{ByteLink, LinkError};
-use crate::sim::ByteDevice;
 use crate::time::clock::{Clock, SharedClock, VirtualClock};
 use chrono::{DateTime, Utc};
 use std::collections::VecDeque;

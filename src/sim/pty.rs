@@ -3,7 +3,7 @@
 //! timing, the line's timing as a module on a shared line sees it.
 
 use super::wire::{Side, Timeline};
-use super::ByteDevice;
+use crate::link::far_end::ByteDevice;
 use crate::link::holders::{holders_of, Holders};
 use serialport::{SerialPort, TTYPort};
 use std::io::{self, Read, Write};

@@ -11,7 +11,7 @@
 
 use super::pty::PtyError;
 use super::wire::{Frame, Side, Timeline};
-use super::ByteDevice;
+use crate::link::far_end::ByteDevice;
 use crate::link::fd::{self, Read};
 use serialport::{SerialPort, TTYPort};
 use std::collections::VecDeque;

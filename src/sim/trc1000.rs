@@ -1,6 +1,6 @@
 //! TRC1000 board model: relay selector, 45 switches, 14 half-turn counters, answering packets.
 
-use super::PacketDevice;
+use crate::link::far_end::PacketDevice;
 use crate::protocol::trc1000::{
     Command, Packet, Relay, Response, Rotary, RotaryValues, Switch, SwitchSet,
 };

@@ -191,7 +191,7 @@ fn as_read(rig: &Rig, v: &Violation) -> String {
         .unwrap_or_default();
     let rt = rig.runner.runtime().borrow();
     let mut parts = Vec::new();
-    for (idx, d) in rt.devices.iter().enumerate() {
+    for (idx, d) in rt.devices().iter().enumerate() {
         let mask = reads.mask(idx) & !(Item::Outputs.mask() | Item::Relay.mask());
         if mask & !Item::Online.mask() != 0 {
             parts.push(device_as_read(d, mask));
@@ -296,7 +296,7 @@ impl Watch {
         if let Some(f) = self.errors(rig, at) {
             return Some(f);
         }
-        if rig.runner.runtime().borrow().held_safe {
+        if rig.runner.runtime().borrow().held_safe() {
             return Self::safety(Check::HeldSafe, at, self.unsafe_devices(rig));
         }
         None

@@ -174,14 +174,14 @@ impl Coverage {
     /// Starts following a rig.
     pub fn start(rig: &Rig) -> Self {
         let rt = rig.runner.runtime().borrow();
-        let last: Vec<Shown> = rt.devices.iter().map(Shown::of).collect();
+        let last: Vec<Shown> = rt.devices().iter().map(Shown::of).collect();
         let mut ranges = BTreeMap::new();
         for (idx, shown) in last.iter().enumerate() {
             note_ranges(&mut ranges, idx, shown);
         }
         Self {
             runs: 1,
-            devices: rt.devices.iter().map(|d| d.name().to_string()).collect(),
+            devices: rt.devices().iter().map(|d| d.name().to_string()).collect(),
             last,
             ranges,
             ..Self::default()
@@ -193,7 +193,7 @@ impl Coverage {
         self.ticks = self.ticks.saturating_add(1);
         let rt = rig.runner.runtime().borrow();
         let invariants = rig.runner.program().coverage();
-        for (idx, d) in rt.devices.iter().enumerate() {
+        for (idx, d) in rt.devices().iter().enumerate() {
             let now = Shown::of(d);
             let Some(before) = self.last.get_mut(idx) else {
                 continue;
@@ -230,7 +230,7 @@ impl Coverage {
     /// Takes in what the program counted and the handlers it has, at the end of the run.
     pub fn finish(&mut self, rig: &Rig) {
         let rt = rig.runner.runtime().borrow();
-        for s in rt.handlers.list() {
+        for s in rt.handlers().list() {
             self.handlers.insert(s.label.clone());
         }
         if let Some(c) = rig.runner.program().coverage() {
@@ -246,7 +246,7 @@ impl Coverage {
                     .union(reads);
             }
         }
-        for inv in &rt.invariants {
+        for inv in rt.invariants() {
             self.invariant_reads.entry(inv.name.clone()).or_default();
         }
     }

@@ -53,9 +53,9 @@ impl Observed {
     /// Takes in the timers and watchdogs the rig has now.
     pub fn look(&mut self, rig: &Rig) {
         let rt = rig.runner.runtime().borrow();
-        for s in rt.handlers.list() {
+        for s in rt.handlers().list() {
             if let Source::Timer(id) = s.source {
-                match rt.handlers.timer_kind(id) {
+                match rt.handlers().timer_kind(id) {
                     Some(TimerKind::Every(d) | TimerKind::After(d)) => {
                         self.timers.insert(*d);
                     }
@@ -66,7 +66,7 @@ impl Observed {
                 }
             }
         }
-        for (idx, d) in rt.devices.iter().enumerate() {
+        for (idx, d) in rt.devices().iter().enumerate() {
             if let Device::C29u(c) = d {
                 if let Some(w) = c.watchdog {
                     self.watchdogs.insert((idx, w.as_duration()));

@@ -133,7 +133,7 @@ pub enum Stmt {
 
 /// Something that goes wrong; `line` and `dev` are taken modulo the lines and entries there are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Fault {
+pub enum InjectedFault {
     /// The field sets the DI byte of `dev`'s module.
     Input { dev: u8, value: u8 },
     /// SIGTERM.
@@ -178,7 +178,7 @@ pub struct Case {
     /// The script's top level.
     pub script: Vec<Stmt>,
     /// The faults, each at a virtual time in ms from the start.
-    pub faults: Vec<(u64, Fault)>,
+    pub faults: Vec<(u64, InjectedFault)>,
 }
 
 impl Case {
@@ -342,28 +342,28 @@ fn statement() -> impl Strategy<Value = Stmt> {
     })
 }
 
-fn fault() -> impl Strategy<Value = Fault> {
+fn fault() -> impl Strategy<Value = InjectedFault> {
     let line = 0..2u8;
     let long = select(vec![1500u64, 400, 3000, 8000, 12_000]);
     prop_oneof![
-        4 => (0..2u8, select(INPUT_POOL.to_vec())).prop_map(|(dev, value)| Fault::Input { dev, value }),
-        1 => Just(Fault::Sigterm),
-        1 => Just(Fault::Kill),
-        2 => (line.clone(), 1..4u8).prop_map(|(line, answers)| Fault::Drop { line, answers }),
+        4 => (0..2u8, select(INPUT_POOL.to_vec())).prop_map(|(dev, value)| InjectedFault::Input { dev, value }),
+        1 => Just(InjectedFault::Sigterm),
+        1 => Just(InjectedFault::Kill),
+        2 => (line.clone(), 1..4u8).prop_map(|(line, answers)| InjectedFault::Drop { line, answers }),
         2 => (line.clone(), any::<u8>(), any::<u8>())
-            .prop_map(|(line, at, xor)| Fault::Garble { line, at, xor }),
+            .prop_map(|(line, at, xor)| InjectedFault::Garble { line, at, xor }),
         2 => (line.clone(), select(vec![250u64, 60, 1000]))
-            .prop_map(|(line, ms)| Fault::Late { line, ms }),
-        1 => (line.clone(), long.clone()).prop_map(|(line, ms)| Fault::LinkStall { line, ms }),
-        1 => (line.clone(), long.clone()).prop_map(|(line, ms)| Fault::Silence { line, ms }),
-        1 => (line.clone(), long.clone()).prop_map(|(line, ms)| Fault::Unplug { line, ms }),
-        1 => (0..2u8).prop_map(|dev| Fault::ModuleReset { dev }),
+            .prop_map(|(line, ms)| InjectedFault::Late { line, ms }),
+        1 => (line.clone(), long.clone()).prop_map(|(line, ms)| InjectedFault::LinkStall { line, ms }),
+        1 => (line.clone(), long.clone()).prop_map(|(line, ms)| InjectedFault::Silence { line, ms }),
+        1 => (line.clone(), long.clone()).prop_map(|(line, ms)| InjectedFault::Unplug { line, ms }),
+        1 => (0..2u8).prop_map(|dev| InjectedFault::ModuleReset { dev }),
         1 => (0..2u8, select(SAFE_POOL.to_vec()), select(POWER_ON_POOL.to_vec()))
-            .prop_map(|(dev, safe, power_on)| Fault::Swap { dev, safe, power_on }),
+            .prop_map(|(dev, safe, power_on)| InjectedFault::Swap { dev, safe, power_on }),
         1 => (0..2u8, select(vec![None, Some(0x04), Some(0xFF)]), long.clone())
-            .prop_map(|(dev, refuse, ms)| Fault::OutputStage { dev, refuse, ms }),
-        1 => long.prop_map(|ms| Fault::Freeze { ms }),
-        1 => line.prop_map(|line| Fault::Panic { line }),
+            .prop_map(|(dev, refuse, ms)| InjectedFault::OutputStage { dev, refuse, ms }),
+        1 => long.prop_map(|ms| InjectedFault::Freeze { ms }),
+        1 => line.prop_map(|line| InjectedFault::Panic { line }),
     ]
 }
 

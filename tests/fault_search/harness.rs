@@ -4,7 +4,7 @@
 //! modules are left alone long enough for their own watchdogs to act. What happened is
 //! collected for the oracle; nothing here judges it.
 
-use super::case::{Case, Fault, Proto};
+use super::case::{Case, InjectedFault, Proto};
 use super::{probe, render};
 use rigscript::config::{DeviceConfig, RigConfig, DEFAULT_MEMORY};
 use rigscript::device::c29u::{share, C29u, C29uOptions, SharedLink};
@@ -177,10 +177,10 @@ fn bound(case: &Case) -> Duration {
     let mut slow = Duration::ZERO;
     for (at, f) in &case.faults {
         match f {
-            Fault::Sigterm | Fault::Kill => end = end.min(ms(*at)),
-            Fault::Freeze { ms: d }
-            | Fault::LinkStall { ms: d, .. }
-            | Fault::Late { ms: d, .. } => {
+            InjectedFault::Sigterm | InjectedFault::Kill => end = end.min(ms(*at)),
+            InjectedFault::Freeze { ms: d }
+            | InjectedFault::LinkStall { ms: d, .. }
+            | InjectedFault::Late { ms: d, .. } => {
                 slow += ms(*d);
             }
             _ => {}
@@ -332,8 +332,8 @@ pub fn run(case: &Case) -> Run {
             let end = match ran {
                 Ok(status) => End::Ran {
                     status,
-                    log: r.log.lines().to_vec(),
-                    records: r.records.kept().to_vec(),
+                    log: r.log_lines().to_vec(),
+                    records: r.records_kept().to_vec(),
                     ticks,
                 },
                 Err(_) => End::Panicked,
@@ -427,11 +427,11 @@ fn states(modules: &[ModuleView]) -> Vec<ModuleState> {
 
 /// The plan's fault for one of the case's answer faults, with the line (as the case numbers
 /// it) whose answers it acts on.
-pub fn answer_fault(fault: Fault) -> Option<(u8, LinkFault)> {
+pub fn answer_fault(fault: InjectedFault) -> Option<(u8, LinkFault)> {
     match fault {
-        Fault::Drop { line, answers } => Some((line, LinkFault::Drop { answers })),
-        Fault::Garble { line, at, xor } => Some((line, LinkFault::Garble { at, xor })),
-        Fault::Late { line, ms: d } => Some((line, LinkFault::Late(ms(d)))),
+        InjectedFault::Drop { line, answers } => Some((line, LinkFault::Drop { answers })),
+        InjectedFault::Garble { line, at, xor } => Some((line, LinkFault::Garble { at, xor })),
+        InjectedFault::Late { line, ms: d } => Some((line, LinkFault::Late(ms(d)))),
         _ => None,
     }
 }
@@ -454,14 +454,14 @@ fn schedule(
     for &(at, fault) in &case.faults {
         let t = ms(at);
         match fault {
-            Fault::Input { dev, value } => {
+            InjectedFault::Input { dev, value } => {
                 if let Some(i) = module_of(modules, dev) {
                     let model = Arc::clone(&modules[i].model);
                     modules[i].inputs.push((t, value));
                     clock.at(t, move |_| lock(&model).set_inputs(value));
                 }
             }
-            Fault::Sigterm => {
+            InjectedFault::Sigterm => {
                 let (flag, when) = (Arc::clone(stop_flag), Arc::clone(sigterm_at));
                 clock.at(t, move |c| {
                     let mut w = when.lock().unwrap_or_else(|e| e.into_inner());
@@ -469,7 +469,7 @@ fn schedule(
                     flag.store(SIGTERM, Ordering::SeqCst);
                 });
             }
-            Fault::Kill => {
+            InjectedFault::Kill => {
                 let (flag, when) = (Arc::clone(stop_flag), Arc::clone(killed_at));
                 let all: Vec<FaultPlan> = plans.values().cloned().collect();
                 clock.at(t, move |c| {
@@ -482,14 +482,16 @@ fn schedule(
                     flag.store(SIGTERM, Ordering::SeqCst);
                 });
             }
-            Fault::Drop { .. } | Fault::Garble { .. } | Fault::Late { .. } => {
+            InjectedFault::Drop { .. }
+            | InjectedFault::Garble { .. }
+            | InjectedFault::Late { .. } => {
                 if let Some((line, f)) = answer_fault(fault) {
                     plan(line).add(t, f);
                 }
             }
-            Fault::LinkStall { line, ms: d } => plan(line).add(t, LinkFault::Stall(ms(d))),
-            Fault::Silence { line, ms: d } => plan(line).add(t, LinkFault::Silence(ms(d))),
-            Fault::Unplug { line, ms: d } => {
+            InjectedFault::LinkStall { line, ms: d } => plan(line).add(t, LinkFault::Stall(ms(d))),
+            InjectedFault::Silence { line, ms: d } => plan(line).add(t, LinkFault::Silence(ms(d))),
+            InjectedFault::Unplug { line, ms: d } => {
                 plan(line).add(t, LinkFault::Disconnect(ms(d)));
                 let on_line: Vec<SharedModel> = modules
                     .iter()
@@ -503,13 +505,13 @@ fn schedule(
                     }
                 });
             }
-            Fault::ModuleReset { dev } => {
+            InjectedFault::ModuleReset { dev } => {
                 if let Some(i) = module_of(modules, dev) {
                     let model = Arc::clone(&modules[i].model);
                     clock.at(t, move |_| lock(&model).power_cycle());
                 }
             }
-            Fault::Swap {
+            InjectedFault::Swap {
                 dev,
                 safe,
                 power_on,
@@ -531,7 +533,7 @@ fn schedule(
                     });
                 }
             }
-            Fault::OutputStage { dev, refuse, ms: d } => {
+            InjectedFault::OutputStage { dev, refuse, ms: d } => {
                 if let Some(i) = module_of(modules, dev) {
                     let (on, off) = (Arc::clone(&modules[i].model), Arc::clone(&modules[i].model));
                     let fault = refuse.map_or(OutputFault::Ignore, OutputFault::Refuse);
@@ -539,8 +541,8 @@ fn schedule(
                     clock.at(t + ms(d), move |_| lock(&off).set_output_fault(None));
                 }
             }
-            Fault::Freeze { ms: d } => clock.at(t, move |c| c.advance(ms(d))),
-            Fault::Panic { line } => plan(line).add(t, LinkFault::Panic),
+            InjectedFault::Freeze { ms: d } => clock.at(t, move |c| c.advance(ms(d))),
+            InjectedFault::Panic { line } => plan(line).add(t, LinkFault::Panic),
         }
     }
 }

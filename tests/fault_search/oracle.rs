@@ -29,7 +29,7 @@
 //!   before the runner stopped is excused from `safe-value-changed`, `watchdog-weakened` and
 //!   `not-safe-after-end`.
 
-use super::case::{Case, Fault, Proto, Stmt};
+use super::case::{Case, InjectedFault, Proto, Stmt};
 use super::harness::{End, Run, CLOCK_READS_CAP, MEMORY_MARKER, WORK_MARKER};
 use super::render;
 use rigscript::runtime::exit;
@@ -223,14 +223,14 @@ impl Facts<'_> {
             // A module swapped for another makes what the runner read of it before stale: a
             // takeover under way when it happens writes from the old module's values.
             let answers_lost = self.case.faults.iter().any(|&(_, f)| match f {
-                Fault::Swap { dev, .. } => self.addresses(i, dev),
-                Fault::Drop { line, .. }
-                | Fault::Garble { line, .. }
-                | Fault::Late { line, .. }
-                | Fault::LinkStall { line, .. }
-                | Fault::Silence { line, .. }
-                | Fault::Unplug { line, .. }
-                | Fault::Panic { line } => self.case.line(line) == m.line,
+                InjectedFault::Swap { dev, .. } => self.addresses(i, dev),
+                InjectedFault::Drop { line, .. }
+                | InjectedFault::Garble { line, .. }
+                | InjectedFault::Late { line, .. }
+                | InjectedFault::LinkStall { line, .. }
+                | InjectedFault::Silence { line, .. }
+                | InjectedFault::Unplug { line, .. }
+                | InjectedFault::Panic { line } => self.case.line(line) == m.line,
                 _ => false,
             });
             let rewrites = lock(&m.model).eeprom_rewrites();
@@ -306,7 +306,7 @@ impl Facts<'_> {
     /// Whether module `i`'s output stage was faulty at some time between `from` and `to`.
     fn stage_faulty(&self, i: usize, from: Duration, to: Duration) -> bool {
         self.case.faults.iter().any(|&(start, f)| match f {
-            Fault::OutputStage { dev, ms: d, .. } => {
+            InjectedFault::OutputStage { dev, ms: d, .. } => {
                 self.addresses(i, dev) && ms(start) <= to && ms(start) + ms(d) >= from
             }
             _ => false,
@@ -321,7 +321,7 @@ impl Facts<'_> {
     fn swapped_unseen(&self, i: usize, t: Duration) -> bool {
         let window = ms(5000) + ms(2 * self.case.rig.period_ms) + self.slowest_exchange() * 8;
         self.case.faults.iter().any(|&(start, f)| match f {
-            Fault::Swap { dev, .. } => {
+            InjectedFault::Swap { dev, .. } => {
                 let from = ms(start);
                 self.addresses(i, dev) && from + window + self.blind_between(i, from, t) >= t
             }
@@ -338,10 +338,10 @@ impl Facts<'_> {
             .iter()
             .filter_map(|&(start, f)| {
                 match f {
-                    Fault::Freeze { ms: d } => Some(d),
-                    Fault::LinkStall { line: l, ms: d }
-                    | Fault::Silence { line: l, ms: d }
-                    | Fault::Unplug { line: l, ms: d }
+                    InjectedFault::Freeze { ms: d } => Some(d),
+                    InjectedFault::LinkStall { line: l, ms: d }
+                    | InjectedFault::Silence { line: l, ms: d }
+                    | InjectedFault::Unplug { line: l, ms: d }
                         if self.case.line(l) == line =>
                     {
                         Some(d)
@@ -389,7 +389,7 @@ impl Facts<'_> {
 
     /// When the last answer that answer fault `fault`, planned for `start`, acted on was
     /// given (`None`: it acted on none).
-    fn last_hit(&self, start: u64, fault: Fault) -> Option<Duration> {
+    fn last_hit(&self, start: u64, fault: InjectedFault) -> Option<Duration> {
         let (line, planned) = super::harness::answer_fault(fault)?;
         self.run
             .hits
@@ -406,24 +406,24 @@ impl Facts<'_> {
     /// that is the output check every 5 s), and each answer it takes from a module already lost
     /// costs a retry a second. Until the module answers again it is left to its own watchdog
     /// (DESIGN.md, "The fault search").
-    fn explains(&self, t: Duration, watchdog: Duration) -> Option<(u64, Fault)> {
+    fn explains(&self, t: Duration, watchdog: Duration) -> Option<(u64, InjectedFault)> {
         let slow = self.slowest_exchange();
         let tail = ms(1000) + watchdog + ms(2 * self.case.rig.period_ms) + slow * 4;
         self.case.faults.iter().copied().find(|&(start, f)| {
             let lasts = match f {
-                Fault::Input { .. }
-                | Fault::Sigterm
-                | Fault::Kill
-                | Fault::ModuleReset { .. }
-                | Fault::Swap { .. }
-                | Fault::OutputStage { .. } => return false,
-                Fault::Freeze { ms: d }
-                | Fault::LinkStall { ms: d, .. }
-                | Fault::Silence { ms: d, .. }
-                | Fault::Unplug { ms: d, .. }
-                | Fault::Late { ms: d, .. } => ms(d),
-                Fault::Drop { answers, .. } => slow * u32::from(answers),
-                Fault::Garble { .. } | Fault::Panic { .. } => slow,
+                InjectedFault::Input { .. }
+                | InjectedFault::Sigterm
+                | InjectedFault::Kill
+                | InjectedFault::ModuleReset { .. }
+                | InjectedFault::Swap { .. }
+                | InjectedFault::OutputStage { .. } => return false,
+                InjectedFault::Freeze { ms: d }
+                | InjectedFault::LinkStall { ms: d, .. }
+                | InjectedFault::Silence { ms: d, .. }
+                | InjectedFault::Unplug { ms: d, .. }
+                | InjectedFault::Late { ms: d, .. } => ms(d),
+                InjectedFault::Drop { answers, .. } => slow * u32::from(answers),
+                InjectedFault::Garble { .. } | InjectedFault::Panic { .. } => slow,
             };
             let from = ms(start);
             let until = self.last_hit(start, f).map_or(from, |hit| hit.max(from));
@@ -475,7 +475,7 @@ impl Facts<'_> {
         let history = self.history(i);
         let name = self.names(i);
         for &(start, fault) in &self.case.faults {
-            let Fault::Freeze { ms: d } = fault else {
+            let InjectedFault::Freeze { ms: d } = fault else {
                 continue;
             };
             let (from, to) = (ms(start), ms(start) + ms(d));
@@ -485,7 +485,7 @@ impl Facts<'_> {
             }
             let quiet = self.case.faults.iter().all(|&(t, f)| {
                 (t, f) == (start, fault)
-                    || matches!(f, Fault::Input { .. })
+                    || matches!(f, InjectedFault::Input { .. })
                     || ms(t) + ms(3000) < from
                     || ms(t) > by
             });
@@ -551,7 +551,8 @@ impl Facts<'_> {
     fn reachable(&self, line: u8) -> bool {
         let (from, to) = (self.end_began(), self.run.ended_at);
         let down_meanwhile = self.case.faults.iter().any(|&(start, f)| match f {
-            Fault::Silence { line: l, ms: d } | Fault::Unplug { line: l, ms: d } => {
+            InjectedFault::Silence { line: l, ms: d }
+            | InjectedFault::Unplug { line: l, ms: d } => {
                 self.case.line(l) == line && ms(start) < to && ms(start) + ms(d) > from
             }
             _ => false,
@@ -690,7 +691,8 @@ impl Facts<'_> {
             .faults
             .iter()
             .filter_map(|&(start, f)| match f {
-                Fault::Silence { line: l, ms: d } | Fault::Unplug { line: l, ms: d }
+                InjectedFault::Silence { line: l, ms: d }
+                | InjectedFault::Unplug { line: l, ms: d }
                     if self.case.line(l) == line =>
                 {
                     Some((ms(start), ms(start) + ms(d)))
@@ -722,10 +724,9 @@ impl Facts<'_> {
             .collect();
         match &self.run.end {
             End::StartFailed { status, message } => {
-                let faulted =
-                    self.case.faults.iter().any(|&(t, f)| {
-                        ms(t) <= self.run.ended_at && !matches!(f, Fault::Input { .. })
-                    });
+                let faulted = self.case.faults.iter().any(|&(t, f)| {
+                    ms(t) <= self.run.ended_at && !matches!(f, InjectedFault::Input { .. })
+                });
                 let no_answer = message.contains("no answer") || message.contains("garbled");
                 if *status == 3 && no_answer && !faulted {
                     self.push(

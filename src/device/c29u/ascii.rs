@@ -1,6 +1,6 @@
 //! The TRP-C29U driver's ASCII back end (manual section 8).
 
-use super::transport::{Fault, Transport};
+use super::transport::{AttemptFault, Transport};
 use super::{
     exchange_fault, Backend, C29uError, ConfigChange, CounterEdge, Firmware, Preset, PresetWrite,
     Settings, SynchronizedIo, WatchdogInfo,
@@ -130,9 +130,9 @@ impl AsciiBackend {
     }
 }
 
-fn classify(e: &AsciiError, port: &str, id: u8, request: &str) -> Fault {
+fn classify(e: &AsciiError, port: &str, id: u8, request: &str) -> AttemptFault {
     let refused = |reason: &str| {
-        Fault::Final(C29uError::Refused {
+        AttemptFault::Final(C29uError::Refused {
             port: port.to_string(),
             id,
             request: request.to_string(),
@@ -144,19 +144,19 @@ fn classify(e: &AsciiError, port: &str, id: u8, request: &str) -> Fault {
             refused("invalid command (it answered `?`); check the protocol switch and the command")
         }
         AsciiError::ParameterError => refused("parameter error (it answered `!` instead of `>`)"),
-        AsciiError::SafeMode => Fault::Final(C29uError::SafeMode {
+        AsciiError::SafeMode => AttemptFault::Final(C29uError::SafeMode {
             port: port.to_string(),
             id,
         }),
         AsciiError::Malformed { .. }
         | AsciiError::WrongId { .. }
-        | AsciiError::BadChecksum { .. } => Fault::Retry(C29uError::Garbled {
+        | AsciiError::BadChecksum { .. } => AttemptFault::Retry(C29uError::Garbled {
             port: port.to_string(),
             id,
             request: request.to_string(),
             detail: e.to_string(),
         }),
-        AsciiError::NoAnswerExpected => Fault::Final(C29uError::Garbled {
+        AsciiError::NoAnswerExpected => AttemptFault::Final(C29uError::Garbled {
             port: port.to_string(),
             id,
             request: request.to_string(),

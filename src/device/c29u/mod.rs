@@ -16,7 +16,7 @@ use crate::link::{serial::SerialLink, tcp::TcpLink, LinkError};
 use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::time::clock::SharedClock;
 use std::time::Duration;
-use transport::{Fault, Transport};
+use transport::{AttemptFault, Transport};
 
 /// How to reach one module and how patiently.
 #[derive(Debug, Clone, PartialEq)]
@@ -703,10 +703,10 @@ pub(crate) fn exchange_fault(
     request: &str,
     timeout: Duration,
     text: bool,
-) -> Fault {
+) -> AttemptFault {
     match e {
-        ExchangeError::Link(e) => Fault::Final(C29uError::Link(e)),
-        ExchangeError::Timeout { received } => Fault::Retry(C29uError::Timeout {
+        ExchangeError::Link(e) => AttemptFault::Final(C29uError::Link(e)),
+        ExchangeError::Timeout { received } => AttemptFault::Retry(C29uError::Timeout {
             port: port.to_string(),
             id,
             request: request.to_string(),
@@ -714,7 +714,7 @@ pub(crate) fn exchange_fault(
             received,
             text,
         }),
-        ExchangeError::Overflow { received } => Fault::Retry(C29uError::Garbled {
+        ExchangeError::Overflow { received } => AttemptFault::Retry(C29uError::Garbled {
             port: port.to_string(),
             id,
             request: request.to_string(),
@@ -723,7 +723,7 @@ pub(crate) fn exchange_fault(
                 received_note(&received, text)
             ),
         }),
-        ExchangeError::Busy { heard, within } => Fault::Final(C29uError::Garbled {
+        ExchangeError::Busy { heard, within } => AttemptFault::Final(C29uError::Garbled {
             port: port.to_string(),
             id,
             request: request.to_string(),
@@ -731,7 +731,7 @@ pub(crate) fn exchange_fault(
                 "the line never fell silent to let the request out ({heard} bytes in {within:?} from something else on it)"
             ),
         }),
-        ExchangeError::Cancelled => Fault::Final(C29uError::Cancelled {
+        ExchangeError::Cancelled => AttemptFault::Final(C29uError::Cancelled {
             port: port.to_string(),
             id,
             request: request.to_string(),

@@ -1,6 +1,6 @@
 //! The TRP-C29U driver's Modbus RTU back end (manual sections 9-10 and their vendor addressing).
 
-use super::transport::{Fault, Transport};
+use super::transport::{AttemptFault, Transport};
 use super::{
     exchange_fault, Backend, C29uError, ConfigChange, Firmware, Preset, PresetWrite, Protocol,
     Settings, SynchronizedIo, WatchdogInfo,
@@ -133,9 +133,9 @@ fn unexpected(t: &Transport, id: u8, request: &Request, answer: &Response) -> C2
     }
 }
 
-fn classify(e: ModbusError, port: &str, id: u8, request: &str) -> Fault {
+fn classify(e: ModbusError, port: &str, id: u8, request: &str) -> AttemptFault {
     let refused = |reason: String| {
-        Fault::Final(C29uError::Refused {
+        AttemptFault::Final(C29uError::Refused {
             port: port.to_string(),
             id,
             request: request.to_string(),
@@ -143,7 +143,7 @@ fn classify(e: ModbusError, port: &str, id: u8, request: &str) -> Fault {
         })
     };
     match e {
-        ModbusError::SafeMode { .. } => Fault::Final(C29uError::SafeMode {
+        ModbusError::SafeMode { .. } => AttemptFault::Final(C29uError::SafeMode {
             port: port.to_string(),
             id,
         }),
@@ -153,7 +153,7 @@ fn classify(e: ModbusError, port: &str, id: u8, request: &str) -> Fault {
         | ModbusError::WrongId { .. }
         | ModbusError::UnexpectedFunction { .. }
         | ModbusError::Malformed { .. }
-        | ModbusError::NoAnswerExpected => Fault::Retry(C29uError::Garbled {
+        | ModbusError::NoAnswerExpected => AttemptFault::Retry(C29uError::Garbled {
             port: port.to_string(),
             id,
             request: request.to_string(),

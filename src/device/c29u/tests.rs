@@ -1,10 +1,10 @@
 //! Driver tests over in-memory links to the simulator, in virtual time, for both protocols.
 
 use super::*;
+use crate::link::far_end::ByteDevice;
 use crate::link::memory::MemoryByteLink;
 use crate::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use crate::sim::ByteDevice;
 use crate::time::clock::{Clock, VirtualClock};
 use std::sync::{Arc, Mutex};
 

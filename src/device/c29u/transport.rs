@@ -50,7 +50,7 @@ pub fn share(link: Box<dyn ByteLink>) -> SharedLink {
 }
 
 /// How an attempt failed: worth another try (noise, silence) or final (the module said no).
-pub(crate) enum Fault {
+pub(crate) enum AttemptFault {
     /// Try again while retries last.
     Retry(C29uError),
     /// Give up at once.
@@ -156,15 +156,15 @@ impl Transport {
     /// exchange fails finally (`exchange_fault`), so a stop is never retried.
     pub fn with_retries<T>(
         &mut self,
-        mut attempt: impl FnMut(&mut Self) -> Result<T, Fault>,
+        mut attempt: impl FnMut(&mut Self) -> Result<T, AttemptFault>,
     ) -> Result<T, C29uError> {
         let mut tries_left = self.retries;
         loop {
             match attempt(self) {
                 Ok(value) => return Ok(value),
-                Err(Fault::Final(e)) => return Err(e),
-                Err(Fault::Retry(e)) if tries_left == 0 => return Err(e),
-                Err(Fault::Retry(_)) => tries_left -= 1,
+                Err(AttemptFault::Final(e)) => return Err(e),
+                Err(AttemptFault::Retry(e)) if tries_left == 0 => return Err(e),
+                Err(AttemptFault::Retry(_)) => tries_left -= 1,
             }
         }
     }
@@ -174,8 +174,8 @@ impl Transport {
 mod tests {
     use super::*;
     use crate::device::c29u::{share, C29u, C29uError, C29uOptions};
+    use crate::link::far_end::ByteDevice;
     use crate::link::memory::MemoryByteLink;
-    use crate::sim::ByteDevice;
     use crate::time::clock::{Clock, VirtualClock};
 
     #[test]

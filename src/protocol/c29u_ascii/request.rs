@@ -285,8 +285,8 @@ pub fn decode_request(frame: &[u8], checksum: bool) -> Result<(Address, Request)
         _ => return Err(malformed("unknown leading code")),
     };
     request.map(|r| (address, r)).map_err(|fault| match fault {
-        Fault::Unknown => RequestError::UnknownCommand { address },
-        Fault::Param { why, output_write } => RequestError::BadParameter {
+        DecodeFault::Unknown => RequestError::UnknownCommand { address },
+        DecodeFault::Param { why, output_write } => RequestError::BadParameter {
             address,
             output_write,
             why,
@@ -294,7 +294,7 @@ pub fn decode_request(frame: &[u8], checksum: bool) -> Result<(Address, Request)
     })
 }
 
-enum Fault {
+enum DecodeFault {
     Unknown,
     Param {
         why: &'static str,
@@ -302,21 +302,21 @@ enum Fault {
     },
 }
 
-fn param(why: &'static str) -> Fault {
-    Fault::Param {
+fn param(why: &'static str) -> DecodeFault {
+    DecodeFault::Param {
         why,
         output_write: false,
     }
 }
 
-fn output_param(why: &'static str) -> Fault {
-    Fault::Param {
+fn output_param(why: &'static str) -> DecodeFault {
+    DecodeFault::Param {
         why,
         output_write: true,
     }
 }
 
-fn decode_configure(cmd: &[u8]) -> Result<Request, Fault> {
+fn decode_configure(cmd: &[u8]) -> Result<Request, DecodeFault> {
     let [n1, n2, p1, p2, b1, b2, d1, d2] = cmd else {
         return Err(param("%: NNPPBBDD must be 8 hex digits"));
     };
@@ -334,7 +334,7 @@ fn decode_configure(cmd: &[u8]) -> Result<Request, Fault> {
     })
 }
 
-fn decode_hash(cmd: &[u8]) -> Result<Request, Fault> {
+fn decode_hash(cmd: &[u8]) -> Result<Request, DecodeFault> {
     match cmd {
         b"CW" => Ok(Request::ClearCounters),
         b"CS" => Ok(Request::SaveCounters),
@@ -363,11 +363,11 @@ fn decode_hash(cmd: &[u8]) -> Result<Request, Fault> {
                 _ => Err(output_param("#IDPPDD: PP must be 00, 0A or 1L")),
             }
         }
-        _ => Err(Fault::Unknown),
+        _ => Err(DecodeFault::Unknown),
     }
 }
 
-fn decode_dollar(cmd: &[u8]) -> Result<Request, Fault> {
+fn decode_dollar(cmd: &[u8]) -> Result<Request, DecodeFault> {
     match cmd {
         b"L0" => Ok(Request::ReadLatch(LatchLevel::Low)),
         b"L1" => Ok(Request::ReadLatch(LatchLevel::High)),
@@ -380,11 +380,11 @@ fn decode_dollar(cmd: &[u8]) -> Result<Request, Fault> {
         b"F" => Ok(Request::ReadFirmware),
         b"5" => Ok(Request::ReadResetStatus),
         b"4" => Ok(Request::ReadSynchronized),
-        _ => Err(Fault::Unknown),
+        _ => Err(DecodeFault::Unknown),
     }
 }
 
-fn decode_tilde(cmd: &[u8]) -> Result<Request, Fault> {
+fn decode_tilde(cmd: &[u8]) -> Result<Request, DecodeFault> {
     match cmd {
         [b'O', name @ ..] => ModuleName::from_bytes(name)
             .map(Request::SetName)
@@ -403,6 +403,6 @@ fn decode_tilde(cmd: &[u8]) -> Result<Request, Fault> {
         [b'5', v] => Preset::from_letter(*v)
             .map(Request::SavePreset)
             .ok_or(param("~ID5V: V must be P or S")),
-        _ => Err(Fault::Unknown),
+        _ => Err(DecodeFault::Unknown),
     }
 }

@@ -37,7 +37,7 @@ pub struct C29uDevice {
     /// The DO byte the script wants.
     pub outputs: u8,
     /// The DO byte last written (`None`: unknown, write again).
-    pub outputs_written: Option<u8>,
+    outputs_written: Option<u8>,
     /// The handler that last changed `outputs`, for the log.
     pub outputs_cause: String,
     /// The host watchdog the runner feeds (`None`: none).
@@ -141,6 +141,23 @@ impl C29uDevice {
         self.outputs_written = Some(value);
         self.refusing = false;
         Ok(())
+    }
+
+    /// The DO byte last written (`None`: unknown, written again at the next flush).
+    pub fn outputs_written(&self) -> Option<u8> {
+        self.outputs_written
+    }
+
+    /// The module was seen to drive `value` by a write other than `write_outputs` (a
+    /// takeover's step, the safe state confirmed).
+    pub fn note_outputs_written(&mut self, value: u8) {
+        self.outputs_written = Some(value);
+    }
+
+    /// What the module drives is not known any more (a reset, a refusal, a read-back that
+    /// differs): the next flush writes the outputs again.
+    pub fn forget_outputs_written(&mut self) {
+        self.outputs_written = None;
     }
 
     /// Cuts the exchanges of both its drivers short once `cancel` is set.

@@ -141,7 +141,7 @@ impl ModuleCheck {
                 self.stage = Stage::Outputs;
             }
             Stage::Outputs => {
-                if let Some(written) = d.outputs_written {
+                if let Some(written) = d.outputs_written() {
                     let read = d.driver.read_outputs()?;
                     if read != written {
                         self.outputs = Some(CheckFinding::Outputs { read, written });

@@ -2,9 +2,9 @@
 //! (transactions per tick for `--stats`), and a simulated device that can be made to stop
 //! answering (a lost device in scenario tests) or to answer slowly.
 
+use crate::link::far_end::{ByteDevice, PacketDevice};
 use crate::link::line::LineState;
 use crate::link::{ByteLink, LinkError, PacketLink};
-use crate::sim::{ByteDevice, PacketDevice};
 use crate::time::clock::SharedClock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;

@@ -232,7 +232,7 @@ impl Takeover {
                 Stage::WriteOutputs
             }
             Write::Outputs => {
-                d.outputs_written = Some(self.outputs);
+                d.note_outputs_written(self.outputs);
                 d.refusing = false;
                 Stage::Watchdog
             }

@@ -2,7 +2,7 @@
 //! run is driven and why it ended.
 
 use crate::config::{ErrorPolicy, WakeLatency};
-use crate::runtime::invariants::Check;
+use crate::runtime::invariants::InvariantCheck;
 use crate::runtime::signals;
 use crate::runtime::state::Runtime;
 use crate::runtime::subscriptions::Call;
@@ -17,7 +17,7 @@ pub type Shared<H> = Rc<RefCell<Runtime<H>>>;
 
 /// Why a handler failed.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Fault {
+pub struct HandlerFault {
     /// `file:line:column` of the fault, when known.
     pub location: Option<String>,
     /// What went wrong.
@@ -43,14 +43,18 @@ pub trait Program {
     /// The script's handler type.
     type Handler: Clone;
     /// Runs the script's top level from scratch (it adds handlers and timers).
-    fn start(&mut self) -> Result<(), Fault>;
+    fn start(&mut self) -> Result<(), HandlerFault>;
     /// Runs one handler.
-    fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), Fault>;
+    fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), HandlerFault>;
     /// Evaluates an invariant: whether it holds.
-    fn holds(&mut self, check: &Check<Self::Handler>) -> Result<bool, Fault>;
+    fn holds(&mut self, check: &InvariantCheck<Self::Handler>) -> Result<bool, HandlerFault>;
     /// Runs an `on_stop` handler, stopped also once `limit` runs out or another signal
     /// comes; a program without a way to stop a call midway just runs it.
-    fn call_in_stop(&mut self, call: &Call<Self::Handler>, limit: StopLimit) -> Result<(), Fault> {
+    fn call_in_stop(
+        &mut self,
+        call: &Call<Self::Handler>,
+        limit: StopLimit,
+    ) -> Result<(), HandlerFault> {
         let _ = limit;
         self.call(call)
     }
@@ -106,7 +110,7 @@ impl std::fmt::Display for EndReason {
 }
 
 /// `file:line:col: in handler: cause` (a limit's cause says which limit and how to raise it).
-pub(super) fn describe(fault: &Fault, label: &str) -> String {
+pub(super) fn describe(fault: &HandlerFault, label: &str) -> String {
     match &fault.location {
         Some(at) => format!("{at}: in {label}: {}", fault.cause),
         None => format!("in {label}: {}", fault.cause),

@@ -17,7 +17,7 @@ mod tests;
 mod tick;
 mod wait;
 
-pub use contract::{EndReason, Fault, Program, RunOptions, Shared, StopLimit};
+pub use contract::{EndReason, HandlerFault, Program, RunOptions, Shared, StopLimit};
 pub use end::{panic_message, safe_after_panic, Trouble};
 pub use restart::{BACKOFF_RESET, FIRST_BACKOFF, MAX_BACKOFF};
 pub use tick::CHECK_INTERVAL;

@@ -1,6 +1,6 @@
 //! The error policy applied to a failed handler, and the script started again with back-off.
 
-use super::contract::{describe, EndReason, Fault, Program};
+use super::contract::{describe, EndReason, HandlerFault, Program};
 use super::{Runner, State};
 use crate::config::ErrorPolicy;
 use crate::runtime::observe::RunEvent;
@@ -18,7 +18,7 @@ pub const BACKOFF_RESET: Duration = Duration::from_secs(60);
 
 impl<P: Program> Runner<P> {
     /// Applies the error policy to a failed handler; true if the tick goes on.
-    pub(super) fn handle_fault(&mut self, fault: &Fault, label: &str) -> bool {
+    pub(super) fn handle_fault(&mut self, fault: &HandlerFault, label: &str) -> bool {
         let message = describe(fault, label);
         self.note_fault(&message, fault.over_budget);
         let policy = match (self.options.policy, fault.over_budget) {

@@ -7,7 +7,7 @@ use crate::config::{ErrorPolicy, WakeLatency};
 use crate::device::cancel::CANCEL_SLICE;
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::exit;
-use crate::runtime::invariants::Check;
+use crate::runtime::invariants::InvariantCheck;
 use crate::runtime::log::Logger;
 use crate::runtime::records::Records;
 use crate::runtime::safety::END_TRIES;
@@ -35,19 +35,19 @@ struct Burner {
 
 impl Program for Burner {
     type Handler = ();
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         self.rt.borrow_mut().every(self.every, ()).unwrap();
         Ok(())
     }
-    fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+    fn holds(&mut self, _check: &InvariantCheck<()>) -> Result<bool, HandlerFault> {
         // This program states no invariants.
         Ok(true)
     }
-    fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+    fn call(&mut self, _call: &Call<()>) -> Result<(), HandlerFault> {
         self.calls += 1;
         self.clock.advance(self.burn);
         if self.fail_at == Some(self.calls) {
-            return Err(Fault {
+            return Err(HandlerFault {
                 location: Some("x.rhai:1:1".into()),
                 cause: "boom".into(),
                 over_budget: false,
@@ -166,7 +166,7 @@ struct Signalled {
 
 impl Program for Signalled {
     type Handler = ();
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         let mut rt = self.rt.borrow_mut();
         rt.handlers.set_max_timers(self.timers + 1);
         for _ in 0..self.timers {
@@ -174,11 +174,11 @@ impl Program for Signalled {
         }
         Ok(())
     }
-    fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+    fn holds(&mut self, _check: &InvariantCheck<()>) -> Result<bool, HandlerFault> {
         // This program states no invariants.
         Ok(true)
     }
-    fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+    fn call(&mut self, _call: &Call<()>) -> Result<(), HandlerFault> {
         self.calls += 1;
         if self.calls == 3 {
             self.flag.store(SIGTERM as usize, Ordering::SeqCst);
@@ -233,7 +233,7 @@ fn a_refused_prompt_wakeup_request_is_logged_once_and_shown_by_stats() {
 
 #[test]
 fn a_limits_cause_is_not_repeated_by_the_message() {
-    let fault = Fault {
+    let fault = HandlerFault {
         location: Some("s.rhai:3:5".into()),
         cause: "ran over its operation budget of 10 operations in one call (a runaway \
                 loop?); a call that needs more can have it with --budget"
@@ -266,7 +266,7 @@ struct Panicker {
 
 impl Program for Panicker {
     type Handler = &'static str;
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         let mut rt = self.rt.borrow_mut();
         rt.set_outputs(crate::runtime::testing::IO, 0xF0);
         rt.every(Duration::from_millis(100), "boom").unwrap();
@@ -274,11 +274,11 @@ impl Program for Panicker {
         assert!(!self.at_start, "a bug at the top level");
         Ok(())
     }
-    fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+    fn holds(&mut self, _check: &InvariantCheck<&'static str>) -> Result<bool, HandlerFault> {
         // This program states no invariants.
         Ok(true)
     }
-    fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+    fn call(&mut self, _call: &Call<&'static str>) -> Result<(), HandlerFault> {
         let _held = self.rt.borrow_mut();
         panic!("a bug in a binding");
     }
@@ -343,18 +343,18 @@ struct Reader {
 
 impl Program for Reader {
     type Handler = &'static str;
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         self.rt
             .borrow_mut()
             .every(Duration::from_millis(100), "read")
             .unwrap();
         Ok(())
     }
-    fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+    fn holds(&mut self, _check: &InvariantCheck<&'static str>) -> Result<bool, HandlerFault> {
         // This program states no invariants.
         Ok(true)
     }
-    fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+    fn call(&mut self, _call: &Call<&'static str>) -> Result<(), HandlerFault> {
         self.rt.borrow_mut().inputs(crate::runtime::testing::IO);
         Ok(())
     }
@@ -417,17 +417,17 @@ struct SlowTimer {
 
 impl Program for SlowTimer {
     type Handler = &'static str;
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         let mut rt = self.rt.borrow_mut();
         rt.set_relay(crate::runtime::testing::PANEL, 5);
         rt.every(Duration::from_secs(30), "slow").unwrap();
         Ok(())
     }
-    fn holds(&mut self, _check: &Check<&'static str>) -> Result<bool, Fault> {
+    fn holds(&mut self, _check: &InvariantCheck<&'static str>) -> Result<bool, HandlerFault> {
         // This program states no invariants.
         Ok(true)
     }
-    fn call(&mut self, _call: &Call<&'static str>) -> Result<(), Fault> {
+    fn call(&mut self, _call: &Call<&'static str>) -> Result<(), HandlerFault> {
         Ok(())
     }
 }
@@ -513,7 +513,7 @@ struct StopBurner {
 
 impl Program for StopBurner {
     type Handler = ();
-    fn start(&mut self) -> Result<(), Fault> {
+    fn start(&mut self) -> Result<(), HandlerFault> {
         let mut rt = self.rt.borrow_mut();
         for _ in 0..self.handlers {
             rt.on_stop(()).unwrap();
@@ -521,11 +521,11 @@ impl Program for StopBurner {
         rt.every(Duration::from_secs(1), ()).unwrap();
         Ok(())
     }
-    fn holds(&mut self, _check: &Check<()>) -> Result<bool, Fault> {
+    fn holds(&mut self, _check: &InvariantCheck<()>) -> Result<bool, HandlerFault> {
         // This program states no invariants.
         Ok(true)
     }
-    fn call(&mut self, _call: &Call<()>) -> Result<(), Fault> {
+    fn call(&mut self, _call: &Call<()>) -> Result<(), HandlerFault> {
         self.calls += 1;
         self.clock.advance(self.burn);
         if self.signal_in == Some(self.calls) {

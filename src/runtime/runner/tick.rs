@@ -56,7 +56,7 @@ impl<P: Program> Runner<P> {
         if self.state == State::Running && !self.check_invariants() {
             return;
         }
-        let stop = self.rt.borrow().stop_request;
+        let stop = self.rt.borrow().stop_requested();
         if let Some(code) = stop {
             self.finish(EndReason::Stopped(code));
             return;
@@ -162,7 +162,7 @@ impl<P: Program> Runner<P> {
                     return;
                 }
             }
-            if self.rt.borrow().stop_request.is_some() || self.stop_signal().is_some() {
+            if self.rt.borrow().stop_requested().is_some() || self.stop_signal().is_some() {
                 return;
             }
         }

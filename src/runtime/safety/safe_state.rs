@@ -207,7 +207,10 @@ fn confirm_device(d: &mut Device, single: bool, tries: u32) -> EndOutcome {
             };
             let result = confirm_safe_state(SafeDriver::C29u { driver, safe_value }, tries);
             // Unconfirmed, what the outputs hold is not what the runner wants: written again.
-            c.outputs_written = result.as_ref().ok().map(|_| safe_value);
+            match result {
+                Ok(_) => c.note_outputs_written(safe_value),
+                Err(_) => c.forget_outputs_written(),
+            }
             result
         }
         Device::Trc(t) => {

@@ -131,7 +131,7 @@ impl<H: Clone> Runtime<H> {
                 .settled(&key, &format!("{name}: outputs as written")),
             CheckFinding::Outputs { read, written } => {
                 if let Some(d) = self.c29u(idx) {
-                    d.outputs_written = None;
+                    d.forget_outputs_written();
                 }
                 self.log.repeating(
                     &key,
@@ -358,7 +358,7 @@ mod tests {
         let io = r.rt.c29u(IO).unwrap();
         io.driver.reset().unwrap();
         io.reset_by_script = true;
-        io.outputs_written = None;
+        io.forget_outputs_written();
         r.rt.check_devices();
         assert!(!r.log().contains("reset or power cycled"), "{}", r.log());
     }
