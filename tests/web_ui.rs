@@ -365,3 +365,28 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
     );
     drop(stalled);
 }
+
+#[test]
+fn the_page_and_its_plot_library_come_from_the_binary_and_weigh_little() {
+    let run = serve("web-page", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    let (code, page) = get(a, "/");
+    assert_eq!(code, 200);
+    assert!(page.contains("<script src=\"/uplot.js\">"), "{page}");
+    assert!(
+        !page.contains("http://") && !page.contains("https://"),
+        "no CDN"
+    );
+    let (code, js) = get(a, "/uplot.js");
+    assert_eq!(code, 200);
+    assert!(js.contains("uPlot"));
+    let (code, css) = get(a, "/uplot.css");
+    assert_eq!(code, 200);
+    let (code, layout) = get(a, "/api/layout");
+    assert_eq!(code, 200);
+    let layout: Value = serde_json::from_str(&layout).unwrap();
+    assert_eq!(layout["switches"].as_array().unwrap().len(), 45);
+    assert_eq!(layout["rotaries"].as_array().unwrap().len(), 14);
+    let weight = page.len() + js.len() + css.len();
+    assert!(weight <= 200 * 1024, "the first load is {weight} bytes");
+}

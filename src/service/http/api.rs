@@ -1,4 +1,5 @@
-//! The routes: one request read, checked and answered per connection. `GET /` (the page),
+//! The routes: one request read, checked and answered per connection. `GET /` (the page,
+//! with `/uplot.js`, `/uplot.css` and `/api/layout`: the panel's switch and rotary names),
 //! `GET /api/state` (the snapshot), `GET /api/history` (the plots' memory), `GET
 //! /api/events` (the event stream), `POST /api/sim` (a drive action on a simulated device),
 //! `GET /metrics` (Prometheus). Errors are JSON `{"error": ...}` with their status.
@@ -6,14 +7,21 @@
 use super::request::{read_request, HttpRequest, ReadError};
 use super::response::{Response, JSON};
 use super::{metrics, sse, Shared, ANSWER_WAIT, REQUEST_WAIT};
+use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::requests::{Answer, AskError, Drive, Request};
 use crate::runtime::snapshot::{DeviceState, RigSnapshot};
 use std::net::TcpStream;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// The page, compiled in.
+/// The page, compiled in (no CDN: rigs are often offline).
 const PAGE: &str = include_str!("page/index.html");
+
+/// uPlot, the plots' library, vendored (page/vendor/README).
+const UPLOT_JS: &str = include_str!("page/vendor/uPlot.iife.min.js");
+
+/// uPlot's style sheet.
+const UPLOT_CSS: &str = include_str!("page/vendor/uPlot.min.css");
 
 /// Reads one request from `stream` and answers it.
 pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared) {
@@ -57,26 +65,38 @@ fn route(request: &HttpRequest, shared: &Shared) -> Response {
             Ok(s) => Response::json(200, &*s),
             Err(e) => e,
         },
+        ("GET", "/uplot.js") => Response::ok("text/javascript; charset=utf-8", UPLOT_JS),
+        ("GET", "/uplot.css") => Response::ok("text/css; charset=utf-8", UPLOT_CSS),
+        ("GET", "/api/layout") => Response::json(200, &layout()),
         ("GET", "/api/history") => Response::ok(JSON, shared.history.json()),
         ("GET", "/metrics") => match snapshot(shared) {
             Ok(s) => Response::ok(metrics::CONTENT_TYPE, metrics::render(&s)),
             Err(e) => e,
         },
         ("POST", "/api/sim") => drive(request, shared),
-        (_, "/" | "/api/state" | "/api/history" | "/api/events" | "/metrics" | "/api/sim") => {
-            Response::error(
-                405,
-                format!("{} {} is not served", request.method, request.path),
-            )
-        }
+        (
+            _,
+            "/" | "/uplot.js" | "/uplot.css" | "/api/layout" | "/api/state" | "/api/history"
+            | "/api/events" | "/metrics" | "/api/sim",
+        ) => Response::error(
+            405,
+            format!("{} {} is not served", request.method, request.path),
+        ),
         (_, path) => Response::error(
             404,
             format!(
-                "{path} is not here: GET /, /api/state, /api/history, /api/events, /metrics; \
-                 POST /api/sim"
+                "{path} is not here: GET /, /api/state, /api/history, /api/layout, \
+                 /api/events, /metrics; POST /api/sim"
             ),
         ),
     }
+}
+
+/// A TRC1000's switches and rotaries by name, in the board's order (the page lays them out).
+fn layout() -> serde_json::Value {
+    let switches: Vec<&str> = Switch::all().map(Switch::name).collect();
+    let rotaries: Vec<&str> = Rotary::ALL.iter().map(|r| r.name()).collect();
+    serde_json::json!({ "switches": switches, "rotaries": rotaries })
 }
 
 /// Refuses a request whose `Host` is not this server's own address: a page of another site
