@@ -70,8 +70,7 @@ fn exchange(addr: SocketAddr, head: &str, body: &[u8]) -> (u16, String) {
     // A refused request may be cut off while it is still being sent: its answer counts.
     let _ = s.write_all(head.as_bytes());
     let _ = s.write_all(body);
-    let mut text = String::new();
-    let _ = s.read_to_string(&mut text);
+    let text = read_answer(&mut s);
     let status = text
         .split(' ')
         .nth(1)
@@ -79,6 +78,30 @@ fn exchange(addr: SocketAddr, head: &str, body: &[u8]) -> (u16, String) {
         .unwrap_or(0);
     let body = text.split_once("\r\n\r\n").map_or("", |(_, b)| b);
     (status, body.to_string())
+}
+
+/// Reads an answer up to its `Content-Length` (a server may keep the connection), else to
+/// the end.
+fn read_answer(s: &mut TcpStream) -> String {
+    let mut bytes = Vec::new();
+    let mut chunk = [0u8; 4096];
+    loop {
+        let text = String::from_utf8_lossy(&bytes).to_string();
+        if let Some((head, body)) = text.split_once("\r\n\r\n") {
+            let length = head.lines().find_map(|l| {
+                let (name, value) = l.split_once(':')?;
+                name.eq_ignore_ascii_case("content-length")
+                    .then(|| value.trim().parse::<usize>().ok())?
+            });
+            if length.is_some_and(|n| body.len() >= n) {
+                return text;
+            }
+        }
+        match s.read(&mut chunk) {
+            Ok(0) | Err(_) => return String::from_utf8_lossy(&bytes).to_string(),
+            Ok(n) => bytes.extend_from_slice(&chunk[..n]),
+        }
+    }
 }
 
 fn get(addr: SocketAddr, path: &str) -> (u16, String) {
@@ -389,4 +412,154 @@ fn the_page_and_its_plot_library_come_from_the_binary_and_weigh_little() {
     assert_eq!(layout["rotaries"].as_array().unwrap().len(), 14);
     let weight = page.len() + js.len() + css.len();
     assert!(weight <= 200 * 1024, "the first load is {weight} bytes");
+}
+
+/// A headless Chromium driven through chromedriver's WebDriver protocol (plain JSON over
+/// HTTP); the browser and its driver end with it.
+struct Browser {
+    driver: Child,
+    addr: SocketAddr,
+    session: String,
+}
+
+/// What WebDriver calls an element in its answers.
+const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
+
+impl Browser {
+    fn start() -> Self {
+        common::require_tool("chromium", "chromium");
+        common::require_tool("chromedriver", "chromium-driver");
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let driver = Command::new("chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+        let mut b = Browser {
+            driver,
+            addr,
+            session: String::new(),
+        };
+        until(Duration::from_secs(20), || {
+            TcpStream::connect(addr).ok()?;
+            (b.call("GET", "/status", None)["value"]["ready"] == true).then_some(())
+        })
+        .expect("chromedriver answers");
+        let caps = serde_json::json!({"capabilities": {"alwaysMatch": {"goog:chromeOptions": {
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"]
+        }}}});
+        let answer = b.call("POST", "/session", Some(caps));
+        b.session = answer["value"]["sessionId"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no session: {answer}"))
+            .to_string();
+        b
+    }
+
+    fn call(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        let body = body.map(|b| b.to_string()).unwrap_or_default();
+        let head = format!(
+            "{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\
+             Content-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+            self.addr,
+            body.len()
+        );
+        let (_, answer) = exchange(self.addr, &head, body.as_bytes());
+        serde_json::from_str(&answer).unwrap_or(Value::Null)
+    }
+
+    fn session(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        self.call(method, &format!("/session/{}{path}", self.session), body)
+    }
+
+    fn open(&self, url: &str) {
+        self.session("POST", "/url", Some(serde_json::json!({ "url": url })));
+    }
+
+    /// The element `css` finds now, if any.
+    fn find(&self, css: &str) -> Option<String> {
+        let found = self.session(
+            "POST",
+            "/element",
+            Some(serde_json::json!({"using": "css selector", "value": css})),
+        );
+        found["value"][ELEMENT].as_str().map(String::from)
+    }
+
+    /// Clicks what `css` finds (the page redraws: a stale element is found again).
+    fn click(&self, css: &str) {
+        until(Duration::from_secs(10), || {
+            let e = self.find(css)?;
+            let done = self.session(
+                "POST",
+                &format!("/element/{e}/click"),
+                Some(serde_json::json!({})),
+            );
+            done["value"].is_null().then_some(())
+        })
+        .unwrap_or_else(|| panic!("could not click {css}"));
+    }
+
+    /// Whether what `css` finds has class `class`.
+    fn has_class(&self, css: &str, class: &str) -> Option<bool> {
+        let e = self.find(css)?;
+        let got = self.session("GET", &format!("/element/{e}/attribute/class"), None);
+        Some(got["value"].as_str()?.split(' ').any(|c| c == class))
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        if !self.session.is_empty() {
+            self.session("DELETE", "", None);
+        }
+        let _ = self.driver.kill();
+        let _ = self.driver.wait();
+    }
+}
+
+#[test]
+fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_trip() {
+    let run = serve("web-browser", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/"));
+    until(Duration::from_secs(20), || browser.find("#sw-panel-S12"))
+        .expect("the page shows the panel's switches");
+    // The four guards: each input lamp clicked energizes its input.
+    for n in 0..4 {
+        browser.click(&format!("#di-io-{n}"));
+    }
+    until(Duration::from_secs(10), || {
+        let s = state(a);
+        (s["devices"]["io"]["outputs"].as_u64()? & 0x80 == 0x80).then_some(())
+    })
+    .expect("tripped before the reset");
+    browser.click("#sw-panel-S12");
+    until(Duration::from_secs(15), || {
+        (0..4)
+            .all(|n| browser.has_class(&format!("#do-io-{n}"), "on") == Some(true))
+            .then_some(())
+    })
+    .expect("the power lamps DO0-DO3 light once S12 is clicked");
+    let s = state(a);
+    assert_eq!(s["devices"]["io"]["outputs"], 15, "{s}");
+    assert_eq!(s["devices"]["panel"]["pressed"][0], "S12", "{s}");
+    assert_eq!(browser.has_class("#sw-panel-S12", "on"), Some(true));
+    // A guard opened from the page: the trip, on the page and in the state.
+    browser.click("#di-io-2");
+    until(Duration::from_secs(15), || {
+        (browser.has_class("#do-io-0", "on") == Some(false)
+            && browser.has_class("#do-io-7", "on") == Some(true))
+        .then_some(())
+    })
+    .expect("the page shows the trip: power off, the trip lamp DO7 on");
+    let s = state(a);
+    assert_eq!(s["devices"]["io"]["outputs"], 0x80, "{s}");
 }
