@@ -563,3 +563,35 @@ fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_tri
     let s = state(a);
     assert_eq!(s["devices"]["io"]["outputs"], 0x80, "{s}");
 }
+
+#[test]
+fn a_real_device_is_not_driven_from_the_page_while_its_simulated_neighbour_is() {
+    let sim = common::SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = TempDir::new("web-real");
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n[devices.panel]\nkind = \
+             \"trc1000\"\nsim = true\n",
+            sim.path
+        ),
+    );
+    let script = dir.file(
+        "mirror.rhai",
+        "every(\"20ms\", || { io.outputs = io.inputs; let p = panel.pressed(\"S1\"); });\n",
+    );
+    let run = serve(
+        "web-real-run",
+        &["--config", &config, "--no-guardian", &script],
+    );
+    let a = run.addr;
+    let (status, body) = post(a, "/api/sim", r#"{"device":"io","action":"fail"}"#);
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("io is a real device"), "{body}");
+    drive(a, r#"{"device":"panel","action":"press","name":"S1"}"#);
+    until(Duration::from_secs(10), || {
+        (state(a)["devices"]["panel"]["pressed"][0] == "S1").then_some(())
+    })
+    .expect("the simulated panel is driven");
+    assert_eq!(state(a)["devices"]["io"]["online"], true);
+}
