@@ -10,7 +10,7 @@
 use super::check::fit_to_run;
 use super::output::say;
 use super::run_outputs::RunOutputs;
-use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency};
+use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency, DEFAULT_UI};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
 use crate::runtime::log::LogFormat;
 use crate::runtime::requests::{self, Requester, Requests};
@@ -19,12 +19,14 @@ use crate::script::rig::{start, RigSetup};
 use crate::script::stack;
 use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
 use crate::service::control_socket::{self, Claim, ClaimError, Naming};
+use crate::service::http::{self, BindError};
 use crate::service::rig_dir;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
 use clap::Args;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
@@ -100,6 +102,11 @@ pub struct RunArgs {
     /// `sim = true` in its table): commissioning a rig whose panel or module is not there yet.
     #[arg(long, value_name = "NAME")]
     pub sim_device: Vec<String>,
+    /// Serve the run's web page and HTTP API (state, events, metrics; under --sim, driving
+    /// the simulated field) at ADDR, a loopback address (default 127.0.0.1:7878; port 0: a
+    /// free one, which the log says; `ui = "ADDR"` in rig.toml).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_UI)]
+    pub ui: Option<SocketAddr>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -148,6 +155,9 @@ pub fn run(args: RunArgs) -> i32 {
     };
     if let Some(w) = args.wake_latency {
         config.wake_latency = w;
+    }
+    if let Some(ui) = args.ui {
+        config.ui = Some(ui);
     }
     for name in &args.sim_device {
         if !config.devices.contains_key(name) {
@@ -319,6 +329,21 @@ fn run_started(
             return outputs.not_started(exit::UNAVAILABLE, &e.to_string());
         }
     };
+    // Before any device is touched, like the socket: an address in use costs nothing.
+    let web = match setup.config.ui.map(http::bind).transpose() {
+        Ok(w) => w,
+        Err(e) => {
+            say(&format!("rigscript run: {e}"));
+            if let Some(g) = guardian {
+                g.confirm();
+            }
+            let status = match e {
+                BindError::NotLoopback(_) => exit::USAGE,
+                BindError::Io { .. } => exit::UNAVAILABLE,
+            };
+            return outputs.not_started(status, &e.to_string());
+        }
+    };
     let mut rig = match start(source, file, setup) {
         Ok(r) => r,
         Err(e) => {
@@ -334,11 +359,16 @@ fn run_started(
     let (requester, requests) = control.queue;
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
+    let page = web.map(|w| {
+        say(&format!("rigscript run: ui: http://{}/", w.addr()));
+        w.serve(requester.clone(), rig.runner.events())
+    });
     let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));
     let status = rig.runner.run();
     // The last events to the subscribers (`rigscript stop` waits for the end's), then the
-    // socket goes.
+    // socket and the page go.
     drop(server);
+    drop(page);
     if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
         g.confirm();
     }

@@ -89,9 +89,13 @@ const TOP_KEYS: &[&str] = &[
     "records",
     "grace",
     "wake_latency",
+    "ui",
     "limits",
     "devices",
 ];
+
+/// The web page's address when `run --ui` names none.
+pub const DEFAULT_UI: &str = "127.0.0.1:7878";
 
 /// What the runner does when a script handler fails.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -133,6 +137,9 @@ pub struct RigConfig {
     pub grace: Duration,
     /// What the run asks of the CPUs' idle states (default auto).
     pub wake_latency: WakeLatency,
+    /// Where the run serves its web page and HTTP API (`ui = "ADDR"`; default none: `run
+    /// --ui` turns it on).
+    pub ui: Option<std::net::SocketAddr>,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
     /// The devices simulated while the others are real (`sim = true`, `run --sim-device`).
@@ -151,6 +158,7 @@ impl Default for RigConfig {
             records: None,
             grace: DEFAULT_GRACE,
             wake_latency: WakeLatency::Auto,
+            ui: None,
             limits: ScriptLimits::default(),
             devices: BTreeMap::new(),
             simulated: BTreeSet::new(),
@@ -225,6 +233,16 @@ impl RigConfig {
                 })
             })
             .unwrap_or(defaults.wake_latency);
+        let ui = r.read(&root, "ui", |v| {
+            string(v)?.parse().map_err(|_| {
+                reader::bad(
+                    v,
+                    format!(
+                        "is not an address; use HOST:PORT with an IP address (\"{DEFAULT_UI}\")"
+                    ),
+                )
+            })
+        });
         let limits = match root.get("limits") {
             None => ScriptLimits::default(),
             Some(value) => match value.get_ref() {
@@ -287,6 +305,7 @@ impl RigConfig {
             records,
             grace,
             wake_latency,
+            ui,
             limits,
             devices,
             simulated,

@@ -119,6 +119,7 @@ fn the_example_reads_as_written() {
             records: Some("records.jsonl".into()),
             grace: Duration::from_secs(2),
             wake_latency: WakeLatency::Limit(Duration::from_micros(50)),
+            ui: None,
             limits: ScriptLimits::default(),
             devices,
             simulated: Default::default(),
@@ -589,11 +590,11 @@ fn a_rig_name_names_a_socket_file_or_is_refused() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, limits, devices"]
+        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, limits, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, limits, devices"]
+        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, limits, devices"]
     );
 }
 
@@ -1001,4 +1002,13 @@ fn a_device_marked_sim_is_simulated_while_the_others_are_real() {
         "{:?}",
         problems("[devices.panel]\nkind = \"trc1000\"\nsim = 1\n")
     );
+}
+
+#[test]
+fn ui_names_the_web_page_s_address_and_a_host_name_is_refused() {
+    let c = parse("ui = \"127.0.0.1:0\"\n").unwrap();
+    assert_eq!(c.ui, Some("127.0.0.1:0".parse().unwrap()));
+    assert_eq!(parse("").unwrap().ui, None);
+    let why = problems("ui = \"localhost:7878\"\n").join("\n");
+    assert!(why.contains("is not an address"), "{why}");
 }

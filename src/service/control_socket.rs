@@ -253,8 +253,9 @@ impl Drop for Server {
 /// How often the accept thread looks whether the socket is closing.
 const ACCEPT_SLICE: Duration = Duration::from_millis(100);
 
-/// Waits up to `ACCEPT_SLICE` for a connection to accept; true if one waits.
-fn connection_waiting(listener: &UnixListener) -> bool {
+/// Waits up to `ACCEPT_SLICE` for a connection to accept; true if one waits (the web
+/// server's accept thread polls the same way).
+pub(super) fn connection_waiting(listener: &impl AsRawFd) -> bool {
     let mut fd = libc::pollfd {
         fd: listener.as_raw_fd(),
         events: libc::POLLIN,
@@ -472,6 +473,6 @@ fn peer_of(stream: &UnixStream) -> Option<(i32, u32)> {
     (got == 0 && cred.pid != 0).then_some((cred.pid, cred.uid))
 }
 
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+pub(super) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }

@@ -1,0 +1,203 @@
+//! The run's web page and HTTP API (`run --ui ADDR`): a small HTTP/1.1 server over
+//! `std::net`, off the scan loop like the control socket (`service::control_socket`): an
+//! accept thread polling in slices and a thread per client, each request answered through
+//! the control queue (`runtime::requests`) or from the event stream (`runtime::observe`).
+//!
+//! Hand-written rather than a crate: the page needs a few routes, one request a connection
+//! and Server-Sent Events, which std's sockets give in a few hundred lines; every HTTP crate
+//! of note brings an async runtime or a thread pool this process has no other use for.
+//!
+//! Hostile clients cost the loop nothing: the head and body are bounded (`request`), a
+//! request must come whole within `REQUEST_WAIT` (slow clients are cut off), a client that
+//! does not read is let go (`WRITE_WAIT`), at most `MAX_CLIENTS` are served at once (the
+//! next is answered 503) and at most `MAX_STREAMS` of them follow the event stream. Only a
+//! loopback address is served, and only requests naming it as their `Host` (a page of
+//! another site that rebinds its name to 127.0.0.1 is refused).
+
+mod api;
+pub mod history;
+pub mod metrics;
+pub mod request;
+pub mod response;
+mod sse;
+
+use super::control_socket::{connection_waiting, lock};
+use crate::runtime::observe::Events;
+use crate::runtime::requests::Requester;
+use history::History;
+use response::Response;
+use std::collections::HashMap;
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Clients served at once; the next one is answered 503 and let go.
+pub const MAX_CLIENTS: usize = 32;
+
+/// Clients following the event stream at once (each holds a client's place too).
+pub const MAX_STREAMS: usize = 16;
+
+/// How long a client may take to send its whole request.
+pub const REQUEST_WAIT: Duration = Duration::from_secs(5);
+
+/// How long a write may wait for a client that does not read.
+pub const WRITE_WAIT: Duration = Duration::from_secs(2);
+
+/// How long a request waits for the loop's answer.
+pub const ANSWER_WAIT: Duration = Duration::from_secs(2);
+
+/// How long the end waits for streams to be sent the last events.
+pub const FLUSH_WAIT: Duration = Duration::from_secs(1);
+
+/// Why the page could not be served.
+#[derive(Debug, thiserror::Error)]
+pub enum BindError {
+    /// Not a loopback address: the page drives the rig and asks nobody who they are.
+    #[error(
+        "{0}: the web page is served on a loopback address only (127.0.0.1, ::1): it can \
+         drive the rig and asks for no token; reach it from another machine through an SSH \
+         tunnel (ssh -L 7878:127.0.0.1:7878 HOST)"
+    )]
+    NotLoopback(SocketAddr),
+    /// The address could not be bound (in use, not this machine's).
+    #[error("cannot serve the web page on {addr}: {source}")]
+    Io {
+        /// The address asked for.
+        addr: SocketAddr,
+        /// What failed.
+        source: std::io::Error,
+    },
+}
+
+/// The page's address, bound and not served yet.
+pub struct Binding {
+    listener: TcpListener,
+    addr: SocketAddr,
+}
+
+/// Binds `addr` (port 0: a free one, `Binding::addr` says which).
+pub fn bind(addr: SocketAddr) -> Result<Binding, BindError> {
+    if !addr.ip().is_loopback() {
+        return Err(BindError::NotLoopback(addr));
+    }
+    let io = |source| BindError::Io { addr, source };
+    let listener = TcpListener::bind(addr).map_err(io)?;
+    let addr = listener.local_addr().map_err(io)?;
+    Ok(Binding { listener, addr })
+}
+
+impl Binding {
+    /// The address bound.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Serves the page from now on: requests through `ask`, the stream and the plots'
+    /// history from `events`.
+    pub fn serve(self, ask: Requester, events: &Events) -> Server {
+        let history = History::follow(events);
+        let shared = Arc::new(Shared {
+            addr: self.addr,
+            ask,
+            events: events.clone(),
+            history,
+            closing: AtomicBool::new(false),
+            clients: AtomicUsize::new(0),
+            streams: AtomicUsize::new(0),
+            connections: Mutex::new(HashMap::new()),
+        });
+        let theirs = Arc::clone(&shared);
+        let listener = self.listener;
+        let accept = std::thread::Builder::new()
+            .name("web accept".into())
+            .spawn(move || accept_loop(&listener, &theirs))
+            .ok();
+        Server { shared, accept }
+    }
+}
+
+/// A served page; dropping it stops serving and gives streams a bounded time to be sent the
+/// last events.
+pub struct Server {
+    shared: Arc<Shared>,
+    accept: Option<JoinHandle<()>>,
+}
+
+/// What the accept thread and the clients share.
+struct Shared {
+    addr: SocketAddr,
+    ask: Requester,
+    events: Events,
+    history: History,
+    closing: AtomicBool,
+    clients: AtomicUsize,
+    streams: AtomicUsize,
+    /// The clients' connections by number, to end their reads when the run ends.
+    connections: Mutex<HashMap<u64, TcpStream>>,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.shared.closing.store(true, Ordering::SeqCst);
+        for s in lock(&self.shared.connections).values() {
+            let _ = s.shutdown(std::net::Shutdown::Read);
+        }
+        // Bounded: the end of a run never waits on a client (threads left go with the
+        // process).
+        let until = Instant::now() + FLUSH_WAIT;
+        let busy = |s: &Self| {
+            s.shared.clients.load(Ordering::SeqCst) > 0
+                || s.accept.as_ref().is_some_and(|t| !t.is_finished())
+        };
+        while busy(self) && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(t) = self.accept.take().filter(JoinHandle::is_finished) {
+            let _ = t.join();
+        }
+        self.shared.history.stop();
+    }
+}
+
+fn accept_loop(listener: &TcpListener, shared: &Arc<Shared>) {
+    let mut number = 0u64;
+    loop {
+        if shared.closing.load(Ordering::SeqCst) {
+            return;
+        }
+        if !connection_waiting(listener) {
+            continue;
+        }
+        number = number.wrapping_add(1);
+        let Ok((mut stream, _)) = listener.accept() else {
+            // Out of descriptors, most likely: a moment, then on.
+            std::thread::sleep(Duration::from_millis(10));
+            continue;
+        };
+        let _ = stream.set_write_timeout(Some(WRITE_WAIT));
+        if shared.clients.load(Ordering::SeqCst) >= MAX_CLIENTS {
+            let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
+            let why = format!("{MAX_CLIENTS} clients are connected already; try again");
+            let _ = Response::error(503, why).write_to(&mut stream);
+            continue;
+        }
+        shared.clients.fetch_add(1, Ordering::SeqCst);
+        if let Ok(copy) = stream.try_clone() {
+            lock(&shared.connections).insert(number, copy);
+        }
+        let theirs = Arc::clone(shared);
+        let spawned = std::thread::Builder::new()
+            .name("web client".into())
+            .spawn(move || {
+                api::serve_client(stream, &theirs);
+                lock(&theirs.connections).remove(&number);
+                theirs.clients.fetch_sub(1, Ordering::SeqCst);
+            });
+        if spawned.is_err() {
+            lock(&shared.connections).remove(&number);
+            shared.clients.fetch_sub(1, Ordering::SeqCst);
+        }
+    }
+}

@@ -1,0 +1,597 @@
+//! The web page's HTTP API against real `rigscript run --sim --ui 127.0.0.1:0` processes,
+//! through a small HTTP client over `TcpStream`: the state follows the simulated field that
+//! `POST /api/sim` drives, the event stream delivers the run's events, `/metrics` tells the
+//! ticks, errors have their status, and hostile clients cost the loop no tick.
+
+mod common;
+
+use common::{rigscript, TempDir};
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// A run serving its page; killed if the test fails before it ends.
+struct Served {
+    child: Child,
+    addr: SocketAddr,
+    _dir: TempDir,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Starts `rigscript run ARGS.. --ui 127.0.0.1:0` and waits for the address it serves.
+fn serve(tag: &str, args: &[&str]) -> Served {
+    let dir = TempDir::new(tag);
+    let mut child = Command::new(rigscript())
+        .arg("run")
+        .args(args)
+        .args(["--ui", "127.0.0.1:0"])
+        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env_remove("RUNTIME_DIRECTORY")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if let Some(rest) = line.split("ui: http://").nth(1) {
+                let _ = tx.send(rest.trim_end_matches('/').to_string());
+            }
+        }
+    });
+    let addr = rx
+        .recv_timeout(Duration::from_secs(20))
+        .expect("the run logs its page's address")
+        .parse()
+        .unwrap();
+    Served {
+        child,
+        addr,
+        _dir: dir,
+    }
+}
+
+/// Sends `head` (and `body`) raw, and reads the whole answer: (status, body).
+fn exchange(addr: SocketAddr, head: &str, body: &[u8]) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    // A refused request may be cut off while it is still being sent: its answer counts.
+    let _ = s.write_all(head.as_bytes());
+    let _ = s.write_all(body);
+    let text = read_answer(&mut s);
+    let status = text
+        .split(' ')
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let body = text.split_once("\r\n\r\n").map_or("", |(_, b)| b);
+    (status, body.to_string())
+}
+
+/// Reads an answer up to its `Content-Length` (a server may keep the connection), else to
+/// the end.
+fn read_answer(s: &mut TcpStream) -> String {
+    let mut bytes = Vec::new();
+    let mut chunk = [0u8; 4096];
+    loop {
+        let text = String::from_utf8_lossy(&bytes).to_string();
+        if let Some((head, body)) = text.split_once("\r\n\r\n") {
+            let length = head.lines().find_map(|l| {
+                let (name, value) = l.split_once(':')?;
+                name.eq_ignore_ascii_case("content-length")
+                    .then(|| value.trim().parse::<usize>().ok())?
+            });
+            if length.is_some_and(|n| body.len() >= n) {
+                return text;
+            }
+        }
+        match s.read(&mut chunk) {
+            Ok(0) | Err(_) => return String::from_utf8_lossy(&bytes).to_string(),
+            Ok(n) => bytes.extend_from_slice(&chunk[..n]),
+        }
+    }
+}
+
+fn get(addr: SocketAddr, path: &str) -> (u16, String) {
+    exchange(
+        addr,
+        &format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n"),
+        b"",
+    )
+}
+
+fn post(addr: SocketAddr, path: &str, json: &str) -> (u16, String) {
+    let head = format!(
+        "POST {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\n\
+         Content-Length: {}\r\n\r\n",
+        json.len()
+    );
+    exchange(addr, &head, json.as_bytes())
+}
+
+fn state(addr: SocketAddr) -> Value {
+    let (status, body) = get(addr, "/api/state");
+    assert_eq!(status, 200, "{body}");
+    serde_json::from_str(&body).unwrap()
+}
+
+/// `probe` until it gives something, or `None` after `limit`.
+fn until<T>(limit: Duration, mut probe: impl FnMut() -> Option<T>) -> Option<T> {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = probe() {
+            return Some(v);
+        }
+        if start.elapsed() > limit {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn drive(addr: SocketAddr, json: &str) {
+    let (status, body) = post(addr, "/api/sim", json);
+    assert_eq!(status, 200, "{json}: {body}");
+}
+
+#[test]
+fn the_state_follows_the_field_that_post_sim_drives_and_the_interlock_arms() {
+    let run = serve("web-state", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    // The guards closed, then S12 pressed: the interlock reads the guards and arms.
+    drive(a, r#"{"device":"io","action":"set_inputs","value":15}"#);
+    drive(a, r#"{"device":"panel","action":"press","name":"S12"}"#);
+    let s = until(Duration::from_secs(10), || {
+        let s = state(a);
+        let pressed = s["devices"]["panel"]["pressed"].as_array().cloned()?;
+        let armed = s["devices"]["io"]["outputs"].as_u64()? & 0x0F == 0x0F;
+        (armed && pressed.iter().any(|p| p == "S12")).then_some(s)
+    })
+    .expect("S12 pressed arms the interlock: DO0-DO3 on");
+    assert_eq!(s["devices"]["io"]["kind"], "trp-c29u");
+    assert_eq!(s["devices"]["io"]["inputs"], 15, "{s}");
+    drive(a, r#"{"device":"panel","action":"release","name":"S12"}"#);
+    // A guard opens: the trip.
+    drive(
+        a,
+        r#"{"device":"io","action":"set_input","channel":2,"on":false}"#,
+    );
+    until(Duration::from_secs(10), || {
+        (state(a)["devices"]["io"]["outputs"].as_u64()? & 0x0F == 0).then_some(())
+    })
+    .expect("an open guard trips the interlock");
+}
+
+#[test]
+fn bad_requests_have_their_status_and_a_message() {
+    let run = serve("web-errors", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    let cases = [
+        (post(a, "/api/sim", "{not json"), 400, "a drive action is"),
+        (
+            post(a, "/api/sim", r#"{"device":"io","action":"explode"}"#),
+            400,
+            "explode",
+        ),
+        (
+            post(a, "/api/sim", r#"{"device":"nope","action":"fail"}"#),
+            404,
+            "no device called nope",
+        ),
+        (
+            post(
+                a,
+                "/api/sim",
+                r#"{"device":"panel","action":"press","name":"S99"}"#,
+            ),
+            409,
+            "S99",
+        ),
+        (get(a, "/api/sim"), 405, "not served"),
+        (get(a, "/etc/passwd"), 404, "is not here"),
+        (
+            exchange(
+                a,
+                "POST /api/sim HTTP/1.1\r\nContent-Type: text/plain\r\nContent-Length: 2\r\n\r\n",
+                b"{}",
+            ),
+            415,
+            "application/json",
+        ),
+        (
+            exchange(
+                a,
+                "GET /api/state HTTP/1.1\r\nHost: evil.example:80\r\n\r\n",
+                b"",
+            ),
+            403,
+            "is not this server",
+        ),
+    ];
+    for ((status, body), want, says) in cases {
+        assert_eq!(status, want, "{body}");
+        let v: Value = serde_json::from_str(&body).unwrap();
+        let message = v["error"].as_str().unwrap();
+        assert!(message.contains(says), "{message}");
+    }
+}
+
+#[test]
+fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
+    let dir = TempDir::new("web-refused");
+    let out = Command::new(rigscript())
+        .args([
+            "run",
+            "scripts/interlock.rhai",
+            "--sim",
+            "--ui",
+            "0.0.0.0:0",
+        ])
+        .env("XDG_RUNTIME_DIR", &dir.0)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(said.contains("loopback address only"), "{said}");
+    // An address in use: exit 3, nothing started.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let out = Command::new(rigscript())
+        .args(["run", "scripts/interlock.rhai", "--sim", "--ui", &addr])
+        .env("XDG_RUNTIME_DIR", &dir.0)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(3), "{out:?}");
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(said.contains("cannot serve the web page on"), "{said}");
+    assert!(!said.contains("interlock ready"), "{said}");
+}
+
+/// Reads from an event stream until a message satisfies `want`, or 10 s.
+fn await_event(stream: &mut BufReader<TcpStream>, want: impl Fn(&Value) -> bool) -> Option<Value> {
+    let start = Instant::now();
+    let mut line = String::new();
+    while start.elapsed() < Duration::from_secs(10) {
+        line.clear();
+        match stream.read_line(&mut line) {
+            Ok(0) => return None,
+            Ok(_) => {}
+            Err(_) => continue,
+        }
+        if let Some(data) = line.strip_prefix("data: ") {
+            if let Ok(v) = serde_json::from_str::<Value>(data) {
+                if want(&v) {
+                    return Some(v);
+                }
+            }
+        }
+    }
+    None
+}
+
+#[test]
+fn the_event_stream_delivers_the_run_s_events_and_metrics_tell_its_figures() {
+    let run = serve("web-events", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    let mut s = TcpStream::connect(a).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(1))).unwrap();
+    write!(s, "GET /api/events HTTP/1.1\r\nHost: {a}\r\n\r\n").unwrap();
+    let mut stream = BufReader::new(s);
+    let mut status = String::new();
+    stream.read_line(&mut status).unwrap();
+    assert!(status.starts_with("HTTP/1.1 200"), "{status}");
+    assert!(await_event(&mut stream, |v| v["event"] == "tick").is_some());
+    drive(a, r#"{"device":"io","action":"set_inputs","value":15}"#);
+    drive(a, r#"{"device":"panel","action":"press","name":"S12"}"#);
+    let pressed = await_event(&mut stream, |v| {
+        v["event"] == "inputs" && v["reading"]["pressed"][0] == "S12"
+    });
+    assert!(pressed.is_some(), "the press is streamed");
+    let outputs = await_event(&mut stream, |v| {
+        v["event"] == "outputs" && v["device"] == "io" && v["value"] == 15
+    });
+    assert!(outputs.is_some(), "the outputs written are streamed");
+    let (code, text) = get(a, "/metrics");
+    assert_eq!(code, 200);
+    for name in [
+        "rigscript_ticks_total ",
+        "rigscript_overruns_total ",
+        "rigscript_jitter_p99_seconds ",
+        "rigscript_device_online{device=\"io\"} 1",
+        "rigscript_device_inputs{device=\"io\"} 15",
+        "rigscript_events_dropped_total{consumer=\"web history\"} 0",
+    ] {
+        assert!(
+            text.lines().any(|l| l.starts_with(name)),
+            "no {name} in\n{text}"
+        );
+    }
+    // The history keeps what the plots need across a reload.
+    let (code, history) = get(a, "/api/history");
+    assert_eq!(code, 200);
+    let h: Value = serde_json::from_str(&history).unwrap();
+    let points = h["points"].as_array().unwrap();
+    assert!(
+        points
+            .iter()
+            .any(|p| p["device"] == "io" && p["series"] == "inputs" && p["value"] == 15),
+        "{history}"
+    );
+}
+
+#[test]
+fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
+    let dir = TempDir::new("web-hostile-script");
+    let script = dir.file(
+        "steady.rhai",
+        "every(\"200ms\", || { io.outputs = io.inputs; });\n",
+    );
+    let run = serve("web-hostile", &["--sim", "--period", "200ms", &script]);
+    let a = run.addr;
+    let before = state(a);
+    let (code, _) = exchange(a, "\x00\x01 garbage\r\n\r\n", b"");
+    assert_eq!(code, 400);
+    let huge = format!("GET / HTTP/1.1\r\nX: {}\r\n\r\n", "a".repeat(64 * 1024));
+    let (code, _) = exchange(a, &huge, b"");
+    assert_eq!(code, 431);
+    let (code, body) = exchange(
+        a,
+        "POST /api/sim HTTP/1.1\r\nContent-Type: application/json\r\nContent-Length: \
+         1073741824\r\n\r\n",
+        b"",
+    );
+    assert_eq!(code, 413, "{body}");
+    // Hundreds of connections that send nothing: 32 are served, the others told so.
+    let idle: Vec<TcpStream> = (0..300).map(|_| TcpStream::connect(a).unwrap()).collect();
+    let refused = idle
+        .iter()
+        .skip(40)
+        .take(5)
+        .map(|s| {
+            let mut s = s.try_clone().unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+            let mut text = String::new();
+            let _ = s.read_to_string(&mut text);
+            text
+        })
+        .filter(|t| t.starts_with("HTTP/1.1 503") && t.contains("clients are connected"))
+        .count();
+    assert_eq!(refused, 5, "connections past the limit are told so");
+    // A viewer that never reads its stream.
+    let mut stalled = TcpStream::connect(a).unwrap();
+    write!(stalled, "GET /api/events HTTP/1.1\r\nHost: {a}\r\n\r\n").unwrap();
+    drop(idle);
+    // The silent clients are let go within 5 s; then the state answers again, ticks on.
+    let after = until(Duration::from_secs(20), || {
+        let (code, body) = get(a, "/api/state");
+        let s: Value = serde_json::from_str(&body).ok()?;
+        (code == 200 && s["ticks"]["count"].as_u64() > before["ticks"]["count"].as_u64())
+            .then_some(s)
+    })
+    .expect("the loop ticks on and answers");
+    assert_eq!(after["script"]["state"], "running");
+    assert_eq!(
+        after["ticks"]["overruns"], before["ticks"]["overruns"],
+        "no tick overran during the attack: {after}"
+    );
+    drop(stalled);
+}
+
+#[test]
+fn the_page_and_its_plot_library_come_from_the_binary_and_weigh_little() {
+    let run = serve("web-page", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    let (code, page) = get(a, "/");
+    assert_eq!(code, 200);
+    assert!(page.contains("<script src=\"/uplot.js\">"), "{page}");
+    assert!(
+        !page.contains("http://") && !page.contains("https://"),
+        "no CDN"
+    );
+    let (code, js) = get(a, "/uplot.js");
+    assert_eq!(code, 200);
+    assert!(js.contains("uPlot"));
+    let (code, css) = get(a, "/uplot.css");
+    assert_eq!(code, 200);
+    let (code, layout) = get(a, "/api/layout");
+    assert_eq!(code, 200);
+    let layout: Value = serde_json::from_str(&layout).unwrap();
+    assert_eq!(layout["switches"].as_array().unwrap().len(), 45);
+    assert_eq!(layout["rotaries"].as_array().unwrap().len(), 14);
+    let weight = page.len() + js.len() + css.len();
+    assert!(weight <= 200 * 1024, "the first load is {weight} bytes");
+}
+
+/// A headless Chromium driven through chromedriver's WebDriver protocol (plain JSON over
+/// HTTP); the browser and its driver end with it.
+struct Browser {
+    driver: Child,
+    addr: SocketAddr,
+    session: String,
+}
+
+/// What WebDriver calls an element in its answers.
+const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
+
+impl Browser {
+    fn start() -> Self {
+        common::require_tool("chromium", "chromium");
+        common::require_tool("chromedriver", "chromium-driver");
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let driver = Command::new("chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+        let mut b = Browser {
+            driver,
+            addr,
+            session: String::new(),
+        };
+        until(Duration::from_secs(20), || {
+            TcpStream::connect(addr).ok()?;
+            (b.call("GET", "/status", None)["value"]["ready"] == true).then_some(())
+        })
+        .expect("chromedriver answers");
+        let caps = serde_json::json!({"capabilities": {"alwaysMatch": {"goog:chromeOptions": {
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"]
+        }}}});
+        let answer = b.call("POST", "/session", Some(caps));
+        b.session = answer["value"]["sessionId"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no session: {answer}"))
+            .to_string();
+        b
+    }
+
+    fn call(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        let body = body.map(|b| b.to_string()).unwrap_or_default();
+        let head = format!(
+            "{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\
+             Content-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+            self.addr,
+            body.len()
+        );
+        let (_, answer) = exchange(self.addr, &head, body.as_bytes());
+        serde_json::from_str(&answer).unwrap_or(Value::Null)
+    }
+
+    fn session(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        self.call(method, &format!("/session/{}{path}", self.session), body)
+    }
+
+    fn open(&self, url: &str) {
+        self.session("POST", "/url", Some(serde_json::json!({ "url": url })));
+    }
+
+    /// The element `css` finds now, if any.
+    fn find(&self, css: &str) -> Option<String> {
+        let found = self.session(
+            "POST",
+            "/element",
+            Some(serde_json::json!({"using": "css selector", "value": css})),
+        );
+        found["value"][ELEMENT].as_str().map(String::from)
+    }
+
+    /// Clicks what `css` finds (the page redraws: a stale element is found again).
+    fn click(&self, css: &str) {
+        until(Duration::from_secs(10), || {
+            let e = self.find(css)?;
+            let done = self.session(
+                "POST",
+                &format!("/element/{e}/click"),
+                Some(serde_json::json!({})),
+            );
+            done["value"].is_null().then_some(())
+        })
+        .unwrap_or_else(|| panic!("could not click {css}"));
+    }
+
+    /// Whether what `css` finds has class `class`.
+    fn has_class(&self, css: &str, class: &str) -> Option<bool> {
+        let e = self.find(css)?;
+        let got = self.session("GET", &format!("/element/{e}/attribute/class"), None);
+        Some(got["value"].as_str()?.split(' ').any(|c| c == class))
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        if !self.session.is_empty() {
+            self.session("DELETE", "", None);
+        }
+        let _ = self.driver.kill();
+        let _ = self.driver.wait();
+    }
+}
+
+#[test]
+fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_trip() {
+    let run = serve("web-browser", &["scripts/interlock.rhai", "--sim"]);
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/"));
+    until(Duration::from_secs(20), || browser.find("#sw-panel-S12"))
+        .expect("the page shows the panel's switches");
+    // The four guards: each input lamp clicked energizes its input.
+    for n in 0..4 {
+        browser.click(&format!("#di-io-{n}"));
+    }
+    until(Duration::from_secs(10), || {
+        let s = state(a);
+        (s["devices"]["io"]["outputs"].as_u64()? & 0x80 == 0x80).then_some(())
+    })
+    .expect("tripped before the reset");
+    browser.click("#sw-panel-S12");
+    until(Duration::from_secs(15), || {
+        (0..4)
+            .all(|n| browser.has_class(&format!("#do-io-{n}"), "on") == Some(true))
+            .then_some(())
+    })
+    .expect("the power lamps DO0-DO3 light once S12 is clicked");
+    let s = state(a);
+    assert_eq!(s["devices"]["io"]["outputs"], 15, "{s}");
+    assert_eq!(s["devices"]["panel"]["pressed"][0], "S12", "{s}");
+    assert_eq!(browser.has_class("#sw-panel-S12", "on"), Some(true));
+    // A guard opened from the page: the trip, on the page and in the state.
+    browser.click("#di-io-2");
+    until(Duration::from_secs(15), || {
+        (browser.has_class("#do-io-0", "on") == Some(false)
+            && browser.has_class("#do-io-7", "on") == Some(true))
+        .then_some(())
+    })
+    .expect("the page shows the trip: power off, the trip lamp DO7 on");
+    let s = state(a);
+    assert_eq!(s["devices"]["io"]["outputs"], 0x80, "{s}");
+}
+
+#[test]
+fn a_real_device_is_not_driven_from_the_page_while_its_simulated_neighbour_is() {
+    let sim = common::SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = TempDir::new("web-real");
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n[devices.panel]\nkind = \
+             \"trc1000\"\nsim = true\n",
+            sim.path
+        ),
+    );
+    let script = dir.file(
+        "mirror.rhai",
+        "every(\"20ms\", || { io.outputs = io.inputs; let p = panel.pressed(\"S1\"); });\n",
+    );
+    let run = serve(
+        "web-real-run",
+        &["--config", &config, "--no-guardian", &script],
+    );
+    let a = run.addr;
+    let (status, body) = post(a, "/api/sim", r#"{"device":"io","action":"fail"}"#);
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("io is a real device"), "{body}");
+    drive(a, r#"{"device":"panel","action":"press","name":"S1"}"#);
+    until(Duration::from_secs(10), || {
+        (state(a)["devices"]["panel"]["pressed"][0] == "S1").then_some(())
+    })
+    .expect("the simulated panel is driven");
+    assert_eq!(state(a)["devices"]["io"]["online"], true);
+}
