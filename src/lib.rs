@@ -62,6 +62,7 @@ pub mod script;
 pub mod service;
 pub mod sim;
 pub mod suggest;
+pub mod sync;
 pub mod text_file;
 pub mod time;
 pub mod verify;

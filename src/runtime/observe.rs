@@ -5,10 +5,11 @@
 //!
 //! Publishing costs one atomic load while nobody listens: the event is not even built.
 
+use crate::sync::lock;
 use serde::Serialize;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// The most consumers attached at once; one more is refused (`Events::subscribe`).
@@ -259,11 +260,6 @@ impl Subscription {
         self.told = now;
         new
     }
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    // A consumer that panicked holding the lock leaves a list still worth using.
-    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 #[cfg(test)]

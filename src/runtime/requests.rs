@@ -10,12 +10,13 @@
 
 use super::devices::SimRig;
 use super::snapshot::RigSnapshot;
+use crate::sync::lock;
 use crate::time::doorbell::Doorbell;
 use serde::{Deserialize, Serialize};
 use signal_hook::consts::SIGTERM;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Requests waiting for the loop at most; one more is refused at once (`AskError::Busy`).
@@ -245,10 +246,6 @@ impl Requests {
     pub fn bell(&self) -> &Doorbell {
         &self.bell
     }
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 #[cfg(test)]

@@ -10,18 +10,16 @@
 
 use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_REQUEST};
 use super::rig_dir::{self, Knock};
+use super::serving::{self, Bounds, Closing, Serving};
 use crate::runtime::observe::{Events, RunEvent, DEFAULT_QUEUE};
 use crate::runtime::requests::{Answer, Request, Requester};
-use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::os::unix::io::AsRawFd;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::sync::Arc;
+use std::time::Duration;
 
 /// Clients served at once; the next one is told so and let go.
 pub const MAX_CLIENTS: usize = 16;
@@ -37,9 +35,6 @@ pub const WRITE_WAIT: Duration = Duration::from_secs(2);
 
 /// How long a request waits for the loop's answer.
 pub const ANSWER_WAIT: Duration = Duration::from_secs(2);
-
-/// How long the end waits for subscribers to be sent the last events.
-pub const FLUSH_WAIT: Duration = Duration::from_secs(1);
 
 /// Why the rig's socket could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -177,22 +172,25 @@ impl Claim {
             hello: self.hello.clone(),
             ask,
             events,
-            closing: AtomicBool::new(false),
-            clients: AtomicUsize::new(0),
-            streams: Mutex::new(HashMap::new()),
         });
-        let listener = self.listener.try_clone();
-        let theirs = Arc::clone(&shared);
-        let accept = listener.ok().and_then(|l| {
-            std::thread::Builder::new()
-                .name("control socket".into())
-                .spawn(move || accept_loop(&l, &theirs))
-                .ok()
+        let bounds = Bounds {
+            clients: MAX_CLIENTS,
+            write_wait: WRITE_WAIT,
+            name: "control socket",
+        };
+        let refuse = |stream: &mut UnixStream| {
+            let why = format!("{MAX_CLIENTS} clients are connected to this rig already; try again");
+            let _ = stream.write_all(Reply::refused(why).line().as_bytes());
+        };
+        let serving = self.listener.try_clone().ok().map(|listener| {
+            let closing = Arc::new(Closing::default());
+            serving::serve(listener, bounds, closing, refuse, move |stream, closing| {
+                serve_client(stream, &shared, closing);
+            })
         });
         Server {
+            serving,
             claim: Some(self),
-            shared,
-            accept,
         }
     }
 }
@@ -210,102 +208,24 @@ impl Drop for Claim {
 }
 
 /// A served socket; dropping it stops serving, gives subscribers a bounded time to be sent
-/// the last events, and removes the socket.
+/// the last events (`serving::FLUSH_WAIT`), and removes the socket.
 pub struct Server {
+    serving: Option<Serving>,
     claim: Option<Claim>,
-    shared: Arc<Shared>,
-    accept: Option<JoinHandle<()>>,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        // Serving first: the file goes once nobody is being served from it.
+        self.serving.take();
+        self.claim.take();
+    }
 }
 
 struct Shared {
     hello: Hello,
     ask: Requester,
     events: Events,
-    closing: AtomicBool,
-    clients: AtomicUsize,
-    /// The clients' connections by number, to end their reads when the run ends.
-    streams: Mutex<HashMap<u64, UnixStream>>,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        self.shared.closing.store(true, Ordering::SeqCst);
-        for s in lock(&self.shared.streams).values() {
-            let _ = s.shutdown(std::net::Shutdown::Read);
-        }
-        // Bounded: the end of a run never waits on a client (the threads left go with the
-        // process).
-        let until = Instant::now() + FLUSH_WAIT;
-        let busy = |s: &Self| {
-            s.shared.clients.load(Ordering::SeqCst) > 0
-                || s.accept.as_ref().is_some_and(|t| !t.is_finished())
-        };
-        while busy(self) && Instant::now() < until {
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        if let Some(t) = self.accept.take().filter(JoinHandle::is_finished) {
-            let _ = t.join();
-        }
-        self.claim.take();
-    }
-}
-
-/// How often the accept thread looks whether the socket is closing.
-const ACCEPT_SLICE: Duration = Duration::from_millis(100);
-
-/// Waits up to `ACCEPT_SLICE` for a connection to accept; true if one waits (the web
-/// server's accept thread polls the same way).
-pub(super) fn connection_waiting(listener: &impl AsRawFd) -> bool {
-    let mut fd = libc::pollfd {
-        fd: listener.as_raw_fd(),
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    let ms = libc::c_int::try_from(ACCEPT_SLICE.as_millis()).unwrap_or(100);
-    // SAFETY: one valid pollfd for the listener's own descriptor.
-    let ready = unsafe { libc::poll(&mut fd, 1, ms) };
-    ready > 0 && fd.revents & libc::POLLIN != 0
-}
-
-fn accept_loop(listener: &UnixListener, shared: &Arc<Shared>) {
-    let mut number = 0u64;
-    loop {
-        if shared.closing.load(Ordering::SeqCst) {
-            return;
-        }
-        if !connection_waiting(listener) {
-            continue;
-        }
-        number = number.wrapping_add(1);
-        let Ok((mut stream, _)) = listener.accept() else {
-            // Out of descriptors, most likely: a moment, then on.
-            std::thread::sleep(Duration::from_millis(10));
-            continue;
-        };
-        let _ = stream.set_write_timeout(Some(WRITE_WAIT));
-        if shared.clients.load(Ordering::SeqCst) >= MAX_CLIENTS {
-            let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
-            let why = format!("{MAX_CLIENTS} clients are connected to this rig already; try again");
-            let _ = stream.write_all(Reply::refused(why).line().as_bytes());
-            continue;
-        }
-        shared.clients.fetch_add(1, Ordering::SeqCst);
-        if let Ok(copy) = stream.try_clone() {
-            lock(&shared.streams).insert(number, copy);
-        }
-        let theirs = Arc::clone(shared);
-        let spawned = std::thread::Builder::new()
-            .name("control client".into())
-            .spawn(move || {
-                serve_client(stream, &theirs);
-                lock(&theirs.streams).remove(&number);
-                theirs.clients.fetch_sub(1, Ordering::SeqCst);
-            });
-        if spawned.is_err() {
-            lock(&shared.streams).remove(&number);
-            shared.clients.fetch_sub(1, Ordering::SeqCst);
-        }
-    }
 }
 
 /// What a client's read gave.
@@ -332,7 +252,7 @@ fn read_request(reader: &mut BufReader<UnixStream>) -> Line {
     }
 }
 
-fn serve_client(stream: UnixStream, shared: &Shared) {
+fn serve_client(stream: UnixStream, shared: &Shared, closing: &Closing) {
     let Ok(reading) = stream.try_clone() else {
         return;
     };
@@ -356,7 +276,7 @@ fn serve_client(stream: UnixStream, shared: &Shared) {
             Line::Request(text) => match parse_request(&text) {
                 Err(why) => Reply::refused(why),
                 Ok(ClientRequest::Subscribe) => {
-                    stream_events(&mut out, shared);
+                    stream_events(&mut out, shared, closing);
                     return;
                 }
                 Ok(request) => answer(request, shared, &out),
@@ -404,7 +324,7 @@ fn answer(request: ClientRequest, shared: &Shared, client: &UnixStream) -> Reply
 
 /// Sends the run's events, one JSON line each, until the client goes, the run ends, or the
 /// socket closes; lost events are told as `{"event":"dropped","events":N}`.
-fn stream_events(out: &mut UnixStream, shared: &Shared) {
+fn stream_events(out: &mut UnixStream, shared: &Shared, closing: &Closing) {
     let who = peer_of(out).map_or("socket client".to_string(), |(pid, _)| {
         format!("socket client pid {pid}")
     });
@@ -419,7 +339,7 @@ fn stream_events(out: &mut UnixStream, shared: &Shared) {
         return;
     }
     loop {
-        let closing = shared.closing.load(Ordering::SeqCst);
+        let closing = closing.now();
         let wait = if closing {
             Duration::ZERO
         } else {
@@ -471,8 +391,4 @@ fn peer_of(stream: &UnixStream) -> Option<(i32, u32)> {
         )
     };
     (got == 0 && cred.pid != 0).then_some((cred.pid, cred.uid))
-}
-
-pub(super) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }

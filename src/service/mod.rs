@@ -9,3 +9,4 @@ pub mod control_socket;
 pub mod http;
 pub mod notify;
 pub mod rig_dir;
+pub mod serving;

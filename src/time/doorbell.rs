@@ -1,7 +1,8 @@
 //! A doorbell: wakes a thread's timed wait early when something comes for it (a request for a
 //! sleeping scan loop). Rings are not counted: any number before a wait wake it once.
 
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use crate::sync::lock;
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 /// Wakes a sleeping loop early: rung by an asker, waited on by the loop's sleep slices.
@@ -38,10 +39,6 @@ impl Doorbell {
                 .0;
         }
     }
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 #[cfg(test)]

@@ -3,8 +3,8 @@
 //! inputs, outputs and counters, and the last log lines, in bounded rings (`MAX_POINTS`,
 //! `MAX_LINES`; the oldest go first).
 
-use super::lock;
 use crate::runtime::observe::{Events, Reading, RunEvent, DEFAULT_QUEUE};
+use crate::sync::lock;
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -21,17 +21,15 @@ pub mod request;
 pub mod response;
 mod sse;
 
-use super::control_socket::{connection_waiting, lock};
+use super::serving::{self, Bounds, Closing, Serving};
 use crate::runtime::observe::Events;
 use crate::runtime::requests::Requester;
 use history::History;
 use response::Response;
-use std::collections::HashMap;
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::sync::atomic::AtomicUsize;
+use std::sync::Arc;
+use std::time::Duration;
 
 /// Clients served at once; the next one is answered 503 and let go.
 pub const MAX_CLIENTS: usize = 32;
@@ -47,9 +45,6 @@ pub const WRITE_WAIT: Duration = Duration::from_secs(2);
 
 /// How long a request waits for the loop's answer.
 pub const ANSWER_WAIT: Duration = Duration::from_secs(2);
-
-/// How long the end waits for streams to be sent the last events.
-pub const FLUSH_WAIT: Duration = Duration::from_secs(1);
 
 /// Why the page could not be served.
 #[derive(Debug, thiserror::Error)]
@@ -98,106 +93,56 @@ impl Binding {
     /// history from `events`.
     pub fn serve(self, ask: Requester, events: &Events) -> Server {
         let history = History::follow(events);
+        let closing = Arc::new(Closing::default());
         let shared = Arc::new(Shared {
             addr: self.addr,
             ask,
             events: events.clone(),
             history,
-            closing: AtomicBool::new(false),
-            clients: AtomicUsize::new(0),
+            closing: Arc::clone(&closing),
             streams: AtomicUsize::new(0),
-            connections: Mutex::new(HashMap::new()),
         });
+        let bounds = Bounds {
+            clients: MAX_CLIENTS,
+            write_wait: WRITE_WAIT,
+            name: "web",
+        };
+        let refuse = |stream: &mut TcpStream| {
+            let why = format!("{MAX_CLIENTS} clients are connected already; try again");
+            let _ = Response::error(503, why).write_to(stream);
+        };
         let theirs = Arc::clone(&shared);
-        let listener = self.listener;
-        let accept = std::thread::Builder::new()
-            .name("web accept".into())
-            .spawn(move || accept_loop(&listener, &theirs))
-            .ok();
-        Server { shared, accept }
+        let serving = serving::serve(self.listener, bounds, closing, refuse, move |stream, _| {
+            api::serve_client(stream, &theirs);
+        });
+        Server {
+            shared,
+            serving: Some(serving),
+        }
     }
 }
 
 /// A served page; dropping it stops serving and gives streams a bounded time to be sent the
-/// last events.
+/// last events (`serving::FLUSH_WAIT`).
 pub struct Server {
     shared: Arc<Shared>,
-    accept: Option<JoinHandle<()>>,
+    serving: Option<Serving>,
 }
 
-/// What the accept thread and the clients share.
+/// What the clients share.
 struct Shared {
     addr: SocketAddr,
     ask: Requester,
     events: Events,
     history: History,
-    closing: AtomicBool,
-    clients: AtomicUsize,
+    /// Set when serving is over: streams end.
+    closing: Arc<Closing>,
     streams: AtomicUsize,
-    /// The clients' connections by number, to end their reads when the run ends.
-    connections: Mutex<HashMap<u64, TcpStream>>,
 }
 
 impl Drop for Server {
     fn drop(&mut self) {
-        self.shared.closing.store(true, Ordering::SeqCst);
-        for s in lock(&self.shared.connections).values() {
-            let _ = s.shutdown(std::net::Shutdown::Read);
-        }
-        // Bounded: the end of a run never waits on a client (threads left go with the
-        // process).
-        let until = Instant::now() + FLUSH_WAIT;
-        let busy = |s: &Self| {
-            s.shared.clients.load(Ordering::SeqCst) > 0
-                || s.accept.as_ref().is_some_and(|t| !t.is_finished())
-        };
-        while busy(self) && Instant::now() < until {
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        if let Some(t) = self.accept.take().filter(JoinHandle::is_finished) {
-            let _ = t.join();
-        }
+        self.serving.take();
         self.shared.history.stop();
-    }
-}
-
-fn accept_loop(listener: &TcpListener, shared: &Arc<Shared>) {
-    let mut number = 0u64;
-    loop {
-        if shared.closing.load(Ordering::SeqCst) {
-            return;
-        }
-        if !connection_waiting(listener) {
-            continue;
-        }
-        number = number.wrapping_add(1);
-        let Ok((mut stream, _)) = listener.accept() else {
-            // Out of descriptors, most likely: a moment, then on.
-            std::thread::sleep(Duration::from_millis(10));
-            continue;
-        };
-        let _ = stream.set_write_timeout(Some(WRITE_WAIT));
-        if shared.clients.load(Ordering::SeqCst) >= MAX_CLIENTS {
-            let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
-            let why = format!("{MAX_CLIENTS} clients are connected already; try again");
-            let _ = Response::error(503, why).write_to(&mut stream);
-            continue;
-        }
-        shared.clients.fetch_add(1, Ordering::SeqCst);
-        if let Ok(copy) = stream.try_clone() {
-            lock(&shared.connections).insert(number, copy);
-        }
-        let theirs = Arc::clone(shared);
-        let spawned = std::thread::Builder::new()
-            .name("web client".into())
-            .spawn(move || {
-                api::serve_client(stream, &theirs);
-                lock(&theirs.connections).remove(&number);
-                theirs.clients.fetch_sub(1, Ordering::SeqCst);
-            });
-        if spawned.is_err() {
-            lock(&shared.connections).remove(&number);
-            shared.clients.fetch_sub(1, Ordering::SeqCst);
-        }
     }
 }

@@ -51,7 +51,7 @@ fn follow(out: &mut TcpStream, shared: &Shared, who: &str) {
     let mut last_tick: Option<Instant> = None;
     let mut last_sent = Instant::now();
     loop {
-        let closing = shared.closing.load(Ordering::SeqCst);
+        let closing = shared.closing.now();
         let wait = if closing {
             Duration::ZERO
         } else {

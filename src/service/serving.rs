@@ -1,0 +1,224 @@
+//! Connections served off the scan loop, the one way the control socket and the web page both
+//! serve theirs: an accept thread that looks whether serving is over every `ACCEPT_SLICE`, a
+//! thread per client up to a bound (the next one is told so by the service and let go), each
+//! connection's reads ended when serving stops, and a bounded wait for the clients at the end:
+//! the end of a run never waits on a client.
+
+use crate::sync::lock;
+use std::collections::HashMap;
+use std::io;
+use std::net::{Shutdown, TcpListener, TcpStream};
+use std::os::unix::io::{AsRawFd, RawFd};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// How often the accept thread looks whether serving is over.
+pub const ACCEPT_SLICE: Duration = Duration::from_millis(100);
+
+/// How long the end waits for clients to finish (subscribers to be sent the last events).
+pub const FLUSH_WAIT: Duration = Duration::from_secs(1);
+
+/// A listening socket the accept thread takes connections from.
+pub trait Listening: AsRawFd + Send + 'static {
+    /// What a connection is.
+    type Stream: Connection;
+    /// Takes the connection waiting.
+    fn take(&self) -> io::Result<Self::Stream>;
+}
+
+/// A client's connection.
+pub trait Connection: Send + Sized + 'static {
+    /// Bounds how long a write may wait for a client that does not read.
+    fn set_write_wait(&self, wait: Duration);
+    /// Ends its reads (its thread then sees the end of the stream).
+    fn end_reads(&self);
+    /// A second handle on it.
+    fn another(&self) -> io::Result<Self>;
+}
+
+impl Listening for UnixListener {
+    type Stream = UnixStream;
+    fn take(&self) -> io::Result<UnixStream> {
+        self.accept().map(|(s, _)| s)
+    }
+}
+
+impl Listening for TcpListener {
+    type Stream = TcpStream;
+    fn take(&self) -> io::Result<TcpStream> {
+        self.accept().map(|(s, _)| s)
+    }
+}
+
+impl Connection for UnixStream {
+    fn set_write_wait(&self, wait: Duration) {
+        let _ = self.set_write_timeout(Some(wait));
+    }
+    fn end_reads(&self) {
+        let _ = self.shutdown(Shutdown::Read);
+    }
+    fn another(&self) -> io::Result<Self> {
+        self.try_clone()
+    }
+}
+
+impl Connection for TcpStream {
+    fn set_write_wait(&self, wait: Duration) {
+        let _ = self.set_write_timeout(Some(wait));
+    }
+    fn end_reads(&self) {
+        let _ = self.shutdown(Shutdown::Read);
+    }
+    fn another(&self) -> io::Result<Self> {
+        self.try_clone()
+    }
+}
+
+/// How a service's connections are bounded.
+#[derive(Debug, Clone, Copy)]
+pub struct Bounds {
+    /// Clients served at once.
+    pub clients: usize,
+    /// How long a write may wait for a client that does not read.
+    pub write_wait: Duration,
+    /// The accept thread's name (its clients' threads are named `NAME client`).
+    pub name: &'static str,
+}
+
+/// Whether serving is over, for a client's thread to look at between waits.
+#[derive(Default)]
+pub struct Closing(AtomicBool);
+
+impl Closing {
+    /// Whether serving is over.
+    pub fn now(&self) -> bool {
+        self.0.load(Ordering::SeqCst)
+    }
+}
+
+struct State<S> {
+    closing: Arc<Closing>,
+    clients: AtomicUsize,
+    /// The clients' connections by number, to end their reads when serving stops.
+    open: Mutex<HashMap<u64, S>>,
+}
+
+/// Connections being served; dropping it stops serving (see the module doc).
+pub struct Serving {
+    closing: Arc<Closing>,
+    end: Box<dyn Fn() -> bool + Send>,
+    accept: Option<JoinHandle<()>>,
+}
+
+/// Serves `listener` from now on: each client on a thread of its own, given to `client` with
+/// `closing`, the flag that says serving is over (set when `Serving` is dropped); one past
+/// `bounds.clients` is given to `refuse` (a short answer that says so) and let go.
+pub fn serve<L: Listening>(
+    listener: L,
+    bounds: Bounds,
+    closing: Arc<Closing>,
+    refuse: impl Fn(&mut L::Stream) + Send + 'static,
+    client: impl Fn(L::Stream, &Closing) + Send + Sync + 'static,
+) -> Serving {
+    let state = Arc::new(State {
+        closing: Arc::clone(&closing),
+        clients: AtomicUsize::new(0),
+        open: Mutex::new(HashMap::new()),
+    });
+    let theirs = Arc::clone(&state);
+    let client = Arc::new(client);
+    let accept = std::thread::Builder::new()
+        .name(bounds.name.into())
+        .spawn(move || accept_loop(&listener, bounds, &theirs, &refuse, &client))
+        .ok();
+    let ending = Arc::clone(&state);
+    // Ends the clients' reads; true while some are still being served.
+    let end = Box::new(move || {
+        for s in lock(&ending.open).values() {
+            s.end_reads();
+        }
+        ending.clients.load(Ordering::SeqCst) > 0
+    });
+    Serving {
+        closing,
+        end,
+        accept,
+    }
+}
+
+impl Drop for Serving {
+    fn drop(&mut self) {
+        self.closing.0.store(true, Ordering::SeqCst);
+        let until = Instant::now() + FLUSH_WAIT;
+        loop {
+            let clients = (self.end)();
+            let accepting = self.accept.as_ref().is_some_and(|t| !t.is_finished());
+            if !(clients || accepting) || Instant::now() >= until {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if let Some(t) = self.accept.take().filter(JoinHandle::is_finished) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Waits up to `ACCEPT_SLICE` for a connection; true if one waits.
+fn connection_waiting(fd: RawFd) -> bool {
+    let mut poll = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ms = libc::c_int::try_from(ACCEPT_SLICE.as_millis()).unwrap_or(100);
+    // SAFETY: one valid pollfd for the listener's own descriptor.
+    let ready = unsafe { libc::poll(&mut poll, 1, ms) };
+    ready > 0 && poll.revents & libc::POLLIN != 0
+}
+
+fn accept_loop<L: Listening>(
+    listener: &L,
+    bounds: Bounds,
+    state: &Arc<State<L::Stream>>,
+    refuse: &impl Fn(&mut L::Stream),
+    client: &Arc<impl Fn(L::Stream, &Closing) + Send + Sync + 'static>,
+) {
+    let mut number = 0u64;
+    while !state.closing.now() {
+        if !connection_waiting(listener.as_raw_fd()) {
+            continue;
+        }
+        number = number.wrapping_add(1);
+        let Ok(mut stream) = listener.take() else {
+            // Out of descriptors, most likely: a moment, then on.
+            std::thread::sleep(Duration::from_millis(10));
+            continue;
+        };
+        stream.set_write_wait(bounds.write_wait);
+        if state.clients.load(Ordering::SeqCst) >= bounds.clients {
+            stream.set_write_wait(Duration::from_millis(100));
+            refuse(&mut stream);
+            continue;
+        }
+        state.clients.fetch_add(1, Ordering::SeqCst);
+        if let Ok(copy) = stream.another() {
+            lock(&state.open).insert(number, copy);
+        }
+        let (theirs, serve) = (Arc::clone(state), Arc::clone(client));
+        let spawned = std::thread::Builder::new()
+            .name(format!("{} client", bounds.name))
+            .spawn(move || {
+                serve(stream, &theirs.closing);
+                lock(&theirs.open).remove(&number);
+                theirs.clients.fetch_sub(1, Ordering::SeqCst);
+            });
+        if spawned.is_err() {
+            lock(&state.open).remove(&number);
+            state.clients.fetch_sub(1, Ordering::SeqCst);
+        }
+    }
+}
