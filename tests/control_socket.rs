@@ -5,12 +5,12 @@
 
 mod common;
 
-use common::{rigscript, SimProcess, TempDir};
+use common::{rigscript, until, SimProcess, TempDir};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;
 use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// A rig directory of the test's own, so runs of other tests are not seen.
 struct Rigs {
@@ -91,20 +91,6 @@ impl Drop for Run {
             let _ = self.0.kill();
             let _ = self.0.wait();
         }
-    }
-}
-
-/// `probe` until it gives something, or `None` after `limit`.
-fn until<T>(limit: Duration, mut probe: impl FnMut() -> Option<T>) -> Option<T> {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = probe() {
-            return Some(v);
-        }
-        if start.elapsed() > limit {
-            return None;
-        }
-        std::thread::sleep(Duration::from_millis(50));
     }
 }
 

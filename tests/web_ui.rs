@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{rigscript, TempDir};
+use common::{rigscript, until, TempDir};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -125,20 +125,6 @@ fn state(addr: SocketAddr) -> Value {
     let (status, body) = get(addr, "/api/state");
     assert_eq!(status, 200, "{body}");
     serde_json::from_str(&body).unwrap()
-}
-
-/// `probe` until it gives something, or `None` after `limit`.
-fn until<T>(limit: Duration, mut probe: impl FnMut() -> Option<T>) -> Option<T> {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = probe() {
-            return Some(v);
-        }
-        if start.elapsed() > limit {
-            return None;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 fn drive(addr: SocketAddr, json: &str) {

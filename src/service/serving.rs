@@ -53,29 +53,24 @@ impl Listening for TcpListener {
     }
 }
 
-impl Connection for UnixStream {
-    fn set_write_wait(&self, wait: Duration) {
-        let _ = self.set_write_timeout(Some(wait));
-    }
-    fn end_reads(&self) {
-        let _ = self.shutdown(Shutdown::Read);
-    }
-    fn another(&self) -> io::Result<Self> {
-        self.try_clone()
-    }
+/// `Connection` for std's stream types, which share the methods it needs.
+macro_rules! connection {
+    ($($stream:ty),*) => {$(
+        impl Connection for $stream {
+            fn set_write_wait(&self, wait: Duration) {
+                let _ = self.set_write_timeout(Some(wait));
+            }
+            fn end_reads(&self) {
+                let _ = self.shutdown(Shutdown::Read);
+            }
+            fn another(&self) -> io::Result<Self> {
+                self.try_clone()
+            }
+        }
+    )*};
 }
 
-impl Connection for TcpStream {
-    fn set_write_wait(&self, wait: Duration) {
-        let _ = self.set_write_timeout(Some(wait));
-    }
-    fn end_reads(&self) {
-        let _ = self.shutdown(Shutdown::Read);
-    }
-    fn another(&self) -> io::Result<Self> {
-        self.try_clone()
-    }
-}
+connection!(UnixStream, TcpStream);
 
 /// How a service's connections are bounded.
 #[derive(Debug, Clone, Copy)]

@@ -262,3 +262,17 @@ fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) {
         }
     }
 }
+
+/// `probe` until it gives something, or `None` after `limit`.
+pub fn until<T>(limit: Duration, mut probe: impl FnMut() -> Option<T>) -> Option<T> {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = probe() {
+            return Some(v);
+        }
+        if start.elapsed() > limit {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
