@@ -300,6 +300,18 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
         .filter(|l| l.contains("clients are connected to this rig already"))
         .count();
     assert_eq!(refused, 5, "connections past the limit are told so");
+    // A run that cannot answer for its clients keeps its socket: `list` leaves it, and another
+    // run of the script takes the next name instead of this one.
+    rigs.output(&["list"]);
+    assert!(
+        rigs.socket("steady").exists(),
+        "a busy run's socket was removed"
+    );
+    let second = rigs.output(&["run", "--sim", "--for", "100ms", &script]);
+    let said = String::from_utf8_lossy(&second.stderr).to_string();
+    assert_eq!(second.status.code(), Some(0), "{said}");
+    assert!(said.contains("this run is rig steady-2"), "{said}");
+    assert!(rigs.socket("steady").exists());
     // A subscriber that never reads: its events are dropped, counted.
     let mut stalled = connect(&rigs, "steady");
     stalled.write_all(b"{\"request\":\"subscribe\"}\n").unwrap();

@@ -129,6 +129,12 @@ pub(super) fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connectio
             return Err(not_running());
         }
         Knock::Absent => return Err(not_running()),
+        Knock::Unanswered(why) => {
+            return Err(Unreached {
+                message: format!("rig {name} did not answer: {why}"),
+                status: exit::ERROR,
+            })
+        }
     }
     Connection::open(&path, ANSWER_WAIT).map_err(|e| Unreached {
         message: format!("rig {name} did not answer: {e}"),

@@ -242,7 +242,51 @@ impl Consumer {
     }
 }
 
+/// What a consumer following the stream is handed (`Subscription::follow`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Next {
+    /// The next event.
+    Event(Arc<RunEvent>),
+    /// This many events were lost since the last hand-over (told before the event after them).
+    Dropped(u64),
+    /// A wait slice went by without an event (a time to send a keep-alive).
+    Quiet,
+}
+
 impl Subscription {
+    /// Hands `each` the events in order, losses as `Next::Dropped`, and `Next::Quiet` after each
+    /// `slice` without an event, until `each` says stop (false), the run's `Ended` was handed
+    /// over, the run is gone, or `closing()` says so (what is queued by then still goes).
+    pub fn follow(
+        &mut self,
+        slice: Duration,
+        closing: impl Fn() -> bool,
+        mut each: impl FnMut(Next) -> bool,
+    ) {
+        loop {
+            let closing = closing();
+            let next = self.next(if closing { Duration::ZERO } else { slice });
+            let lost = self.newly_dropped();
+            if lost > 0 && !each(Next::Dropped(lost)) {
+                return;
+            }
+            match next {
+                Ok(event) => {
+                    let end = matches!(*event, RunEvent::Ended { .. });
+                    if !each(Next::Event(event)) || end {
+                        return;
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) if !closing => {
+                    if !each(Next::Quiet) {
+                        return;
+                    }
+                }
+                Err(_) => return,
+            }
+        }
+    }
+
     /// The next event, waiting at most `wait`; `Err(Disconnected)` once the run is gone.
     pub fn next(&self, wait: Duration) -> Result<Arc<RunEvent>, RecvTimeoutError> {
         self.events.recv_timeout(wait)
@@ -350,6 +394,55 @@ mod tests {
         // Let go at once, without an event to find them gone by.
         drop(kept);
         assert!(events.subscribe("after", 1).is_ok());
+    }
+
+    #[test]
+    fn following_hands_over_losses_before_the_next_event_and_ends_with_the_run() {
+        let events = Events::default();
+        let mut s = events.subscribe("f", 2).unwrap();
+        for n in 1..=3 {
+            events.publish(|| tick(n));
+        }
+        let ended = RunEvent::Ended {
+            status: 0,
+            reason: "done".into(),
+            safe: vec![],
+            unconfirmed: vec![],
+        };
+        let mut got = Vec::new();
+        s.follow(
+            Duration::ZERO,
+            || false,
+            |n| {
+                if got.len() == 2 {
+                    events.publish(|| ended.clone());
+                }
+                got.push(n);
+                true
+            },
+        );
+        assert_eq!(
+            got,
+            vec![
+                Next::Dropped(1),
+                Next::Event(Arc::new(tick(1))),
+                Next::Event(Arc::new(tick(2))),
+                Next::Event(Arc::new(ended.clone())),
+            ]
+        );
+        // Closing: what is queued goes, then it stops without waiting.
+        let mut s = events.subscribe("g", 4).unwrap();
+        events.publish(|| tick(9));
+        let mut got = Vec::new();
+        s.follow(
+            Duration::from_secs(60),
+            || true,
+            |n| {
+                got.push(n);
+                true
+            },
+        );
+        assert_eq!(got, vec![Next::Event(Arc::new(tick(9)))]);
     }
 
     #[test]

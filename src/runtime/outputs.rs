@@ -7,7 +7,7 @@
 
 use super::devices::Device;
 use super::log::Level;
-use super::observe::RunEvent;
+use super::observe::{Events, RunEvent};
 use super::state::Runtime;
 
 impl<H: Clone> Runtime<H> {
@@ -103,13 +103,13 @@ impl<H: Clone> Runtime<H> {
                                     before.map_or("?".to_string(), |r| r.to_string()),
                                 )
                             });
-                            let (told, cause) = (d.name.clone(), cause.to_string());
+                            // Built only for a watched run: writes are on the tick's path.
+                            let told = self
+                                .events
+                                .watched()
+                                .then(|| (d.name.clone(), cause.to_string()));
                             d.select_relay(relay).map(|()| {
-                                self.events.publish(|| RunEvent::Outputs {
-                                    device: told,
-                                    value: relay,
-                                    cause,
-                                });
+                                tell_written(&self.events, told, relay);
                                 line
                             })
                         }
@@ -129,13 +129,12 @@ impl<H: Clone> Runtime<H> {
                             if held { "held safe" } else { &d.outputs_cause }
                         );
                         let cause = if held { "held safe" } else { &d.outputs_cause };
-                        let (told, cause) = (d.name.clone(), cause.to_string());
+                        let told = self
+                            .events
+                            .watched()
+                            .then(|| (d.name.clone(), cause.to_string()));
                         d.write_outputs(target).map(|()| {
-                            self.events.publish(|| RunEvent::Outputs {
-                                device: told,
-                                value: target,
-                                cause,
-                            });
+                            tell_written(&self.events, told, target);
                             Some(line)
                         })
                     }
@@ -176,6 +175,17 @@ impl<H: Clone> Runtime<H> {
                 }
             }
         }
+    }
+}
+
+/// Tells the events a write made: `told` is the device and the cause, when anyone watches.
+fn tell_written(events: &Events, told: Option<(String, String)>, value: u8) {
+    if let Some((device, cause)) = told {
+        events.publish(|| RunEvent::Outputs {
+            device,
+            value,
+            cause,
+        });
     }
 }
 

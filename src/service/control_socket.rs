@@ -11,7 +11,7 @@
 use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_REQUEST};
 use super::rig_dir::{self, Knock};
 use super::serving::{self, Bounds, Closing, Serving};
-use crate::runtime::observe::{Events, RunEvent, DEFAULT_QUEUE};
+use crate::runtime::observe::{Events, Next, DEFAULT_QUEUE};
 use crate::runtime::requests::{Answer, Request, Requester};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
@@ -52,6 +52,21 @@ pub enum ClaimError {
         pid: u32,
         /// Its script.
         script: String,
+    },
+    /// Something listens on the rig's socket but did not say who it is: a run of it whose
+    /// clients are all taken, most likely.
+    #[error(
+        "a rig called {rig} seems to be running already: its socket {} answers but did not say \
+         who it is ({why}); try again, or remove the file if no run of it is left",
+        path.display()
+    )]
+    Unanswered {
+        /// The rig's name.
+        rig: String,
+        /// The socket.
+        path: PathBuf,
+        /// What the knock got.
+        why: String,
     },
     /// The rig directory or the socket could not be made.
     #[error("cannot make the control socket {}: {source}", path.display())]
@@ -98,11 +113,11 @@ pub fn claim(dir: &Path, mut hello: Hello, naming: Naming) -> Result<Claim, Clai
         };
         match claim_name(dir, &hello) {
             Ok(listener) => return Ok(listener),
-            Err(ClaimError::Running { rig, pid, script }) => {
+            Err(e @ (ClaimError::Running { .. } | ClaimError::Unanswered { .. })) => {
                 if naming == Naming::Configured {
-                    return Err(ClaimError::Running { rig, pid, script });
+                    return Err(e);
                 }
-                first_taken.get_or_insert(ClaimError::Running { rig, pid, script });
+                first_taken.get_or_insert(e);
             }
             Err(e) => return Err(e),
         }
@@ -133,6 +148,14 @@ fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
             Err(e) => return Err(io(e)),
         },
         Knock::Absent => {}
+        // A live run, most likely: never take its name from under it.
+        Knock::Unanswered(why) => {
+            return Err(ClaimError::Unanswered {
+                rig: hello.rig.clone(),
+                path,
+                why,
+            })
+        }
     }
     let listener = match UnixListener::bind(&path) {
         Ok(l) => l,
@@ -338,37 +361,18 @@ fn stream_events(out: &mut UnixStream, shared: &Shared, closing: &Closing) {
     if out.write_all(Reply::done().line().as_bytes()).is_err() {
         return;
     }
-    loop {
-        let closing = closing.now();
-        let wait = if closing {
-            Duration::ZERO
-        } else {
-            Duration::from_millis(200)
-        };
-        let next = events.next(wait);
-        let lost = events.newly_dropped();
-        if lost > 0 {
-            let line = format!("{{\"event\":\"dropped\",\"events\":{lost}}}\n");
-            if out.write_all(line.as_bytes()).is_err() {
-                return;
-            }
-        }
-        match next {
-            Ok(event) => {
-                let mut line = serde_json::to_string(&*event).unwrap_or_default();
-                line.push('\n');
-                if out.write_all(line.as_bytes()).is_err() {
-                    return;
-                }
-                if matches!(*event, RunEvent::Ended { .. }) {
-                    return;
-                }
-            }
-            Err(_) if closing => return,
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return,
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
-        }
-    }
+    events.follow(
+        Duration::from_millis(200),
+        || closing.now(),
+        |next| {
+            let line = match next {
+                Next::Event(event) => serde_json::to_string(&*event).unwrap_or_default() + "\n",
+                Next::Dropped(lost) => format!("{{\"event\":\"dropped\",\"events\":{lost}}}\n"),
+                Next::Quiet => return true,
+            };
+            out.write_all(line.as_bytes()).is_ok()
+        },
+    );
 }
 
 /// The pid and uid of the process at the other end of `stream`.

@@ -128,7 +128,10 @@ pub fn rig_name(configured: Option<&str>, config: Option<&Path>, script: &Path) 
 pub enum Knock {
     /// A live run, which said who it is.
     Answered(Hello),
-    /// A socket nobody listens on (its run died), or one that would not say who it is.
+    /// Something listens but did not say who it is (a run whose clients are all taken, one
+    /// too busy to answer in time): not to be removed; why, in words.
+    Unanswered(String),
+    /// A socket nobody listens on: its run died.
     Stale,
     /// Nothing.
     Absent,
@@ -142,10 +145,12 @@ pub fn knock(path: &Path) -> Knock {
     match Connection::open(path, KNOCK_WAIT) {
         Ok(mut c) => match c.hello() {
             Ok(hello) => Knock::Answered(hello),
-            Err(_) => Knock::Stale,
+            Err(e) => Knock::Unanswered(e.to_string()),
         },
         Err(e) if e.kind() == io::ErrorKind::NotFound => Knock::Absent,
-        Err(_) => Knock::Stale,
+        // Refused: the file is there and nobody listens (ECONNREFUSED).
+        Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => Knock::Stale,
+        Err(e) => Knock::Unanswered(e.to_string()),
     }
 }
 
@@ -164,7 +169,7 @@ pub fn running(dir: &Path) -> Vec<Hello> {
                 let _ = std::fs::remove_file(&p);
                 None
             }
-            Knock::Absent => None,
+            Knock::Unanswered(_) | Knock::Absent => None,
         })
         .collect();
     rigs.sort_by(|a, b| a.rig.cmp(&b.rig));

@@ -89,34 +89,29 @@ impl<P: Program> Runner<P> {
         let Some(served) = &self.served else {
             return;
         };
-        // Between ticks only the devices' upkeep (feeds, retries) changes what is shown, and
-        // each of its exchanges counts: a snapshot stands until the next tick or exchange.
-        let tick = (self.stats.ticks, self.rt.borrow().transaction_count());
-        let mut made = served.made.clone().filter(|(at, _)| *at == tick);
-        let mut asked = false;
-        // Made lazily, only if a request needs it: the closure cannot borrow `self` whole.
-        let snapshot = std::cell::OnceCell::new();
+        // The snapshot of this turn, looked for or made only when a request asks for one.
+        let mut made: Option<((u64, u64), Arc<RigSnapshot>)> = None;
         served.requests.drain(|request| match request {
             Request::Snapshot => {
-                asked = true;
-                let s = match &made {
-                    Some((_, s)) => Arc::clone(s),
-                    None => Arc::clone(snapshot.get_or_init(|| Arc::new(self.snapshot()))),
-                };
-                Answer::Snapshot(s)
+                let (_, snapshot) = made.get_or_insert_with(|| {
+                    // Between ticks only the devices' upkeep (feeds, retries) changes what is
+                    // shown, and each of its exchanges counts: a snapshot stands until the
+                    // next tick or exchange.
+                    let at = (self.stats.ticks, self.rt.borrow().transaction_count());
+                    match &served.made {
+                        Some((when, s)) if *when == at => (at, Arc::clone(s)),
+                        _ => (at, Arc::new(self.snapshot())),
+                    }
+                });
+                Answer::Snapshot(Arc::clone(snapshot))
             }
             Request::Drive(drive) => match drive.apply(&served.field) {
                 Ok(()) => Answer::Accepted,
                 Err(why) => Answer::Refused(why),
             },
         });
-        if asked && made.is_none() {
-            made = snapshot.into_inner().map(|s| (tick, s));
-        }
-        if let Some(served) = &mut self.served {
-            if made.is_some() {
-                served.made = made;
-            }
+        if let (Some(made), Some(served)) = (made, &mut self.served) {
+            served.made = Some(made);
         }
     }
 }

@@ -6,11 +6,10 @@
 
 use super::response::Response;
 use super::{Shared, MAX_STREAMS};
-use crate::runtime::observe::{RunEvent, DEFAULT_QUEUE};
+use crate::runtime::observe::{Next, RunEvent, DEFAULT_QUEUE};
 use std::io::Write;
 use std::net::TcpStream;
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::RecvTimeoutError;
 use std::time::{Duration, Instant};
 
 /// The least time between two tick events sent to one viewer.
@@ -50,48 +49,33 @@ fn follow(out: &mut TcpStream, shared: &Shared, who: &str) {
     }
     let mut last_tick: Option<Instant> = None;
     let mut last_sent = Instant::now();
-    loop {
-        let closing = shared.closing.now();
-        let wait = if closing {
-            Duration::ZERO
-        } else {
-            Duration::from_millis(200)
-        };
-        let next = events.next(wait);
-        let lost = events.newly_dropped();
-        let mut message = String::new();
-        if lost > 0 {
-            message.push_str(&format!("event: dropped\ndata: {{\"events\":{lost}}}\n\n"));
-        }
-        let mut end = false;
-        match next {
-            Ok(event) => {
+    let closing = || shared.closing.now();
+    events.follow(Duration::from_millis(200), closing, |next| {
+        let message = match next {
+            Next::Event(event) => {
                 let is_tick = matches!(*event, RunEvent::Tick { .. });
-                let due = last_tick.map_or(true, |t| t.elapsed() >= TICK_EVERY);
-                if !is_tick || due {
+                if is_tick && last_tick.is_some_and(|t| t.elapsed() < TICK_EVERY) {
+                    String::new()
+                } else {
                     if is_tick {
                         last_tick = Some(Instant::now());
                     }
                     let data = serde_json::to_string(&*event).unwrap_or_default();
-                    message.push_str(&format!("data: {data}\n\n"));
+                    format!("data: {data}\n\n")
                 }
-                end = matches!(*event, RunEvent::Ended { .. });
             }
-            Err(_) if closing => return,
-            Err(RecvTimeoutError::Disconnected) => return,
-            Err(RecvTimeoutError::Timeout) => {}
+            Next::Dropped(lost) => format!("event: dropped\ndata: {{\"events\":{lost}}}\n\n"),
+            Next::Quiet => String::new(),
+        };
+        // Throttled ticks are silence too: a viewer that went away is found by the keep-alive.
+        let message = match message.is_empty() && last_sent.elapsed() >= KEEP_ALIVE {
+            true => ": keep-alive\n\n".to_string(),
+            false => message,
+        };
+        if message.is_empty() {
+            return true;
         }
-        if message.is_empty() && last_sent.elapsed() >= KEEP_ALIVE {
-            message.push_str(": keep-alive\n\n");
-        }
-        if !message.is_empty() {
-            if out.write_all(message.as_bytes()).is_err() {
-                return;
-            }
-            last_sent = Instant::now();
-        }
-        if end {
-            return;
-        }
-    }
+        last_sent = Instant::now();
+        out.write_all(message.as_bytes()).is_ok()
+    });
 }
