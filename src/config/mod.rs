@@ -30,7 +30,7 @@ pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
 use crate::text_file::{read_text, TextKind};
-use reader::{duration, line_and_column, string, Reader, TableRef};
+use reader::{boolean, duration, line_and_column, string, Reader, TableRef};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -90,6 +90,7 @@ const TOP_KEYS: &[&str] = &[
     "grace",
     "wake_latency",
     "ui",
+    "force",
     "limits",
     "devices",
 ];
@@ -140,6 +141,9 @@ pub struct RigConfig {
     /// Where the run serves its web page and HTTP API (`ui = "ADDR"`; default none: `run
     /// --ui` turns it on).
     pub ui: Option<std::net::SocketAddr>,
+    /// Whether an operator may force outputs and inputs (`force = true`; default false):
+    /// `rigscript force`, `POST /api/force` (`runtime::forcing`).
+    pub force: bool,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
     /// The devices simulated while the others are real (`sim = true`, `run --sim-device`).
@@ -159,6 +163,7 @@ impl Default for RigConfig {
             grace: DEFAULT_GRACE,
             wake_latency: WakeLatency::Auto,
             ui: None,
+            force: false,
             limits: ScriptLimits::default(),
             devices: BTreeMap::new(),
             simulated: BTreeSet::new(),
@@ -243,6 +248,7 @@ impl RigConfig {
                 )
             })
         });
+        let force = r.read(&root, "force", boolean).unwrap_or(false);
         let limits = match root.get("limits") {
             None => ScriptLimits::default(),
             Some(value) => match value.get_ref() {
@@ -306,6 +312,7 @@ impl RigConfig {
             grace,
             wake_latency,
             ui,
+            force,
             limits,
             devices,
             simulated,

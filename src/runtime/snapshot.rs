@@ -8,6 +8,7 @@
 //! loop exchanges and could steal an edge from the script).
 
 use super::devices::Device;
+use super::forcing::ForceShown;
 use super::observe::Dropped;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -33,6 +34,12 @@ pub struct RigSnapshot {
     pub dropped: Vec<Dropped>,
     /// Log lines lost because the log's output was not being read.
     pub log_dropped: u64,
+    /// Whether rig.toml allows forcing (`force = true`).
+    #[serde(default)]
+    pub forcing: bool,
+    /// The points forced now, by the operator (`runtime::forcing`).
+    #[serde(default)]
+    pub forces: Vec<ForceShown>,
 }
 
 /// The script's side of a run.

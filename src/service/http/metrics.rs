@@ -245,6 +245,8 @@ mod tests {
                 events: 7,
             }],
             log_dropped: 0,
+            forcing: false,
+            forces: Vec::new(),
         }
     }
 
