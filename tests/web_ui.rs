@@ -10,14 +10,16 @@ use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// A run serving its page; killed if the test fails before it ends.
 struct Served {
     child: Child,
     addr: SocketAddr,
-    _dir: TempDir,
+    /// The run's log lines so far.
+    log: Arc<Mutex<Vec<String>>>,
+    dir: TempDir,
 }
 
 impl Drop for Served {
@@ -31,7 +33,11 @@ impl Drop for Served {
 
 /// Starts `rigscript run ARGS.. --ui 127.0.0.1:0` and waits for the address it serves.
 fn serve(tag: &str, args: &[&str]) -> Served {
-    let dir = TempDir::new(tag);
+    serve_in(TempDir::new(tag), args)
+}
+
+/// `serve` with its runtime directory (and whatever files the test put there) `dir`.
+fn serve_in(dir: TempDir, args: &[&str]) -> Served {
     let mut child = Command::new(rigscript())
         .arg("run")
         .args(args)
@@ -44,11 +50,14 @@ fn serve(tag: &str, args: &[&str]) -> Served {
         .unwrap();
     let stderr = child.stderr.take().unwrap();
     let (tx, rx) = mpsc::channel();
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let lines = Arc::clone(&log);
     std::thread::spawn(move || {
         for line in BufReader::new(stderr).lines().map_while(Result::ok) {
             if let Some(rest) = line.split("ui: http://").nth(1) {
                 let _ = tx.send(rest.trim_end_matches('/').to_string());
             }
+            lines.lock().unwrap().push(line);
         }
     });
     let addr = rx
@@ -59,7 +68,8 @@ fn serve(tag: &str, args: &[&str]) -> Served {
     Served {
         child,
         addr,
-        _dir: dir,
+        log,
+        dir,
     }
 }
 
@@ -580,4 +590,271 @@ fn a_real_device_is_not_driven_from_the_page_while_its_simulated_neighbour_is() 
     })
     .expect("the simulated panel is driven");
     assert_eq!(state(a)["devices"]["io"]["online"], true);
+}
+
+/// A rig for forcing under `--sim`: DO0 follows DI0, the panel watched (its loss is seen at
+/// once), a short grace time; `force` says whether rig.toml allows forcing.
+fn forcing_rig(tag: &str, force: bool) -> Served {
+    let dir = TempDir::new(tag);
+    let records = dir.path("records.jsonl");
+    dir.file(
+        "rig.toml",
+        &format!(
+            "name = \"{tag}\"\nperiod = \"50ms\"\ngrace = \"500ms\"\nforce = {force}\n\
+             records = \"{}\"\n\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
+             safe_value = 0x00\n\n[devices.panel]\nkind = \"trc1000\"\n",
+            records.display()
+        ),
+    );
+    let script = dir.file(
+        "follow.rhai",
+        "io.on_rise(0, || io.set_output(0, true));\n\
+         io.on_fall(0, || io.set_output(0, false));\n\
+         panel.on_press(\"S1\", || {});\n",
+    );
+    let config = dir.path("rig.toml").display().to_string();
+    serve_in(dir, &[&script, "--config", &config, "--sim"])
+}
+
+impl Served {
+    /// `rigscript ARGS..` against this run's rig directory: (status, stdout, stderr).
+    fn cli(&self, args: &[&str]) -> (i32, String, String) {
+        let out = Command::new(rigscript())
+            .args(args)
+            .env("XDG_RUNTIME_DIR", &self.dir.0)
+            .env_remove("RUNTIME_DIRECTORY")
+            .output()
+            .unwrap();
+        (
+            out.status.code().unwrap_or(-1),
+            String::from_utf8_lossy(&out.stdout).to_string(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    }
+
+    /// Waits (at most 10 s) for a log line containing `text`.
+    fn logged(&self, text: &str) -> String {
+        until(Duration::from_secs(10), || {
+            self.log
+                .lock()
+                .unwrap()
+                .iter()
+                .find(|l| l.contains(text))
+                .cloned()
+        })
+        .unwrap_or_else(|| {
+            panic!(
+                "no log line with {text:?}:\n{}",
+                self.log.lock().unwrap().join("\n")
+            )
+        })
+    }
+
+    /// The records file's `force` records so far.
+    fn force_records(&self) -> Vec<Value> {
+        std::fs::read_to_string(self.dir.path("records.jsonl"))
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+            .filter(|v| v["name"] == "force")
+            .map(|v| v["value"].clone())
+            .collect()
+    }
+}
+
+fn delete(addr: SocketAddr, path: &str) -> (u16, String) {
+    exchange(
+        addr,
+        &format!("DELETE {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n"),
+        b"",
+    )
+}
+
+/// Waits (at most 10 s) until the state satisfies `holds`.
+fn state_until(addr: SocketAddr, what: &str, holds: impl Fn(&Value) -> bool) -> Value {
+    until(Duration::from_secs(10), || {
+        let s = state(addr);
+        holds(&s).then_some(s)
+    })
+    .unwrap_or_else(|| panic!("{what}: {}", state(addr)))
+}
+
+#[test]
+fn a_forced_output_holds_until_it_expires_and_a_forced_input_is_what_the_script_reads() {
+    let run = forcing_rig("forced", true);
+    let a = run.addr;
+    assert_eq!(state(a)["forcing"], true);
+    let (status, body) = post(
+        a,
+        "/api/force",
+        r#"{"point":"io.DO3","value":true,"for":"1s"}"#,
+    );
+    assert_eq!(status, 200, "{body}");
+    let s = state_until(a, "DO3 forced on", |s| {
+        s["devices"]["io"]["outputs_written"] == 0x08
+    });
+    assert_eq!(s["forces"][0]["point"], "io.DO3");
+    assert_eq!(
+        s["devices"]["io"]["outputs"], 0,
+        "the script commands nothing"
+    );
+    run.logged("force: io.DO3 forced on for 1s (by the web page (127.0.0.1:");
+    run.logged("io: outputs 0x00 -> 0x08 (forced)");
+    // It expires on its own, on the run's clock: the script's value again.
+    run.logged("force: io.DO3 expired after 1s: the script's value applies again");
+    state_until(a, "the force gone and DO3 off", |s| {
+        s["forces"].as_array().is_some_and(|f| f.is_empty())
+            && s["devices"]["io"]["outputs_written"] == 0
+    });
+    // A forced input is what the script reads: DO0 follows the forced DI0.
+    let (status, body) = post(
+        a,
+        "/api/force",
+        r#"{"point":"io.DI0","value":true,"for":"1m"}"#,
+    );
+    assert_eq!(status, 200, "{body}");
+    state_until(a, "the script sees DI0 and commands DO0", |s| {
+        s["devices"]["io"]["outputs"] == 1 && s["devices"]["io"]["inputs"] == 1
+    });
+    let (status, body) = delete(a, "/api/force/io.DI0");
+    assert_eq!(status, 200, "{body}");
+    run.logged("force: io.DI0 removed (by the web page (127.0.0.1:");
+    state_until(a, "DI0 released again, DO0 off", |s| {
+        s["devices"]["io"]["outputs"] == 0 && s["devices"]["io"]["inputs"] == 0
+    });
+    // Each refusal has its status and says why.
+    for (json, want) in [
+        (r#"{"point":"io.DO9","value":true,"for":"1m"}"#, 404),
+        (r#"{"point":"pump.DO1","value":true,"for":"1m"}"#, 404),
+        (r#"{"point":"io.DO1","value":7,"for":"1m"}"#, 400),
+        (r#"{"point":"io.DO1","value":true,"for":"0s"}"#, 400),
+        (r#"{"point":"io.DO1","value":true}"#, 400),
+    ] {
+        let (status, body) = post(a, "/api/force", json);
+        assert_eq!(status, want, "{json}: {body}");
+        assert!(body.contains("\"error\""), "{body}");
+    }
+    let (status, body) = delete(a, "/api/force/io.DI0");
+    assert_eq!(status, 404, "{body}");
+    let events: Vec<(String, String)> = until(Duration::from_secs(10), || {
+        let r = run.force_records();
+        (r.len() >= 4).then_some(r)
+    })
+    .expect("four force records")
+    .iter()
+    .map(|v| {
+        (
+            v["point"].as_str().unwrap_or("").to_string(),
+            v["event"].as_str().unwrap_or("").to_string(),
+        )
+    })
+    .collect();
+    let want = [
+        ("io.DO3", "set"),
+        ("io.DO3", "expired"),
+        ("io.DI0", "set"),
+        ("io.DI0", "removed"),
+    ];
+    assert_eq!(
+        events,
+        want.map(|(p, e)| (p.to_string(), e.to_string())),
+        "the records file tells each force's life"
+    );
+}
+
+#[test]
+fn forcing_is_refused_on_the_page_and_the_command_line_without_force_true() {
+    let run = forcing_rig("unforced", false);
+    let a = run.addr;
+    assert_eq!(state(a)["forcing"], false);
+    let (status, body) = post(
+        a,
+        "/api/force",
+        r#"{"point":"io.DO3","value":true,"for":"5m"}"#,
+    );
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("force = true"), "{body}");
+    let (status, body) = delete(a, "/api/force/io.DO3");
+    assert_eq!(status, 403, "{body}");
+    let (code, _, err) = run.cli(&["force", "unforced", "io.DO3", "on", "--for", "5m"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("force = true"), "{err}");
+    let (code, _, err) = run.cli(&["force", "unforced", "io.DO3", "on", "--for", "300"]);
+    assert_eq!(
+        code, 2,
+        "a duration without its unit is a usage error: {err}"
+    );
+    assert_eq!(state(a)["devices"]["io"]["outputs_written"], 0);
+    assert!(run.force_records().is_empty());
+}
+
+#[test]
+fn the_safe_state_wins_over_a_force_set_from_the_command_line() {
+    let run = forcing_rig("safewins", true);
+    let a = run.addr;
+    let (code, _, err) = run.cli(&["force", "safewins", "io.DO1", "on", "--for", "1m"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = run.cli(&["status", "safewins"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("FORCED: io.DO1 on for "), "{out}");
+    assert!(out.contains("(by rigscript force (pid "), "{out}");
+    let (_, json, _) = run.cli(&["status", "safewins", "--json"]);
+    let s: Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(s["forces"][0]["point"], "io.DO1");
+    assert_eq!(s["forces"][0]["value"], true);
+    let (code, _, err) = run.cli(&["unforce", "safewins", "io.DO1"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = run.cli(&["unforce", "safewins", "io.DO1"]);
+    assert_eq!(code, 1, "not forced any more: {err}");
+    assert!(err.contains("io.DO1 is not forced"), "{err}");
+    // A device lost past its grace time: every output safe, the force cancelled for good.
+    let (code, _, err) = run.cli(&["force", "safewins", "io.outputs", "0xff", "--for", "1m"]);
+    assert_eq!(code, 0, "{err}");
+    state_until(a, "the outputs forced", |s| {
+        s["devices"]["io"]["outputs_written"] == 0xFF
+    });
+    drive(a, r#"{"device":"panel","action":"fail"}"#);
+    run.logged("force: io.outputs cancelled: the safe state wins (panel lost past its grace time)");
+    let s = state_until(a, "held safe at the safe value", |s| {
+        s["held_safe"] == true && s["devices"]["io"]["outputs_written"] == 0
+    });
+    assert_eq!(s["forces"], serde_json::json!([]));
+    let (code, _, err) = run.cli(&["force", "safewins", "io.DO2", "on", "--for", "1m"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("the safe state wins over a force"), "{err}");
+    drive(a, r#"{"device":"panel","action":"restore"}"#);
+    state_until(a, "back, and nothing forced comes back", |s| {
+        s["held_safe"] == false && s["devices"]["io"]["outputs_written"] == 0
+    });
+    // The end of the run cancels a force before on_stop and the end's safe state.
+    let (code, _, err) = run.cli(&["force", "safewins", "io.DO2", "on", "--for", "1m"]);
+    assert_eq!(code, 0, "{err}");
+    state_until(a, "DO2 forced", |s| {
+        s["devices"]["io"]["outputs_written"] == 4
+    });
+    let (code, out, err) = run.cli(&["stop", "safewins"]);
+    assert_eq!(code, 0, "{out}{err}");
+    run.logged("force: io.DO2 cancelled: the safe state wins (the run is ending)");
+    let events: Vec<String> = run
+        .force_records()
+        .iter()
+        .map(|v| {
+            format!(
+                "{} {}",
+                v["point"].as_str().unwrap_or(""),
+                v["event"].as_str().unwrap_or("")
+            )
+        })
+        .collect();
+    assert_eq!(
+        events,
+        [
+            "io.DO1 set",
+            "io.DO1 removed",
+            "io.outputs set",
+            "io.outputs cancelled",
+            "io.DO2 set",
+            "io.DO2 cancelled"
+        ]
+    );
 }

@@ -15,6 +15,7 @@
 //! another site that rebinds its name to 127.0.0.1 is refused).
 
 mod api;
+mod force;
 pub mod history;
 pub mod metrics;
 pub mod request;
