@@ -38,12 +38,22 @@ fn serve(tag: &str, args: &[&str]) -> Served {
 
 /// `serve` with its runtime directory (and whatever files the test put there) `dir`.
 fn serve_in(dir: TempDir, args: &[&str]) -> Served {
+    serve_at(dir, args, "127.0.0.1:0", &[])
+}
+
+/// `serve_in` at `ui` (empty: a bare `--ui`) with `env` set; the address is reached through
+/// 127.0.0.1.
+fn serve_at(dir: TempDir, args: &[&str], ui: &str, env: &[(&str, &str)]) -> Served {
     let mut child = Command::new(rigscript())
         .arg("run")
         .args(args)
-        .args(["--ui", "127.0.0.1:0"])
+        .arg("--ui")
+        .args((!ui.is_empty()).then_some(ui))
         .env("XDG_RUNTIME_DIR", &dir.0)
         .env_remove("RUNTIME_DIRECTORY")
+        .env_remove("RIGSCRIPT_UI_TOKEN")
+        .env_remove("RIGSCRIPT_UI_READ_TOKEN")
+        .envs(env.iter().copied())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -60,11 +70,14 @@ fn serve_in(dir: TempDir, args: &[&str]) -> Served {
             lines.lock().unwrap().push(line);
         }
     });
-    let addr = rx
+    let mut addr: SocketAddr = rx
         .recv_timeout(Duration::from_secs(20))
         .expect("the run logs its page's address")
         .parse()
         .unwrap();
+    if addr.ip().is_unspecified() {
+        addr.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+    }
     Served {
         child,
         addr,
@@ -236,11 +249,15 @@ fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
             "0.0.0.0:0",
         ])
         .env("XDG_RUNTIME_DIR", &dir.0)
+        .env_remove("RIGSCRIPT_UI_TOKEN")
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2), "{out:?}");
     let said = String::from_utf8_lossy(&out.stderr);
-    assert!(said.contains("loopback address only"), "{said}");
+    assert!(
+        said.contains("only with a token: set ui_token in rig.toml or RIGSCRIPT_UI_TOKEN"),
+        "{said}"
+    );
     // An address in use: exit 3, nothing started.
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = taken.local_addr().unwrap().to_string();
@@ -857,4 +874,77 @@ fn the_safe_state_wins_over_a_force_set_from_the_command_line() {
             "io.DO2 cancelled"
         ]
     );
+}
+
+fn with_token(addr: SocketAddr, method: &str, path: &str, token: Option<&str>) -> (u16, String) {
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
+    let body = if method == "POST" {
+        r#"{"device":"io","action":"set_inputs","value":15}"#
+    } else {
+        ""
+    };
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Content-Type: application/json\r\n\
+         Content-Length: {}\r\n\r\n",
+        body.len()
+    );
+    exchange(addr, &head, body.as_bytes())
+}
+
+#[test]
+fn a_page_on_every_address_asks_for_its_token_and_a_read_token_only_looks() {
+    let (control, read) = ("c0ntrol-token-1", "read-token-22");
+    let run = serve_at(
+        TempDir::new("web-token"),
+        &["scripts/interlock.rhai", "--sim"],
+        "0.0.0.0:0",
+        &[
+            ("RIGSCRIPT_UI_TOKEN", control),
+            ("RIGSCRIPT_UI_READ_TOKEN", read),
+        ],
+    );
+    let a = run.addr;
+    // The page itself loads (it asks for the token); nothing else does without one.
+    let (status, body) = with_token(a, "GET", "/", None);
+    assert_eq!(status, 200, "{body}");
+    assert!(body.contains("Authorization"), "the page sends the token");
+    for path in ["/api/state", "/metrics", "/api/history", "/api/events"] {
+        let (status, body) = with_token(a, "GET", path, None);
+        assert_eq!(status, 401, "{path}: {body}");
+        let (status, _) = with_token(a, "GET", path, Some("not-the-token"));
+        assert_eq!(status, 401, "{path}");
+    }
+    let (status, body) = with_token(a, "GET", "/api/state", Some(read));
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = with_token(a, "POST", "/api/sim", Some(read));
+    assert_eq!(status, 403, "a read token only looks: {body}");
+    let (status, body) = with_token(a, "POST", "/api/sim", None);
+    assert_eq!(status, 401, "{body}");
+    let (status, body) = with_token(a, "POST", "/api/sim", Some(control));
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = with_token(a, "GET", "/api/state", Some(control));
+    assert_eq!(status, 200, "{body}");
+    let s: Value = serde_json::from_str(&body).unwrap();
+    let io = &s["devices"]["io"];
+    assert!(io["inputs"] == 15 || io["inputs"].is_null(), "{io}");
+    // Neither token is ever in the log.
+    let log = run.log.lock().unwrap().join("\n");
+    assert!(!log.contains(control) && !log.contains(read), "{log}");
+}
+
+#[test]
+fn a_bare_ui_flag_serves_at_rig_toml_s_address_and_a_token_there_is_asked_for() {
+    let dir = TempDir::new("web-bare-ui");
+    let config = dir.file(
+        "rig.toml",
+        "ui = \"127.0.0.1:0\"\nui_token = \"from-rig-toml\"\n\n[devices.io]\n\
+         kind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n",
+    );
+    let script = dir.file("idle.rhai", "every(\"100ms\", || {});\n");
+    let run = serve_at(dir, &[&script, "--config", &config, "--sim"], "", &[]);
+    assert_ne!(run.addr.port(), 7878, "rig.toml's address, not the default");
+    let (status, _) = with_token(run.addr, "GET", "/api/state", None);
+    assert_eq!(status, 401);
+    let (status, body) = with_token(run.addr, "GET", "/api/state", Some("from-rig-toml"));
+    assert_eq!(status, 200, "{body}");
 }

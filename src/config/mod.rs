@@ -91,12 +91,36 @@ const TOP_KEYS: &[&str] = &[
     "wake_latency",
     "ui",
     "force",
+    "ui_token",
+    "ui_read_token",
     "limits",
     "devices",
 ];
 
 /// The web page's address when `run --ui` names none.
 pub const DEFAULT_UI: &str = "127.0.0.1:7878";
+
+/// A token, kept out of every `Debug` form (the log, error messages).
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(String);
+
+impl Secret {
+    /// `text` as a secret.
+    pub fn new(text: String) -> Self {
+        Self(text)
+    }
+
+    /// The text, to compare with.
+    pub fn expose(&self) -> &str {
+        &self.0
+    }
+}
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Secret(..)")
+    }
+}
 
 /// What the runner does when a script handler fails.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -144,6 +168,12 @@ pub struct RigConfig {
     /// Whether an operator may force outputs and inputs (`force = true`; default false):
     /// `rigscript force`, `POST /api/force` (`runtime::forcing`).
     pub force: bool,
+    /// The web page's control token (`ui_token`; `RIGSCRIPT_UI_TOKEN` wins): required on a
+    /// non-loopback address, and then asked of every request.
+    pub ui_token: Option<Secret>,
+    /// The web page's read token (`ui_read_token`; `RIGSCRIPT_UI_READ_TOKEN` wins): `GET`
+    /// only.
+    pub ui_read_token: Option<Secret>,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
     /// The devices simulated while the others are real (`sim = true`, `run --sim-device`).
@@ -164,6 +194,8 @@ impl Default for RigConfig {
             wake_latency: WakeLatency::Auto,
             ui: None,
             force: false,
+            ui_token: None,
+            ui_read_token: None,
             limits: ScriptLimits::default(),
             devices: BTreeMap::new(),
             simulated: BTreeSet::new(),
@@ -249,6 +281,17 @@ impl RigConfig {
             })
         });
         let force = r.read(&root, "force", boolean).unwrap_or(false);
+        let token = |v: &DeValue<'_>| match string(v)? {
+            // The value is not shown: a token stays out of messages too.
+            s if s.trim().len() < 8 || s.trim() != s => Err(ProblemKind::BadValue {
+                value: "(the token)".into(),
+                reason: "is not a token: give at least 8 characters, no spaces at either end"
+                    .into(),
+            }),
+            s => Ok(Secret::new(s)),
+        };
+        let ui_token = r.read(&root, "ui_token", token);
+        let ui_read_token = r.read(&root, "ui_read_token", token);
         let limits = match root.get("limits") {
             None => ScriptLimits::default(),
             Some(value) => match value.get_ref() {
@@ -313,6 +356,8 @@ impl RigConfig {
             wake_latency,
             ui,
             force,
+            ui_token,
+            ui_read_token,
             limits,
             devices,
             simulated,

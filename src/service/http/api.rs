@@ -37,9 +37,16 @@ pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared) {
             return;
         }
     };
-    if let Err(why) = check_host(&request, shared) {
+    if let Err(why) = shared.tokens.check(&request) {
         let _ = why.write_to(&mut stream);
         return;
+    }
+    // A token is what a rebinding page cannot send; without one, the Host must be ours.
+    if !shared.tokens.required() {
+        if let Err(why) = check_host(&request, shared) {
+            let _ = why.write_to(&mut stream);
+            return;
+        }
     }
     if (request.method.as_str(), request.path.as_str()) == ("GET", "/api/events") {
         sse::stream_events(stream, shared);
