@@ -8,7 +8,7 @@ use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{Answer, Request, Requests};
 use crate::runtime::snapshot::{
-    micros, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
+    micros, Buckets, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
 use std::sync::Arc;
 
@@ -79,6 +79,8 @@ impl<P: Program> Runner<P> {
                 jitter_p99_us: micros(self.stats.jitter.quantile(0.99)),
                 work_p99_us: micros(self.stats.work.quantile(0.99)),
                 transactions: self.stats.transactions,
+                work: Buckets::of(&self.stats.work),
+                jitter: Buckets::of(&self.stats.jitter),
             },
             dropped: self.events.dropped(),
             log_dropped: rt.log.dropped(),
