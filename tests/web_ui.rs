@@ -948,3 +948,32 @@ fn a_bare_ui_flag_serves_at_rig_toml_s_address_and_a_token_there_is_asked_for() 
     let (status, body) = with_token(run.addr, "GET", "/api/state", Some("from-rig-toml"));
     assert_eq!(status, 200, "{body}");
 }
+
+#[test]
+fn records_and_measurements_with_their_verdict_are_kept_for_the_page() {
+    let dir = TempDir::new("web-records");
+    let script = dir.file(
+        "measure.rhai",
+        "after(\"300ms\", || {\n\
+           record(\"serial\", \"A17\");\n\
+           measure(\"volts\", 12.5, #{min: 11.0, max: 12.0, unit: \"V\"});\n\
+           measure(\"amps\", 0.5, #{max: 1.0});\n\
+         });\n\
+         every(\"100ms\", || {});\n",
+    );
+    let run = serve_in(dir, &[&script, "--sim"]);
+    let kept = until(Duration::from_secs(10), || {
+        let (status, body) = get(run.addr, "/api/history");
+        assert_eq!(status, 200, "{body}");
+        let h: Value = serde_json::from_str(&body).unwrap();
+        (h["records"].as_array().map_or(0, Vec::len) >= 3).then_some(h["records"].clone())
+    })
+    .expect("three records kept");
+    assert_eq!(kept[0]["name"], "serial");
+    assert_eq!(kept[1]["name"], "volts");
+    assert_eq!(kept[1]["pass"], false);
+    assert_eq!(kept[1]["unit"], "V");
+    assert_eq!(kept[2]["pass"], true);
+    let (_, page) = get(run.addr, "/");
+    assert!(page.contains("id=\"records\""), "the page shows them");
+}
