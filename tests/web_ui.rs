@@ -519,6 +519,23 @@ impl Browser {
         .unwrap_or_else(|| panic!("could not click {css}"));
     }
 
+    /// The page as a PNG, `width` x `height` CSS pixels.
+    fn screenshot(&self, width: u32, height: u32) -> Vec<u8> {
+        self.session(
+            "POST",
+            "/window/rect",
+            Some(serde_json::json!({"width": width, "height": height})),
+        );
+        self.session(
+            "POST",
+            "/execute/sync",
+            Some(serde_json::json!({"script": "window.scrollTo(0, 0)", "args": []})),
+        );
+        let shot = self.session("GET", "/screenshot", None);
+        let text = shot["value"].as_str().expect("a screenshot");
+        from_base64(text)
+    }
+
     /// Whether what `css` finds has class `class`.
     fn has_class(&self, css: &str, class: &str) -> Option<bool> {
         let e = self.find(css)?;
@@ -575,6 +592,66 @@ fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_tri
     .expect("the page shows the trip: power off, the trip lamp DO7 on");
     let s = state(a);
     assert_eq!(s["devices"]["io"]["outputs"], 0x80, "{s}");
+    // The guide's picture of the page (docs/guide/web-page.png is this file, copied).
+    let png = browser.screenshot(1000, 1250);
+    assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");
+    let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("web-page.png");
+    std::fs::write(&path, &png).unwrap();
+}
+
+/// Standard base64 (WebDriver's screenshots), padding and all.
+fn from_base64(text: &str) -> Vec<u8> {
+    let value = |c: u8| match c {
+        b'A'..=b'Z' => c - b'A',
+        b'a'..=b'z' => c - b'a' + 26,
+        b'0'..=b'9' => c - b'0' + 52,
+        b'+' => 62,
+        _ => 63,
+    };
+    let digits: Vec<u8> = text
+        .bytes()
+        .filter(|c| c.is_ascii_alphanumeric() || *c == b'+' || *c == b'/')
+        .map(value)
+        .collect();
+    let mut out = Vec::with_capacity(digits.len() * 3 / 4);
+    for chunk in digits.chunks(4) {
+        let n = chunk
+            .iter()
+            .enumerate()
+            .fold(0u32, |n, (i, d)| n | u32::from(*d) << (18 - 6 * i));
+        let bytes = n.to_be_bytes();
+        out.extend_from_slice(&bytes[1..chunk.len()]);
+    }
+    out
+}
+
+#[test]
+fn a_browser_forces_an_output_from_the_page_sees_it_marked_and_unforces_it() {
+    let run = forcing_rig("web-force-browser", true);
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/"));
+    until(Duration::from_secs(20), || browser.find("#do-io-3"))
+        .expect("the page shows the module's outputs");
+    // A click on a lamp fills the form; the button forces.
+    browser.click("#do-io-3");
+    browser.click("#force-set");
+    until(Duration::from_secs(10), || {
+        (browser.find("#unforce-io\\.DO3").is_some()
+            && browser.has_class("#do-io-3", "forced") == Some(true)
+            && browser.has_class("#do-io-3", "on") == Some(true))
+        .then_some(())
+    })
+    .expect("the page lists the force and marks the lamp, lit");
+    assert_eq!(state(a)["devices"]["io"]["outputs_written"], 8);
+    browser.click("#unforce-io\\.DO3");
+    until(Duration::from_secs(10), || {
+        (browser.has_class("#do-io-3", "forced") == Some(false)
+            && browser.has_class("#do-io-3", "on") == Some(false))
+        .then_some(())
+    })
+    .expect("unforced: the script's value again");
+    run.logged("force: io.DO3 removed (by the web page (127.0.0.1:");
 }
 
 #[test]
