@@ -72,6 +72,12 @@ pub fn render(s: &RigSnapshot) -> String {
         u8::from(s.held_safe),
     );
     out.one(
+        "rigscript_forced_points",
+        "gauge",
+        "Points an operator forces now (rig.toml's force = true).",
+        s.forces.len(),
+    );
+    out.one(
         "rigscript_log_dropped_total",
         "counter",
         "Log lines lost because the log was not read.",
@@ -301,6 +307,7 @@ mod tests {
             "rigscript_tick_work_seconds_sum 0.0004",
             "rigscript_tick_work_seconds_count 5",
             "rigscript_jitter_seconds_count 0",
+            "rigscript_forced_points 0",
         ] {
             assert!(text.lines().any(|l| l == line), "no {line:?} in\n{text}");
         }
