@@ -5,13 +5,16 @@
 # stream (target: 10 viewers add at most 5 % to tick work, jitter p99 within noise).
 #
 # Run from the crate root: sh benches/web_viewers.sh [SCRIPT] [VIEWERS] [DURATION]
-# (defaults: scripts/interlock.rhai, which polls its inputs every 20 ms tick, 10, 30s).
+# (defaults: scripts/interlock.rhai, which polls its inputs every 20 ms tick, 10, 30s);
+# RIGSCRIPT=path measures that binary instead of building the release one.
 set -eu
 script=${1:-scripts/interlock.rhai}
 viewers=${2:-10}
 duration=${3:-30s}
-cargo build --release --quiet
-bin=target/release/rigscript
+if [ -z "${RIGSCRIPT:-}" ]; then
+    cargo build --release --quiet
+fi
+bin=${RIGSCRIPT:-target/release/rigscript}
 dir=$(mktemp -d)
 trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$dir"' EXIT
 
@@ -19,7 +22,7 @@ trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$dir"' EXIT
 run() {
     n=$1
     XDG_RUNTIME_DIR=$dir "$bin" run "$script" --sim --quiet --stats --for "$duration" \
-        --ui 127.0.0.1:0 2>"$dir/log.$n" &
+        --ui 127.0.0.1:0 >"$dir/log.$n" 2>&1 &
     pid=$!
     addr=
     while [ -z "$addr" ]; do

@@ -1,7 +1,9 @@
 //! The web page's HTTP API against real `rigscript run --sim --ui 127.0.0.1:0` processes,
 //! through a small HTTP client over `TcpStream`: the state follows the simulated field that
 //! `POST /api/sim` drives, the event stream delivers the run's events, `/metrics` tells the
-//! ticks, errors have their status, and hostile clients cost the loop no tick.
+//! ticks, errors have their status, and hostile clients cost the loop no tick; forcing
+//! (`force = true`: set, expired, removed, refused, cancelled by the safe state; from the page,
+//! the API and `rigscript force`), tokens on a non-loopback bind, and a headless Chromium.
 
 mod common;
 
