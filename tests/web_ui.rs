@@ -1056,3 +1056,47 @@ fn records_and_measurements_with_their_verdict_are_kept_for_the_page() {
     let (_, page) = get(run.addr, "/");
     assert!(page.contains("id=\"records\""), "the page shows them");
 }
+
+#[test]
+fn a_browser_is_asked_for_the_token_once_and_the_page_works_with_it() {
+    let token = "browser-token-7";
+    let run = serve_at(
+        TempDir::new("web-token-browser"),
+        &["scripts/interlock.rhai", "--sim"],
+        "0.0.0.0:0",
+        &[("RIGSCRIPT_UI_TOKEN", token)],
+    );
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/"));
+    // The page's first API call is answered 401: it asks.
+    until(Duration::from_secs(20), || {
+        let asked = browser.session("GET", "/alert/text", None);
+        asked["value"]
+            .as_str()
+            .filter(|t| t.contains("token"))
+            .map(String::from)
+    })
+    .expect("the page asks for the token");
+    browser.session(
+        "POST",
+        "/alert/text",
+        Some(serde_json::json!({ "text": token })),
+    );
+    browser.session("POST", "/alert/accept", Some(serde_json::json!({})));
+    until(Duration::from_secs(20), || browser.find("#sw-panel-S12"))
+        .expect("with the token the page shows the panel");
+    browser.click("#sw-panel-S12");
+    until(Duration::from_secs(10), || {
+        let (status, body) = with_token(a, "GET", "/api/state", Some(token));
+        assert_eq!(status, 200, "{body}");
+        let s: Value = serde_json::from_str(&body).ok()?;
+        (s["devices"]["panel"]["pressed"][0] == "S12").then_some(())
+    })
+    .expect("a click drives the field with the token");
+    // Kept for the session: a reload asks nothing.
+    browser.open(&format!("http://{a}/"));
+    until(Duration::from_secs(20), || browser.find("#sw-panel-S12")).expect("the page again");
+    let asked = browser.session("GET", "/alert/text", None);
+    assert!(asked["value"].as_str().is_none(), "asked again: {asked}");
+}
