@@ -49,3 +49,38 @@ impl<P: Program> Runner<P> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::forcing::{ForceOrder, ForceValue};
+    use crate::runtime::testing::TestRig;
+    use std::time::Duration;
+
+    #[test]
+    fn a_force_is_refused_while_the_script_restarts_or_the_run_ends() {
+        let mut r = TestRig::started();
+        r.rt.allow_forcing(true);
+        let rt = r.shared_runtime();
+        let asked = Request::Force {
+            order: ForceOrder {
+                point: "io.DO1".into(),
+                value: ForceValue::On(true),
+                duration: "1m".into(),
+            },
+            by: "t".into(),
+        };
+        for state in [
+            State::Restarting { at: Duration::ZERO },
+            State::Stopped { status: 0 },
+        ] {
+            match answer_force(&rt, &state, &asked) {
+                Answer::Refused(why) => assert!(why.contains("the safe state wins"), "{why}"),
+                other => panic!("{other:?}"),
+            }
+        }
+        assert!(rt.borrow().forces_shown().is_empty());
+        assert_eq!(answer_force(&rt, &State::Running, &asked), Answer::Accepted);
+        assert_eq!(rt.borrow().forces_shown().len(), 1);
+    }
+}
