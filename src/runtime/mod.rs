@@ -8,7 +8,7 @@ pub mod exit;
 mod inputs;
 mod invariant_checks;
 pub mod invariants;
-pub mod line_writer;
+pub mod line_consumer;
 pub mod log;
 pub mod observe;
 mod outputs;
