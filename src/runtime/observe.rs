@@ -261,6 +261,8 @@ struct Fanout {
     wanted: AtomicU32,
     consumers: Mutex<Vec<Consumer>>,
     next_id: AtomicU64,
+    /// Events lost by any consumer, those let go since included.
+    lost: AtomicU64,
 }
 
 struct Consumer {
@@ -410,6 +412,7 @@ impl Events {
                 Err(TrySendError::Full(())) => {
                     c.queued.fetch_sub(weight, Ordering::Relaxed);
                     c.dropped.fetch_add(1, Ordering::Relaxed);
+                    self.fanout.lost.fetch_add(1, Ordering::Relaxed);
                     c.unreported = c.unreported.saturating_add(1);
                     true
                 }
@@ -472,10 +475,17 @@ impl Events {
         })
     }
 
-    /// Every attached consumer's count of lost events.
+    /// Events lost by every consumer there has been, those let go since included.
+    pub fn dropped_in_all(&self) -> u64 {
+        self.fanout.lost.load(Ordering::Relaxed)
+    }
+
+    /// Every attached consumer's count of lost events (one gone is not listed, even before
+    /// the next event lets it go).
     pub fn dropped(&self) -> Vec<Dropped> {
         lock(&self.fanout.consumers)
             .iter()
+            .filter(|c| c.attached())
             .map(|c| Dropped {
                 consumer: c.name.clone(),
                 events: c.dropped.load(Ordering::Relaxed),

@@ -239,12 +239,15 @@ mod tests {
                 jitter_p99_us: 1500,
                 work_p99_us: 30,
                 transactions: 9,
+                ..TickFigures::default()
             },
             dropped: vec![Dropped {
                 consumer: "web \"x\"".into(),
                 events: 7,
             }],
             log_dropped: 0,
+            records_lost: 0,
+            dropped_in_all: 7,
         }
     }
 
