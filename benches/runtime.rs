@@ -228,7 +228,7 @@ fn tick_overhead(case: &Case, sizes: &Sizes) -> (Duration, f64) {
         assert!(rig.runner.status().is_none(), "{} stopped", case.file);
     }
     let per_tick = spent / u32::try_from(sizes.ticks).unwrap();
-    (per_tick, rig.runner.stats.transactions_per_tick())
+    (per_tick, rig.runner.stats().transactions_per_tick())
 }
 
 /// CPU time stolen by the hypervisor so far, all CPUs (the `steal` column of /proc/stat, in
@@ -293,7 +293,7 @@ fn jitter(case: &Case, sizes: &Sizes, wake: WakeLatency) -> String {
     );
     let status = rig.runner.run();
     assert!(status == 0 || status == 4, "{} exited {status}", case.file);
-    let s = &rig.runner.stats;
+    let s = rig.runner.stats();
     lateness_line(s.ticks, &s.jitter, s.overruns, &stolen_since(stolen_before))
 }
 
@@ -311,7 +311,7 @@ fn cron_day(sizes: &Sizes) -> (Duration, u64, usize) {
     }
     let wall = t.elapsed();
     let records = rig.runner.runtime().borrow().records_kept().len();
-    (wall, rig.runner.stats.ticks, records)
+    (wall, rig.runner.stats().ticks, records)
 }
 
 /// A script with `count` `every` timers whose periods are spread over `periods_ms` (first ..

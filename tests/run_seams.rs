@@ -76,7 +76,7 @@ fn a_run_tells_its_ticks_inputs_outputs_and_end_and_answers_snapshots_and_a_stop
     assert!(seen.iter().any(|e| matches!(&**e,
         RunEvent::Outputs { device, value: 5, .. } if device == "io")));
     assert!(seen.iter().any(|e| matches!(&**e,
-        RunEvent::Log { level: "notice", message } if message.contains("asked by the test"))));
+        RunEvent::Log { level: "notice", message, .. } if message.contains("asked by the test"))));
     let Some(RunEvent::Ended {
         status,
         safe,

@@ -26,8 +26,15 @@ pub trait CommandError: Display {
     }
 }
 
-/// For a device a running rig holds: which rig, and the commands that see and stop it.
-fn rig_holding(pids: &[u32]) -> Option<String> {
+/// For a device file `path` a running rig has open (a TRC1000's usbfs node, a serial port):
+/// which rig, and the commands that see and stop it.
+pub fn rig_holding_path(path: &std::path::Path) -> Option<String> {
+    rig_holding(&crate::link::holders::holders_of(path).pids())
+}
+
+/// For a device the processes `pids` hold: the running rig among them, and the commands that
+/// see and stop it (each rig's socket says its pid).
+pub fn rig_holding(pids: &[u32]) -> Option<String> {
     if pids.is_empty() {
         return None;
     }

@@ -385,16 +385,14 @@ fn run_started(
         g.confirm();
     }
     let status = outputs.finished(&mut rig, status);
-    let dropped = {
-        // The last lines out (at most a second's wait for a stderr nobody reads).
-        rig.runner.runtime().borrow_mut().close_log()
-    };
-    rig.runner.stats.log_dropped = dropped;
+    // The last lines out (at most a second's wait for a stderr nobody reads).
+    rig.runner.runtime().borrow_mut().close_log();
     if stats {
-        // After the end: a reader that went away costs the figures, never the status.
+        // The whole picture at the end, as `status` shows one during the run. After the end:
+        // a reader that went away costs the figures, never the status.
         let _ = std::io::Write::write_fmt(
             &mut std::io::stdout(),
-            format_args!("{}\n", rig.runner.stats),
+            format_args!("{}\n", rig.runner.snapshot().stats_text()),
         );
     }
     status

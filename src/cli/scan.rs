@@ -524,7 +524,11 @@ fn print_boards_and_ports(outcome: &Outcome, out: &mut dyn Write) -> std::io::Re
     } else {
         writeln!(out, "TRC1000 boards:")?;
         for b in &outcome.boards {
-            writeln!(out, "  {b}")?;
+            // A board a running rig holds cannot be opened here: say which rig has it.
+            match crate::cli::output::rig_holding_path(&b.node()) {
+                Some(rig) => writeln!(out, "  {b}: {rig}")?,
+                None => writeln!(out, "  {b}")?,
+            }
         }
     }
     if outcome.ports.is_empty() {
@@ -572,7 +576,11 @@ fn probe_port(
                 if matches!(e, LinkError::Busy { .. }) {
                     outcome.busy.push(port.to_string());
                 }
-                outcome.errors.push((port.to_string(), e.to_string()));
+                let error = match crate::cli::output::rig_holding(&e.held_by()) {
+                    Some(rig) => format!("{e}; {rig}"),
+                    None => e.to_string(),
+                };
+                outcome.errors.push((port.to_string(), error));
                 return Ok(());
             }
         };

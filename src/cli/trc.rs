@@ -115,6 +115,13 @@ impl CommandError for CliError {
             _ => EXIT_FAILED,
         }
     }
+
+    fn held_by(&self) -> Vec<u32> {
+        match self {
+            CliError::Device(Trc1000Error::Link(e)) => e.held_by(),
+            _ => Vec::new(),
+        }
+    }
 }
 
 fn run_to(args: &TrcArgs, out: &mut dyn Write) -> Result<(), CliError> {

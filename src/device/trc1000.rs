@@ -64,7 +64,8 @@ fn discarded_note(n: usize) -> String {
 }
 
 impl Trc1000Error {
-    /// Whether the board cannot be reached at all (not found, no permission, disconnected), as
+    /// Whether the board cannot be reached at all (not found, no permission, held by another
+    /// program, disconnected), as
     /// opposed to a board that is there but misbehaves.
     pub fn is_unreachable(&self) -> bool {
         matches!(
@@ -72,6 +73,7 @@ impl Trc1000Error {
             Trc1000Error::Link(
                 LinkError::NotFound { .. }
                     | LinkError::PermissionDenied { .. }
+                    | LinkError::Busy { .. }
                     | LinkError::Disconnected { .. }
             )
         )

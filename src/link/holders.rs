@@ -29,6 +29,18 @@ pub struct Holders {
     pub hidden: usize,
 }
 
+impl Holders {
+    /// The processes that hold it: those locking it, else those with it open.
+    pub fn pids(&self) -> Vec<u32> {
+        let holders = if self.locking.is_empty() {
+            &self.open
+        } else {
+            &self.locking
+        };
+        holders.iter().map(|h| h.pid).collect()
+    }
+}
+
 /// Longest command line shown for a holder.
 const MAX_COMMAND: usize = 80;
 

@@ -76,10 +76,11 @@ pub enum LinkError {
 }
 
 impl LinkError {
-    /// The processes holding the device, when it is busy.
+    /// The processes holding the device, when it is busy: those locking it, else those with
+    /// it open (a USB board's node is not locked, only claimed).
     pub fn held_by(&self) -> Vec<u32> {
         match self {
-            LinkError::Busy { holders, .. } => holders.locking.iter().map(|h| h.pid).collect(),
+            LinkError::Busy { holders, .. } => holders.pids(),
             _ => Vec::new(),
         }
     }

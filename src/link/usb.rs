@@ -76,6 +76,13 @@ pub struct BoardInfo {
     pub product_id: u16,
 }
 
+impl BoardInfo {
+    /// Its usbfs node, which libusb opens and a program using the board keeps open.
+    pub fn node(&self) -> std::path::PathBuf {
+        Path::new(USBFS).join(format!("{:03}/{:03}", self.bus, self.address))
+    }
+}
+
 impl fmt::Display for BoardInfo {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
@@ -131,6 +138,18 @@ pub fn list_boards() -> Result<Vec<BoardInfo>, LinkError> {
     match context()? {
         Some(ctx) => Ok(boards(&ctx)?.into_iter().map(|(i, _)| i).collect()),
         None => Ok(Vec::new()),
+    }
+}
+
+/// As `map_err` for the board `info`: a busy interface names the processes that have the
+/// board's node open (`link::holders`), so a running rig can be named.
+fn map_err_at(e: rusb::Error, info: &BoardInfo, in_use: bool) -> LinkError {
+    match e {
+        rusb::Error::Busy => LinkError::Busy {
+            what: info.to_string(),
+            holders: Box::new(super::holders::holders_of(&info.node())),
+        },
+        other => map_err(other, &info.to_string(), in_use),
     }
 }
 
@@ -199,14 +218,14 @@ impl UsbPacketLink {
         let all = boards(&ctx)?;
         let (info, device) = pick(target, all, &ctx)?;
         let what = info.to_string();
-        let handle = device.open().map_err(|e| map_err(e, &what, false))?;
+        let handle = device.open().map_err(|e| map_err_at(e, &info, false))?;
 
         let reattach = match handle.kernel_driver_active(INTERFACE) {
             // Only ever take the interface from the kernel for our own board.
             Ok(true) if unit_of(VENDOR_ID, info.product_id).is_some() => {
                 handle
                     .detach_kernel_driver(INTERFACE)
-                    .map_err(|e| map_err(e, &what, false))?;
+                    .map_err(|e| map_err_at(e, &info, false))?;
                 true
             }
             Ok(_) => false,
@@ -221,7 +240,7 @@ impl UsbPacketLink {
             if reattach {
                 let _ = handle.attach_kernel_driver(INTERFACE);
             }
-            return Err(map_err(e, &what, false));
+            return Err(map_err_at(e, &info, false));
         }
         Ok(Self {
             handle,
@@ -378,6 +397,29 @@ mod tests {
         assert!(matches!(e, LinkError::Disconnected { .. }), "{e}");
         let e = map_err(rusb::Error::NoDevice, "TRC1000 unit 0", false);
         assert!(matches!(e, LinkError::NotFound { .. }), "{e}");
+    }
+
+    #[test]
+    fn a_claimed_board_is_busy_with_the_holders_of_its_usbfs_node() {
+        let info = BoardInfo {
+            unit: 0,
+            bus: 1,
+            address: 4,
+            product_id: PRODUCT_ID_BASE,
+        };
+        assert_eq!(info.node(), Path::new("/dev/bus/usb/001/004"));
+        let e = map_err_at(rusb::Error::Busy, &info, false);
+        let LinkError::Busy { holders, .. } = &e else {
+            panic!("not busy: {e}");
+        };
+        assert_eq!(holders.device, Path::new("/dev/bus/usb/001/004"));
+        assert!(
+            e.to_string()
+                .starts_with("TRC1000 unit 0 (USB 001:004) is busy: another program holds it"),
+            "{e}"
+        );
+        let e = map_err_at(rusb::Error::Access, &info, false);
+        assert!(matches!(e, LinkError::PermissionDenied { .. }), "{e}");
     }
 
     #[test]

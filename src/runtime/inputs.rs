@@ -2,7 +2,7 @@
 //! that reading; a lost device is not asked and answers with its last reading.
 
 use super::devices::{C29uDevice, Device, DeviceError, Snapshot, TrcDevice};
-use super::observe::{Reading, RunEvent};
+use super::observe::{EventKind, Reading, RunEvent};
 use super::state::Runtime;
 use crate::device::c29u::Latches;
 use crate::protocol::trc1000::{rotary_delta, Rotary, RotaryValues, SwitchSet};
@@ -84,7 +84,7 @@ impl<H: Clone> Runtime<H> {
 
     /// Tells the events a reading just made that differs from the one before.
     fn tell_change<D, T: Copy + PartialEq>(&mut self, idx: usize, input: &Input<D, T>) {
-        if !self.events.watched() {
+        if !self.events.wants(EventKind::Inputs) {
             return;
         }
         let Some(device) = self.devices.get_mut(idx) else {

@@ -2,27 +2,34 @@
 //! output written, timer fired, script message, warning or error; to stderr, and kept in
 //! memory for scenario tests.
 //!
-//! Writing never blocks a tick: lines go through a bounded queue to a writer thread, and
-//! when stderr is not being read (a full pipe) and the queue is full, lines are dropped and
-//! counted; the log says how many once it can be written again, and `--stats` gives the
-//! total. Lines are text, or one JSON object a line (`--log-format json`: time, level,
+//! Writing never blocks a tick: each line is a `RunEvent::Log` on the run's event stream, and
+//! the log's output is one consumer of it (`runtime::line_consumer`), on its own thread behind
+//! a bounded queue. When stderr is not being read (a full pipe) and the queue is full, lines
+//! are lost and counted; the log says how many before the next line it writes, and `--stats`
+//! gives the total. Lines are text, or one JSON object a line (`--log-format json`: time, level,
 //! source, message, device) for journald and Loki. A problem that repeats (a write the
 //! module keeps refusing) is logged once and then counted (`repeating`).
 
-use super::line_writer::{LineSink, LineWriter};
-use super::observe::{Events, RunEvent};
+use super::line_consumer::{LineConsumer, LineSink, Lines};
+use super::observe::{Bound, EventKind, Events, Kinds, RunEvent};
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
+use chrono::{DateTime, Utc};
 use std::collections::HashMap;
 use std::io::Write;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Lines kept in memory at most (the oldest go first), so a long run cannot grow without bound.
 pub const MAX_KEPT_LINES: usize = 10_000;
 
-/// Bytes of log lines waiting for the writer at most; past it lines are dropped and counted.
-pub const QUEUE_BYTES: usize = 256 * 1024;
+/// Log lines waiting for the output at most: their bytes, and their count; past either,
+/// lines are lost and counted.
+pub const QUEUE: Bound = Bound {
+    events: 4096,
+    bytes: 256 * 1024,
+};
 
 /// The longest line written, in bytes: longer ones are cut, saying how much was left out.
 pub const MAX_LINE: usize = 4096;
@@ -79,14 +86,22 @@ pub struct Logger {
     clock: SharedClock,
     zone: Zone,
     quiet: bool,
-    format: LogFormat,
-    devices: Vec<String>,
-    writer: Option<LineWriter>,
+    /// How the output writes lines, shared with its thread.
+    style: Arc<Mutex<Style>>,
+    writer: Option<LineConsumer>,
     /// Lines the writer dropped, once it is closed.
     dropped_before_close: u64,
     kept: Option<Vec<String>>,
     repeats: HashMap<String, Repeat>,
     events: Events,
+}
+
+/// How the log's output writes lines (set before the run, read by its thread).
+#[derive(Default)]
+struct Style {
+    quiet: bool,
+    format: LogFormat,
+    devices: Vec<String>,
 }
 
 /// A problem being counted instead of logged.
@@ -99,44 +114,68 @@ struct Repeat {
 
 impl Logger {
     /// A log stamped with `clock`'s wall time in `zone`, written to stderr if `to_stderr`.
+    /// Its lines are events of its own stream (`events`, which the run shares).
     pub fn new(clock: SharedClock, zone: Zone, to_stderr: bool) -> Self {
-        let writer = to_stderr.then(|| spawn_writer(|| Box::new(std::io::stderr())));
-        Self {
+        let mut log = Self {
             clock,
             zone,
             quiet: false,
-            format: LogFormat::Text,
-            devices: Vec::new(),
-            writer,
+            style: Arc::default(),
+            writer: None,
             dropped_before_close: 0,
             kept: None,
             repeats: HashMap::new(),
             events: Events::default(),
+        };
+        if to_stderr {
+            log.write_to(Box::new(std::io::stderr()));
         }
+        log
     }
 
-    /// Writes to `out` (instead of stderr) through the same bounded queue and writer thread.
+    /// Writes to `out` (instead of stderr), as a consumer of the log's events like stderr.
     pub fn with_output(clock: SharedClock, zone: Zone, out: impl Write + Send + 'static) -> Self {
         let mut log = Self::new(clock, zone, false);
-        log.writer = Some(spawn_writer(move || Box::new(out)));
+        log.write_to(Box::new(out));
         log
+    }
+
+    /// Starts the output's consumer: the log's lines, written to `out` on a thread of its own.
+    fn write_to(&mut self, out: Box<dyn Write + Send>) {
+        let lines = OutputLines {
+            style: Arc::clone(&self.style),
+            zone: self.zone,
+        };
+        // The first consumer of a fresh stream: there is always room for it.
+        if let Ok(subscription) =
+            self.events
+                .subscribe_to("log", QUEUE, Kinds::of(&[EventKind::Log]))
+        {
+            self.writer = Some(LineConsumer::spawn(
+                "rigscript-log",
+                subscription,
+                lines,
+                move || Some(LossyOutput(out)),
+            ));
+        }
     }
 
     /// Leaves out activity lines and the runner's notices (warnings, errors, script messages
     /// and the safe state still show).
     pub fn set_quiet(&mut self, quiet: bool) {
         self.quiet = quiet;
+        crate::sync::lock(&self.style).quiet = quiet;
     }
 
     /// Writes lines as text or as JSON objects.
     pub fn set_format(&mut self, format: LogFormat) {
-        self.format = format;
+        crate::sync::lock(&self.style).format = format;
     }
 
     /// The rig's device names: a line that starts with one (`io: ...`) is about that device
     /// (the `device` field of JSON lines).
     pub fn set_devices(&mut self, names: impl IntoIterator<Item = String>) {
-        self.devices = names.into_iter().collect();
+        crate::sync::lock(&self.style).devices = names.into_iter().collect();
     }
 
     /// Keeps lines in memory too (scenario tests read them back), always as text.
@@ -151,54 +190,45 @@ impl Logger {
         self.kept.as_deref().unwrap_or(&[])
     }
 
-    /// Lines dropped so far because the output was not being read.
+    /// Lines lost so far because the output was not being read.
     pub fn dropped(&self) -> u64 {
         self.writer
             .as_ref()
-            .map_or(self.dropped_before_close, LineWriter::dropped)
+            .map_or(self.dropped_before_close, |w| w.losses().count())
     }
 
-    /// Tells every line (quiet or not: that is the log's output only) to the run's events.
-    pub fn set_events(&mut self, events: Events) {
-        self.events = events;
-    }
-
-    /// The run's events, for what tells them beside a log line (records).
+    /// The run's event stream: every line is told to it (quiet or not: that is the log's
+    /// output only), and the run shares it for everything else it tells.
     pub fn events(&self) -> &Events {
         &self.events
     }
 
-    /// Writes one line at `level`.
+    /// Writes one line at `level`: publishes it (the one place a line is told) and keeps it.
     pub fn line(&mut self, level: Level, message: &str) {
-        self.events.publish(|| RunEvent::Log {
-            level: level.syslog_name(),
-            message: cut(&visible(message)).into_owned(),
-        });
-        if matches!(level, Level::Activity | Level::Notice) && self.quiet {
+        let routine = matches!(level, Level::Activity | Level::Notice);
+        let kept = self.kept.is_some() && !(routine && self.quiet);
+        if !kept && !self.events.wants(EventKind::Log) {
             return;
         }
-        let wall = self.zone.at(self.clock.wall());
+        let time = self.clock.wall();
         let shown = visible(message);
         let message = cut(&shown);
-        if let Some(kept) = &mut self.kept {
-            if kept.len() >= MAX_KEPT_LINES {
-                kept.remove(0);
-            }
-            kept.push(text_line(&wall, level, &message));
-        }
-        let Some(writer) = &self.writer else { return };
-        let format = self.format;
-        let devices = &self.devices;
-        let render = |level: Level, message: &str| match format {
-            LogFormat::Text => text_line(&wall, level, message),
-            LogFormat::Json => json_line(&wall, level, message, devices),
-        };
-        writer.push(render(level, &message), |dropped| {
-            Some(render(
-                Level::Warn,
-                &format!("{dropped} log lines dropped: stderr not being read"),
-            ))
+        self.events.publish(|| RunEvent::Log {
+            level: level.syslog_name(),
+            message: message.to_string(),
+            time,
+            routine,
         });
+        if let (Some(lines), true) = (&mut self.kept, kept) {
+            if lines.len() >= MAX_KEPT_LINES {
+                lines.remove(0);
+            }
+            lines.push(text_line(
+                &self.zone.at(time),
+                level.syslog_name(),
+                &message,
+            ));
+        }
     }
 
     /// An activity line.
@@ -278,11 +308,11 @@ impl Logger {
     }
 
     /// Writes what is queued, waiting at most `CLOSE_WAIT` for the output to take it; lines
-    /// logged afterwards go nowhere but the kept lines.
+    /// logged afterwards go nowhere but the kept lines and the stream's other consumers.
     pub fn close(&mut self) {
         if let Some(w) = self.writer.take() {
             let _ = w.close(CLOSE_WAIT);
-            self.dropped_before_close = w.dropped();
+            self.dropped_before_close = w.losses().count();
         }
     }
 }
@@ -344,18 +374,19 @@ fn cut(message: &str) -> std::borrow::Cow<'_, str> {
 
 type Wall = chrono::DateTime<Zone>;
 
-fn text_line(wall: &Wall, level: Level, message: &str) -> String {
+/// A line as text; `level` is the syslog name (`Level::syslog_name`).
+fn text_line(wall: &Wall, level: &str, message: &str) -> String {
     let stamp = wall.format("%H:%M:%S%.3f");
     match level {
-        Level::Activity | Level::Notice | Level::Info => format!("{stamp} {message}"),
-        Level::Warn => format!("{stamp} warning: {message}"),
-        Level::Error => format!("{stamp} error: {message}"),
+        "warning" => format!("{stamp} warning: {message}"),
+        "error" => format!("{stamp} error: {message}"),
+        _ => format!("{stamp} {message}"),
     }
 }
 
 /// A line as one JSON object; the source and device are read off the message's conventions
 /// (`script: ...` from the script's `print`, `log` and `warn`; `NAME: ...` about a device).
-fn json_line(wall: &Wall, level: Level, message: &str, devices: &[String]) -> String {
+fn json_line(wall: &Wall, level: &str, message: &str, devices: &[String]) -> String {
     let (source, device, text) = if let Some(rest) = message.strip_prefix("script: ") {
         ("script", None, rest)
     } else {
@@ -372,7 +403,7 @@ fn json_line(wall: &Wall, level: Level, message: &str, devices: &[String]) -> St
     };
     serde_json::json!({
         "time": wall.to_rfc3339_opts(chrono::SecondsFormat::Millis, false),
-        "level": level.syslog_name(),
+        "level": level,
         "source": source,
         "message": text,
         "device": device,
@@ -380,9 +411,9 @@ fn json_line(wall: &Wall, level: Level, message: &str, devices: &[String]) -> St
     .to_string()
 }
 
-/// The log's output on its writer thread. A closed output must not stop the rig: what it
-/// refuses is simply lost.
-struct LossyOutput(Box<dyn Write>);
+/// The log's output on its thread. A closed output must not stop the rig: what it refuses is
+/// simply lost.
+struct LossyOutput(Box<dyn Write + Send>);
 
 impl LineSink for LossyOutput {
     fn write_batch(&mut self, batch: &str, _count: usize) {
@@ -393,11 +424,51 @@ impl LineSink for LossyOutput {
     }
 }
 
-/// The log's writer thread, writing what `open` makes.
-fn spawn_writer(open: impl FnOnce() -> Box<dyn Write> + Send + 'static) -> LineWriter {
-    LineWriter::spawn("rigscript-log", QUEUE_BYTES, move || {
-        Some(LossyOutput(open()))
-    })
+/// The log's lines as the output writes them: text or JSON, routine lines left out when
+/// quiet, and a loss told before the line after it.
+struct OutputLines {
+    style: Arc<Mutex<Style>>,
+    zone: Zone,
+}
+
+impl OutputLines {
+    fn render(&self, time: DateTime<Utc>, level: &str, message: &str) -> String {
+        let wall = self.zone.at(time);
+        let style = crate::sync::lock(&self.style);
+        match style.format {
+            LogFormat::Text => text_line(&wall, level, message),
+            LogFormat::Json => json_line(&wall, level, message, &style.devices),
+        }
+    }
+}
+
+impl Lines for OutputLines {
+    fn line(&mut self, event: &RunEvent) -> Option<String> {
+        let RunEvent::Log {
+            level,
+            message,
+            time,
+            routine,
+        } = event
+        else {
+            return None;
+        };
+        if *routine && crate::sync::lock(&self.style).quiet {
+            return None;
+        }
+        Some(self.render(*time, level, message))
+    }
+
+    fn lost(&mut self, lost: u64, next: &RunEvent) -> Option<String> {
+        let RunEvent::Log { time, .. } = next else {
+            return None;
+        };
+        Some(self.render(
+            *time,
+            Level::Warn.syslog_name(),
+            &format!("{lost} log lines dropped: stderr not being read"),
+        ))
+    }
 }
 
 #[cfg(test)]

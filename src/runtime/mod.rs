@@ -9,7 +9,7 @@ pub mod forcing;
 mod inputs;
 mod invariant_checks;
 pub mod invariants;
-pub mod line_writer;
+pub mod line_consumer;
 pub mod log;
 pub mod observe;
 mod outputs;

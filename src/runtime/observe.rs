@@ -6,10 +6,11 @@
 //! Publishing costs one atomic load while nobody listens: the event is not even built.
 
 use crate::sync::lock;
+use chrono::{DateTime, Utc};
 use serde::Serialize;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;
 
 /// The most consumers attached at once; one more is refused (`Events::subscribe`).
@@ -17,6 +18,34 @@ pub const MAX_SUBSCRIBERS: usize = 64;
 
 /// The queue of a consumer that gives no size: about two seconds of a busy run.
 pub const DEFAULT_QUEUE: usize = 1024;
+
+/// Bytes a consumer's queue holds per event of its capacity, unless it says otherwise
+/// (`Bound`): the queue is also bounded by the text its events carry (a record's line can
+/// be long).
+pub const BYTES_PER_EVENT: usize = 1024;
+
+/// How much a consumer's queue holds: events, and bytes of them (`RunEvent`'s text and a
+/// fixed part each); past either, events are lost and counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bound {
+    /// Events queued at most.
+    pub events: usize,
+    /// Bytes queued at most.
+    pub bytes: usize,
+}
+
+impl Bound {
+    /// `events` events, and `BYTES_PER_EVENT` bytes for each.
+    pub fn events(events: usize) -> Self {
+        Self {
+            events,
+            bytes: events.saturating_mul(BYTES_PER_EVENT),
+        }
+    }
+}
+
+/// What an event counts for in its queue's byte bound besides its text.
+const EVENT_OVERHEAD: usize = 64;
 
 /// One thing that happened in a run, as values (no borrow of the runtime).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -84,6 +113,12 @@ pub enum RunEvent {
         level: &'static str,
         /// The line's message.
         message: String,
+        /// When it was logged, on the run's clock.
+        #[serde(serialize_with = "rfc3339")]
+        time: DateTime<Utc>,
+        /// Whether it is routine (what the script does, the runner's notices): what
+        /// `--quiet` leaves out of the log's output.
+        routine: bool,
     },
     /// A record or measurement: its line in the records file.
     Record {
@@ -124,6 +159,93 @@ pub enum Reading {
     },
 }
 
+/// Writes a log line's time as RFC 3339 with milliseconds, as the JSON log does.
+fn rfc3339<S: serde::Serializer>(time: &DateTime<Utc>, out: S) -> Result<S::Ok, S::Error> {
+    out.serialize_str(&time.to_rfc3339_opts(chrono::SecondsFormat::Millis, true))
+}
+
+/// The kinds of `RunEvent`, one per variant: what a consumer may choose to take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    /// `RunEvent::ScriptStarted`.
+    ScriptStarted,
+    /// `RunEvent::ScriptFailed`.
+    ScriptFailed,
+    /// `RunEvent::ScriptRestarting`.
+    ScriptRestarting,
+    /// `RunEvent::Tick`.
+    Tick,
+    /// `RunEvent::Inputs`.
+    Inputs,
+    /// `RunEvent::Outputs`.
+    Outputs,
+    /// `RunEvent::DeviceLost`.
+    DeviceLost,
+    /// `RunEvent::DeviceBack`.
+    DeviceBack,
+    /// `RunEvent::Log`.
+    Log,
+    /// `RunEvent::Record`.
+    Record,
+    /// `RunEvent::Ended`.
+    Ended,
+}
+
+impl EventKind {
+    fn bit(self) -> u32 {
+        1 << self as u32
+    }
+}
+
+impl RunEvent {
+    /// About how many bytes it holds (its text, and a fixed part).
+    fn weight(&self) -> usize {
+        EVENT_OVERHEAD
+            + match self {
+                RunEvent::Log { message, .. } | RunEvent::ScriptFailed { message } => message.len(),
+                RunEvent::Record { line } => line.len(),
+                RunEvent::Outputs { cause, .. } | RunEvent::DeviceLost { cause, .. } => cause.len(),
+                RunEvent::Ended { reason, .. } => reason.len(),
+                _ => 0,
+            }
+    }
+
+    /// Which kind of event it is.
+    pub fn kind(&self) -> EventKind {
+        match self {
+            RunEvent::ScriptStarted { .. } => EventKind::ScriptStarted,
+            RunEvent::ScriptFailed { .. } => EventKind::ScriptFailed,
+            RunEvent::ScriptRestarting { .. } => EventKind::ScriptRestarting,
+            RunEvent::Tick { .. } => EventKind::Tick,
+            RunEvent::Inputs { .. } => EventKind::Inputs,
+            RunEvent::Outputs { .. } => EventKind::Outputs,
+            RunEvent::DeviceLost { .. } => EventKind::DeviceLost,
+            RunEvent::DeviceBack { .. } => EventKind::DeviceBack,
+            RunEvent::Log { .. } => EventKind::Log,
+            RunEvent::Record { .. } => EventKind::Record,
+            RunEvent::Ended { .. } => EventKind::Ended,
+        }
+    }
+}
+
+/// The kinds of event a consumer takes (`Events::subscribe_to`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Kinds(u32);
+
+impl Kinds {
+    /// Every kind (what `Events::subscribe` takes).
+    pub const ALL: Kinds = Kinds(u32::MAX);
+
+    /// Just these kinds.
+    pub fn of(kinds: &[EventKind]) -> Self {
+        Kinds(kinds.iter().fold(0, |bits, k| bits | k.bit()))
+    }
+
+    fn has(self, kind: EventKind) -> bool {
+        self.0 & kind.bit() != 0
+    }
+}
+
 /// The publishing end: cheap to clone, shared by everything in the run that tells of events.
 #[derive(Clone, Default)]
 pub struct Events {
@@ -134,13 +256,36 @@ pub struct Events {
 struct Fanout {
     /// Consumers attached: read without the lock, so a run nobody watches pays one load.
     attached: AtomicUsize,
+    /// The kinds some attached consumer takes: an event nobody takes costs no allocation
+    /// and no lock (the log's and the records file's consumers take no ticks).
+    wanted: AtomicU32,
     consumers: Mutex<Vec<Consumer>>,
+    next_id: AtomicU64,
+    /// Events lost by any consumer, those let go since included.
+    lost: AtomicU64,
 }
 
 struct Consumer {
+    id: u64,
     name: String,
-    queue: SyncSender<Arc<RunEvent>>,
+    kinds: Kinds,
+    queue: SyncSender<Delivery>,
     dropped: Arc<AtomicU64>,
+    /// Bytes its queue may hold, and holds (the consumer takes off what it receives).
+    budget: usize,
+    queued: Arc<AtomicUsize>,
+    /// Dead once its `Subscription` is gone (told without sending it anything).
+    alive: Weak<()>,
+    /// Lost since the last event its queue took: handed over with the next one, so the
+    /// consumer can tell the loss where it happened.
+    unreported: u64,
+}
+
+/// One event in a consumer's queue, with the losses just before it.
+struct Delivery {
+    lost_before: u64,
+    weight: usize,
+    event: Arc<RunEvent>,
 }
 
 /// Why a consumer could not attach.
@@ -150,9 +295,18 @@ pub struct TooManySubscribers;
 
 /// The receiving end of one consumer.
 pub struct Subscription {
-    events: Receiver<Arc<RunEvent>>,
+    events: Receiver<Delivery>,
     dropped: Arc<AtomicU64>,
+    queued: Arc<AtomicUsize>,
+    /// Losses handed over or counted as told (`newly_dropped`).
     told: u64,
+    /// Losses the events received so far came after (never more than `dropped`).
+    accounted: std::cell::Cell<u64>,
+    /// The event after a loss handed over first (`handover`).
+    held: Option<Arc<RunEvent>>,
+    _alive: Arc<()>,
+    id: u64,
+    fanout: Weak<Fanout>,
 }
 
 /// A consumer's count of lost events.
@@ -164,68 +318,174 @@ pub struct Dropped {
     pub events: u64,
 }
 
+/// A consumer's count of lost events, readable from anywhere (the loop reads the records
+/// file's to tell the log of records dropped).
+#[derive(Debug, Clone, Default)]
+pub struct Losses(Arc<AtomicU64>);
+
+impl Losses {
+    /// Events lost so far.
+    pub fn count(&self) -> u64 {
+        self.0.load(Ordering::Relaxed)
+    }
+}
+
+/// Lets a consumer go from outside its thread (`Subscription::detacher`): it gets what is
+/// queued, then the end of the stream, so a thread waiting for events wakes at once.
+#[derive(Debug, Clone)]
+pub struct Detacher {
+    fanout: Weak<Fanout>,
+    id: u64,
+}
+
+impl Detacher {
+    /// Takes the consumer off the stream: no event after this reaches it.
+    pub fn detach(&self) {
+        if let Some(fanout) = self.fanout.upgrade() {
+            let mut consumers = lock(&fanout.consumers);
+            consumers.retain(|c| c.id != self.id);
+            fanout.refresh(&consumers);
+        }
+    }
+}
+
+impl Fanout {
+    fn refresh(&self, consumers: &[Consumer]) {
+        self.attached.store(consumers.len(), Ordering::Relaxed);
+        let wanted = consumers.iter().fold(0, |bits, c| bits | c.kinds.0);
+        self.wanted.store(wanted, Ordering::Relaxed);
+    }
+}
+
 impl Events {
     /// Whether any consumer is attached (an event nobody would get need not be built).
     pub fn watched(&self) -> bool {
         self.fanout.attached.load(Ordering::Relaxed) != 0
     }
 
-    /// Gives the event `make` builds to every consumer, never waiting: one whose queue is
-    /// full loses it (counted); one that went away is let go.
+    /// Whether an attached consumer takes events of `kind` (one not taken need not be built).
+    pub fn wants(&self, kind: EventKind) -> bool {
+        self.watched() && self.fanout.wanted.load(Ordering::Relaxed) & kind.bit() != 0
+    }
+
+    /// Gives the event `make` builds to every consumer that takes its kind, never waiting:
+    /// one whose queue is full loses it (counted); one that went away is let go.
     pub fn publish(&self, make: impl FnOnce() -> RunEvent) {
         if !self.watched() {
             return;
         }
-        let event = Arc::new(make());
+        let event = make();
+        let kind = event.kind();
+        if self.fanout.wanted.load(Ordering::Relaxed) & kind.bit() == 0 {
+            return;
+        }
+        let weight = event.weight();
+        let event = Arc::new(event);
         let mut consumers = lock(&self.fanout.consumers);
-        consumers.retain(|c| {
-            c.attached()
-                && match c.queue.try_send(Arc::clone(&event)) {
-                    Ok(()) => true,
-                    Err(TrySendError::Full(_)) => {
-                        c.dropped.fetch_add(1, Ordering::Relaxed);
-                        true
-                    }
-                    Err(TrySendError::Disconnected(_)) => false,
+        consumers.retain_mut(|c| {
+            if !c.attached() {
+                return false;
+            }
+            if !c.kinds.has(kind) {
+                return true;
+            }
+            // Counted before it is sent: the consumer takes it off as it receives it.
+            let queued = c.queued.fetch_add(weight, Ordering::Relaxed);
+            let sent = if queued.saturating_add(weight) > c.budget {
+                Err(TrySendError::Full(()))
+            } else {
+                let delivery = Delivery {
+                    lost_before: c.unreported,
+                    weight,
+                    event: Arc::clone(&event),
+                };
+                c.queue.try_send(delivery).map_err(|e| match e {
+                    TrySendError::Full(_) => TrySendError::Full(()),
+                    TrySendError::Disconnected(_) => TrySendError::Disconnected(()),
+                })
+            };
+            match sent {
+                Ok(()) => {
+                    c.unreported = 0;
+                    true
                 }
+                Err(TrySendError::Full(())) => {
+                    c.queued.fetch_sub(weight, Ordering::Relaxed);
+                    c.dropped.fetch_add(1, Ordering::Relaxed);
+                    self.fanout.lost.fetch_add(1, Ordering::Relaxed);
+                    c.unreported = c.unreported.saturating_add(1);
+                    true
+                }
+                Err(TrySendError::Disconnected(())) => false,
+            }
         });
-        self.fanout
-            .attached
-            .store(consumers.len(), Ordering::Relaxed);
+        self.fanout.refresh(&consumers);
     }
 
-    /// Attaches a consumer called `name` with a queue of `capacity` events.
+    /// Attaches a consumer called `name`, taking every event, with a queue of `capacity` events
+    /// (`Bound::events`).
     pub fn subscribe(
         &self,
         name: &str,
         capacity: usize,
+    ) -> Result<Subscription, TooManySubscribers> {
+        self.subscribe_to(name, Bound::events(capacity), Kinds::ALL)
+    }
+
+    /// Attaches a consumer called `name` that takes the events of `kinds` only (what it
+    /// loses is then events of those kinds), with a queue that holds `bound`.
+    pub fn subscribe_to(
+        &self,
+        name: &str,
+        bound: Bound,
+        kinds: Kinds,
     ) -> Result<Subscription, TooManySubscribers> {
         let mut consumers = lock(&self.fanout.consumers);
         consumers.retain(Consumer::attached);
         if consumers.len() >= MAX_SUBSCRIBERS {
             return Err(TooManySubscribers);
         }
-        let (queue, events) = mpsc::sync_channel(capacity.max(1));
+        let (queue, events) = mpsc::sync_channel(bound.events.max(1));
         let dropped = Arc::new(AtomicU64::new(0));
+        let queued = Arc::new(AtomicUsize::new(0));
+        let alive = Arc::new(());
+        let id = self.fanout.next_id.fetch_add(1, Ordering::Relaxed);
         consumers.push(Consumer {
+            id,
             name: name.to_string(),
+            kinds,
             queue,
             dropped: Arc::clone(&dropped),
+            budget: bound.bytes,
+            queued: Arc::clone(&queued),
+            alive: Arc::downgrade(&alive),
+            unreported: 0,
         });
-        self.fanout
-            .attached
-            .store(consumers.len(), Ordering::Relaxed);
+        self.fanout.refresh(&consumers);
         Ok(Subscription {
             events,
             dropped,
+            queued,
             told: 0,
+            accounted: std::cell::Cell::new(0),
+            held: None,
+            _alive: alive,
+            id,
+            fanout: Arc::downgrade(&self.fanout),
         })
     }
 
-    /// Every attached consumer's count of lost events.
+    /// Events lost by every consumer there has been, those let go since included.
+    pub fn dropped_in_all(&self) -> u64 {
+        self.fanout.lost.load(Ordering::Relaxed)
+    }
+
+    /// Every attached consumer's count of lost events (one gone is not listed, even before
+    /// the next event lets it go).
     pub fn dropped(&self) -> Vec<Dropped> {
         lock(&self.fanout.consumers)
             .iter()
+            .filter(|c| c.attached())
             .map(|c| Dropped {
                 consumer: c.name.clone(),
                 events: c.dropped.load(Ordering::Relaxed),
@@ -235,10 +495,9 @@ impl Events {
 }
 
 impl Consumer {
-    /// Whether its `Subscription` is still held: it shares the count of drops, so a count
-    /// held here alone is a consumer gone (told without sending it anything).
+    /// Whether its `Subscription` is still held.
     fn attached(&self) -> bool {
-        Arc::strong_count(&self.dropped) > 1
+        self.alive.strong_count() > 0
     }
 }
 
@@ -247,16 +506,17 @@ impl Consumer {
 pub enum Next {
     /// The next event.
     Event(Arc<RunEvent>),
-    /// This many events were lost since the last hand-over (told before the event after them).
+    /// This many events were lost here, between the event handed over before and the next.
     Dropped(u64),
     /// A wait slice went by without an event (a time to send a keep-alive).
     Quiet,
 }
 
 impl Subscription {
-    /// Hands `each` the events in order, losses as `Next::Dropped`, and `Next::Quiet` after each
-    /// `slice` without an event, until `each` says stop (false), the run's `Ended` was handed
-    /// over, the run is gone, or `closing()` says so (what is queued by then still goes).
+    /// Hands `each` the events in order, losses as `Next::Dropped` where they happened, and
+    /// `Next::Quiet` after each `slice` without an event, until `each` says stop (false), the
+    /// run's `Ended` was handed over, the run is gone, or `closing()` says so (what is queued
+    /// by then still goes).
     pub fn follow(
         &mut self,
         slice: Duration,
@@ -265,15 +525,15 @@ impl Subscription {
     ) {
         loop {
             let closing = closing();
-            let next = self.next(if closing { Duration::ZERO } else { slice });
-            let lost = self.newly_dropped();
-            if lost > 0 && !each(Next::Dropped(lost)) {
-                return;
-            }
-            match next {
-                Ok(event) => {
+            match self.handover(if closing { Duration::ZERO } else { slice }) {
+                Ok(Next::Event(event)) => {
                     let end = matches!(*event, RunEvent::Ended { .. });
                     if !each(Next::Event(event)) || end {
+                        return;
+                    }
+                }
+                Ok(next) => {
+                    if !each(next) {
                         return;
                     }
                 }
@@ -287,9 +547,38 @@ impl Subscription {
         }
     }
 
+    /// The next thing to hand over, waiting at most `wait`: a loss (`Next::Dropped`) where it
+    /// happened, before the event after it, else the next event; losses after the last event
+    /// are handed over once nothing else comes. `Err(Disconnected)` once the stream is gone.
+    pub fn handover(&mut self, wait: Duration) -> Result<Next, RecvTimeoutError> {
+        if let Some(event) = self.held.take() {
+            return Ok(Next::Event(event));
+        }
+        match self.next(wait) {
+            Ok(event) => {
+                let accounted = self.accounted.get();
+                if accounted > self.told {
+                    let lost = accounted - self.told;
+                    self.told = accounted;
+                    self.held = Some(event);
+                    return Ok(Next::Dropped(lost));
+                }
+                Ok(Next::Event(event))
+            }
+            Err(e) => match self.newly_dropped() {
+                0 => Err(e),
+                lost => Ok(Next::Dropped(lost)),
+            },
+        }
+    }
+
     /// The next event, waiting at most `wait`; `Err(Disconnected)` once the run is gone.
     pub fn next(&self, wait: Duration) -> Result<Arc<RunEvent>, RecvTimeoutError> {
-        self.events.recv_timeout(wait)
+        let delivery = self.events.recv_timeout(wait)?;
+        self.queued.fetch_sub(delivery.weight, Ordering::Relaxed);
+        self.accounted
+            .set(self.accounted.get().saturating_add(delivery.lost_before));
+        Ok(delivery.event)
     }
 
     /// Events lost so far.
@@ -297,11 +586,24 @@ impl Subscription {
         self.dropped.load(Ordering::Relaxed)
     }
 
+    /// This consumer's count of lost events, to read from elsewhere.
+    pub fn losses(&self) -> Losses {
+        Losses(Arc::clone(&self.dropped))
+    }
+
+    /// What takes this consumer off the stream from another thread.
+    pub fn detacher(&self) -> Detacher {
+        Detacher {
+            fanout: Weak::clone(&self.fanout),
+            id: self.id,
+        }
+    }
+
     /// Events lost since the last call (0 if none): what a consumer tells its own output.
     pub fn newly_dropped(&mut self) -> u64 {
         let now = self.dropped();
         let new = now.saturating_sub(self.told);
-        self.told = now;
+        self.told = self.told.max(now);
         new
     }
 }
@@ -421,12 +723,13 @@ mod tests {
                 true
             },
         );
+        // Tick 3 was lost after tick 2: the loss is told there, not ahead of tick 1.
         assert_eq!(
             got,
             vec![
-                Next::Dropped(1),
                 Next::Event(Arc::new(tick(1))),
                 Next::Event(Arc::new(tick(2))),
+                Next::Dropped(1),
                 Next::Event(Arc::new(ended.clone())),
             ]
         );
@@ -443,6 +746,59 @@ mod tests {
             },
         );
         assert_eq!(got, vec![Next::Event(Arc::new(tick(9)))]);
+    }
+
+    #[test]
+    fn a_consumer_takes_only_its_kinds_and_its_queue_is_bounded_in_bytes_too() {
+        let events = Events::default();
+        let records = events
+            .subscribe_to(
+                "records",
+                Bound {
+                    events: 100,
+                    bytes: 2 * (EVENT_OVERHEAD + 10),
+                },
+                Kinds::of(&[EventKind::Record]),
+            )
+            .unwrap();
+        // Nobody takes ticks: they are not even built.
+        let mut built = false;
+        events.publish(|| {
+            built = true;
+            tick(1)
+        });
+        assert!(built, "built to learn its kind");
+        assert!(!events.wants(EventKind::Tick));
+        assert!(events.wants(EventKind::Record));
+        let record = |line: &str| RunEvent::Record { line: line.into() };
+        events.publish(|| record("0123456789"));
+        events.publish(|| record(&"x".repeat(100)));
+        events.publish(|| record("abcdefghij"));
+        assert_eq!(records.dropped(), 1, "the long one did not fit");
+        assert_eq!(*records.next(Duration::ZERO).unwrap(), record("0123456789"));
+        assert_eq!(*records.next(Duration::ZERO).unwrap(), record("abcdefghij"));
+        // Taken off: room again.
+        events.publish(|| record("0123456789"));
+        events.publish(|| record("0123456789"));
+        assert_eq!(records.dropped(), 1);
+    }
+
+    #[test]
+    fn a_detached_consumer_gets_what_was_queued_then_the_end_at_once() {
+        let events = Events::default();
+        let mut s = events.subscribe("d", 8).unwrap();
+        events.publish(|| tick(1));
+        s.detacher().detach();
+        events.publish(|| tick(2));
+        assert_eq!(
+            s.handover(Duration::from_secs(60)).unwrap(),
+            Next::Event(Arc::new(tick(1)))
+        );
+        assert_eq!(
+            s.handover(Duration::from_secs(60)),
+            Err(RecvTimeoutError::Disconnected)
+        );
+        assert!(!events.watched());
     }
 
     #[test]

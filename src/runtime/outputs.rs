@@ -7,7 +7,7 @@
 
 use super::devices::Device;
 use super::log::Level;
-use super::observe::{Events, RunEvent};
+use super::observe::{EventKind, Events, RunEvent};
 use super::state::Runtime;
 
 impl<H: Clone> Runtime<H> {
@@ -114,7 +114,7 @@ impl<H: Clone> Runtime<H> {
                             // Built only for a watched run: writes are on the tick's path.
                             let told = self
                                 .events
-                                .watched()
+                                .wants(EventKind::Outputs)
                                 .then(|| (d.name.clone(), cause.to_string()));
                             d.select_relay(relay).map(|()| {
                                 tell_written(&self.events, told, relay);
@@ -143,7 +143,7 @@ impl<H: Clone> Runtime<H> {
                         );
                         let told = self
                             .events
-                            .watched()
+                            .wants(EventKind::Outputs)
                             .then(|| (d.name.clone(), cause.to_string()));
                         d.write_outputs(target).map(|()| {
                             tell_written(&self.events, told, target);

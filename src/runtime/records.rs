@@ -1,14 +1,15 @@
 //! Records for test rigs: `record(name, value)` and `measure(name, value, limits)` append one
 //! JSON object per line, with a timestamp, to the records file, and are kept in memory.
 //!
-//! The file is written by its own thread behind a bounded queue (`runtime::line_writer`, as
-//! the log is), so a file that does not take them (a pipe nobody reads, a hung mount, a full
-//! disk) never holds the scan loop: records it cannot take are counted, told in the log once
-//! it takes them again, and make the run's exit status 5 (`close`).
+//! Each record is a `RunEvent::Record` on the run's event stream; the file is one consumer of
+//! it (`runtime::line_consumer`, as the log's output is), on its own thread behind a bounded
+//! queue, so a file that does not take them (a pipe nobody reads, a hung mount, a full disk)
+//! never holds the scan loop: records it cannot take are counted, told in the log once it
+//! takes them again, and make the run's exit status 5 (`close`).
 
-use super::line_writer::{LineWriter, Pushed};
+use super::line_consumer::{LineConsumer, Lines};
 use super::log::{Level, Logger};
-use super::observe::RunEvent;
+use super::observe::{Bound, EventKind, Events, Kinds, RunEvent};
 pub use super::records_file::RecordError;
 use super::records_file::{open_for_appending, refusals, RecordSink, RecordTarget, SharedRefusals};
 use serde_json::{json, Map, Value};
@@ -18,8 +19,12 @@ use std::time::Duration;
 /// Records kept in memory at most (the oldest go first); the file keeps them all.
 pub const MAX_KEPT_RECORDS: usize = 100_000;
 
-/// Bytes of records waiting for the file at most; past it records are dropped and counted.
-pub const QUEUE_BYTES: usize = 1024 * 1024;
+/// Records waiting for the file at most: their bytes, and their count; past either, records
+/// are dropped, counted and told. Four times the log's: a test rig's records are its results.
+pub const QUEUE: Bound = Bound {
+    events: 16_384,
+    bytes: 4 * 1024 * 1024,
+};
 
 /// How long opening the records file may take at start (a hung network mount never returns).
 pub const OPEN_WAIT: Duration = Duration::from_secs(2);
@@ -58,10 +63,15 @@ pub struct Records {
 /// The records file: its writer thread and what the log has been told of it.
 struct RecordsFile {
     path: PathBuf,
-    writer: LineWriter,
+    writer: LineConsumer,
     refusals: SharedRefusals,
-    /// Records given to the writer.
+    /// Records published for the file.
     sent: u64,
+    /// Records its queue had lost at the last record.
+    lost_seen: u64,
+    /// Whether records were lost since the last one the queue took (the log is told once
+    /// it takes one again).
+    losing: bool,
     /// Records the file refused that the log has told of.
     refused_told: u64,
     /// Whether the log has said the file is refusing records now.
@@ -74,25 +84,36 @@ impl Records {
         Self::default()
     }
 
-    /// Records appended to `path` too (created if missing). Opening it never waits long: a
-    /// named pipe nobody reads is `NoReader`, an open that has not come back after `OPEN_WAIT`
-    /// is `OpenHung`.
-    pub fn to_file(path: &Path) -> Result<Self, RecordError> {
-        Self::to_target(path, OPEN_WAIT, open_for_appending)
+    /// Records appended to `path` too (created if missing), written by a consumer of
+    /// `events` (the run's, which the records are published to). Opening it never waits
+    /// long: a named pipe nobody reads is `NoReader`, an open that has not come back after
+    /// `OPEN_WAIT` is `OpenHung`.
+    pub fn to_file(path: &Path, events: &Events) -> Result<Self, RecordError> {
+        Self::to_target(path, events, OPEN_WAIT, open_for_appending)
     }
 
     /// As `to_file`, with the file opened by `open` on the writer thread.
     fn to_target<F: RecordTarget + 'static>(
         path: &Path,
+        events: &Events,
         wait: Duration,
         open: impl FnOnce(&Path) -> Result<F, RecordError> + Send + 'static,
     ) -> Result<Self, RecordError> {
+        let subscription = events
+            .subscribe_to("records", QUEUE, Kinds::of(&[EventKind::Record]))
+            .map_err(|e| RecordError::File {
+                path: path.to_path_buf(),
+                source: std::io::Error::other(e),
+            })?;
         let refusals = SharedRefusals::default();
         let (opened, outcome) = std::sync::mpsc::sync_channel(1);
         let theirs = std::sync::Arc::clone(&refusals);
         let target = path.to_path_buf();
-        let writer = LineWriter::spawn("rigscript-records", QUEUE_BYTES, move || {
-            match open(&target) {
+        let writer = LineConsumer::spawn(
+            "rigscript-records",
+            subscription,
+            RecordLines,
+            move || match open(&target) {
                 Ok(file) => {
                     let _ = opened.send(Ok(()));
                     Some(RecordSink::new(file, theirs))
@@ -101,8 +122,8 @@ impl Records {
                     let _ = opened.send(Err(e));
                     None
                 }
-            }
-        });
+            },
+        );
         let result = match outcome.recv_timeout(wait) {
             Ok(result) => result,
             Err(std::sync::mpsc::RecvTimeoutError::Timeout) => Err(RecordError::OpenHung {
@@ -125,6 +146,8 @@ impl Records {
             writer,
             refusals,
             sent: 0,
+            lost_seen: 0,
+            losing: false,
             refused_told: 0,
             refusing_told: false,
         });
@@ -191,9 +214,17 @@ impl Records {
         let Some(mut f) = self.file.take() else {
             return 0;
         };
-        let waiting = f.writer.close(CLOSE_WAIT);
+        let finished = f.writer.close(CLOSE_WAIT);
         f.tell(log);
-        let dropped = f.writer.dropped();
+        let dropped = f.writer.losses().count();
+        // What the queue took and the file has not had (the file accounts for what it refused).
+        let waiting = if finished {
+            0
+        } else {
+            f.sent
+                .saturating_sub(dropped)
+                .saturating_sub(f.writer.handled())
+        };
         let refused = refusals(&f.refusals).total;
         let lost = dropped.saturating_add(refused).saturating_add(waiting);
         let path = f.path.display();
@@ -226,15 +257,19 @@ impl Records {
     }
 
     fn append(&mut self, record: Value, log: &mut Logger) {
+        // The one place a record is told: the file is a consumer of it like any other.
         log.events().publish(|| RunEvent::Record {
             line: record.to_string(),
         });
         if let Some(f) = &mut self.file {
             f.sent = f.sent.saturating_add(1);
-            // One line per record: the writer writes it whole or not at all.
-            let pushed = f.writer.push(record.to_string(), |_| None);
-            if let Pushed::Queued { dropped_before } = pushed {
-                if dropped_before > 0 {
+            // The loop is the one publisher: a count that grew means this record was lost.
+            let lost = f.writer.losses().count();
+            if lost > f.lost_seen {
+                f.lost_seen = lost;
+                f.losing = true;
+            } else if std::mem::take(&mut f.losing) {
+                {
                     // Once, then counted: a file a little slower than the records comes back
                     // here every few records. The end gives the count.
                     log.repeating(
@@ -302,6 +337,23 @@ impl Drop for Records {
     }
 }
 
+/// The records file's lines: each record's line as it was published (one line per record:
+/// the file writes it whole or not at all). Losses are told by the loop, not in the file.
+struct RecordLines;
+
+impl Lines for RecordLines {
+    fn line(&mut self, event: &RunEvent) -> Option<String> {
+        match event {
+            RunEvent::Record { line } => Some(line.clone()),
+            _ => None,
+        }
+    }
+
+    fn lost(&mut self, _lost: u64, _next: &RunEvent) -> Option<String> {
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -351,11 +403,11 @@ mod tests {
         let dir = dir("records");
         let path = dir.join("r.jsonl");
         let mut log = log();
-        let mut r = Records::to_file(&path).unwrap();
+        let mut r = Records::to_file(&path, log.events()).unwrap();
         r.record("t1", "count", json!(3), &mut log);
         r.measure("t2", "v", 0.5, &Limits::default(), &mut log);
         assert_eq!(r.close(&mut log), 0);
-        let mut again = Records::to_file(&path).unwrap();
+        let mut again = Records::to_file(&path, log.events()).unwrap();
         again.record("t3", "x", json!("y"), &mut log);
         assert_eq!(again.close(&mut log), 0);
         let text = std::fs::read_to_string(&path).unwrap();
@@ -373,7 +425,7 @@ mod tests {
     #[test]
     fn a_full_disk_is_told_once_with_the_count_of_records_not_written() {
         let mut log = log();
-        let mut r = Records::to_target(Path::new("r.jsonl"), OPEN_WAIT, |_| {
+        let mut r = Records::to_target(Path::new("r.jsonl"), log.events(), OPEN_WAIT, |_| {
             Ok(SmallDisk {
                 data: Vec::new(),
                 room: 100,
@@ -455,8 +507,10 @@ mod tests {
         })));
         let theirs = disk.clone();
         let mut log = log();
-        let mut r =
-            Records::to_target(Path::new("r.jsonl"), OPEN_WAIT, move |_| Ok(theirs)).unwrap();
+        let mut r = Records::to_target(Path::new("r.jsonl"), log.events(), OPEN_WAIT, move |_| {
+            Ok(theirs)
+        })
+        .unwrap();
         r.record("t", "n", json!(0), &mut log);
         r.record("t", "n", json!(1), &mut log);
         until(&r, "1 refused", |f| f.total == 1);
@@ -496,6 +550,7 @@ mod tests {
         let (_release, held) = std::sync::mpsc::channel::<()>();
         let e = Records::to_target(
             Path::new("/mnt/nfs/r.jsonl"),
+            &Events::default(),
             Duration::from_millis(50),
             move |_| {
                 let _ = held.recv();
@@ -531,10 +586,10 @@ mod tests {
         let path_for_run = path.clone();
         let recording = std::thread::spawn(move || {
             let mut log = log();
-            let mut r = Records::to_file(&path_for_run).unwrap();
-            // Far more than a pipe (64 KiB) and the queue together hold.
+            let mut r = Records::to_file(&path_for_run, log.events()).unwrap();
+            // Far more than a pipe (64 KiB) and the queue (4 MiB) together hold.
             let big = "x".repeat(1000);
-            for n in 0..3000 {
+            for n in 0..10_000 {
                 r.record("t", "n", json!(format!("{n} {big}")), &mut log);
             }
             done.send(()).unwrap();
@@ -548,7 +603,7 @@ mod tests {
         assert!(lost > 1000, "{lost}: {lines}");
         assert!(
             lines.contains(&format!(
-                "records file {}: {lost} of 3000 records not written",
+                "records file {}: {lost} of 10000 records not written",
                 path.display()
             )),
             "{lines}"

@@ -3,7 +3,7 @@
 //! the file took part of, on a full disk, is cut back, or the next one starts a fresh line
 //! where the file cannot be cut), and what the file refused counted with its cause.
 
-use super::line_writer::LineSink;
+use super::line_consumer::LineSink;
 use std::fs::{File, OpenOptions};
 use std::io::{self, Write};
 use std::os::fd::AsRawFd;

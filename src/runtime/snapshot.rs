@@ -10,6 +10,7 @@
 use super::devices::Device;
 use super::forcing::ForceShown;
 use super::observe::Dropped;
+use super::stats::Stats;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -40,6 +41,12 @@ pub struct RigSnapshot {
     /// The points forced now, by the operator (`runtime::forcing`).
     #[serde(default)]
     pub forces: Vec<ForceShown>,
+    /// Records the records file did not take (known at the end; the log says why).
+    #[serde(default)]
+    pub records_lost: u64,
+    /// Events lost by every consumer the run has had, those gone since included.
+    #[serde(default)]
+    pub dropped_in_all: u64,
 }
 
 /// The script's side of a run.
@@ -60,7 +67,7 @@ pub struct ScriptState {
 }
 
 /// The scan loop's figures so far.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct TickFigures {
     /// The scan period, in microseconds.
     pub period_us: u64,
@@ -80,6 +87,27 @@ pub struct TickFigures {
     /// How late ticks started, as a histogram.
     #[serde(default)]
     pub jitter: Buckets,
+    /// How late ticks started: median, in microseconds.
+    #[serde(default)]
+    pub jitter_p50_us: u64,
+    /// How late ticks started: the latest, in microseconds.
+    #[serde(default)]
+    pub jitter_max_us: u64,
+    /// Tick work: mean, in microseconds.
+    #[serde(default)]
+    pub work_mean_us: u64,
+    /// Tick work: the longest, in microseconds.
+    #[serde(default)]
+    pub work_max_us: u64,
+    /// The most requests in one tick.
+    #[serde(default)]
+    pub max_transactions: u64,
+    /// How the run's CPU wake-up latency request went (real-time runs only).
+    #[serde(default)]
+    pub wake_latency: Option<String>,
+    /// How the request for prompt wake-ups (timer slack, scheduler slice) went.
+    #[serde(default)]
+    pub prompt_wakeups: Option<String>,
 }
 
 /// The upper bounds of the histograms' buckets, in microseconds (50 µs to 1 s).
@@ -107,6 +135,104 @@ impl Buckets {
             count: h.count(),
             sum_us: h.sum_us(),
         }
+    }
+}
+
+impl TickFigures {
+    /// The figures of `stats`, the loop's measurement, for a loop of `period`.
+    pub fn of(stats: &Stats, period: std::time::Duration) -> Self {
+        Self {
+            period_us: micros(period),
+            count: stats.ticks,
+            overruns: stats.overruns,
+            jitter_p99_us: micros(stats.jitter.quantile(0.99)),
+            work_p99_us: micros(stats.work.quantile(0.99)),
+            transactions: stats.transactions,
+            jitter_p50_us: micros(stats.jitter.quantile(0.5)),
+            jitter_max_us: micros(stats.jitter.max()),
+            work_mean_us: micros(stats.work.mean()),
+            work_max_us: micros(stats.work.max()),
+            max_transactions: stats.max_transactions,
+            wake_latency: stats.wake_latency.clone(),
+            prompt_wakeups: stats.prompt_wakeups.clone(),
+            work: Buckets::of(&stats.work),
+            jitter: Buckets::of(&stats.jitter),
+        }
+    }
+}
+
+impl RigSnapshot {
+    /// The run's figures as `run --stats` prints them at the end.
+    pub fn stats_text(&self) -> StatsText<'_> {
+        StatsText(self)
+    }
+}
+
+/// `RigSnapshot::stats_text`.
+pub struct StatsText<'a>(&'a RigSnapshot);
+
+fn ms(us: u64) -> String {
+    format!("{:.3}ms", us as f64 / 1000.0)
+}
+
+impl std::fmt::Display for StatsText<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self.0;
+        let t = &s.ticks;
+        writeln!(f, "ticks: {}", t.count)?;
+        if let Some(w) = &t.wake_latency {
+            writeln!(f, "wake latency: {w}")?;
+        }
+        writeln!(
+            f,
+            "jitter: p50 {} p99 {} max {}",
+            ms(t.jitter_p50_us),
+            ms(t.jitter_p99_us),
+            ms(t.jitter_max_us)
+        )?;
+        writeln!(
+            f,
+            "tick work: mean {} p99 {} max {}",
+            ms(t.work_mean_us),
+            ms(t.work_p99_us),
+            ms(t.work_max_us)
+        )?;
+        writeln!(f, "overruns: {}", t.overruns)?;
+        if let Some(p) = &t.prompt_wakeups {
+            writeln!(f, "prompt wake-ups: {p}")?;
+        }
+        if s.log_dropped > 0 {
+            writeln!(
+                f,
+                "log lines dropped: {} (stderr not being read)",
+                s.log_dropped
+            )?;
+        }
+        if s.records_lost > 0 {
+            writeln!(
+                f,
+                "records not written: {} (the log says why)",
+                s.records_lost
+            )?;
+        }
+        if s.dropped_in_all > 0 {
+            writeln!(
+                f,
+                "events dropped: {} (by the event stream's consumers in all: the log, the \
+                 records file, subscribers)",
+                s.dropped_in_all
+            )?;
+        }
+        let per_tick = if t.count == 0 {
+            0.0
+        } else {
+            t.transactions as f64 / t.count as f64
+        };
+        write!(
+            f,
+            "transactions per tick: {per_tick:.2} (max {})",
+            t.max_transactions
+        )
     }
 }
 

@@ -77,13 +77,13 @@ impl<H: Clone> Runtime<H> {
         zone: Zone,
         devices: Vec<Device>,
         records: Records,
-        mut log: Logger,
+        log: Logger,
         transactions: TransactionCounter,
         grace: Duration,
     ) -> Self {
         let started = clock.now();
-        let events = Events::default();
-        log.set_events(events.clone());
+        // The log's stream is the run's: its lines and everything else in one order.
+        let events = log.events().clone();
         Self {
             clock,
             zone,

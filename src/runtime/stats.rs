@@ -1,5 +1,6 @@
-//! Scan-loop statistics for `--stats`: ticks, period jitter (how late each tick started),
-//! work per tick, overruns and device transactions per tick, in constant memory.
+//! Scan-loop statistics: ticks, period jitter (how late each tick started), work per tick,
+//! overruns and device transactions per tick, in constant memory. The loop measures them;
+//! the snapshot shows them (`snapshot::TickFigures`), and `--stats` prints the end's.
 
 use std::fmt;
 use std::time::Duration;
@@ -146,10 +147,6 @@ pub struct Stats {
     pub wake_latency: Option<String>,
     /// How the request for prompt wake-ups (timer slack, scheduler slice) went.
     pub prompt_wakeups: Option<String>,
-    /// Log lines dropped because stderr was not being read.
-    pub log_dropped: u64,
-    /// Records the records file did not take (the log says why).
-    pub records_lost: u64,
 }
 
 impl Stats {
@@ -160,57 +157,6 @@ impl Stats {
         } else {
             self.transactions as f64 / self.ticks as f64
         }
-    }
-}
-
-fn ms(d: Duration) -> String {
-    format!("{:.3}ms", d.as_secs_f64() * 1000.0)
-}
-
-impl fmt::Display for Stats {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "ticks: {}", self.ticks)?;
-        if let Some(w) = &self.wake_latency {
-            writeln!(f, "wake latency: {w}")?;
-        }
-        writeln!(
-            f,
-            "jitter: p50 {} p99 {} max {}",
-            ms(self.jitter.quantile(0.5)),
-            ms(self.jitter.quantile(0.99)),
-            ms(self.jitter.max())
-        )?;
-        writeln!(
-            f,
-            "tick work: mean {} p99 {} max {}",
-            ms(self.work.mean()),
-            ms(self.work.quantile(0.99)),
-            ms(self.work.max())
-        )?;
-        writeln!(f, "overruns: {}", self.overruns)?;
-        if let Some(p) = &self.prompt_wakeups {
-            writeln!(f, "prompt wake-ups: {p}")?;
-        }
-        if self.log_dropped > 0 {
-            writeln!(
-                f,
-                "log lines dropped: {} (stderr not being read)",
-                self.log_dropped
-            )?;
-        }
-        if self.records_lost > 0 {
-            writeln!(
-                f,
-                "records not written: {} (the log says why)",
-                self.records_lost
-            )?;
-        }
-        write!(
-            f,
-            "transactions per tick: {:.2} (max {})",
-            self.transactions_per_tick(),
-            self.max_transactions
-        )
     }
 }
 

@@ -111,9 +111,9 @@ fn an_invariant_that_reads_no_inputs_leaves_idle_ticks_skipped() {
     r.runner.advance(Duration::from_secs(3600));
     assert_eq!(r.runner.status(), None);
     assert!(
-        r.runner.stats.ticks < 1_000,
+        r.runner.stats().ticks < 1_000,
         "{} ticks in an hour at 20 ms",
-        r.runner.stats.ticks
+        r.runner.stats().ticks
     );
 }
 

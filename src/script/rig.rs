@@ -152,12 +152,7 @@ pub fn start_with(
     let ast = sandboxed(limits.operations)
         .compile(source)
         .map_err(|e| RigError::Script(parse_error(file, source, &e)))?;
-    let records = match setup.records.as_ref().or(setup.config.records.as_ref()) {
-        Some(path) => Records::to_file(path)?,
-        None => Records::in_memory(),
-    };
-    let count = TransactionCounter::default();
-    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
+    // The log first: its event stream is the run's, and the records file is a consumer of it.
     let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
     log.set_quiet(setup.quiet);
     log.set_format(setup.log_format);
@@ -165,6 +160,12 @@ pub fn start_with(
     if setup.keep_log {
         log.keep_lines();
     }
+    let records = match setup.records.as_ref().or(setup.config.records.as_ref()) {
+        Some(path) => Records::to_file(path, log.events())?,
+        None => Records::in_memory(),
+    };
+    let count = TransactionCounter::default();
+    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
     let mut runtime = Runtime::new(
         Arc::clone(&setup.clock),
         setup.zone,

@@ -508,7 +508,7 @@ fn register_observations(engine: &mut Engine) {
         r.0.borrow().rig.runner.runtime().borrow().wall_text()
     });
     engine.register_fn("overruns", |r: &mut RigHandle| -> i64 {
-        i64::try_from(r.0.borrow().rig.runner.stats.overruns).unwrap_or(i64::MAX)
+        i64::try_from(r.0.borrow().rig.runner.stats().overruns).unwrap_or(i64::MAX)
     });
     engine.register_fn("held_safe", |r: &mut RigHandle| -> bool {
         r.0.borrow().rig.runner.runtime().borrow().held_safe()

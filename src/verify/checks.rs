@@ -14,9 +14,10 @@ use crate::script::rig::Rig;
 use std::fmt;
 use std::time::Duration;
 
-/// Something that must hold.
+/// A property every run `verify` makes must keep (not an `InvariantCheck`, the loop's
+/// evaluation of one invariant, nor a `ModuleCheck`, the 5 s read-back of a module).
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Check {
+pub enum Property {
     /// An invariant of the script, by name.
     Invariant(String),
     /// No script error.
@@ -32,15 +33,15 @@ pub enum Check {
     EndSafe,
 }
 
-impl Check {
+impl Property {
     /// The check's name: the invariant's, or the built-in check's in words.
     pub fn name(&self) -> &str {
         match self {
-            Check::Invariant(name) => name,
-            Check::ScriptError => "no script error",
-            Check::OverBudget => "no handler over its budget",
-            Check::HeldSafe => "outputs held safe while a device is lost past its grace time",
-            Check::EndSafe => "outputs safe after the run ends",
+            Property::Invariant(name) => name,
+            Property::ScriptError => "no script error",
+            Property::OverBudget => "no handler over its budget",
+            Property::HeldSafe => "outputs held safe while a device is lost past its grace time",
+            Property::EndSafe => "outputs safe after the run ends",
         }
     }
 
@@ -68,10 +69,10 @@ impl Check {
     }
 }
 
-impl fmt::Display for Check {
+impl fmt::Display for Property {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Check::Invariant(name) => write!(f, "invariant {name:?}"),
+            Property::Invariant(name) => write!(f, "invariant {name:?}"),
             other => write!(f, "built-in check {:?}", other.name()),
         }
     }
@@ -81,7 +82,7 @@ impl fmt::Display for Check {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Finding {
     /// Which.
-    pub check: Check,
+    pub check: Property,
     /// When (virtual time since the start of the run).
     pub at: Duration,
     /// What was seen.
@@ -244,9 +245,9 @@ impl Watch {
         let e = errors.kept().get(first_new)?;
         Some(Finding {
             check: if e.over_budget {
-                Check::OverBudget
+                Property::OverBudget
             } else {
-                Check::ScriptError
+                Property::ScriptError
             },
             at,
             detail: e.message.clone(),
@@ -270,7 +271,7 @@ impl Watch {
     }
 
     /// A safety finding from the devices `unsafe_devices` found.
-    fn safety(check: Check, at: Duration, bad: Vec<(String, String)>) -> Option<Finding> {
+    fn safety(check: Property, at: Duration, bad: Vec<(String, String)>) -> Option<Finding> {
         if bad.is_empty() {
             return None;
         }
@@ -287,7 +288,7 @@ impl Watch {
     pub fn after_tick(&mut self, rig: &Rig, at: Duration) -> Option<Finding> {
         if let Some(v) = rig.runner.violation() {
             return Some(Finding {
-                check: Check::Invariant(v.name.clone()),
+                check: Property::Invariant(v.name.clone()),
                 at,
                 detail: as_read(rig, v),
                 devices: Vec::new(),
@@ -297,7 +298,7 @@ impl Watch {
             return Some(f);
         }
         if rig.runner.runtime().borrow().held_safe() {
-            return Self::safety(Check::HeldSafe, at, self.unsafe_devices(rig));
+            return Self::safety(Property::HeldSafe, at, self.unsafe_devices(rig));
         }
         None
     }
@@ -307,7 +308,7 @@ impl Watch {
         if let Some(f) = self.errors(rig, at) {
             return Some(f);
         }
-        Self::safety(Check::EndSafe, at, self.unsafe_devices(rig))
+        Self::safety(Property::EndSafe, at, self.unsafe_devices(rig))
     }
 }
 
@@ -317,18 +318,19 @@ mod tests {
 
     #[test]
     fn checks_have_names_people_read_and_file_names_can_hold() {
-        let c = Check::Invariant("Power only with guards closed!".into());
+        let c = Property::Invariant("Power only with guards closed!".into());
         assert_eq!(
             c.to_string(),
             "invariant \"Power only with guards closed!\""
         );
         assert_eq!(c.slug(), "power_only_with_guards_closed");
         assert_eq!(
-            Check::OverBudget.to_string(),
+            Property::OverBudget.to_string(),
             "built-in check \"no handler over its budget\""
         );
-        assert_eq!(Check::Invariant("?!".into()).slug(), "invariant");
-        let long = Check::Invariant("power only with all guards closed and no stop pressed".into());
+        assert_eq!(Property::Invariant("?!".into()).slug(), "invariant");
+        let long =
+            Property::Invariant("power only with all guards closed and no stop pressed".into());
         assert_eq!(long.slug(), "power_only_with_all_guards_closed_and_no_stop");
     }
 

@@ -288,7 +288,7 @@ pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, Exec
 
 #[cfg(test)]
 mod tests {
-    use super::super::checks::Check;
+    use super::super::checks::Property;
     use super::super::plan::{Event, StartPoint};
     use super::*;
     use crate::protocol::trc1000::Switch;
@@ -362,7 +362,7 @@ invariant("power only with DI3 closed", || io.outputs == 0 || io.input(3));
         let f = a.finding.clone().expect("the invariant is found false");
         assert_eq!(
             f.check,
-            Check::Invariant("power only with DI3 closed".into())
+            Property::Invariant("power only with DI3 closed".into())
         );
         assert_eq!(f.at, Duration::from_millis(40));
         assert_eq!(a.played, 3, "the stop after the finding is not played");

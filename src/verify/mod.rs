@@ -255,7 +255,7 @@ fn play_batch(
 fn replay(
     target: &Target,
     c: &Candidate,
-    check: &checks::Check,
+    check: &checks::Property,
     not_reproduced: &mut Vec<reproduce::NotReproduced>,
 ) -> Option<Outcome> {
     let t = Target {

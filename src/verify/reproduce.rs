@@ -3,7 +3,7 @@
 //! so, and `verify` runs the file it wrote before it says "reproduce:". A test that does not
 //! fail naming the same check is a defect of `verify`, reported as such.
 
-use super::checks::{Check, Finding, Watch};
+use super::checks::{Finding, Property, Watch};
 use super::exec::{Step, Target};
 use super::plan::StartPoint;
 use super::testfile::{absolute, relative, TestFile};
@@ -16,15 +16,15 @@ use std::path::{Path, PathBuf};
 pub struct NotReproduced(pub String);
 
 /// What `rigscript test` shows when `check` fails in a written test.
-pub fn failure_text(check: &Check) -> String {
+pub fn failure_text(check: &Property) -> String {
     match check {
-        Check::Invariant(name) => format!("invariant {name:?} is false"),
+        Property::Invariant(name) => format!("invariant {name:?} is false"),
         other => other.to_string(),
     }
 }
 
 /// Whether `results` (one written test's) fail naming `check`.
-pub fn judge(results: &[TestResult], check: &Check) -> Result<(), NotReproduced> {
+pub fn judge(results: &[TestResult], check: &Property) -> Result<(), NotReproduced> {
     let want = failure_text(check);
     match results {
         [r] => match &r.failure {
@@ -89,7 +89,7 @@ pub fn check_steps(
 
 /// Runs the written test file at `path` as `rigscript test` does and checks that it fails
 /// naming `check`.
-pub fn check_file(path: &Path, check: &Check) -> Result<(), NotReproduced> {
+pub fn check_file(path: &Path, check: &Property) -> Result<(), NotReproduced> {
     let results = run_file(path, &path.display().to_string(), |_| {});
     judge(&results, check)
 }
@@ -107,7 +107,7 @@ mod tests {
 
     #[test]
     fn only_a_failure_naming_the_same_check_reproduces() {
-        let inv = Check::Invariant("guards".into());
+        let inv = Property::Invariant("guards".into());
         let named = "invariant \"guards\" is false: io DI 0x00 (t=40ms) at f:3:5";
         assert_eq!(judge(&[result(Some(named))], &inv), Ok(()));
         assert_eq!(
@@ -116,7 +116,7 @@ mod tests {
         );
         assert!(judge(&[result(Some("invariant \"other\" is false"))], &inv).is_err());
         let err = "assert_eq failed: built-in check \"no script error\": left [..], right []";
-        assert_eq!(judge(&[result(Some(err))], &Check::ScriptError), Ok(()));
-        assert!(judge(&[result(Some(err))], &Check::EndSafe).is_err());
+        assert_eq!(judge(&[result(Some(err))], &Property::ScriptError), Ok(()));
+        assert!(judge(&[result(Some(err))], &Property::EndSafe).is_err());
     }
 }

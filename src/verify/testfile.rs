@@ -4,7 +4,7 @@
 //! is found false in; a built-in check is an assertion). Once the script is fixed the test
 //! passes, and can stay as a regression test.
 
-use super::checks::{Check, Finding};
+use super::checks::{Finding, Property};
 use super::exec::Step;
 use super::plan::{wall_step_text, Action, StartPoint};
 use crate::time::duration::format_duration_exact;
@@ -137,7 +137,7 @@ impl TestFile<'_> {
                 Step::Advance(d) => {
                     let mut l = format!("r.advance({});", quoted(&format_duration_exact(*d)));
                     if Some(i) == last_advance {
-                        if let Check::Invariant(_) = self.finding.check {
+                        if let Property::Invariant(_) = self.finding.check {
                             let _ = write!(l, " // {} is found false here", self.finding.check);
                         }
                     }
@@ -158,11 +158,11 @@ impl TestFile<'_> {
     fn assertions(&self) -> Vec<String> {
         let what = quoted(&format!("{}", self.finding.check));
         match &self.finding.check {
-            Check::Invariant(_) => Vec::new(),
-            Check::ScriptError | Check::OverBudget => {
+            Property::Invariant(_) => Vec::new(),
+            Property::ScriptError | Property::OverBudget => {
                 vec![format!("assert_eq(r.errors(), [], {what});")]
             }
-            Check::HeldSafe | Check::EndSafe => self
+            Property::HeldSafe | Property::EndSafe => self
                 .safe_states
                 .iter()
                 .filter(|(dev, ..)| self.finding.devices.contains(dev))
@@ -225,7 +225,7 @@ mod tests {
             Step::Advance(Duration::from_millis(30)),
         ];
         let finding = Finding {
-            check: Check::Invariant("power only with guards closed".into()),
+            check: Property::Invariant("power only with guards closed".into()),
             at: Duration::from_millis(40),
             detail: String::new(),
             devices: Vec::new(),

@@ -326,7 +326,7 @@ pub fn run(case: &Case) -> Run {
         Ok(Ok(mut rig)) => {
             let rt = Rc::clone(rig.runner.runtime());
             let ran = catch_unwind(AssertUnwindSafe(|| rig.runner.run()));
-            let ticks = rig.runner.stats.ticks;
+            let ticks = rig.runner.stats().ticks;
             drop(rig);
             let mut r = rt.borrow_mut();
             let end = match ran {

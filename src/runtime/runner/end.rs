@@ -108,7 +108,6 @@ impl<P: Program> Runner<P> {
         // After the safe state: the records file gets a bounded wait for what is queued.
         let r = &mut *rt;
         self.trouble.records_lost = r.records.close(&mut r.log);
-        self.stats.records_lost = self.trouble.records_lost;
         let failed = rt.records.failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),

@@ -61,8 +61,8 @@ pub struct Runner<P: Program> {
     /// What went wrong on the way.
     pub trouble: Trouble,
     latency: wait::LatencyRequest,
-    /// What the loop measured.
-    pub stats: Stats,
+    /// What the loop measured (`stats`, and the snapshot's figures).
+    stats: Stats,
     /// The script errors so far.
     pub errors: ErrorLog,
     violation: Option<Violation>,

@@ -8,7 +8,7 @@ use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{Answer, Request, Requests};
 use crate::runtime::snapshot::{
-    micros, Buckets, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
+    DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
 use std::sync::Arc;
 
@@ -33,6 +33,11 @@ impl<P: Program> Runner<P> {
             field,
             made: None,
         });
+    }
+
+    /// What the loop measured so far (the snapshot's figures come from it).
+    pub fn stats(&self) -> &crate::runtime::stats::Stats {
+        &self.stats
     }
 
     /// The run's event stream, to attach consumers to.
@@ -72,20 +77,13 @@ impl<P: Program> Runner<P> {
                 })
                 .collect(),
             held_safe: rt.held_safe,
-            ticks: TickFigures {
-                period_us: micros(self.options.period),
-                count: self.stats.ticks,
-                overruns: self.stats.overruns,
-                jitter_p99_us: micros(self.stats.jitter.quantile(0.99)),
-                work_p99_us: micros(self.stats.work.quantile(0.99)),
-                transactions: self.stats.transactions,
-                work: Buckets::of(&self.stats.work),
-                jitter: Buckets::of(&self.stats.jitter),
-            },
+            ticks: TickFigures::of(&self.stats, self.options.period),
             dropped: self.events.dropped(),
             log_dropped: rt.log.dropped(),
             forcing: rt.forces().allowed(),
             forces: rt.forces_shown(),
+            records_lost: self.trouble.records_lost,
+            dropped_in_all: self.events.dropped_in_all(),
         }
     }
 

@@ -98,14 +98,14 @@ fn overruns_are_counted_and_the_loop_keeps_its_phase() {
         ErrorPolicy::Stop,
     );
     r.advance(Duration::from_millis(400));
-    assert!(r.stats.overruns > 0);
+    assert!(r.stats().overruns > 0);
     assert_eq!(
         r.next_deadline().as_nanos() % Duration::from_millis(20).as_nanos(),
         0,
         "deadlines stay on the 20 ms grid"
     );
     assert!(r.next_deadline() > clock.now().saturating_sub(Duration::from_millis(20)));
-    assert!(r.stats.work.max() >= Duration::from_millis(50));
+    assert!(r.stats().work.max() >= Duration::from_millis(50));
 }
 
 #[test]
@@ -116,7 +116,7 @@ fn after_an_overrun_the_next_tick_starts_at_once() {
         ErrorPolicy::Stop,
     );
     r.advance(Duration::from_millis(100));
-    assert!(r.stats.overruns > 0);
+    assert!(r.stats().overruns > 0);
     assert!(
         r.next_deadline() <= clock.now(),
         "no sleep to the next boundary after a tick that ran late"
@@ -128,8 +128,8 @@ fn idle_ticks_are_skipped_when_no_handler_polls_inputs() {
     let (mut r, _clock) = runner(Duration::from_secs(1), Duration::ZERO, ErrorPolicy::Stop);
     r.advance(Duration::from_secs(10));
     assert_eq!(r.program().calls, 10);
-    assert!(r.stats.ticks <= 13, "{} ticks for 10 s", r.stats.ticks);
-    assert_eq!(r.stats.overruns, 0);
+    assert!(r.stats().ticks <= 13, "{} ticks for 10 s", r.stats().ticks);
+    assert_eq!(r.stats().overruns, 0);
 }
 
 #[test]
@@ -227,7 +227,7 @@ fn a_refused_prompt_wakeup_request_is_logged_once_and_shown_by_stats() {
         1,
         "{log}"
     );
-    let stats = r.stats.prompt_wakeups.clone().unwrap_or_default();
+    let stats = r.stats().prompt_wakeups.clone().unwrap_or_default();
     assert!(stats.starts_with("refused ("), "{stats}");
 }
 
@@ -600,4 +600,37 @@ fn a_second_signal_while_stopping_skips_the_remaining_on_stop_handlers() {
         .unwrap_or_else(|| panic!("{log}"));
     assert!(skipped < end, "{log}");
     assert_eq!(r.status(), Some(exit::signal(SIGTERM)));
+}
+
+#[test]
+fn a_stalled_subscriber_costs_no_tick_and_the_end_figures_say_what_it_lost() {
+    let (mut r, _clock) = runner(
+        Duration::from_millis(20),
+        Duration::from_millis(1),
+        ErrorPolicy::Stop,
+    );
+    // Attached and never read.
+    let stalled = r.events().subscribe("stalled", 4).unwrap();
+    r.advance(Duration::from_secs(1));
+    assert!(r.stats().ticks >= 49, "{} ticks", r.stats().ticks);
+    assert_eq!(r.stats().overruns, 0);
+    let lost = stalled.dropped();
+    assert!(lost >= 45, "{lost}");
+    drop(stalled);
+    // The figures `--stats` prints are the snapshot's, and remember a consumer gone.
+    let figures = r.snapshot();
+    assert_eq!(figures.ticks.count, r.stats().ticks);
+    assert!(figures.dropped.is_empty(), "{:?}", figures.dropped);
+    let text = figures.stats_text().to_string();
+    assert!(
+        text.starts_with(&format!("ticks: {}\n", r.stats().ticks)),
+        "{text}"
+    );
+    assert!(
+        text.contains(&format!(
+            "events dropped: {lost} (by the event stream's consumers"
+        )),
+        "{text}"
+    );
+    assert!(text.contains("overruns: 0\n"), "{text}");
 }

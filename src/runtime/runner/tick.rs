@@ -3,7 +3,7 @@
 use super::contract::{describe, EndReason, Program};
 use super::{Runner, State};
 use crate::runtime::invariants::Violation;
-use crate::runtime::observe::RunEvent;
+use crate::runtime::observe::{EventKind, RunEvent};
 use crate::runtime::snapshot::micros;
 use std::time::Duration;
 
@@ -89,7 +89,7 @@ impl<P: Program> Runner<P> {
         self.stats.max_transactions = self.stats.max_transactions.max(spent);
         let deadline = self.next_deadline;
         self.schedule_next(end);
-        if self.events.watched() {
+        if self.events.wants(EventKind::Tick) {
             let tick = self.stats.ticks;
             let overrun = end > deadline.saturating_add(self.options.period);
             self.events.publish(|| RunEvent::Tick {

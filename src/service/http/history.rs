@@ -75,7 +75,7 @@ impl Kept {
             RunEvent::Outputs { device, value, .. } => {
                 self.point(t, device, "outputs".into(), u32::from(*value));
             }
-            RunEvent::Log { level, message } => {
+            RunEvent::Log { level, message, .. } => {
                 if self.log.len() >= MAX_LINES {
                     self.log.pop_front();
                 }
@@ -199,6 +199,8 @@ mod tests {
                 &RunEvent::Log {
                     level: "info",
                     message: n.to_string(),
+                    time: chrono::Utc::now(),
+                    routine: false,
                 },
             );
         }

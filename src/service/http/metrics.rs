@@ -274,6 +274,7 @@ mod tests {
                     sum_us: 400,
                 },
                 jitter: Buckets::default(),
+                ..TickFigures::default()
             },
             dropped: vec![Dropped {
                 consumer: "web \"x\"".into(),
@@ -282,6 +283,8 @@ mod tests {
             log_dropped: 0,
             forcing: false,
             forces: Vec::new(),
+            records_lost: 0,
+            dropped_in_all: 7,
         }
     }
 
