@@ -11,6 +11,7 @@ mod device;
 mod error;
 pub mod feeding;
 mod limits;
+pub mod mqtt;
 mod reader;
 pub mod script_may_change;
 #[cfg(test)]
@@ -91,6 +92,7 @@ const TOP_KEYS: &[&str] = &[
     "wake_latency",
     "ui",
     "limits",
+    "mqtt",
     "devices",
 ];
 
@@ -142,6 +144,8 @@ pub struct RigConfig {
     pub ui: Option<std::net::SocketAddr>,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
+    /// The MQTT broker the run reports to (`[mqtt]`; default none).
+    pub mqtt: Option<mqtt::MqttConfig>,
     /// The devices simulated while the others are real (`sim = true`, `run --sim-device`).
     pub simulated: BTreeSet<String>,
     /// Devices by the name scripts use.
@@ -160,6 +164,7 @@ impl Default for RigConfig {
             wake_latency: WakeLatency::Auto,
             ui: None,
             limits: ScriptLimits::default(),
+            mqtt: None,
             devices: BTreeMap::new(),
             simulated: BTreeSet::new(),
         }
@@ -267,6 +272,30 @@ impl RigConfig {
                 }
             },
         };
+        let mqtt = match root.get("mqtt") {
+            None => None,
+            Some(value) => match value.get_ref() {
+                DeValue::Table(table) => mqtt::read_mqtt(
+                    &mut r,
+                    &TableRef {
+                        path: "mqtt".into(),
+                        span: value.span(),
+                        table,
+                    },
+                ),
+                other => {
+                    r.report(
+                        &value.span(),
+                        "mqtt".into(),
+                        ProblemKind::WrongType {
+                            expected: "a table ([mqtt])",
+                            found: reader::type_name(other),
+                        },
+                    );
+                    None
+                }
+            },
+        };
         let (devices, simulated) = match root.get("devices") {
             None => (BTreeMap::new(), BTreeSet::new()),
             Some(value) => match value.get_ref() {
@@ -307,6 +336,7 @@ impl RigConfig {
             wake_latency,
             ui,
             limits,
+            mqtt,
             devices,
             simulated,
         })

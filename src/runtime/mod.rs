@@ -17,6 +17,7 @@ pub mod records;
 mod records_file;
 mod registrations;
 mod registry;
+pub mod remote;
 pub mod requests;
 pub mod runner;
 pub mod safety;
@@ -28,4 +29,5 @@ pub mod stats;
 pub mod subscriptions;
 #[cfg(test)]
 mod testing;
+pub mod topic_filter;
 pub mod wake_latency;

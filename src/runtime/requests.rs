@@ -32,6 +32,8 @@ pub enum Request {
     Snapshot,
     /// An action on a simulated device's field, applied at a tick boundary.
     Drive(Drive),
+    /// What a remote consumer (the MQTT client) asks: a log line, a command, a message.
+    Remote(super::remote::Remote),
 }
 
 /// The most pulses one `pulse` action gives (a counter counts to 65535 and wraps).

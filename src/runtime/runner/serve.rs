@@ -91,6 +91,8 @@ impl<P: Program> Runner<P> {
         };
         // The snapshot of this turn, looked for or made only when a request asks for one.
         let mut made: Option<((u64, u64), Arc<RigSnapshot>)> = None;
+        // Remote requests run script handlers, which need the loop itself: after the drain.
+        let mut remote = Vec::new();
         served.requests.drain(|request| match request {
             Request::Snapshot => {
                 let (_, snapshot) = made.get_or_insert_with(|| {
@@ -109,9 +111,16 @@ impl<P: Program> Runner<P> {
                 Ok(()) => Answer::Accepted,
                 Err(why) => Answer::Refused(why),
             },
+            Request::Remote(r) => {
+                remote.push(r.clone());
+                Answer::Accepted
+            }
         });
         if let (Some(made), Some(served)) = (made, &mut self.served) {
             served.made = Some(made);
+        }
+        for r in remote {
+            self.answer_remote(r);
         }
     }
 }
