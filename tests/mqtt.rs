@@ -146,9 +146,10 @@ impl Broker {
         }
         std::fs::write(
             d.join("acl"),
-            "user rig\ntopic readwrite rigscript/#\n\n\
+            "user rig\ntopic readwrite rigscript/#\ntopic readwrite homeassistant/#\n\
+             topic readwrite lab/#\n\n\
              user ops\ntopic readwrite rigscript/+/cmd/#\ntopic read rigscript/#\n\n\
-             user viewer\ntopic read rigscript/#\n",
+             user viewer\ntopic read rigscript/#\ntopic read homeassistant/#\ntopic read lab/#\n",
         )
         .unwrap();
         make_ca(d, "good");
@@ -278,6 +279,32 @@ impl Broker {
         Proc(child)
     }
 
+    /// `rigscript lab --json` as the viewer sees it.
+    fn lab(&self) -> Value {
+        let out = Command::new(rigscript())
+            .args([
+                "lab",
+                "--broker",
+                &format!("mqtt://127.0.0.1:{}", self.port),
+            ])
+            .args([
+                "--username",
+                "viewer",
+                "--password-env",
+                "TEST_MQTT_PW",
+                "--json",
+            ])
+            .env("TEST_MQTT_PW", "viewer-pw")
+            .output()
+            .expect("run rigscript lab");
+        assert!(
+            out.status.success(),
+            "rigscript lab: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice(&out.stdout).expect("lab's JSON")
+    }
+
     /// Waits (bounded) until the broker has acknowledged a subscription of client `id`.
     fn wait_subscribed(&self, id: &str) {
         let said = format!("Sending SUBACK to {id}");
@@ -378,7 +405,8 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
     let broker = Broker::start("mqtt-state");
     let dir = TempDir::new("mqtt-state-run");
     let script = "io.on_rise(0, || { io.outputs = 0x80; });\n";
-    let mut rig = run_rig(&dir, "state", &broker.mqtt_table("state", "10s"), script);
+    let mqtt = format!("{}ha_discovery = true\n", broker.mqtt_table("state", "10s"));
+    let mut rig = run_rig(&dir, "state", &mqtt, script);
     let state = |m: &str| serde_json::from_str::<Value>(m).unwrap_or(Value::Null);
     broker.retained_until("rigscript/state/state/io", |m| state(m)["inputs"] == 0);
     let drive = |value: &str| {
@@ -399,11 +427,42 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
     assert_eq!(v["online"], true);
     assert_eq!(v["kind"], "trp-c29u");
     assert_eq!(v["outputs"], 0x80, "the handler's outputs: {v}");
+    // One screen for the lab, from the retained topics alone.
+    let lab = broker.lab();
+    let rigs = lab["rigs"].as_array().unwrap();
+    let mine = rigs
+        .iter()
+        .find(|r| r["rig"] == "state")
+        .expect("the rig on the lab screen");
+    assert_eq!(mine["status"], "online", "{lab}");
+    assert_eq!(mine["devices"]["io"]["inputs"], 5, "{lab}");
+    assert!(mine["last_heard"].is_string(), "{lab}");
+    // Home Assistant sees DI0 as a binary sensor reading the state topic.
+    let config = broker.retained_until("homeassistant/binary_sensor/state/io_di0/config", |m| {
+        !m.is_empty()
+    });
+    let config = state(&config);
+    assert_eq!(
+        config["state_topic"], "rigscript/state/state/io",
+        "{config}"
+    );
+    assert_eq!(
+        config["availability_topic"], "rigscript/state/status",
+        "{config}"
+    );
     drive("0x00");
     broker.retained_until("rigscript/state/state/io", |m| state(m)["inputs"] == 0);
     rig.signal(libc::SIGTERM);
     assert_eq!(rig.wait_end(), Some(143));
     broker.retained_until("rigscript/state/status", |m| m == "offline");
+    let lab = broker.lab();
+    let mine = lab["rigs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["rig"] == "state")
+        .cloned();
+    assert_eq!(mine.unwrap()["status"], "offline", "{lab}");
 }
 
 /// The records file's lines, and the records the subscriber got with their seq taken out.
@@ -507,7 +566,8 @@ fn a_command_gets_its_handlers_reply_an_unknown_one_an_error_and_a_forbidden_cli
     let broker = Broker::start("mqtt-cmd");
     let dir = TempDir::new("mqtt-cmd-run");
     let script = "let calls = 0;\n\
-                  on_command(\"arm\", |p| { calls += 1; #{ calls: calls, level: p.level } });\n";
+                  on_command(\"arm\", |p| { calls += 1; #{ calls: calls, level: p.level } });\n\
+                  on_message(\"lab/+/ping\", |t, p| mqtt_publish(\"lab/pong\", #{ topic: t, n: p.n }));\n";
     let _rig = run_rig(&dir, "cmd", &broker.mqtt_table("cmd", "10s"), script);
     broker.retained_until("rigscript/cmd/status", |m| m == "online");
     let replies = dir.path("replies.sub");
@@ -536,6 +596,21 @@ fn a_command_gets_its_handlers_reply_an_unknown_one_an_error_and_a_forbidden_cli
         arm,
         serde_json::json!({"ok": true, "value": {"calls": 1, "level": 2}}),
         "the forbidden command never reached the handler"
+    );
+    // A watched topic reaches on_message (once the rig has subscribed: asked again until then).
+    let pongs = dir.path("pong.sub");
+    let _pong = broker.subscribe("viewer", "lab/pong", &pongs, Some("pong-sub"));
+    broker.wait_subscribed("pong-sub");
+    let pong = until(Duration::from_secs(15), || {
+        broker.publish("rig", "lab/bench2/ping", "{\"n\":7}");
+        std::thread::sleep(Duration::from_millis(200));
+        lines(&pongs).first().cloned()
+    })
+    .expect("on_message answered the ping");
+    let pong: Value = serde_json::from_str(pong.strip_prefix("lab/pong ").unwrap()).unwrap();
+    assert_eq!(
+        pong,
+        serde_json::json!({"topic": "lab/bench2/ping", "n": 7})
     );
     let disarm: Value = serde_json::from_str(&reply("disarm")).unwrap();
     assert_eq!(disarm["ok"], false);

@@ -7,6 +7,7 @@ pub mod c29;
 pub mod check;
 pub mod completions;
 pub mod drive;
+pub mod lab;
 pub mod man;
 pub mod output;
 pub mod run;
@@ -53,6 +54,8 @@ pub enum Command {
     Stop(status::StopArgs),
     /// Act on a running rig's simulated devices: press, turn, set inputs, pulse, fail, restore
     Drive(drive::DriveArgs),
+    /// Show every rig an MQTT broker knows, from its retained topics: status, devices, last record
+    Lab(lab::LabArgs),
     /// Show the script API: every function, method and property, or one in full (`api every`)
     Api(api::ApiArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
@@ -125,6 +128,7 @@ pub fn main() -> i32 {
         Command::List(args) => status::list(&args),
         Command::Stop(args) => status::stop(&args),
         Command::Drive(args) => drive::run(args),
+        Command::Lab(args) => lab::run(args),
         Command::Api(args) => api::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.

@@ -69,6 +69,9 @@ pub struct Pump {
     commands: Vec<(String, Receiver<Reply>, Instant)>,
     messages_this_second: (Instant, u32),
     committed: Instant,
+    /// The last record sent, and whether it is still to be published as the last one.
+    last_record: Option<(u64, String)>,
+    last_record_sent: (Instant, u64),
     loop_gone: bool,
     notices: HashMap<&'static str, (Instant, u64)>,
     /// Counts of what was lost, for the end's line.
@@ -106,6 +109,8 @@ impl Pump {
             commands: Vec::new(),
             messages_this_second: (now, 0),
             committed: now,
+            last_record: None,
+            last_record_sent: (now, 0),
             loop_gone: false,
             notices: HashMap::new(),
             dropped_messages: 0,
@@ -147,6 +152,7 @@ impl Pump {
         self.refresh_state();
         self.refresh_watched();
         self.answer_commands();
+        self.publish_last_record(false);
         if self.committed.elapsed() >= COMMIT_EVERY {
             self.commit();
         }
@@ -322,6 +328,24 @@ impl Pump {
         for p in waiting.iter().skip(start) {
             if link.in_flight() >= WINDOW || !link.send_record(&topic, p.seq, &p.payload) {
                 break;
+            }
+            self.last_record = Some((p.seq, p.payload.clone()));
+        }
+    }
+
+    /// The last record acknowledged, retained, at most once a second (or now, at the end).
+    fn publish_last_record(&mut self, now: bool) {
+        let Some((seq, payload)) = &self.last_record else {
+            return;
+        };
+        let due = now || self.last_record_sent.0.elapsed() >= Duration::from_secs(1);
+        if *seq <= self.last_record_sent.1 || *seq > self.outbox.acked() || !due {
+            return;
+        }
+        let (seq, topic) = (*seq, self.s.topics.last_record());
+        if let Some(l) = self.link.as_mut().filter(|l| l.connected()) {
+            if l.send(&topic, QoS::AtMostOnce, true, payload.as_bytes()) {
+                self.last_record_sent = (Instant::now(), seq);
             }
         }
     }
@@ -578,6 +602,7 @@ impl Pump {
                 self.warn(&format!("mqtt: {n} {what}"));
             }
         }
+        self.publish_last_record(true);
         if let Some(mut l) = self.link.take() {
             if l.connected() {
                 let status = self.s.topics.status();

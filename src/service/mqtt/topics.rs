@@ -46,6 +46,12 @@ impl Topics {
         format!("{}/records", self.prefix)
     }
 
+    /// `{prefix}/last_record`: the last record the broker acknowledged (retained, at most
+    /// once a second), for a dashboard that shows the rig's latest.
+    pub fn last_record(&self) -> String {
+        format!("{}/last_record", self.prefix)
+    }
+
     /// `{prefix}/log`: warnings, errors, safe-state events.
     pub fn log(&self) -> String {
         format!("{}/log", self.prefix)
