@@ -22,11 +22,19 @@ impl<P: Program> Runner<P> {
                     rt.log_mut().info(&message);
                 }
             }
+            Remote::Command(command) if self.ending() => {
+                command.reply.send(Err("the run is ending".into()));
+            }
             Remote::Command(command) => {
                 let reply = self.run_command(&command);
                 command.reply.send(reply);
+                self.tick_soon();
             }
-            Remote::Message { topic, payload } => self.hand_message(&topic, &payload),
+            Remote::Message { .. } if self.ending() => {}
+            Remote::Message { topic, payload } => {
+                self.hand_message(&topic, &payload);
+                self.tick_soon();
+            }
             Remote::Watched(reply) => {
                 let rt = self.rt.borrow();
                 let filters: Vec<&str> = rt
@@ -40,6 +48,25 @@ impl<P: Program> Runner<P> {
                     .collect();
                 reply.send(Ok(serde_json::Value::from(filters).to_string()));
             }
+        }
+    }
+
+    /// Whether the run is ending (no handler runs for outside askers then).
+    fn ending(&self) -> bool {
+        self.status().is_some() || self.stop_signal().is_some()
+    }
+
+    /// Brings the next tick to the first period boundary from now: what the handler set is
+    /// written there, after the invariants, even in a loop that was idle until a timer.
+    fn tick_soon(&mut self) {
+        let period = self.options.period.max(std::time::Duration::from_micros(1));
+        let now = self.clock.now();
+        if self.next_deadline > now {
+            let early = (self.next_deadline - now).as_nanos() / period.as_nanos();
+            let early = u32::try_from(early).unwrap_or(u32::MAX);
+            self.next_deadline = self
+                .next_deadline
+                .saturating_sub(period.saturating_mul(early));
         }
     }
 
