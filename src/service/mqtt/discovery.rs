@@ -8,13 +8,7 @@ use crate::runtime::snapshot::{DeviceState, RigSnapshot};
 use serde_json::{json, Value};
 
 /// Discovery configs as (topic, retained payload), under Home Assistant's default prefix.
-pub fn configs(
-    rig: &str,
-    topics: &Topics,
-    snapshot: &RigSnapshot,
-    commands: &[String],
-) -> Vec<(String, String)> {
-    let _ = commands;
+pub fn configs(rig: &str, topics: &Topics, snapshot: &RigSnapshot) -> Vec<(String, String)> {
     let node = object_id(rig);
     let device = json!({"identifiers": [format!("rigscript-{rig}")], "name": rig,
                         "manufacturer": "rigscript", "model": "rig"});

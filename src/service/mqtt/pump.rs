@@ -399,18 +399,12 @@ impl Pump {
 
     /// Home Assistant's discovery configs, once a connection.
     fn discover(&mut self, snapshot: &RigSnapshot) {
-        let commands = self.watched_commands();
-        let configs = discovery::configs(&self.s.rig, &self.s.topics, snapshot, &commands);
+        let configs = discovery::configs(&self.s.rig, &self.s.topics, snapshot);
         if let Some(l) = self.link.as_mut() {
             self.discovered = configs
                 .iter()
                 .all(|(topic, payload)| l.send(topic, QoS::AtLeastOnce, true, payload.as_bytes()));
         }
-    }
-
-    /// The commands the script answers (none known: the discovery shows outputs read-only).
-    fn watched_commands(&self) -> Vec<String> {
-        Vec::new()
     }
 
     /// Subscribes to the topics the script's `on_message` handlers watch.
