@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 /// Options of `rigscript lab`.
 #[derive(Debug, Args)]
 pub struct LabArgs {
-    /// The broker: mqtt://HOST[:PORT] or mqtts://HOST[:PORT]
+    /// The broker: mqtt://HOST:PORT or mqtts://HOST:PORT (default ports 1883, 8883)
     #[arg(long)]
     pub broker: String,
     /// The user to log in as
