@@ -1,7 +1,9 @@
 //! The web page's HTTP API against real `rigscript run --sim --ui 127.0.0.1:0` processes,
 //! through a small HTTP client over `TcpStream`: the state follows the simulated field that
 //! `POST /api/sim` drives, the event stream delivers the run's events, `/metrics` tells the
-//! ticks, errors have their status, and hostile clients cost the loop no tick.
+//! ticks, errors have their status, and hostile clients cost the loop no tick; forcing
+//! (`force = true`: set, expired, removed, refused, cancelled by the safe state; from the page,
+//! the API and `rigscript force`), tokens on a non-loopback bind, and a headless Chromium.
 
 mod common;
 
@@ -10,14 +12,16 @@ use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// A run serving its page; killed if the test fails before it ends.
 struct Served {
     child: Child,
     addr: SocketAddr,
-    _dir: TempDir,
+    /// The run's log lines so far.
+    log: Arc<Mutex<Vec<String>>>,
+    dir: TempDir,
 }
 
 impl Drop for Served {
@@ -31,35 +35,56 @@ impl Drop for Served {
 
 /// Starts `rigscript run ARGS.. --ui 127.0.0.1:0` and waits for the address it serves.
 fn serve(tag: &str, args: &[&str]) -> Served {
-    let dir = TempDir::new(tag);
+    serve_in(TempDir::new(tag), args)
+}
+
+/// `serve` with its runtime directory (and whatever files the test put there) `dir`.
+fn serve_in(dir: TempDir, args: &[&str]) -> Served {
+    serve_at(dir, args, "127.0.0.1:0", &[])
+}
+
+/// `serve_in` at `ui` (empty: a bare `--ui`) with `env` set; the address is reached through
+/// 127.0.0.1.
+fn serve_at(dir: TempDir, args: &[&str], ui: &str, env: &[(&str, &str)]) -> Served {
     let mut child = Command::new(rigscript())
         .arg("run")
         .args(args)
-        .args(["--ui", "127.0.0.1:0"])
+        .arg("--ui")
+        .args((!ui.is_empty()).then_some(ui))
         .env("XDG_RUNTIME_DIR", &dir.0)
         .env_remove("RUNTIME_DIRECTORY")
+        .env_remove("RIGSCRIPT_UI_TOKEN")
+        .env_remove("RIGSCRIPT_UI_READ_TOKEN")
+        .envs(env.iter().copied())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let stderr = child.stderr.take().unwrap();
     let (tx, rx) = mpsc::channel();
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let lines = Arc::clone(&log);
     std::thread::spawn(move || {
         for line in BufReader::new(stderr).lines().map_while(Result::ok) {
             if let Some(rest) = line.split("ui: http://").nth(1) {
                 let _ = tx.send(rest.trim_end_matches('/').to_string());
             }
+            lines.lock().unwrap().push(line);
         }
     });
-    let addr = rx
+    let mut addr: SocketAddr = rx
         .recv_timeout(Duration::from_secs(20))
         .expect("the run logs its page's address")
         .parse()
         .unwrap();
+    if addr.ip().is_unspecified() {
+        addr.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+    }
     Served {
         child,
         addr,
-        _dir: dir,
+        log,
+        dir,
     }
 }
 
@@ -226,11 +251,15 @@ fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
             "0.0.0.0:0",
         ])
         .env("XDG_RUNTIME_DIR", &dir.0)
+        .env_remove("RIGSCRIPT_UI_TOKEN")
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2), "{out:?}");
     let said = String::from_utf8_lossy(&out.stderr);
-    assert!(said.contains("loopback address only"), "{said}");
+    assert!(
+        said.contains("only with a token: set ui_token in rig.toml or RIGSCRIPT_UI_TOKEN"),
+        "{said}"
+    );
     // An address in use: exit 3, nothing started.
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = taken.local_addr().unwrap().to_string();
@@ -492,6 +521,23 @@ impl Browser {
         .unwrap_or_else(|| panic!("could not click {css}"));
     }
 
+    /// The page as a PNG, `width` x `height` CSS pixels.
+    fn screenshot(&self, width: u32, height: u32) -> Vec<u8> {
+        self.session(
+            "POST",
+            "/window/rect",
+            Some(serde_json::json!({"width": width, "height": height})),
+        );
+        self.session(
+            "POST",
+            "/execute/sync",
+            Some(serde_json::json!({"script": "window.scrollTo(0, 0)", "args": []})),
+        );
+        let shot = self.session("GET", "/screenshot", None);
+        let text = shot["value"].as_str().expect("a screenshot");
+        from_base64(text)
+    }
+
     /// Whether what `css` finds has class `class`.
     fn has_class(&self, css: &str, class: &str) -> Option<bool> {
         let e = self.find(css)?;
@@ -548,6 +594,66 @@ fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_tri
     .expect("the page shows the trip: power off, the trip lamp DO7 on");
     let s = state(a);
     assert_eq!(s["devices"]["io"]["outputs"], 0x80, "{s}");
+    // The guide's picture of the page (docs/guide/web-page.png is this file, copied).
+    let png = browser.screenshot(1000, 1250);
+    assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");
+    let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("web-page.png");
+    std::fs::write(&path, &png).unwrap();
+}
+
+/// Standard base64 (WebDriver's screenshots), padding and all.
+fn from_base64(text: &str) -> Vec<u8> {
+    let value = |c: u8| match c {
+        b'A'..=b'Z' => c - b'A',
+        b'a'..=b'z' => c - b'a' + 26,
+        b'0'..=b'9' => c - b'0' + 52,
+        b'+' => 62,
+        _ => 63,
+    };
+    let digits: Vec<u8> = text
+        .bytes()
+        .filter(|c| c.is_ascii_alphanumeric() || *c == b'+' || *c == b'/')
+        .map(value)
+        .collect();
+    let mut out = Vec::with_capacity(digits.len() * 3 / 4);
+    for chunk in digits.chunks(4) {
+        let n = chunk
+            .iter()
+            .enumerate()
+            .fold(0u32, |n, (i, d)| n | u32::from(*d) << (18 - 6 * i));
+        let bytes = n.to_be_bytes();
+        out.extend_from_slice(&bytes[1..chunk.len()]);
+    }
+    out
+}
+
+#[test]
+fn a_browser_forces_an_output_from_the_page_sees_it_marked_and_unforces_it() {
+    let run = forcing_rig("web-force-browser", true);
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/"));
+    until(Duration::from_secs(20), || browser.find("#do-io-3"))
+        .expect("the page shows the module's outputs");
+    // A click on a lamp fills the form; the button forces.
+    browser.click("#do-io-3");
+    browser.click("#force-set");
+    until(Duration::from_secs(10), || {
+        (browser.find("#unforce-io\\.DO3").is_some()
+            && browser.has_class("#do-io-3", "forced") == Some(true)
+            && browser.has_class("#do-io-3", "on") == Some(true))
+        .then_some(())
+    })
+    .expect("the page lists the force and marks the lamp, lit");
+    assert_eq!(state(a)["devices"]["io"]["outputs_written"], 8);
+    browser.click("#unforce-io\\.DO3");
+    until(Duration::from_secs(10), || {
+        (browser.has_class("#do-io-3", "forced") == Some(false)
+            && browser.has_class("#do-io-3", "on") == Some(false))
+        .then_some(())
+    })
+    .expect("unforced: the script's value again");
+    run.logged("force: io.DO3 removed (by the web page (127.0.0.1:");
 }
 
 #[test]
@@ -580,4 +686,417 @@ fn a_real_device_is_not_driven_from_the_page_while_its_simulated_neighbour_is() 
     })
     .expect("the simulated panel is driven");
     assert_eq!(state(a)["devices"]["io"]["online"], true);
+}
+
+/// A rig for forcing under `--sim`: DO0 follows DI0, the panel watched (its loss is seen at
+/// once), a short grace time; `force` says whether rig.toml allows forcing.
+fn forcing_rig(tag: &str, force: bool) -> Served {
+    let dir = TempDir::new(tag);
+    let records = dir.path("records.jsonl");
+    dir.file(
+        "rig.toml",
+        &format!(
+            "name = \"{tag}\"\nperiod = \"50ms\"\ngrace = \"500ms\"\nforce = {force}\n\
+             records = \"{}\"\n\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
+             safe_value = 0x00\n\n[devices.panel]\nkind = \"trc1000\"\n",
+            records.display()
+        ),
+    );
+    let script = dir.file(
+        "follow.rhai",
+        "io.on_rise(0, || io.set_output(0, true));\n\
+         io.on_fall(0, || io.set_output(0, false));\n\
+         panel.on_press(\"S1\", || {});\n",
+    );
+    let config = dir.path("rig.toml").display().to_string();
+    serve_in(dir, &[&script, "--config", &config, "--sim"])
+}
+
+impl Served {
+    /// `rigscript ARGS..` against this run's rig directory: (status, stdout, stderr).
+    fn cli(&self, args: &[&str]) -> (i32, String, String) {
+        let out = Command::new(rigscript())
+            .args(args)
+            .env("XDG_RUNTIME_DIR", &self.dir.0)
+            .env_remove("RUNTIME_DIRECTORY")
+            .output()
+            .unwrap();
+        (
+            out.status.code().unwrap_or(-1),
+            String::from_utf8_lossy(&out.stdout).to_string(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    }
+
+    /// Waits (at most 10 s) for a log line containing `text`.
+    fn logged(&self, text: &str) -> String {
+        until(Duration::from_secs(10), || {
+            self.log
+                .lock()
+                .unwrap()
+                .iter()
+                .find(|l| l.contains(text))
+                .cloned()
+        })
+        .unwrap_or_else(|| {
+            panic!(
+                "no log line with {text:?}:\n{}",
+                self.log.lock().unwrap().join("\n")
+            )
+        })
+    }
+
+    /// The records file's `force` records so far.
+    fn force_records(&self) -> Vec<Value> {
+        std::fs::read_to_string(self.dir.path("records.jsonl"))
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+            .filter(|v| v["name"] == "force")
+            .map(|v| v["value"].clone())
+            .collect()
+    }
+}
+
+fn delete(addr: SocketAddr, path: &str) -> (u16, String) {
+    exchange(
+        addr,
+        &format!("DELETE {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n"),
+        b"",
+    )
+}
+
+/// Waits (at most 10 s) until the state satisfies `holds`.
+fn state_until(addr: SocketAddr, what: &str, holds: impl Fn(&Value) -> bool) -> Value {
+    until(Duration::from_secs(10), || {
+        let s = state(addr);
+        holds(&s).then_some(s)
+    })
+    .unwrap_or_else(|| panic!("{what}: {}", state(addr)))
+}
+
+#[test]
+fn a_forced_output_holds_until_it_expires_and_a_forced_input_is_what_the_script_reads() {
+    let run = forcing_rig("forced", true);
+    let a = run.addr;
+    assert_eq!(state(a)["forcing"], true);
+    let (status, body) = post(
+        a,
+        "/api/force",
+        r#"{"point":"io.DO3","value":true,"for":"1s"}"#,
+    );
+    assert_eq!(status, 200, "{body}");
+    let s = state_until(a, "DO3 forced on", |s| {
+        s["devices"]["io"]["outputs_written"] == 0x08
+    });
+    assert_eq!(s["forces"][0]["point"], "io.DO3");
+    assert_eq!(
+        s["devices"]["io"]["outputs"], 0,
+        "the script commands nothing"
+    );
+    run.logged("force: io.DO3 forced on for 1s (by the web page (127.0.0.1:");
+    run.logged("io: outputs 0x00 -> 0x08 (forced)");
+    // It expires on its own, on the run's clock: the script's value again.
+    run.logged("force: io.DO3 expired after 1s: the script's value applies again");
+    state_until(a, "the force gone and DO3 off", |s| {
+        s["forces"].as_array().is_some_and(|f| f.is_empty())
+            && s["devices"]["io"]["outputs_written"] == 0
+    });
+    // A forced input is what the script reads: DO0 follows the forced DI0.
+    let (status, body) = post(
+        a,
+        "/api/force",
+        r#"{"point":"io.DI0","value":true,"for":"1m"}"#,
+    );
+    assert_eq!(status, 200, "{body}");
+    state_until(a, "the script sees DI0 and commands DO0", |s| {
+        s["devices"]["io"]["outputs"] == 1 && s["devices"]["io"]["inputs"] == 1
+    });
+    let (status, body) = delete(a, "/api/force/io.DI0");
+    assert_eq!(status, 200, "{body}");
+    run.logged("force: io.DI0 removed (by the web page (127.0.0.1:");
+    state_until(a, "DI0 released again, DO0 off", |s| {
+        s["devices"]["io"]["outputs"] == 0 && s["devices"]["io"]["inputs"] == 0
+    });
+    // Each refusal has its status and says why.
+    for (json, want) in [
+        (r#"{"point":"io.DO9","value":true,"for":"1m"}"#, 404),
+        (r#"{"point":"pump.DO1","value":true,"for":"1m"}"#, 404),
+        (r#"{"point":"io.DO1","value":7,"for":"1m"}"#, 400),
+        (r#"{"point":"io.DO1","value":true,"for":"0s"}"#, 400),
+        (r#"{"point":"io.DO1","value":true}"#, 400),
+    ] {
+        let (status, body) = post(a, "/api/force", json);
+        assert_eq!(status, want, "{json}: {body}");
+        assert!(body.contains("\"error\""), "{body}");
+    }
+    let (status, body) = delete(a, "/api/force/io.DI0");
+    assert_eq!(status, 404, "{body}");
+    let events: Vec<(String, String)> = until(Duration::from_secs(10), || {
+        let r = run.force_records();
+        (r.len() >= 4).then_some(r)
+    })
+    .expect("four force records")
+    .iter()
+    .map(|v| {
+        (
+            v["point"].as_str().unwrap_or("").to_string(),
+            v["event"].as_str().unwrap_or("").to_string(),
+        )
+    })
+    .collect();
+    let want = [
+        ("io.DO3", "set"),
+        ("io.DO3", "expired"),
+        ("io.DI0", "set"),
+        ("io.DI0", "removed"),
+    ];
+    assert_eq!(
+        events,
+        want.map(|(p, e)| (p.to_string(), e.to_string())),
+        "the records file tells each force's life"
+    );
+}
+
+#[test]
+fn forcing_is_refused_on_the_page_and_the_command_line_without_force_true() {
+    let run = forcing_rig("unforced", false);
+    let a = run.addr;
+    assert_eq!(state(a)["forcing"], false);
+    let (status, body) = post(
+        a,
+        "/api/force",
+        r#"{"point":"io.DO3","value":true,"for":"5m"}"#,
+    );
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("force = true"), "{body}");
+    let (status, body) = delete(a, "/api/force/io.DO3");
+    assert_eq!(status, 403, "{body}");
+    let (code, _, err) = run.cli(&["force", "unforced", "io.DO3", "on", "--for", "5m"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("force = true"), "{err}");
+    let (code, _, err) = run.cli(&["force", "unforced", "io.DO3", "on", "--for", "300"]);
+    assert_eq!(
+        code, 2,
+        "a duration without its unit is a usage error: {err}"
+    );
+    assert_eq!(state(a)["devices"]["io"]["outputs_written"], 0);
+    assert!(run.force_records().is_empty());
+}
+
+#[test]
+fn the_safe_state_wins_over_a_force_set_from_the_command_line() {
+    let run = forcing_rig("safewins", true);
+    let a = run.addr;
+    let (code, _, err) = run.cli(&["force", "safewins", "io.DO1", "on", "--for", "1m"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = run.cli(&["status", "safewins"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("FORCED: io.DO1 on for "), "{out}");
+    assert!(out.contains("(by rigscript force (pid "), "{out}");
+    let (_, json, _) = run.cli(&["status", "safewins", "--json"]);
+    let s: Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(s["forces"][0]["point"], "io.DO1");
+    assert_eq!(s["forces"][0]["value"], true);
+    let (code, _, err) = run.cli(&["unforce", "safewins", "io.DO1"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = run.cli(&["unforce", "safewins", "io.DO1"]);
+    assert_eq!(code, 1, "not forced any more: {err}");
+    assert!(err.contains("io.DO1 is not forced"), "{err}");
+    // A device lost past its grace time: every output safe, the force cancelled for good.
+    let (code, _, err) = run.cli(&["force", "safewins", "io.outputs", "0xff", "--for", "1m"]);
+    assert_eq!(code, 0, "{err}");
+    state_until(a, "the outputs forced", |s| {
+        s["devices"]["io"]["outputs_written"] == 0xFF
+    });
+    drive(a, r#"{"device":"panel","action":"fail"}"#);
+    run.logged("force: io.outputs cancelled: the safe state wins (panel lost past its grace time)");
+    let s = state_until(a, "held safe at the safe value", |s| {
+        s["held_safe"] == true && s["devices"]["io"]["outputs_written"] == 0
+    });
+    assert_eq!(s["forces"], serde_json::json!([]));
+    let (code, _, err) = run.cli(&["force", "safewins", "io.DO2", "on", "--for", "1m"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("the safe state wins over a force"), "{err}");
+    drive(a, r#"{"device":"panel","action":"restore"}"#);
+    state_until(a, "back, and nothing forced comes back", |s| {
+        s["held_safe"] == false && s["devices"]["io"]["outputs_written"] == 0
+    });
+    // The end of the run cancels a force before on_stop and the end's safe state.
+    let (code, _, err) = run.cli(&["force", "safewins", "io.DO2", "on", "--for", "1m"]);
+    assert_eq!(code, 0, "{err}");
+    state_until(a, "DO2 forced", |s| {
+        s["devices"]["io"]["outputs_written"] == 4
+    });
+    let (code, out, err) = run.cli(&["stop", "safewins"]);
+    assert_eq!(code, 0, "{out}{err}");
+    run.logged("force: io.DO2 cancelled: the safe state wins (the run is ending)");
+    let events: Vec<String> = run
+        .force_records()
+        .iter()
+        .map(|v| {
+            format!(
+                "{} {}",
+                v["point"].as_str().unwrap_or(""),
+                v["event"].as_str().unwrap_or("")
+            )
+        })
+        .collect();
+    assert_eq!(
+        events,
+        [
+            "io.DO1 set",
+            "io.DO1 removed",
+            "io.outputs set",
+            "io.outputs cancelled",
+            "io.DO2 set",
+            "io.DO2 cancelled"
+        ]
+    );
+}
+
+fn with_token(addr: SocketAddr, method: &str, path: &str, token: Option<&str>) -> (u16, String) {
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
+    let body = if method == "POST" {
+        r#"{"device":"io","action":"set_inputs","value":15}"#
+    } else {
+        ""
+    };
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Content-Type: application/json\r\n\
+         Content-Length: {}\r\n\r\n",
+        body.len()
+    );
+    exchange(addr, &head, body.as_bytes())
+}
+
+#[test]
+fn a_page_on_every_address_asks_for_its_token_and_a_read_token_only_looks() {
+    let (control, read) = ("c0ntrol-token-1", "read-token-22");
+    let run = serve_at(
+        TempDir::new("web-token"),
+        &["scripts/interlock.rhai", "--sim"],
+        "0.0.0.0:0",
+        &[
+            ("RIGSCRIPT_UI_TOKEN", control),
+            ("RIGSCRIPT_UI_READ_TOKEN", read),
+        ],
+    );
+    let a = run.addr;
+    // The page itself loads (it asks for the token); nothing else does without one.
+    let (status, body) = with_token(a, "GET", "/", None);
+    assert_eq!(status, 200, "{body}");
+    assert!(body.contains("Authorization"), "the page sends the token");
+    for path in ["/api/state", "/metrics", "/api/history", "/api/events"] {
+        let (status, body) = with_token(a, "GET", path, None);
+        assert_eq!(status, 401, "{path}: {body}");
+        let (status, _) = with_token(a, "GET", path, Some("not-the-token"));
+        assert_eq!(status, 401, "{path}");
+    }
+    let (status, body) = with_token(a, "GET", "/api/state", Some(read));
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = with_token(a, "POST", "/api/sim", Some(read));
+    assert_eq!(status, 403, "a read token only looks: {body}");
+    let (status, body) = with_token(a, "POST", "/api/sim", None);
+    assert_eq!(status, 401, "{body}");
+    let (status, body) = with_token(a, "POST", "/api/sim", Some(control));
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = with_token(a, "GET", "/api/state", Some(control));
+    assert_eq!(status, 200, "{body}");
+    let s: Value = serde_json::from_str(&body).unwrap();
+    let io = &s["devices"]["io"];
+    assert!(io["inputs"] == 15 || io["inputs"].is_null(), "{io}");
+    // Neither token is ever in the log.
+    let log = run.log.lock().unwrap().join("\n");
+    assert!(!log.contains(control) && !log.contains(read), "{log}");
+}
+
+#[test]
+fn a_bare_ui_flag_serves_at_rig_toml_s_address_and_a_token_there_is_asked_for() {
+    let dir = TempDir::new("web-bare-ui");
+    let config = dir.file(
+        "rig.toml",
+        "ui = \"127.0.0.1:0\"\nui_token = \"from-rig-toml\"\n\n[devices.io]\n\
+         kind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n",
+    );
+    let script = dir.file("idle.rhai", "every(\"100ms\", || {});\n");
+    let run = serve_at(dir, &[&script, "--config", &config, "--sim"], "", &[]);
+    assert_ne!(run.addr.port(), 7878, "rig.toml's address, not the default");
+    let (status, _) = with_token(run.addr, "GET", "/api/state", None);
+    assert_eq!(status, 401);
+    let (status, body) = with_token(run.addr, "GET", "/api/state", Some("from-rig-toml"));
+    assert_eq!(status, 200, "{body}");
+}
+
+#[test]
+fn records_and_measurements_with_their_verdict_are_kept_for_the_page() {
+    let dir = TempDir::new("web-records");
+    let script = dir.file(
+        "measure.rhai",
+        "after(\"300ms\", || {\n\
+           record(\"serial\", \"A17\");\n\
+           measure(\"volts\", 12.5, #{min: 11.0, max: 12.0, unit: \"V\"});\n\
+           measure(\"amps\", 0.5, #{max: 1.0});\n\
+         });\n\
+         every(\"100ms\", || {});\n",
+    );
+    let run = serve_in(dir, &[&script, "--sim"]);
+    let kept = until(Duration::from_secs(10), || {
+        let (status, body) = get(run.addr, "/api/history");
+        assert_eq!(status, 200, "{body}");
+        let h: Value = serde_json::from_str(&body).unwrap();
+        (h["records"].as_array().map_or(0, Vec::len) >= 3).then_some(h["records"].clone())
+    })
+    .expect("three records kept");
+    assert_eq!(kept[0]["name"], "serial");
+    assert_eq!(kept[1]["name"], "volts");
+    assert_eq!(kept[1]["pass"], false);
+    assert_eq!(kept[1]["unit"], "V");
+    assert_eq!(kept[2]["pass"], true);
+    let (_, page) = get(run.addr, "/");
+    assert!(page.contains("id=\"records\""), "the page shows them");
+}
+
+#[test]
+fn a_browser_is_asked_for_the_token_once_and_the_page_works_with_it() {
+    let token = "browser-token-7";
+    let run = serve_at(
+        TempDir::new("web-token-browser"),
+        &["scripts/interlock.rhai", "--sim"],
+        "0.0.0.0:0",
+        &[("RIGSCRIPT_UI_TOKEN", token)],
+    );
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/"));
+    // The page's first API call is answered 401: it asks.
+    until(Duration::from_secs(20), || {
+        let asked = browser.session("GET", "/alert/text", None);
+        asked["value"]
+            .as_str()
+            .filter(|t| t.contains("token"))
+            .map(String::from)
+    })
+    .expect("the page asks for the token");
+    browser.session(
+        "POST",
+        "/alert/text",
+        Some(serde_json::json!({ "text": token })),
+    );
+    browser.session("POST", "/alert/accept", Some(serde_json::json!({})));
+    until(Duration::from_secs(20), || browser.find("#sw-panel-S12"))
+        .expect("with the token the page shows the panel");
+    browser.click("#sw-panel-S12");
+    until(Duration::from_secs(10), || {
+        let (status, body) = with_token(a, "GET", "/api/state", Some(token));
+        assert_eq!(status, 200, "{body}");
+        let s: Value = serde_json::from_str(&body).ok()?;
+        (s["devices"]["panel"]["pressed"][0] == "S12").then_some(())
+    })
+    .expect("a click drives the field with the token");
+    // Kept for the session: a reload asks nothing.
+    browser.open(&format!("http://{a}/"));
+    until(Duration::from_secs(20), || browser.find("#sw-panel-S12")).expect("the page again");
+    let asked = browser.session("GET", "/alert/text", None);
+    assert!(asked["value"].as_str().is_none(), "asked again: {asked}");
 }

@@ -7,6 +7,7 @@ pub mod c29;
 pub mod check;
 pub mod completions;
 pub mod drive;
+pub mod force;
 pub mod lab;
 pub mod man;
 pub mod output;
@@ -56,6 +57,10 @@ pub enum Command {
     Drive(drive::DriveArgs),
     /// Show every rig an MQTT broker knows, from its retained topics: status, devices, last record
     Lab(lab::LabArgs),
+    /// Force an output or input of a running rig for a while (commissioning; rig.toml's force = true)
+    Force(force::ForceArgs),
+    /// End a force before it expires
+    Unforce(force::UnforceArgs),
     /// Show the script API: every function, method and property, or one in full (`api every`)
     Api(api::ApiArgs),
     /// Check a script without running it: syntax, unknown functions, methods and argument counts (in handlers too), device names, handler parameters
@@ -129,6 +134,8 @@ pub fn main() -> i32 {
         Command::Stop(args) => status::stop(&args),
         Command::Drive(args) => drive::run(args),
         Command::Lab(args) => lab::run(args),
+        Command::Force(args) => force::force(args),
+        Command::Unforce(args) => force::unforce(args),
         Command::Api(args) => api::run(args),
         Command::Check(args) => check::run(args),
         // Each test's rig has the default limits; its scripts get the stack those call for.

@@ -106,10 +106,11 @@ pub struct RunArgs {
     #[arg(long, value_name = "NAME")]
     pub sim_device: Vec<String>,
     /// Serve the run's web page and HTTP API (state, events, metrics; under --sim, driving
-    /// the simulated field) at ADDR, a loopback address (default 127.0.0.1:7878; port 0: a
-    /// free one, which the log says; `ui = "ADDR"` in rig.toml).
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_UI)]
-    pub ui: Option<SocketAddr>,
+    /// the simulated field) at ADDR (without ADDR: rig.toml's `ui`, else 127.0.0.1:7878; port
+    /// 0: a free one, which the log says). An address other than loopback needs a token
+    /// (`ui_token` in rig.toml or RIGSCRIPT_UI_TOKEN).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1)]
+    pub ui: Option<Option<SocketAddr>>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -159,8 +160,10 @@ pub fn run(args: RunArgs) -> i32 {
     if let Some(w) = args.wake_latency {
         config.wake_latency = w;
     }
-    if let Some(ui) = args.ui {
-        config.ui = Some(ui);
+    match args.ui {
+        Some(Some(ui)) => config.ui = Some(ui),
+        Some(None) if config.ui.is_none() => config.ui = DEFAULT_UI.parse().ok(),
+        _ => {}
     }
     for name in &args.sim_device {
         if !config.devices.contains_key(name) {
@@ -333,7 +336,16 @@ fn run_started(
         }
     };
     // Before any device is touched, like the socket: an address in use costs nothing.
-    let web = match setup.config.ui.map(http::bind).transpose() {
+    let tokens = http::auth::Tokens::from(
+        setup.config.ui_token.as_ref(),
+        setup.config.ui_read_token.as_ref(),
+    );
+    let web = match setup
+        .config
+        .ui
+        .map(|addr| http::bind(addr, tokens))
+        .transpose()
+    {
         Ok(w) => w,
         Err(e) => {
             say(&format!("rigscript run: {e}"));

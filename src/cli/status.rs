@@ -196,6 +196,11 @@ fn same_state(a: &RigSnapshot, b: &RigSnapshot) -> bool {
         && a.script.state == b.script.state
         && a.script.errors == b.script.errors
         && a.held_safe == b.held_safe
+        && a.forces.len() == b.forces.len()
+        && a.forces
+            .iter()
+            .zip(&b.forces)
+            .all(|(x, y)| x.point == y.point && x.value == y.value)
         && a.ticks.overruns == b.ticks.overruns
         && a.dropped == b.dropped
         && a.script.uptime_ms / 1000 == b.script.uptime_ms / 1000
@@ -347,6 +352,15 @@ pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
     out.push(errors);
     if s.held_safe {
         out.push("  HELD SAFE: a device was lost past its grace time".into());
+    }
+    for f in &s.forces {
+        out.push(format!(
+            "  FORCED: {} {} for {} more (by {})",
+            f.point,
+            f.value.text(),
+            crate::time::duration::format_duration(Duration::from_millis(f.remaining_ms)),
+            f.by
+        ));
     }
     for (name, d) in &s.devices {
         out.extend(render_device(name, d));

@@ -31,7 +31,7 @@ pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
 use crate::text_file::{read_text, TextKind};
-use reader::{duration, line_and_column, string, Reader, TableRef};
+use reader::{boolean, duration, line_and_column, string, Reader, TableRef};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -91,6 +91,9 @@ const TOP_KEYS: &[&str] = &[
     "grace",
     "wake_latency",
     "ui",
+    "force",
+    "ui_token",
+    "ui_read_token",
     "limits",
     "mqtt",
     "devices",
@@ -98,6 +101,28 @@ const TOP_KEYS: &[&str] = &[
 
 /// The web page's address when `run --ui` names none.
 pub const DEFAULT_UI: &str = "127.0.0.1:7878";
+
+/// A token, kept out of every `Debug` form (the log, error messages).
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(String);
+
+impl Secret {
+    /// `text` as a secret.
+    pub fn new(text: String) -> Self {
+        Self(text)
+    }
+
+    /// The text, to compare with.
+    pub fn expose(&self) -> &str {
+        &self.0
+    }
+}
+
+impl std::fmt::Debug for Secret {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Secret(..)")
+    }
+}
 
 /// What the runner does when a script handler fails.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -142,6 +167,15 @@ pub struct RigConfig {
     /// Where the run serves its web page and HTTP API (`ui = "ADDR"`; default none: `run
     /// --ui` turns it on).
     pub ui: Option<std::net::SocketAddr>,
+    /// Whether an operator may force outputs and inputs (`force = true`; default false):
+    /// `rigscript force`, `POST /api/force` (`runtime::forcing`).
+    pub force: bool,
+    /// The web page's control token (`ui_token`; `RIGSCRIPT_UI_TOKEN` wins): required on a
+    /// non-loopback address, and then asked of every request.
+    pub ui_token: Option<Secret>,
+    /// The web page's read token (`ui_read_token`; `RIGSCRIPT_UI_READ_TOKEN` wins): `GET`
+    /// only.
+    pub ui_read_token: Option<Secret>,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
     /// The MQTT broker the run reports to (`[mqtt]`; default none).
@@ -163,6 +197,9 @@ impl Default for RigConfig {
             grace: DEFAULT_GRACE,
             wake_latency: WakeLatency::Auto,
             ui: None,
+            force: false,
+            ui_token: None,
+            ui_read_token: None,
             limits: ScriptLimits::default(),
             mqtt: None,
             devices: BTreeMap::new(),
@@ -248,6 +285,18 @@ impl RigConfig {
                 )
             })
         });
+        let force = r.read(&root, "force", boolean).unwrap_or(false);
+        let token = |v: &DeValue<'_>| match string(v)? {
+            // The value is not shown: a token stays out of messages too.
+            s if s.trim().len() < 8 || s.trim() != s => Err(ProblemKind::BadValue {
+                value: "(the token)".into(),
+                reason: "is not a token: give at least 8 characters, no spaces at either end"
+                    .into(),
+            }),
+            s => Ok(Secret::new(s)),
+        };
+        let ui_token = r.read(&root, "ui_token", token);
+        let ui_read_token = r.read(&root, "ui_read_token", token);
         let limits = match root.get("limits") {
             None => ScriptLimits::default(),
             Some(value) => match value.get_ref() {
@@ -335,6 +384,9 @@ impl RigConfig {
             grace,
             wake_latency,
             ui,
+            force,
+            ui_token,
+            ui_read_token,
             limits,
             mqtt,
             devices,

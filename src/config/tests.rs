@@ -120,6 +120,9 @@ fn the_example_reads_as_written() {
             grace: Duration::from_secs(2),
             wake_latency: WakeLatency::Limit(Duration::from_micros(50)),
             ui: None,
+            force: false,
+            ui_token: None,
+            ui_read_token: None,
             limits: ScriptLimits::default(),
             mqtt: None,
             devices,
@@ -591,11 +594,11 @@ fn a_rig_name_names_a_socket_file_or_is_refused() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, limits, mqtt, devices"]
+        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, limits, mqtt, devices"]
+        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
     );
 }
 
@@ -1012,4 +1015,21 @@ fn ui_names_the_web_page_s_address_and_a_host_name_is_refused() {
     assert_eq!(parse("").unwrap().ui, None);
     let why = problems("ui = \"localhost:7878\"\n").join("\n");
     assert!(why.contains("is not an address"), "{why}");
+}
+
+#[test]
+fn ui_tokens_are_read_kept_out_of_debug_and_a_short_one_is_refused_unshown() {
+    let c = parse("ui_token = \"c0ntrol-token\"\nui_read_token = \"look-only-1\"\n").unwrap();
+    assert_eq!(
+        c.ui_token.as_ref().map(|s| s.expose()),
+        Some("c0ntrol-token")
+    );
+    assert_eq!(
+        c.ui_read_token.as_ref().map(|s| s.expose()),
+        Some("look-only-1")
+    );
+    assert!(!format!("{c:?}").contains("c0ntrol-token"));
+    let why = problems("ui_token = \"abc\"\n").join("\n");
+    assert!(why.contains("at least 8 characters"), "{why}");
+    assert!(!why.contains("\"abc\""), "the token is not shown: {why}");
 }

@@ -72,7 +72,10 @@ impl<H: Clone> Runtime<H> {
             let d = self.devices.get_mut(idx).and_then(input.device)?;
             match (input.read)(d, tick) {
                 Err(e) => self.note_failure(idx, &e),
-                Ok(_) => self.tell_change(idx, input),
+                Ok(_) => {
+                    self.force_readings(idx);
+                    self.tell_change(idx, input);
+                }
             }
         }
         let d = self.devices.get_mut(idx).and_then(input.device)?;

@@ -5,6 +5,7 @@ pub mod devices;
 pub mod error_log;
 mod events;
 pub mod exit;
+pub mod forcing;
 mod inputs;
 mod invariant_checks;
 pub mod invariants;

@@ -54,18 +54,23 @@ impl<H: Clone> Runtime<H> {
     /// not yet made): the loop ticks again at the next period boundary for it.
     pub fn outputs_pending(&self) -> bool {
         let held = self.held_safe;
-        self.devices.iter().any(|d| {
+        let forces = &self.forces;
+        self.devices.iter().enumerate().any(|(idx, d)| {
             d.health().online()
                 && match d {
                     Device::C29u(c) => {
-                        let target = if held { c.config.safe_value } else { c.outputs };
+                        let target = if held {
+                            c.config.safe_value
+                        } else {
+                            forces.outputs(idx, c.outputs)
+                        };
                         c.outputs_written() != Some(target)
                     }
                     Device::Trc(t) => {
                         let target = if held {
                             t.config.safe_relay
                         } else {
-                            Some(t.relay)
+                            Some(forces.relay(idx, t.relay))
                         };
                         target.is_some() && t.relay_written != target
                     }
@@ -74,7 +79,8 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// Writes what changed, one transaction per device: the DO byte the script wants (the
-    /// safe value while held safe), the relay it wants (the safe relay while held safe).
+    /// safe value while held safe, never a forced one), the relay it wants (the safe relay
+    /// while held safe); an operator's force (`forcing`) over the script's otherwise.
     pub fn flush_outputs(&mut self) {
         for idx in 0..self.devices.len() {
             if !self.ready_for_exchange(idx) {
@@ -83,16 +89,18 @@ impl<H: Clone> Runtime<H> {
             let held = self.held_safe;
             let result = match self.devices.get_mut(idx) {
                 Some(Device::Trc(d)) => {
+                    let forced = self.forces.relay(idx, d.relay);
                     let target = if held {
                         d.config.safe_relay
                     } else {
-                        Some(d.relay)
+                        Some(forced)
                     };
                     match target {
                         Some(relay) if d.relay_written != Some(relay) => {
                             let before = d.relay_last;
                             let cause = match (held, d.relay_cause.as_str()) {
                                 (true, _) => "held safe",
+                                (false, _) if forced != d.relay => "forced",
                                 (false, "") => "start",
                                 (false, cause) => cause,
                             };
@@ -117,18 +125,22 @@ impl<H: Clone> Runtime<H> {
                     }
                 }
                 Some(Device::C29u(d)) => {
-                    let target = if held { d.config.safe_value } else { d.outputs };
+                    let forced = self.forces.outputs(idx, d.outputs);
+                    let target = if held { d.config.safe_value } else { forced };
                     if d.outputs_written() == Some(target) {
                         Ok(None)
                     } else {
                         let before = d.outputs_written();
+                        let cause = match held {
+                            true => "held safe",
+                            false if forced != d.outputs => "forced",
+                            false => &d.outputs_cause,
+                        };
                         let line = format!(
-                            "{}: outputs {} -> {target:#04x} ({})",
+                            "{}: outputs {} -> {target:#04x} ({cause})",
                             d.name,
                             before.map_or("?".to_string(), |v| format!("{v:#04x}")),
-                            if held { "held safe" } else { &d.outputs_cause }
                         );
-                        let cause = if held { "held safe" } else { &d.outputs_cause };
                         let told = self
                             .events
                             .watched()

@@ -9,6 +9,7 @@
 //! it. Everything else waits in the queue for the loop.
 
 use super::devices::SimRig;
+use super::forcing::ForceOrder;
 use super::snapshot::RigSnapshot;
 use crate::sync::lock;
 use crate::time::doorbell::Doorbell;
@@ -32,6 +33,20 @@ pub enum Request {
     Snapshot,
     /// An action on a simulated device's field, applied at a tick boundary.
     Drive(Drive),
+    /// Forces a point for a while (`runtime::forcing`), asked by `by`.
+    Force {
+        /// The point, the value and how long.
+        order: ForceOrder,
+        /// Who asks, for the log and the record.
+        by: String,
+    },
+    /// Ends the force on `point`, asked by `by`.
+    Unforce {
+        /// `DEVICE.POINT`.
+        point: String,
+        /// Who asks.
+        by: String,
+    },
     /// What a remote consumer (the MQTT client) asks: a log line, a command, a message.
     Remote(super::remote::Remote),
 }

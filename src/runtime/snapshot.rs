@@ -8,6 +8,7 @@
 //! loop exchanges and could steal an edge from the script).
 
 use super::devices::Device;
+use super::forcing::ForceShown;
 use super::observe::Dropped;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -33,6 +34,12 @@ pub struct RigSnapshot {
     pub dropped: Vec<Dropped>,
     /// Log lines lost because the log's output was not being read.
     pub log_dropped: u64,
+    /// Whether rig.toml allows forcing (`force = true`).
+    #[serde(default)]
+    pub forcing: bool,
+    /// The points forced now, by the operator (`runtime::forcing`).
+    #[serde(default)]
+    pub forces: Vec<ForceShown>,
 }
 
 /// The script's side of a run.
@@ -67,6 +74,40 @@ pub struct TickFigures {
     pub work_p99_us: u64,
     /// Requests sent to devices, in all.
     pub transactions: u64,
+    /// Tick work as a histogram (`/metrics`).
+    #[serde(default)]
+    pub work: Buckets,
+    /// How late ticks started, as a histogram.
+    #[serde(default)]
+    pub jitter: Buckets,
+}
+
+/// The upper bounds of the histograms' buckets, in microseconds (50 µs to 1 s).
+pub const BUCKET_BOUNDS_US: [u64; 13] = [
+    50, 100, 250, 500, 1_000, 2_500, 5_000, 10_000, 25_000, 50_000, 100_000, 250_000, 1_000_000,
+];
+
+/// A histogram as Prometheus has it: the values at or below each of `BUCKET_BOUNDS_US`, how
+/// many in all and their sum.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Buckets {
+    /// Values at or below each bound, cumulative.
+    pub le: Vec<u64>,
+    /// Values counted.
+    pub count: u64,
+    /// Their sum, in microseconds.
+    pub sum_us: u64,
+}
+
+impl Buckets {
+    /// `h` over `BUCKET_BOUNDS_US`.
+    pub fn of(h: &super::stats::Histogram) -> Self {
+        Self {
+            le: h.cumulative(&BUCKET_BOUNDS_US),
+            count: h.count(),
+            sum_us: h.sum_us(),
+        }
+    }
 }
 
 /// One device as the loop last saw it.

@@ -9,6 +9,7 @@
 
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
+use super::forcing::Forces;
 use super::invariants::Invariant;
 use super::log::Logger;
 use super::observe::Events;
@@ -65,6 +66,8 @@ pub struct Runtime<H> {
     pub(super) cancel: Cancel,
     /// Where what happens is told to whoever watches the run (`observe`).
     pub(super) events: Events,
+    /// The operator's forces (`forcing`), when rig.toml allows them.
+    pub(super) forces: Forces,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -101,6 +104,7 @@ impl<H: Clone> Runtime<H> {
             grace,
             cancel: Cancel::never(),
             events,
+            forces: Forces::default(),
         }
     }
 

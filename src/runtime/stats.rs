@@ -90,6 +90,28 @@ impl Histogram {
         Duration::from_micros(self.max)
     }
 
+    /// The values at or below each of `bounds_us` (microseconds, rising), as a Prometheus
+    /// histogram's cumulative buckets: a value counts below a bound when its whole bucket
+    /// does (so within a bucket's width, about 6 %, low).
+    pub fn cumulative(&self, bounds_us: &[u64]) -> Vec<u64> {
+        bounds_us
+            .iter()
+            .map(|&bound| {
+                self.counts
+                    .iter()
+                    .enumerate()
+                    .take_while(|(i, _)| bucket_top(*i) <= bound)
+                    .map(|(_, c)| *c)
+                    .fold(0u64, u64::saturating_add)
+            })
+            .collect()
+    }
+
+    /// The sum of the values counted, in microseconds.
+    pub fn sum_us(&self) -> u64 {
+        u64::try_from(self.sum).unwrap_or(u64::MAX)
+    }
+
     /// The largest value counted.
     pub fn max(&self) -> Duration {
         Duration::from_micros(self.max)
@@ -196,6 +218,19 @@ impl fmt::Display for Stats {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn cumulative_buckets_count_what_is_at_or_below_each_bound() {
+        let mut h = Histogram::default();
+        for us in [10, 40, 90, 900, 3_000_000] {
+            h.add(Duration::from_micros(us));
+        }
+        assert_eq!(
+            h.cumulative(&[5, 50, 100, 1_000, 1_000_000]),
+            [0, 2, 3, 4, 4]
+        );
+        assert_eq!(h.sum_us(), 3_001_040);
+    }
 
     #[test]
     fn quantiles_of_a_known_spread() {

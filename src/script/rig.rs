@@ -189,6 +189,7 @@ pub fn start_observed(
         setup.config.grace,
     );
     runtime.limit_timers(limits.timers);
+    runtime.allow_forcing(setup.config.force);
     // A signal during the start cuts its exchanges short from the first one: a silent module
     // with long timeouts and many retries must not hold a stop for all of them.
     runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));

@@ -2,6 +2,7 @@
 //! a line from the run (DESIGN.md "Control socket"). A `subscribe` turns the connection into
 //! the run's event stream, one event a line, until either side closes it.
 
+use crate::runtime::forcing::ForceOrder;
 use crate::runtime::requests::Drive;
 use crate::runtime::snapshot::RigSnapshot;
 use serde::{Deserialize, Serialize};
@@ -28,6 +29,14 @@ pub enum ClientRequest {
     /// Act on a simulated device (`{"request":"drive","device":"panel","action":"press",
     /// "name":"S12"}`), at the next tick boundary.
     Drive(Drive),
+    /// Force a point (`{"request":"force","point":"io.DO3","value":true,"for":"5m"}`), where
+    /// rig.toml allows it (`runtime::forcing`).
+    Force(ForceOrder),
+    /// End a force (`{"request":"unforce","point":"io.DO3"}`).
+    Unforce {
+        /// `DEVICE.POINT`.
+        point: String,
+    },
 }
 
 /// Who a run is: answered to `hello`, and what `rigscript list` shows.
@@ -98,7 +107,7 @@ pub fn parse_request(line: &str) -> Result<ClientRequest, String> {
     serde_json::from_str(line.trim()).map_err(|e| {
         format!(
             "not a request ({e}); send one JSON object a line: {{\"request\": \"hello\"}}, \
-             \"status\", \"stop\", \"subscribe\" or \"drive\""
+             \"status\", \"stop\", \"subscribe\", \"drive\", \"force\" or \"unforce\""
         )
     })
 }
@@ -106,6 +115,7 @@ pub fn parse_request(line: &str) -> Result<ClientRequest, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::runtime::forcing::ForceValue;
     use crate::runtime::requests::FieldAction;
 
     #[test]
@@ -131,6 +141,25 @@ mod tests {
             }))
         );
         assert!(parse_request(r#"{"request":"drive","device":"io","action":"melt"}"#).is_err());
+        assert_eq!(
+            parse_request(r#"{"request":"force","point":"io.DO3","value":true,"for":"5m"}"#),
+            Ok(ClientRequest::Force(ForceOrder {
+                point: "io.DO3".into(),
+                value: ForceValue::On(true),
+                duration: "5m".into()
+            }))
+        );
+        assert_eq!(
+            parse_request(r#"{"request":"force","point":"io.outputs","value":5,"for":"1s"}"#)
+                .map(|r| matches!(r, ClientRequest::Force(o) if o.value == ForceValue::Byte(5))),
+            Ok(true)
+        );
+        assert_eq!(
+            parse_request(r#"{"request":"unforce","point":"io.DO3"}"#),
+            Ok(ClientRequest::Unforce {
+                point: "io.DO3".into()
+            })
+        );
         let e = parse_request("{\"request\":\"format_disk\"}").unwrap_err();
         assert!(
             e.contains("not a request") && e.contains("\"status\""),

@@ -12,7 +12,7 @@ use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_RE
 use super::rig_dir::{self, Knock};
 use super::serving::{self, Bounds, Closing, Serving};
 use crate::runtime::observe::{Events, Next, DEFAULT_QUEUE};
-use crate::runtime::requests::{Answer, Request, Requester};
+use crate::runtime::requests::{Answer, AskError, Request, Requester};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::os::unix::io::AsRawFd;
@@ -328,20 +328,37 @@ fn answer(request: ClientRequest, shared: &Shared, client: &UnixStream) -> Reply
             Err(e) => Reply::refused(e.to_string()),
         },
         ClientRequest::Stop => {
-            let by = match peer_of(client) {
-                Some((pid, uid)) => format!("rigscript stop (pid {pid}, uid {uid})"),
-                None => "a client of the control socket".to_string(),
-            };
-            shared.ask.stop(&by);
+            shared.ask.stop(&asker(client, "stop"));
             Reply::done()
         }
         ClientRequest::Subscribe => Reply::refused("subscribe is answered by the stream"),
-        ClientRequest::Drive(drive) => match shared.ask.ask(Request::Drive(drive), ANSWER_WAIT) {
-            Ok(Answer::Accepted) => Reply::done(),
-            Ok(Answer::Refused(why)) => Reply::refused(why),
-            Ok(Answer::Snapshot(_)) => Reply::refused("the run answered with a snapshot"),
-            Err(e) => Reply::refused(e.to_string()),
-        },
+        ClientRequest::Drive(drive) => done(shared.ask.ask(Request::Drive(drive), ANSWER_WAIT)),
+        ClientRequest::Force(order) => {
+            let by = asker(client, "force");
+            done(shared.ask.ask(Request::Force { order, by }, ANSWER_WAIT))
+        }
+        ClientRequest::Unforce { point } => {
+            let by = asker(client, "unforce");
+            done(shared.ask.ask(Request::Unforce { point, by }, ANSWER_WAIT))
+        }
+    }
+}
+
+/// The reply to a request the loop does or refuses.
+fn done(answer: Result<Answer, AskError>) -> Reply {
+    match answer {
+        Ok(Answer::Accepted) => Reply::done(),
+        Ok(Answer::Refused(why)) => Reply::refused(why),
+        Ok(Answer::Snapshot(_)) => Reply::refused("the run answered with a snapshot"),
+        Err(e) => Reply::refused(e.to_string()),
+    }
+}
+
+/// Who sent a request over the socket, for the log: `rigscript force (pid 7, uid 1000)`.
+fn asker(client: &UnixStream, command: &str) -> String {
+    match peer_of(client) {
+        Some((pid, uid)) => format!("rigscript {command} (pid {pid}, uid {uid})"),
+        None => "a client of the control socket".to_string(),
     }
 }
 

@@ -68,6 +68,8 @@ impl<P: Program> Runner<P> {
                 EndReason::Violated(_) => {}
             }
         }
+        // Before on_stop: its handlers read the real inputs, and nothing forced is written.
+        self.rt.borrow_mut().cancel_forces("the run is ending");
         self.rt
             .borrow_mut()
             .set_cancel(&Cancel::when_set(Arc::clone(&flag)));

@@ -10,6 +10,7 @@
 
 mod contract;
 mod end;
+mod force;
 mod remote;
 mod restart;
 mod serve;

@@ -2,12 +2,13 @@
 //! at most once a tick.
 
 use super::contract::Program;
+use super::force::answer_force;
 use super::{Runner, State};
 use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{Answer, Request, Requests};
 use crate::runtime::snapshot::{
-    micros, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
+    micros, Buckets, DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
 use std::sync::Arc;
 
@@ -19,7 +20,7 @@ pub(super) struct Served {
     /// The simulators of the rig's simulated devices, for `Request::Drive`.
     field: SimRig,
     /// The snapshot last made, with the tick and the exchange count it was made at.
-    made: Option<((u64, u64), Arc<RigSnapshot>)>,
+    pub(super) made: Option<((u64, u64), Arc<RigSnapshot>)>,
 }
 
 impl<P: Program> Runner<P> {
@@ -78,9 +79,13 @@ impl<P: Program> Runner<P> {
                 jitter_p99_us: micros(self.stats.jitter.quantile(0.99)),
                 work_p99_us: micros(self.stats.work.quantile(0.99)),
                 transactions: self.stats.transactions,
+                work: Buckets::of(&self.stats.work),
+                jitter: Buckets::of(&self.stats.jitter),
             },
             dropped: self.events.dropped(),
             log_dropped: rt.log.dropped(),
+            forcing: rt.forces().allowed(),
+            forces: rt.forces_shown(),
         }
     }
 
@@ -93,6 +98,7 @@ impl<P: Program> Runner<P> {
         let mut made: Option<((u64, u64), Arc<RigSnapshot>)> = None;
         // Remote requests run script handlers, which need the loop itself: after the drain.
         let mut remote = Vec::new();
+        let mut forced = false;
         served.requests.drain(|request| match request {
             Request::Snapshot => {
                 let (_, snapshot) = made.get_or_insert_with(|| {
@@ -111,6 +117,11 @@ impl<P: Program> Runner<P> {
                 Ok(()) => Answer::Accepted,
                 Err(why) => Answer::Refused(why),
             },
+            Request::Force { .. } | Request::Unforce { .. } => {
+                made = None;
+                forced = true;
+                answer_force(&self.rt, &self.state, request)
+            }
             Request::Remote(r) => {
                 remote.push(r.clone());
                 Answer::Accepted
@@ -122,5 +133,6 @@ impl<P: Program> Runner<P> {
         for r in remote {
             self.answer_remote(r);
         }
+        self.forces_changed(forced);
     }
 }

@@ -113,7 +113,7 @@ impl<P: Program> Runner<P> {
             {
                 return;
             }
-            let (feed, retry, grace, held) = {
+            let (feed, retry, grace, held, expiry) = {
                 let rt = self.rt.borrow();
                 // A retry already overdue waits for the tick (or was skipped while stopping).
                 (
@@ -121,6 +121,7 @@ impl<P: Program> Runner<P> {
                     rt.next_retry().filter(|&due| due > now),
                     rt.grace_ends(),
                     rt.held_safe,
+                    rt.next_force_expiry(),
                 )
             };
             let end = self.end_at();
@@ -128,7 +129,7 @@ impl<P: Program> Runner<P> {
             if watch_stop {
                 until = until.min(now.saturating_add(SLEEP_SLICE));
             }
-            for due in [feed, retry, grace, end].into_iter().flatten() {
+            for due in [feed, retry, grace, end, expiry].into_iter().flatten() {
                 until = until.min(due.max(now));
             }
             match &self.served {

@@ -134,15 +134,22 @@ impl<H: Clone> Runtime<H> {
     /// write). Returns what it found, in log lines.
     pub fn try_take_control(&mut self, idx: usize) -> Result<Vec<String>, DeviceError> {
         let held = self.held_safe;
+        let forces = &self.forces;
         let mut takeover = match self.devices.get_mut(idx) {
-            Some(Device::C29u(d)) => {
-                Takeover::new(if held { d.config.safe_value } else { d.outputs })
-            }
+            Some(Device::C29u(d)) => Takeover::new(if held {
+                d.config.safe_value
+            } else {
+                forces.outputs(idx, d.outputs)
+            }),
             Some(Device::Trc(d)) => {
                 d.relay_written = None;
                 d.probe()?;
                 if let Some(safe) = d.config.safe_relay {
-                    d.select_relay(if held { safe } else { d.relay })?;
+                    d.select_relay(if held {
+                        safe
+                    } else {
+                        forces.relay(idx, d.relay)
+                    })?;
                 }
                 return Ok(Vec::new());
             }

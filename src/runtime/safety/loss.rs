@@ -179,6 +179,7 @@ impl<H: Clone> Runtime<H> {
         let all_back = self.devices.iter().all(|d| d.health().online());
         if !self.held_safe && !beyond.is_empty() {
             self.held_safe = true;
+            self.cancel_forces(&format!("{} lost past its grace time", beyond.join(", ")));
             self.log.warn(&format!(
                 "{} lost for longer than the grace time ({}): every output is held at its \
                  safe state until it is back",

@@ -50,6 +50,7 @@ impl<H: Clone> Runtime<H> {
     /// value read back, a TRC1000's relay confirmed by a request after it). Logs what it
     /// confirmed and why, and each device it did not.
     pub fn write_safe_state(&mut self, why: &str) {
+        self.cancel_forces(why);
         let mut done = Vec::new();
         for idx in 0..self.devices.len() {
             if !self.online(idx) {
@@ -91,6 +92,7 @@ impl<H: Clone> Runtime<H> {
     /// the watchdog stays on and drives the module safe. The stop that ended the run does not
     /// cut these writes: they come after it. Returns how it left each device.
     pub fn end_safe(&mut self, why: &str, release: bool) -> Vec<DeviceEnd> {
+        self.cancel_forces(why);
         self.set_cancel(&Cancel::never());
         let mut done = Vec::new();
         let mut ends = Vec::new();

@@ -41,8 +41,15 @@ impl<H: Clone> Runtime<H> {
     fn after_stall(&mut self, idx: usize, stall: Duration) {
         let held = self.held_safe;
         let now = self.now();
-        let Some(d) = self.c29u(idx) else { return };
-        let target = if held { d.config.safe_value } else { d.outputs };
+        let forces = &self.forces;
+        let Some(Device::C29u(d)) = self.devices.get_mut(idx) else {
+            return;
+        };
+        let target = if held {
+            d.config.safe_value
+        } else {
+            forces.outputs(idx, d.outputs)
+        };
         let result = d.write_outputs(target).and_then(|()| d.feed(now));
         match result {
             Ok(_) => {}

@@ -2,11 +2,12 @@
 //! with `/uplot.js`, `/uplot.css` and `/api/layout`: the panel's switch and rotary names),
 //! `GET /api/state` (the snapshot), `GET /api/history` (the plots' memory), `GET
 //! /api/events` (the event stream), `POST /api/sim` (a drive action on a simulated device),
-//! `GET /metrics` (Prometheus). Errors are JSON `{"error": ...}` with their status.
+//! `POST /api/force` and `DELETE /api/force/POINT` (forcing, `force`), `GET /metrics`
+//! (Prometheus). Errors are JSON `{"error": ...}` with their status.
 
 use super::request::{read_request, HttpRequest, ReadError};
 use super::response::{Response, JSON};
-use super::{metrics, sse, Shared, ANSWER_WAIT, REQUEST_WAIT};
+use super::{force, metrics, sse, Shared, ANSWER_WAIT, REQUEST_WAIT};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::requests::{Answer, AskError, Drive, Request};
 use crate::runtime::snapshot::{DeviceState, RigSnapshot};
@@ -36,15 +37,26 @@ pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared) {
             return;
         }
     };
-    if let Err(why) = check_host(&request, shared) {
+    if let Err(why) = shared.tokens.check(&request) {
         let _ = why.write_to(&mut stream);
         return;
+    }
+    // A token is what a rebinding page cannot send; without one, the Host must be ours.
+    if !shared.tokens.required() {
+        if let Err(why) = check_host(&request, shared) {
+            let _ = why.write_to(&mut stream);
+            return;
+        }
     }
     if (request.method.as_str(), request.path.as_str()) == ("GET", "/api/events") {
         sse::stream_events(stream, shared);
         return;
     }
-    let _ = route(&request, shared).write_to(&mut stream);
+    let by = match stream.peer_addr() {
+        Ok(peer) => format!("the web page ({peer})"),
+        Err(_) => "the web page".to_string(),
+    };
+    let _ = route(&request, shared, &by).write_to(&mut stream);
 }
 
 /// After an error answer: reads (a bounded amount, a bounded time) what the client still
@@ -58,7 +70,7 @@ fn linger(stream: &mut TcpStream) {
     );
 }
 
-fn route(request: &HttpRequest, shared: &Shared) -> Response {
+fn route(request: &HttpRequest, shared: &Shared, by: &str) -> Response {
     match (request.method.as_str(), request.path.as_str()) {
         ("GET", "/") => Response::ok("text/html; charset=utf-8", PAGE),
         ("GET", "/api/state") => match snapshot(shared) {
@@ -74,10 +86,14 @@ fn route(request: &HttpRequest, shared: &Shared) -> Response {
             Err(e) => e,
         },
         ("POST", "/api/sim") => drive(request, shared),
+        ("POST", "/api/force") => force::force(request, shared, by),
+        ("DELETE", path) if path.starts_with(force::UNFORCE_PREFIX) => {
+            force::unforce(&path[force::UNFORCE_PREFIX.len()..], shared, by)
+        }
         (
             _,
             "/" | "/uplot.js" | "/uplot.css" | "/api/layout" | "/api/state" | "/api/history"
-            | "/api/events" | "/metrics" | "/api/sim",
+            | "/api/events" | "/metrics" | "/api/sim" | "/api/force",
         ) => Response::error(
             405,
             format!("{} {} is not served", request.method, request.path),
@@ -86,7 +102,7 @@ fn route(request: &HttpRequest, shared: &Shared) -> Response {
             404,
             format!(
                 "{path} is not here: GET /, /api/state, /api/history, /api/layout, \
-                 /api/events, /metrics; POST /api/sim"
+                 /api/events, /metrics; POST /api/sim, /api/force; DELETE /api/force/POINT"
             ),
         ),
     }
@@ -123,7 +139,7 @@ fn check_host(request: &HttpRequest, shared: &Shared) -> Result<(), Response> {
 }
 
 /// The run's snapshot, or the error response saying why there is none.
-fn snapshot(shared: &Shared) -> Result<Arc<RigSnapshot>, Response> {
+pub(super) fn snapshot(shared: &Shared) -> Result<Arc<RigSnapshot>, Response> {
     match shared.ask.ask(Request::Snapshot, ANSWER_WAIT) {
         Ok(Answer::Snapshot(s)) => Ok(s),
         Ok(Answer::Refused(why)) => Err(Response::error(409, why)),
@@ -132,7 +148,7 @@ fn snapshot(shared: &Shared) -> Result<Arc<RigSnapshot>, Response> {
     }
 }
 
-fn unavailable(e: &AskError) -> Response {
+pub(super) fn unavailable(e: &AskError) -> Response {
     let status = match e {
         AskError::NoAnswer(_) => 504,
         AskError::Busy | AskError::Gone => 503,
@@ -143,12 +159,16 @@ fn unavailable(e: &AskError) -> Response {
 /// `POST /api/sim`: a drive action as the scenario API names it, applied by the loop at a
 /// tick boundary. 404 for a device the rig has not, 403 for a real one, 409 for what the
 /// loop refuses (a switch the panel has not, ...).
-fn drive(request: &HttpRequest, shared: &Shared) -> Response {
-    let json = request
+/// Whether the body is JSON: a form of another site can post to localhost without asking;
+/// JSON it cannot.
+pub(super) fn is_json(request: &HttpRequest) -> bool {
+    request
         .header("content-type")
-        .is_some_and(|t| t.split(';').next().unwrap_or("").trim() == JSON);
-    // A form of another site can post to localhost without asking; JSON it cannot.
-    if !json {
+        .is_some_and(|t| t.split(';').next().unwrap_or("").trim() == JSON)
+}
+
+fn drive(request: &HttpRequest, shared: &Shared) -> Response {
+    if !is_json(request) {
         return Response::error(415, "a drive action is sent as application/json");
     }
     let drive: Drive = match serde_json::from_slice(&request.body) {

@@ -1,7 +1,7 @@
 //! The page's memory of the last minutes (`GET /api/history`), so a reload keeps its plots
 //! and log: a thread that follows the event stream and keeps each change of a device's
-//! inputs, outputs and counters, and the last log lines, in bounded rings (`MAX_POINTS`,
-//! `MAX_LINES`; the oldest go first).
+//! inputs, outputs and counters, the last log lines and records, in bounded rings
+//! (`MAX_POINTS`, `MAX_LINES`, `MAX_RECORDS`; the oldest go first).
 
 use crate::runtime::observe::{Events, Reading, RunEvent, DEFAULT_QUEUE};
 use crate::sync::lock;
@@ -16,6 +16,9 @@ pub const MAX_POINTS: usize = 6_000;
 
 /// Log lines kept at most.
 pub const MAX_LINES: usize = 200;
+
+/// Records and measurements kept at most.
+pub const MAX_RECORDS: usize = 100;
 
 /// One change of one series.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
@@ -48,6 +51,8 @@ pub struct Kept {
     pub points: VecDeque<Point>,
     /// The log lines, oldest first.
     pub log: VecDeque<Line>,
+    /// The records file's last lines (records and measurements, with `pass`), oldest first.
+    pub records: VecDeque<serde_json::Value>,
     /// Events this history lost (its queue was full): the plots have gaps.
     pub dropped: u64,
 }
@@ -79,6 +84,14 @@ impl Kept {
                     level,
                     message: message.clone(),
                 });
+            }
+            RunEvent::Record { line } => {
+                if self.records.len() >= MAX_RECORDS {
+                    self.records.pop_front();
+                }
+                if let Ok(v) = serde_json::from_str(line) {
+                    self.records.push_back(v);
+                }
             }
             _ => {}
         }

@@ -2,7 +2,7 @@
 //! fleet's monitoring to scrape: ticks, overruns, jitter and work, transactions, each
 //! device's online state, inputs, outputs and counters, and the events consumers lost.
 
-use crate::runtime::snapshot::{DeviceState, RigSnapshot};
+use crate::runtime::snapshot::{Buckets, DeviceState, RigSnapshot, BUCKET_BOUNDS_US};
 use std::fmt::Write;
 
 /// The media type of the text format.
@@ -37,6 +37,16 @@ pub fn render(s: &RigSnapshot) -> String {
         "Tick work, 99th percentile.",
         seconds(t.work_p99_us),
     );
+    out.histogram(
+        "rigscript_tick_work_seconds",
+        "How long each tick's work took.",
+        &t.work,
+    );
+    out.histogram(
+        "rigscript_jitter_seconds",
+        "How late each tick started after its deadline.",
+        &t.jitter,
+    );
     out.one(
         "rigscript_transactions_total",
         "counter",
@@ -60,6 +70,12 @@ pub fn render(s: &RigSnapshot) -> String {
         "gauge",
         "1 while every device is held at its safe state.",
         u8::from(s.held_safe),
+    );
+    out.one(
+        "rigscript_forced_points",
+        "gauge",
+        "Points an operator forces now (rig.toml's force = true).",
+        s.forces.len(),
     );
     out.one(
         "rigscript_log_dropped_total",
@@ -177,6 +193,19 @@ impl Metrics {
         }
     }
 
+    /// A histogram family: `_bucket{le}` cumulative, `+Inf`, `_sum`, `_count`.
+    fn histogram(&mut self, name: &str, help: &str, h: &Buckets) {
+        self.family(name, "histogram", help);
+        let bucket = format!("{name}_bucket");
+        for (bound, count) in BUCKET_BOUNDS_US.iter().zip(&h.le) {
+            let le = seconds(*bound).to_string();
+            self.sample(&bucket, &[("le", &le)], count);
+        }
+        self.sample(&bucket, &[("le", "+Inf")], h.count);
+        self.sample(&format!("{name}_sum"), &[], seconds(h.sum_us));
+        self.sample(&format!("{name}_count"), &[], h.count);
+    }
+
     fn one(&mut self, name: &str, kind: &str, help: &str, value: impl std::fmt::Display) {
         self.family(name, kind, help);
         self.sample(name, &[], value);
@@ -239,12 +268,20 @@ mod tests {
                 jitter_p99_us: 1500,
                 work_p99_us: 30,
                 transactions: 9,
+                work: Buckets {
+                    le: vec![3, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5],
+                    count: 5,
+                    sum_us: 400,
+                },
+                jitter: Buckets::default(),
             },
             dropped: vec![Dropped {
                 consumer: "web \"x\"".into(),
                 events: 7,
             }],
             log_dropped: 0,
+            forcing: false,
+            forces: Vec::new(),
         }
     }
 
@@ -263,6 +300,14 @@ mod tests {
             "rigscript_device_counter{device=\"io\",channel=\"7\"} 8",
             "rigscript_device_relay{device=\"panel\"} 3",
             "rigscript_events_dropped_total{consumer=\"web \\\"x\\\"\"} 7",
+            "# TYPE rigscript_tick_work_seconds histogram",
+            "rigscript_tick_work_seconds_bucket{le=\"0.00005\"} 3",
+            "rigscript_tick_work_seconds_bucket{le=\"1\"} 5",
+            "rigscript_tick_work_seconds_bucket{le=\"+Inf\"} 5",
+            "rigscript_tick_work_seconds_sum 0.0004",
+            "rigscript_tick_work_seconds_count 5",
+            "rigscript_jitter_seconds_count 0",
+            "rigscript_forced_points 0",
         ] {
             assert!(text.lines().any(|l| l == line), "no {line:?} in\n{text}");
         }

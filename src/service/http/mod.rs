@@ -10,11 +10,14 @@
 //! Hostile clients cost the loop nothing: the head and body are bounded (`request`), a
 //! request must come whole within `REQUEST_WAIT` (slow clients are cut off), a client that
 //! does not read is let go (`WRITE_WAIT`), at most `MAX_CLIENTS` are served at once (the
-//! next is answered 503) and at most `MAX_STREAMS` of them follow the event stream. Only a
-//! loopback address is served, and only requests naming it as their `Host` (a page of
-//! another site that rebinds its name to 127.0.0.1 is refused).
+//! next is answered 503) and at most `MAX_STREAMS` of them follow the event stream. Without
+//! a token only a loopback address is served, and only requests naming it as their `Host` (a
+//! page of another site that rebinds its name to 127.0.0.1 is refused); any other address
+//! needs a token (`auth`), which every request then carries.
 
 mod api;
+pub mod auth;
+mod force;
 pub mod history;
 pub mod metrics;
 pub mod request;
@@ -24,6 +27,7 @@ mod sse;
 use super::serving::{self, Bounds, Closing, Serving};
 use crate::runtime::observe::Events;
 use crate::runtime::requests::Requester;
+use auth::Tokens;
 use history::History;
 use response::Response;
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -49,11 +53,12 @@ pub const ANSWER_WAIT: Duration = Duration::from_secs(2);
 /// Why the page could not be served.
 #[derive(Debug, thiserror::Error)]
 pub enum BindError {
-    /// Not a loopback address: the page drives the rig and asks nobody who they are.
+    /// Not a loopback address, and no token: the page drives the rig.
     #[error(
-        "{0}: the web page is served on a loopback address only (127.0.0.1, ::1): it can \
-         drive the rig and asks for no token; reach it from another machine through an SSH \
-         tunnel (ssh -L 7878:127.0.0.1:7878 HOST)"
+        "{0}: the web page is served on an address other than loopback (127.0.0.1, ::1) only \
+         with a token: set ui_token in rig.toml or RIGSCRIPT_UI_TOKEN in the environment \
+         (ui_read_token / RIGSCRIPT_UI_READ_TOKEN for one that may only look), or reach it \
+         through an SSH tunnel (ssh -L 7878:127.0.0.1:7878 HOST)"
     )]
     NotLoopback(SocketAddr),
     /// The address could not be bound (in use, not this machine's).
@@ -70,17 +75,23 @@ pub enum BindError {
 pub struct Binding {
     listener: TcpListener,
     addr: SocketAddr,
+    tokens: Tokens,
 }
 
-/// Binds `addr` (port 0: a free one, `Binding::addr` says which).
-pub fn bind(addr: SocketAddr) -> Result<Binding, BindError> {
-    if !addr.ip().is_loopback() {
+/// Binds `addr` (port 0: a free one, `Binding::addr` says which), served with `tokens`; an
+/// address other than loopback needs a control token.
+pub fn bind(addr: SocketAddr, tokens: Tokens) -> Result<Binding, BindError> {
+    if !addr.ip().is_loopback() && !tokens.controlled() {
         return Err(BindError::NotLoopback(addr));
     }
     let io = |source| BindError::Io { addr, source };
     let listener = TcpListener::bind(addr).map_err(io)?;
     let addr = listener.local_addr().map_err(io)?;
-    Ok(Binding { listener, addr })
+    Ok(Binding {
+        listener,
+        addr,
+        tokens,
+    })
 }
 
 impl Binding {
@@ -96,6 +107,7 @@ impl Binding {
         let closing = Arc::new(Closing::default());
         let shared = Arc::new(Shared {
             addr: self.addr,
+            tokens: self.tokens,
             ask,
             events: events.clone(),
             history,
@@ -132,6 +144,7 @@ pub struct Server {
 /// What the clients share.
 struct Shared {
     addr: SocketAddr,
+    tokens: Tokens,
     ask: Requester,
     events: Events,
     history: History,

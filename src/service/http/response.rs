@@ -43,9 +43,14 @@ impl Response {
 
     /// Writes the response to `to`.
     pub fn write_to(&self, to: &mut impl Write) -> std::io::Result<()> {
+        let challenge = if self.status == 401 {
+            "WWW-Authenticate: Bearer realm=\"rigscript\"\r\n"
+        } else {
+            ""
+        };
         let head = format!(
             "HTTP/1.1 {} {}\r\nContent-Type: {}\r\nContent-Length: {}\r\n\
-             Cache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\n\
+             Cache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\n{challenge}\
              Connection: close\r\n\r\n",
             self.status,
             reason(self.status),
@@ -63,6 +68,7 @@ pub fn reason(status: u16) -> &'static str {
     match status {
         200 => "OK",
         400 => "Bad Request",
+        401 => "Unauthorized",
         403 => "Forbidden",
         404 => "Not Found",
         405 => "Method Not Allowed",

@@ -1,0 +1,88 @@
+//! `rigscript force RIG DEVICE.POINT on|off|BYTE --for DUR` and `rigscript unforce RIG
+//! DEVICE.POINT`: an operator holds an output or an input of a running rig at a value for a
+//! while (commissioning), through its control socket, where its rig.toml says `force = true`
+//! (`runtime::forcing`). The run logs and records it; the safe state wins over it.
+//!
+//! Exit statuses: 0 done; 1 refused (the message says why: forcing off, held safe, a bad
+//! point); 2 usage; 3 no such rig running.
+
+use super::output::say;
+use super::sim::parse_byte;
+use super::status::find;
+use crate::runtime::exit;
+use crate::runtime::forcing::{parse_for, ForceOrder, ForceValue};
+use crate::service::control_protocol::ClientRequest;
+use clap::Args;
+
+/// Options of `rigscript force`.
+#[derive(Debug, Args)]
+pub struct ForceArgs {
+    /// The rig (as `rigscript list` names it).
+    pub rig: String,
+    /// DEVICE.POINT: io.DO3, io.DI0, io.outputs, io.inputs, panel.relay, panel.S12.
+    pub point: String,
+    /// on or off for a channel or a switch; a byte (5, 0x05, 0b101) for outputs, inputs or
+    /// the relay.
+    #[arg(value_parser = parse_value)]
+    pub value: ForceValue,
+    /// How long the force holds ("30s", "5m"; at most 8h): it expires then.
+    #[arg(long = "for", value_name = "DUR", value_parser = check_for)]
+    pub duration: String,
+}
+
+/// Options of `rigscript unforce`.
+#[derive(Debug, Args)]
+pub struct UnforceArgs {
+    /// The rig (as `rigscript list` names it).
+    pub rig: String,
+    /// The point forced (io.DO3 ...).
+    pub point: String,
+}
+
+/// `on`, `off` or a byte.
+fn parse_value(text: &str) -> Result<ForceValue, String> {
+    match text.trim().to_ascii_lowercase().as_str() {
+        "on" | "true" => Ok(ForceValue::On(true)),
+        "off" | "false" => Ok(ForceValue::On(false)),
+        _ => parse_byte(text)
+            .map(ForceValue::Byte)
+            .map_err(|e| format!("{e}; or on, off")),
+    }
+}
+
+/// A duration a force may hold for, kept as given.
+fn check_for(text: &str) -> Result<String, String> {
+    parse_for(text)
+        .map(|_| text.to_string())
+        .map_err(|e| e.to_string())
+}
+
+/// Runs `rigscript force`.
+pub fn force(args: ForceArgs) -> i32 {
+    let order = ForceOrder {
+        point: args.point,
+        value: args.value,
+        duration: args.duration,
+    };
+    ask(&args.rig, "force", &ClientRequest::Force(order))
+}
+
+/// Runs `rigscript unforce`.
+pub fn unforce(args: UnforceArgs) -> i32 {
+    let request = ClientRequest::Unforce { point: args.point };
+    ask(&args.rig, "unforce", &request)
+}
+
+fn ask(rig: &str, command: &str, request: &ClientRequest) -> i32 {
+    let mut c = match find(Some(rig), None) {
+        Ok(c) => c,
+        Err(e) => return e.say(command),
+    };
+    match c.ask(request) {
+        Ok(_) => exit::OK,
+        Err(e) => {
+            say(&format!("rigscript {command}: {rig}: {e}"));
+            exit::ERROR
+        }
+    }
+}
