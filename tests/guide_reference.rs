@@ -184,6 +184,7 @@ fn the_rig_toml_reference_documents_every_key_and_no_other() {
     let tables = [
         ("", "the top level"),
         ("[limits]", "[limits]"),
+        ("[mqtt]\nurl = \"mqtt://broker\"", "[mqtt]"),
         (
             "[devices.panel]\nkind = \"trc1000\"",
             "[devices.NAME] trc1000",

@@ -111,6 +111,9 @@ fn a_consumer_that_never_reads_loses_events_counted_and_the_run_goes_on() {
     // the count the snapshot shows lies between the losses before it was asked and after.
     let after = stalled.dropped();
     let counted = s.dropped.iter().find(|d| d.consumer == "stalled").unwrap();
-    assert!((before..=after).contains(&counted.events), "{before}..={after}: {s:?}");
+    assert!(
+        (before..=after).contains(&counted.events),
+        "{before}..={after}: {s:?}"
+    );
     assert!(s.ticks.count >= 50, "every tick ran: {:?}", s.ticks);
 }

@@ -8,6 +8,7 @@ pub mod check;
 pub mod completions;
 pub mod drive;
 pub mod force;
+pub mod lab;
 pub mod man;
 pub mod output;
 pub mod run;
@@ -54,6 +55,8 @@ pub enum Command {
     Stop(status::StopArgs),
     /// Act on a running rig's simulated devices: press, turn, set inputs, pulse, fail, restore
     Drive(drive::DriveArgs),
+    /// Show every rig an MQTT broker knows, from its retained topics: status, devices, last record
+    Lab(lab::LabArgs),
     /// Force an output or input of a running rig for a while (commissioning; rig.toml's force = true)
     Force(force::ForceArgs),
     /// End a force before it expires
@@ -130,6 +133,7 @@ pub fn main() -> i32 {
         Command::List(args) => status::list(&args),
         Command::Stop(args) => status::stop(&args),
         Command::Drive(args) => drive::run(args),
+        Command::Lab(args) => lab::run(args),
         Command::Force(args) => force::force(args),
         Command::Unforce(args) => force::unforce(args),
         Command::Api(args) => api::run(args),

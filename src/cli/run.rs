@@ -12,14 +12,17 @@ use super::output::say;
 use super::run_outputs::RunOutputs;
 use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency, DEFAULT_UI};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
+use crate::runtime::devices::open_devices;
 use crate::runtime::log::LogFormat;
+use crate::runtime::observe::Events;
 use crate::runtime::requests::{self, Requester, Requests};
 use crate::runtime::{exit, signals};
-use crate::script::rig::{start, RigSetup};
+use crate::script::rig::{start_observed, RigSetup};
 use crate::script::stack;
 use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
 use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::http::{self, BindError};
+use crate::service::mqtt;
 use crate::service::rig_dir;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::SystemClock;
@@ -356,7 +359,30 @@ fn run_started(
             return outputs.not_started(status, &e.to_string());
         }
     };
-    let mut rig = match start(source, file, setup) {
+    // Before any device is touched too: a password or an outbox that cannot be had.
+    let run_name = claim
+        .as_ref()
+        .map_or(control.rig.clone(), |c| c.hello().rig.clone());
+    let records = setup.records.clone().or(setup.config.records.clone());
+    let mqtt = match setup.config.mqtt.as_ref().map(|m| {
+        mqtt::Settings::resolve(m, &run_name, records.as_deref()).and_then(mqtt::Prepared::new)
+    }) {
+        None => None,
+        Some(Ok(p)) => Some(p),
+        Some(Err(e)) => {
+            say(&format!("rigscript run: {e}"));
+            if let Some(g) = guardian {
+                g.confirm();
+            }
+            return outputs.not_started(exit::USAGE, &e.to_string());
+        }
+    };
+    let (requester, requests) = control.queue;
+    let mut client = None;
+    let observe = |events: &Events| {
+        client = mqtt.map(|p| p.start(events, requester.clone()));
+    };
+    let mut rig = match start_observed(source, file, setup, open_devices, |_| {}, observe) {
         Ok(r) => r,
         Err(e) => {
             say(&format!("rigscript run: {e}"));
@@ -368,7 +394,16 @@ fn run_started(
         }
     };
     outputs.started(&mut rig);
-    let (requester, requests) = control.queue;
+    let client = match client {
+        Some(Err(e)) => {
+            say(&format!(
+                "rigscript run: warning: {e}; the run goes on without the broker"
+            ));
+            None
+        }
+        Some(Ok(c)) => Some(c),
+        None => None,
+    };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
     let page = web.map(|w| {
@@ -381,6 +416,9 @@ fn run_started(
     // socket and the page go.
     drop(server);
     drop(page);
+    if let Some(c) = client {
+        c.finish();
+    }
     if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
         g.confirm();
     }

@@ -11,6 +11,7 @@ mod device;
 mod error;
 pub mod feeding;
 mod limits;
+pub mod mqtt;
 mod reader;
 pub mod script_may_change;
 #[cfg(test)]
@@ -94,6 +95,7 @@ const TOP_KEYS: &[&str] = &[
     "ui_token",
     "ui_read_token",
     "limits",
+    "mqtt",
     "devices",
 ];
 
@@ -176,6 +178,8 @@ pub struct RigConfig {
     pub ui_read_token: Option<Secret>,
     /// What the script may use (`[limits]`; defaults when absent).
     pub limits: ScriptLimits,
+    /// The MQTT broker the run reports to (`[mqtt]`; default none).
+    pub mqtt: Option<mqtt::MqttConfig>,
     /// The devices simulated while the others are real (`sim = true`, `run --sim-device`).
     pub simulated: BTreeSet<String>,
     /// Devices by the name scripts use.
@@ -197,6 +201,7 @@ impl Default for RigConfig {
             ui_token: None,
             ui_read_token: None,
             limits: ScriptLimits::default(),
+            mqtt: None,
             devices: BTreeMap::new(),
             simulated: BTreeSet::new(),
         }
@@ -316,6 +321,30 @@ impl RigConfig {
                 }
             },
         };
+        let mqtt = match root.get("mqtt") {
+            None => None,
+            Some(value) => match value.get_ref() {
+                DeValue::Table(table) => mqtt::read_mqtt(
+                    &mut r,
+                    &TableRef {
+                        path: "mqtt".into(),
+                        span: value.span(),
+                        table,
+                    },
+                ),
+                other => {
+                    r.report(
+                        &value.span(),
+                        "mqtt".into(),
+                        ProblemKind::WrongType {
+                            expected: "a table ([mqtt])",
+                            found: reader::type_name(other),
+                        },
+                    );
+                    None
+                }
+            },
+        };
         let (devices, simulated) = match root.get("devices") {
             None => (BTreeMap::new(), BTreeSet::new()),
             Some(value) => match value.get_ref() {
@@ -359,6 +388,7 @@ impl RigConfig {
             ui_token,
             ui_read_token,
             limits,
+            mqtt,
             devices,
             simulated,
         })

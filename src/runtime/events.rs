@@ -39,7 +39,7 @@ impl<H: Clone> Runtime<H> {
                 Source::Turn { .. } => n.rotaries = true,
                 Source::Rise { .. } | Source::Fall { .. } => n.inputs = true,
                 Source::Counter { .. } => n.counters = true,
-                Source::Timer(_) | Source::Stop => {}
+                Source::Timer(_) | Source::Stop | Source::Command(_) | Source::Message(_) => {}
             }
         }
         let mut calls = Vec::new();
@@ -226,7 +226,7 @@ fn source_device(source: &Source) -> Option<usize> {
         | Source::Rise { dev, .. }
         | Source::Fall { dev, .. }
         | Source::Counter { dev, .. } => Some(dev),
-        Source::Timer(_) | Source::Stop => None,
+        Source::Timer(_) | Source::Stop | Source::Command(_) | Source::Message(_) => None,
     }
 }
 

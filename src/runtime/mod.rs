@@ -18,6 +18,7 @@ pub mod records;
 mod records_file;
 mod registrations;
 mod registry;
+pub mod remote;
 pub mod requests;
 pub mod runner;
 pub mod safety;
@@ -29,4 +30,5 @@ pub mod stats;
 pub mod subscriptions;
 #[cfg(test)]
 mod testing;
+pub mod topic_filter;
 pub mod wake_latency;

@@ -136,6 +136,13 @@ pub enum RunEvent {
         /// The devices it could not confirm.
         unconfirmed: Vec<String>,
     },
+    /// The script asked for a message on the broker (`mqtt_publish`): the MQTT client sends it.
+    Published {
+        /// The topic.
+        topic: String,
+        /// The payload: the value as JSON (a string as itself).
+        payload: String,
+    },
 }
 
 /// A reading of one kind of input.

@@ -47,6 +47,8 @@ pub enum Request {
         /// Who asks.
         by: String,
     },
+    /// What a remote consumer (the MQTT client) asks: a log line, a command, a message.
+    Remote(super::remote::Remote),
 }
 
 /// The most pulses one `pulse` action gives (a counter counts to 65535 and wraps).

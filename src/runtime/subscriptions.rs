@@ -67,6 +67,10 @@ pub enum Source {
     Timer(TimerId),
     /// The end of the run.
     Stop,
+    /// An inbound command of this name (`on_command`, `runtime::remote`).
+    Command(String),
+    /// A message on a topic matching this filter (`on_message`).
+    Message(String),
 }
 
 /// A handler and what it waits for.
@@ -105,6 +109,9 @@ pub enum Arg {
     Int(i64),
     /// A name.
     Str(String),
+    /// A value given as JSON text (an inbound command's payload); text that is not JSON is
+    /// passed as a string.
+    Json(String),
 }
 
 /// A handler to run now, with its arguments.
@@ -135,6 +142,8 @@ pub struct Subscriptions<H> {
     pub(super) events: Vec<Subscription<H>>,
     /// `on_stop` handlers, in the order they were added.
     stops: Vec<Subscription<H>>,
+    /// `on_command` and `on_message` handlers, in the order they were added.
+    remote: Vec<Subscription<H>>,
     /// Timer handlers, by their timer.
     pub(super) timers: HashMap<TimerId, Subscription<H>>,
     /// The timer of each timer handler, by handler id (for `cancel`).
@@ -152,6 +161,7 @@ impl<H: Clone> Subscriptions<H> {
         Self {
             events: Vec::new(),
             stops: Vec::new(),
+            remote: Vec::new(),
             timers: HashMap::new(),
             timer_of: HashMap::new(),
             every_periods: BTreeMap::new(),
@@ -183,6 +193,7 @@ impl<H: Clone> Subscriptions<H> {
                 self.timers.insert(t, sub);
             }
             Source::Stop => self.stops.push(sub),
+            Source::Command(_) | Source::Message(_) => self.remote.push(sub),
             _ => self.events.push(sub),
         }
         id
@@ -245,7 +256,7 @@ impl<H: Clone> Subscriptions<H> {
             self.schedule.cancel(t);
             return true;
         }
-        for list in [&mut self.events, &mut self.stops] {
+        for list in [&mut self.events, &mut self.stops, &mut self.remote] {
             if let Some(pos) = list.iter().position(|s| s.id == id) {
                 list.remove(pos);
                 return true;
@@ -284,7 +295,13 @@ impl<H: Clone> Subscriptions<H> {
 
     /// Whether the script still waits for anything (handlers other than `on_stop`, timers).
     pub fn has_work(&self) -> bool {
-        !self.events.is_empty() || !self.timers.is_empty()
+        !self.events.is_empty() || !self.timers.is_empty() || !self.remote.is_empty()
+    }
+
+    /// The `on_command` or `on_message` handlers waiting for `source`'s kind: a command's of
+    /// that name (the last one added), a message's whose filter matches (every one).
+    pub fn remote_calls(&self, matches: impl Fn(&Source) -> bool) -> Vec<&Subscription<H>> {
+        self.remote.iter().filter(|s| matches(&s.source)).collect()
     }
 
     /// Whether some handler waits for device inputs (then every tick polls them).

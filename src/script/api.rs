@@ -690,6 +690,7 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let id = r.borrow_mut().on_stop(f);
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
+    register_remote(engine, rt, arities);
     let r = Rc::clone(rt);
     engine.register_fn("stop", move || -> R<()> { stop(&r, 0) });
     let r = Rc::clone(rt);
@@ -717,6 +718,72 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     engine.register_fn("warn", move |m: Dynamic| {
         r.borrow_mut().log_mut().warn(&format!("script: {m}"));
     });
+}
+
+/// The longest command name `on_command` takes.
+const MAX_COMMAND_NAME: usize = 64;
+
+/// `on_command`, `on_message` and `mqtt_publish`: the script's side of the broker
+/// (`service::mqtt` carries them; without `[mqtt]` nothing arrives and nothing goes).
+fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
+    use crate::runtime::observe::RunEvent;
+    use crate::runtime::subscriptions::Source;
+    use crate::runtime::topic_filter::{check_filter, check_topic};
+    let (r, a) = (Rc::clone(rt), arities.clone());
+    engine.register_fn("on_command", move |name: &str, f: FnPtr| -> R<i64> {
+        let fits = !name.is_empty()
+            && name.len() <= MAX_COMMAND_NAME
+            && !name.contains(['/', '+', '#', '\0']);
+        if !fits {
+            return fail(format!(
+                "on_command({name:?}, ..): a command name is 1-{MAX_COMMAND_NAME} bytes \
+                 without '/', '+' or '#'"
+            ));
+        }
+        a.check(&f, "on_command", &["payload"])?;
+        let label = format!("on_command {name}");
+        Ok(id_value(r.borrow_mut().subscribe(
+            Source::Command(name.to_string()),
+            f,
+            label,
+        )))
+    });
+    let (r, a) = (Rc::clone(rt), arities.clone());
+    engine.register_fn("on_message", move |filter: &str, f: FnPtr| -> R<i64> {
+        check_filter(filter).or_else(|e| fail(format!("on_message: {e}")))?;
+        a.check(&f, "on_message", &["topic", "payload"])?;
+        let label = format!("on_message {filter}");
+        Ok(id_value(r.borrow_mut().subscribe(
+            Source::Message(filter.to_string()),
+            f,
+            label,
+        )))
+    });
+    let r = Rc::clone(rt);
+    engine.register_fn(
+        "mqtt_publish",
+        move |topic: &str, value: Dynamic| -> R<()> {
+            check_topic(topic).or_else(|e| fail(format!("mqtt_publish: {e}")))?;
+            let payload = if value.is_string() {
+                value.to_string()
+            } else {
+                to_json(&value).to_string()
+            };
+            if payload.len() > crate::runtime::topic_filter::MAX_PAYLOAD {
+                return fail(format!(
+                    "mqtt_publish: a payload of {} bytes; at most {}",
+                    payload.len(),
+                    crate::runtime::topic_filter::MAX_PAYLOAD
+                ));
+            }
+            let topic = topic.to_string();
+            r.borrow_mut()
+                .log_mut()
+                .events()
+                .publish(|| RunEvent::Published { topic, payload });
+            Ok(())
+        },
+    );
 }
 
 /// `invariant(name, || bool)`: states what must hold after every tick's handlers.

@@ -111,6 +111,8 @@ const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("after", 1, &[]),
     ("on_stop", 0, &[]),
     ("invariant", 1, &[]),
+    ("on_command", 1, &["payload"]),
+    ("on_message", 1, &["topic", "payload"]),
 ];
 
 /// Functions Rhai's evaluator handles itself, never registered: (name, the argument counts

@@ -137,6 +137,16 @@ impl ScriptProgram {
         call: &Call<FnPtr>,
         stop: Option<StopLimit>,
     ) -> Result<(), HandlerFault> {
+        self.call_for_value(call, stop).map(|_| ())
+    }
+
+    /// Runs one handler and gives its value, within `stop` too when it is an `on_stop`
+    /// handler's call in a stop.
+    fn call_for_value(
+        &mut self,
+        call: &Call<FnPtr>,
+        stop: Option<StopLimit>,
+    ) -> Result<Dynamic, HandlerFault> {
         let n = self.arities.pick(&call.handler, call.args.len());
         let args: Vec<Dynamic> = call
             .args
@@ -145,16 +155,17 @@ impl ScriptProgram {
             .map(|a| match a {
                 Arg::Int(i) => Dynamic::from(*i),
                 Arg::Str(s) => Dynamic::from(s.clone()),
+                Arg::Json(text) => match serde_json::from_str(text) {
+                    Ok(v) => super::values::from_json(&v),
+                    Err(_) => Dynamic::from(text.clone()),
+                },
             })
             .collect();
         self.guard.begin_call();
         if let Some(limit) = stop {
             self.guard.within_stop(limit);
         }
-        let result = call
-            .handler
-            .call::<Dynamic>(&self.engine, &self.ast, args)
-            .map(|_| ());
+        let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, args);
         if let Some(c) = self.coverage.as_mut() {
             match c.fired.get_mut(&call.label) {
                 Some(n) => *n = n.saturating_add(1),
@@ -164,7 +175,12 @@ impl ScriptProgram {
             }
         }
         self.note_reads(None);
+        let (result, value) = match result {
+            Ok(v) => (Ok(()), v),
+            Err(e) => (Err(e), Dynamic::UNIT),
+        };
         self.outcome(result, || self.body_start(&call.handler, n))
+            .map(|()| value)
     }
 
     /// A runtime error as a fault; a call Rhai found no function for is told in `check`'s
@@ -210,6 +226,11 @@ impl Program for ScriptProgram {
 
     fn call(&mut self, call: &Call<FnPtr>) -> Result<(), HandlerFault> {
         self.call_limited(call, None)
+    }
+
+    fn answer(&mut self, call: &Call<FnPtr>) -> Result<String, HandlerFault> {
+        let value = self.call_for_value(call, None)?;
+        Ok(super::values::to_json(&value).to_string())
     }
 
     fn call_in_stop(&mut self, call: &Call<FnPtr>, limit: StopLimit) -> Result<(), HandlerFault> {

@@ -10,6 +10,7 @@ use crate::device::cancel::Cancel;
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
 use crate::runtime::log::{LogFormat, Logger};
+use crate::runtime::observe::Events;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::runner::{panic_message, safe_after_panic, RunOptions, Runner};
 use crate::runtime::safety::Unavailable;
@@ -143,6 +144,19 @@ pub fn start_with(
     open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
     prepare: impl FnOnce(&mut ScriptProgram),
 ) -> Result<Rig, RigError> {
+    start_observed(source, file, setup, open, prepare, |_| {})
+}
+
+/// As `start_with`, with `observe` given the run's event stream before the script's top
+/// level runs (a consumer that must see every record attaches there: the MQTT client).
+pub fn start_observed(
+    source: &str,
+    file: &str,
+    setup: RigSetup,
+    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
+    prepare: impl FnOnce(&mut ScriptProgram),
+    observe: impl FnOnce(&Events),
+) -> Result<Rig, RigError> {
     if setup.config.devices.is_empty() {
         return Err(RigError::NoDevices {
             simulated: setup.simulate,
@@ -217,6 +231,7 @@ pub fn start_with(
         r.end_safe("a device is not available", true);
         return Err(e.into());
     }
+    observe(rt.borrow_mut().log_mut().events());
     let mut program = ScriptProgram::new(&rt, ast, file, limits);
     prepare(&mut program);
     let period = setup.period.unwrap_or(setup.config.period);

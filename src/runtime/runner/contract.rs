@@ -46,6 +46,11 @@ pub trait Program {
     fn start(&mut self) -> Result<(), HandlerFault>;
     /// Runs one handler.
     fn call(&mut self, call: &Call<Self::Handler>) -> Result<(), HandlerFault>;
+    /// Runs one handler for its value, as JSON text (an `on_command` handler: its reply);
+    /// a program without values answers `null`.
+    fn answer(&mut self, call: &Call<Self::Handler>) -> Result<String, HandlerFault> {
+        self.call(call).map(|()| "null".to_string())
+    }
     /// Evaluates an invariant: whether it holds.
     fn holds(&mut self, check: &InvariantCheck<Self::Handler>) -> Result<bool, HandlerFault>;
     /// Runs an `on_stop` handler, stopped also once `limit` runs out or another signal

@@ -11,6 +11,7 @@
 mod contract;
 mod end;
 mod force;
+mod remote;
 mod restart;
 mod serve;
 #[cfg(test)]

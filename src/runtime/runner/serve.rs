@@ -94,6 +94,8 @@ impl<P: Program> Runner<P> {
         };
         // The snapshot of this turn, looked for or made only when a request asks for one.
         let mut made: Option<((u64, u64), Arc<RigSnapshot>)> = None;
+        // Remote requests run script handlers, which need the loop itself: after the drain.
+        let mut remote = Vec::new();
         let mut forced = false;
         served.requests.drain(|request| match request {
             Request::Snapshot => {
@@ -118,9 +120,16 @@ impl<P: Program> Runner<P> {
                 forced = true;
                 answer_force(&self.rt, &self.state, request)
             }
+            Request::Remote(r) => {
+                remote.push(r.clone());
+                Answer::Accepted
+            }
         });
         if let (Some(made), Some(served)) = (made, &mut self.served) {
             served.made = Some(made);
+        }
+        for r in remote {
+            self.answer_remote(r);
         }
         self.forces_changed(forced);
     }

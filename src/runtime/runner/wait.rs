@@ -94,11 +94,19 @@ impl<P: Program> Runner<P> {
     /// devices as their retries do (each keeps its own deadline whatever the period); with
     /// `watch_stop`, in slices that look at the stop flag.
     pub(super) fn wait_until(&mut self, target: Duration, watch_stop: bool) {
+        // A wait for the next tick follows it when a request's handler brings it nearer
+        // (`tick_soon`); a wait for another time keeps to that time.
+        let to_deadline = target == self.next_deadline;
         loop {
             let now = self.clock.now();
             if let Some(service) = &self.service {
                 service.loop_alive(now);
             }
+            let target = if to_deadline {
+                target.min(self.next_deadline)
+            } else {
+                target
+            };
             if now >= target
                 || (watch_stop && self.stop_signal().is_some())
                 || self.status().is_some()

@@ -1,0 +1,261 @@
+//! The run's MQTT client (`[mqtt]` in rig.toml): one more consumer of the event stream and
+//! one more asker on the control queue, on threads of its own, so a slow or absent broker
+//! costs the scan loop nothing.
+//!
+//! It tells the broker the rig's status (retained `online`, last will `offline`), each
+//! device's state (retained, on change), every record (QoS 1, through the on-disk outbox,
+//! `outbox`), the warnings, errors and safe-state events (`topics::log_payload`), and what
+//! the script publishes; it hands inbound commands and watched topics to the loop
+//! (`runtime::remote`) and publishes the commands' replies.
+
+pub mod discovery;
+mod link;
+pub mod outbox;
+mod pump;
+pub mod tls;
+pub mod topics;
+
+use crate::config::mqtt::{MqttConfig, PasswordSource, Transport};
+use crate::runtime::observe::{Events, TooManySubscribers};
+use crate::runtime::requests::Requester;
+use rumqttc::{LastWill, MqttOptions, QoS, TlsConfiguration};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+pub use topics::Topics;
+
+/// Events the client's queue holds: records must not be lost to a burst (each is small).
+const EVENT_QUEUE: usize = 16_384;
+
+/// How long a normal stop waits for the outbox to go out.
+pub const FLUSH_WAIT: Duration = Duration::from_secs(2);
+
+/// Why the client cannot start (the run does not start either: rig.toml asked for it).
+#[derive(Debug, thiserror::Error)]
+pub enum MqttError {
+    /// The password cannot be had.
+    #[error("mqtt: password_file {path}: {source}")]
+    PasswordFile {
+        /// The file.
+        path: String,
+        /// What the system said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The password's variable is not set.
+    #[error("mqtt: password_env {0} is not set")]
+    PasswordEnv(String),
+    /// TLS cannot be set up.
+    #[error("mqtt: {0}")]
+    Tls(#[from] tls::TlsError),
+    /// The outbox cannot be opened.
+    #[error("mqtt: {0}")]
+    Outbox(#[from] outbox::OutboxError),
+    /// The event stream has no room.
+    #[error("mqtt: {0}")]
+    Subscribe(#[from] TooManySubscribers),
+    /// The client's thread cannot be started.
+    #[error("mqtt: cannot start its thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// What the client was set up with, resolved (names, password, TLS, the outbox's place).
+#[derive(Clone)]
+pub struct Settings {
+    /// The broker as `host:port`, for messages.
+    pub broker: String,
+    host: String,
+    port: u16,
+    /// The rig's name on the broker.
+    pub rig: String,
+    /// Its topics.
+    pub topics: Topics,
+    username: Option<String>,
+    password: Option<String>,
+    tls: Option<Arc<rustls::ClientConfig>>,
+    keepalive: Duration,
+    /// The outbox's directory.
+    pub outbox_dir: PathBuf,
+    outbox_max: u64,
+    ha_discovery: bool,
+}
+
+impl Settings {
+    /// Resolves `config` for the run named `run_name` (its socket's name) whose records file
+    /// is `records` (if any).
+    pub fn resolve(
+        config: &MqttConfig,
+        run_name: &str,
+        records: Option<&Path>,
+    ) -> Result<Self, MqttError> {
+        let rig = config
+            .rig
+            .clone()
+            .unwrap_or_else(|| format!("{}-{run_name}", host_name()));
+        let password = match &config.password {
+            None => None,
+            Some(PasswordSource::File(path)) => {
+                let text =
+                    std::fs::read_to_string(path).map_err(|source| MqttError::PasswordFile {
+                        path: path.display().to_string(),
+                        source,
+                    })?;
+                Some(text.lines().next().unwrap_or("").to_string())
+            }
+            Some(PasswordSource::Env(name)) => {
+                Some(std::env::var(name).map_err(|_| MqttError::PasswordEnv(name.clone()))?)
+            }
+        };
+        let tls = match config.transport {
+            Transport::Plain => None,
+            Transport::Tls => Some(tls::client_config(config.ca_file.as_deref())?),
+        };
+        Ok(Self {
+            broker: format!("{}:{}", config.host, config.port),
+            host: config.host.clone(),
+            port: config.port,
+            topics: Topics::new(&config.prefix, &rig),
+            rig,
+            username: config.username.clone(),
+            password,
+            tls,
+            keepalive: config.keepalive,
+            outbox_dir: config
+                .outbox
+                .clone()
+                .unwrap_or_else(|| default_outbox(records)),
+            outbox_max: config.outbox_max,
+            ha_discovery: config.ha_discovery,
+        })
+    }
+
+    /// The user, for messages.
+    fn user(&self) -> &str {
+        self.username.as_deref().unwrap_or("(anonymous)")
+    }
+
+    /// Options for one connection: who the rig is, its last will, its keep-alive.
+    fn options(&self) -> MqttOptions {
+        let mut o = MqttOptions::new(
+            format!("rigscript-{}", self.rig),
+            self.host.clone(),
+            self.port,
+        );
+        o.set_keep_alive(self.keepalive);
+        o.set_clean_session(true);
+        o.set_last_will(LastWill::new(
+            self.topics.status(),
+            topics::OFFLINE,
+            QoS::AtLeastOnce,
+            true,
+        ));
+        // Inbound: a command or watched message and its topic; larger packets end the
+        // connection (rumqttc's bound), which is retried.
+        let inbound = topics::MAX_PAYLOAD + topics::MAX_TOPIC + 64;
+        o.set_max_packet_size(inbound, 1 << 20);
+        o.set_inflight(pump::WINDOW as u16 + 16);
+        if let Some(user) = &self.username {
+            o.set_credentials(user.clone(), self.password.clone().unwrap_or_default());
+        }
+        if let Some(tls) = &self.tls {
+            o.set_transport(rumqttc::Transport::Tls(TlsConfiguration::Rustls(
+                Arc::clone(tls),
+            )));
+        }
+        o
+    }
+}
+
+/// This machine's host name (`localhost` if it has none).
+fn host_name() -> String {
+    let mut buf = [0u8; 256];
+    // SAFETY: the buffer is valid for its length; gethostname writes at most that much.
+    let ok = unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } == 0;
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    let name = String::from_utf8_lossy(&buf[..end]);
+    let name: String = name
+        .split('.')
+        .next()
+        .unwrap_or("")
+        .chars()
+        .filter(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_'))
+        .collect();
+    if ok && !name.is_empty() {
+        name
+    } else {
+        "localhost".into()
+    }
+}
+
+/// Beside the records file (`records.jsonl` → `records.outbox/`), else the user's state
+/// directory (`$XDG_STATE_HOME/rigscript/outbox`, `~/.local/state/rigscript/outbox`).
+fn default_outbox(records: Option<&Path>) -> PathBuf {
+    if let Some(r) = records {
+        let stem = r
+            .file_stem()
+            .map_or_else(|| "records".into(), |s| s.to_string_lossy().into_owned());
+        return r.with_file_name(format!("{stem}.outbox"));
+    }
+    let state = std::env::var_os("XDG_STATE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/state")))
+        .unwrap_or_else(std::env::temp_dir);
+    state.join("rigscript").join("outbox")
+}
+
+/// The running client: `finish` ends it (flushing the outbox for up to `FLUSH_WAIT`).
+pub struct MqttService {
+    closing: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// A client whose outbox is open, ready to attach to a run (`start`).
+pub struct Prepared {
+    settings: Settings,
+    outbox: outbox::Outbox,
+}
+
+impl Prepared {
+    /// Opens the outbox of `settings` (before any device is touched: an outbox that cannot be
+    /// opened stops the run from starting).
+    pub fn new(settings: Settings) -> Result<Self, MqttError> {
+        let outbox =
+            outbox::Outbox::open(&settings.outbox_dir, &settings.rig, settings.outbox_max)?;
+        Ok(Self { settings, outbox })
+    }
+
+    /// Starts the client, fed by `events`, asking the loop through `requester`.
+    pub fn start(self, events: &Events, requester: Requester) -> Result<MqttService, MqttError> {
+        let subscription = events.subscribe("mqtt", EVENT_QUEUE)?;
+        let closing = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&closing);
+        let Prepared { settings, outbox } = self;
+        let thread = std::thread::Builder::new()
+            .name("mqtt".into())
+            .spawn(move || pump::Pump::new(settings, subscription, requester, outbox, flag).run())
+            .map_err(MqttError::Thread)?;
+        Ok(MqttService {
+            closing,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl MqttService {
+    /// Ends the client once the run has ended: the outbox gets up to `FLUSH_WAIT` to go
+    /// out, the status goes `offline`, what is left waits for the next start.
+    pub fn finish(mut self) {
+        self.closing.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for MqttService {
+    fn drop(&mut self) {
+        self.closing.store(true, Ordering::SeqCst);
+    }
+}

@@ -1,0 +1,692 @@
+//! The client's own thread: follows the event stream, keeps the outbox, keeps a connection to
+//! the broker (retried with back-off), publishes status, state, records, log lines and
+//! replies, and hands inbound commands and messages to the loop. It never waits on the loop
+//! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
+
+use super::link::{Link, NetEvent};
+use super::outbox::{Outbox, Pushed};
+use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
+use super::{discovery, Settings, FLUSH_WAIT};
+use crate::runtime::observe::{RunEvent, Subscription};
+use crate::runtime::remote::{Command, Remote, Reply, ReplyTo};
+use crate::runtime::requests::{Answer, AskError, Request, Requester};
+use crate::runtime::snapshot::RigSnapshot;
+use rumqttc::{ConnectReturnCode, ConnectionError, QoS};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, TryRecvError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Records in flight (sent, not yet acknowledged) at most.
+pub const WINDOW: usize = 64;
+
+/// Commands waiting for the loop's answer at most; one more gets an error reply at once.
+const MAX_PENDING_COMMANDS: usize = 16;
+
+/// How long a command may wait for its handler's reply.
+const COMMAND_WAIT: Duration = Duration::from_secs(10);
+
+/// Watched-topic messages handed to the loop per second at most (a neighbour flooding a
+/// topic costs the loop that much); the rest are dropped, counted.
+const MESSAGES_PER_SECOND: u32 = 100;
+
+/// The longest wait for the loop's snapshot.
+const SNAPSHOT_WAIT: Duration = Duration::from_millis(250);
+
+/// State is refreshed at most this often on events, and at least this often anyway (latches
+/// and online reasons come with no event).
+const STATE_MIN_GAP: Duration = Duration::from_millis(50);
+const STATE_REFRESH: Duration = Duration::from_secs(5);
+
+/// The acknowledged seq goes to disk at most this often.
+const COMMIT_EVERY: Duration = Duration::from_millis(200);
+
+/// The first retry after a failed connection, and the longest.
+const FIRST_RETRY: Duration = Duration::from_millis(500);
+const MAX_RETRY: Duration = Duration::from_secs(5);
+
+/// The same notice is told at most this often (then with the count since).
+const NOTICE_GAP: Duration = Duration::from_secs(60);
+
+/// The client's state.
+pub struct Pump {
+    s: Settings,
+    sub: Subscription,
+    ask: Requester,
+    outbox: Outbox,
+    closing: Arc<AtomicBool>,
+    link: Option<Link>,
+    retry_at: Instant,
+    backoff: Duration,
+    was_connected: bool,
+    state_due: bool,
+    state_asked: Instant,
+    state_sent: BTreeMap<String, String>,
+    discovered: bool,
+    watched: BTreeSet<String>,
+    watched_asked: Instant,
+    commands: Vec<(String, Receiver<Reply>, Instant)>,
+    messages_this_second: (Instant, u32),
+    committed: Instant,
+    /// The last record sent, and whether it is still to be published as the last one.
+    last_record: Option<(u64, String)>,
+    last_record_sent: (Instant, u64),
+    loop_gone: bool,
+    notices: HashMap<&'static str, (Instant, u64)>,
+    /// Counts of what was lost, for the end's line.
+    dropped_messages: u64,
+    dropped_publishes: u64,
+    dropped_logs: u64,
+}
+
+impl Pump {
+    /// A client for `s`, not yet connected.
+    pub fn new(
+        s: Settings,
+        sub: Subscription,
+        ask: Requester,
+        outbox: Outbox,
+        closing: Arc<AtomicBool>,
+    ) -> Self {
+        let now = Instant::now();
+        Self {
+            s,
+            sub,
+            ask,
+            outbox,
+            closing,
+            link: None,
+            retry_at: now,
+            backoff: FIRST_RETRY,
+            was_connected: false,
+            state_due: true,
+            state_asked: now - STATE_REFRESH,
+            state_sent: BTreeMap::new(),
+            discovered: false,
+            watched: BTreeSet::new(),
+            watched_asked: now - STATE_REFRESH,
+            commands: Vec::new(),
+            messages_this_second: (now, 0),
+            committed: now,
+            last_record: None,
+            last_record_sent: (now, 0),
+            loop_gone: false,
+            notices: HashMap::new(),
+            dropped_messages: 0,
+            dropped_publishes: 0,
+            dropped_logs: 0,
+        }
+    }
+
+    /// Runs until the run has ended (or `closing`), then flushes.
+    pub fn run(mut self) {
+        let waiting = self.outbox.waiting().len();
+        self.info(&format!(
+            "mqtt: broker {} as rig {} (topics {}/...; outbox {}{})",
+            self.s.broker,
+            self.s.rig,
+            self.s.topics.prefix(),
+            self.s.outbox_dir.display(),
+            if waiting > 0 {
+                format!(", {waiting} records from before to deliver")
+            } else {
+                String::new()
+            }
+        ));
+        loop {
+            let ended = self.take_events(Duration::from_millis(10));
+            self.turn();
+            if ended || self.closing.load(Ordering::SeqCst) {
+                break;
+            }
+        }
+        self.loop_gone = true;
+        self.flush();
+    }
+
+    /// One turn of everything but the events.
+    fn turn(&mut self) {
+        self.keep_link();
+        self.send_records();
+        self.refresh_state();
+        self.refresh_watched();
+        self.answer_commands();
+        self.publish_last_record(false);
+        if self.committed.elapsed() >= COMMIT_EVERY {
+            self.commit();
+        }
+    }
+
+    /// Takes what the run told, waiting at most `wait` for the first; true once it ended.
+    fn take_events(&mut self, wait: Duration) -> bool {
+        let mut wait = wait;
+        // A bounded turn, so the connection is served while a burst comes.
+        for _ in 0..4096 {
+            let event = match self.sub.next(wait) {
+                Ok(e) => e,
+                Err(mpsc::RecvTimeoutError::Timeout) => break,
+                Err(mpsc::RecvTimeoutError::Disconnected) => return true,
+            };
+            wait = Duration::ZERO;
+            if self.on_event(&event) {
+                return true;
+            }
+        }
+        let lost = self.sub.newly_dropped();
+        if lost > 0 {
+            self.warn_counted(
+                "events",
+                lost,
+                "mqtt: events lost: the client fell behind the run (records among them are \
+                 missing from the broker; the records file has them)",
+            );
+        }
+        false
+    }
+
+    /// Handles one event; true for the run's end.
+    fn on_event(&mut self, event: &RunEvent) -> bool {
+        match event {
+            RunEvent::Record { line } => match self.outbox.push(line) {
+                Ok(Pushed::Kept(_)) => {}
+                Ok(Pushed::Full) => self.warn_counted(
+                    "outbox-full",
+                    1,
+                    &format!(
+                        "mqtt: OUTBOX FULL ({} holds its outbox_max): records dropped, not \
+                         delivered to broker {} until it takes the waiting ones",
+                        self.s.outbox_dir.display(),
+                        self.s.broker
+                    ),
+                ),
+                Err(e) => self.warn_counted("outbox-write", 1, &format!("mqtt: {e}")),
+            },
+            RunEvent::Inputs { .. }
+            | RunEvent::Outputs { .. }
+            | RunEvent::DeviceLost { .. }
+            | RunEvent::DeviceBack { .. }
+            | RunEvent::ScriptStarted { .. } => self.state_due = true,
+            RunEvent::Published { topic, payload } => {
+                let sent = match self.link.as_mut() {
+                    Some(l) if l.connected() => {
+                        l.send(topic, QoS::AtLeastOnce, false, payload.as_bytes())
+                    }
+                    _ => false,
+                };
+                if !sent {
+                    self.dropped_publishes += 1;
+                    self.warn_counted(
+                        "publish",
+                        1,
+                        &format!(
+                            "mqtt: mqtt_publish to {topic} dropped: not connected to broker {}",
+                            self.s.broker
+                        ),
+                    );
+                }
+            }
+            _ => {}
+        }
+        if let Some(payload) = log_payload(event, &now_text()) {
+            let topic = self.s.topics.log();
+            match self.link.as_mut() {
+                Some(l) if l.connected() => {
+                    if !l.send(&topic, QoS::AtMostOnce, false, payload.as_bytes()) {
+                        self.dropped_logs += 1;
+                    }
+                }
+                _ => self.dropped_logs += 1,
+            }
+        }
+        matches!(event, RunEvent::Ended { .. })
+    }
+
+    /// Opens a connection when none is up and the back-off allows; handles what it tells.
+    fn keep_link(&mut self) {
+        if self.link.is_none() && Instant::now() >= self.retry_at {
+            self.link = Some(Link::open(self.s.options()));
+        }
+        for _ in 0..1024 {
+            let Some(event) = self.link.as_mut().and_then(Link::poll) else {
+                break;
+            };
+            match event {
+                NetEvent::Connected => self.on_connected(),
+                NetEvent::Acked(seq) => self.outbox.ack_through(seq),
+                NetEvent::Message { topic, payload } => self.on_message(topic, payload),
+                NetEvent::Failed(e) => {
+                    self.on_failed(&e);
+                    break;
+                }
+            }
+        }
+    }
+
+    fn on_connected(&mut self) {
+        self.backoff = FIRST_RETRY;
+        let waiting = self.outbox.waiting().len();
+        let again = if self.was_connected { "again" } else { "" };
+        self.info(&format!(
+            "mqtt: connected {again}to broker {} as {} (user {}){}",
+            self.s.broker,
+            self.s.rig,
+            self.s.user(),
+            if waiting > 0 {
+                format!("; delivering {waiting} records from the outbox")
+            } else {
+                String::new()
+            }
+        ));
+        self.was_connected = true;
+        let status = self.s.topics.status();
+        let commands = self.s.topics.commands();
+        if let Some(l) = self.link.as_mut() {
+            l.send(&status, QoS::AtLeastOnce, true, topics::ONLINE.as_bytes());
+            l.subscribe(&commands);
+        }
+        self.state_sent.clear();
+        self.state_due = true;
+        self.discovered = false;
+        self.watched.clear();
+        self.watched_asked = Instant::now() - STATE_REFRESH;
+    }
+
+    fn on_failed(&mut self, e: &ConnectionError) {
+        let was_up = self.link.as_ref().is_some_and(Link::connected);
+        self.link = None;
+        let waiting = self.outbox.waiting().len();
+        let why = describe_failure(e, &self.s);
+        let message = if was_up || self.was_connected && self.backoff == FIRST_RETRY {
+            format!(
+                "mqtt: lost broker {}: {why}; the run goes on, records wait in the outbox \
+                 ({waiting} now), retrying",
+                self.s.broker
+            )
+        } else {
+            format!(
+                "mqtt: {why}; the run goes on, retrying in {} ({waiting} records waiting)",
+                crate::time::duration::format_duration(self.backoff)
+            )
+        };
+        self.warn_counted("connect", 1, &message);
+        self.retry_at = Instant::now() + self.backoff;
+        self.backoff = (self.backoff * 2).min(MAX_RETRY);
+    }
+
+    /// Sends the records after the last one sent on this link, up to the window.
+    fn send_records(&mut self) {
+        let Some(link) = self.link.as_mut().filter(|l| l.connected()) else {
+            return;
+        };
+        let from = link
+            .highest_sent()
+            .map_or(self.outbox.acked() + 1, |h| h + 1);
+        let waiting = self.outbox.waiting();
+        let start = waiting.partition_point(|p| p.seq < from);
+        let topic = self.s.topics.records();
+        for p in waiting.iter().skip(start) {
+            if link.in_flight() >= WINDOW || !link.send_record(&topic, p.seq, &p.payload) {
+                break;
+            }
+            self.last_record = Some((p.seq, p.payload.clone()));
+        }
+    }
+
+    /// The last record acknowledged, retained, at most once a second (or now, at the end).
+    fn publish_last_record(&mut self, now: bool) {
+        let Some((seq, payload)) = &self.last_record else {
+            return;
+        };
+        let due = now || self.last_record_sent.0.elapsed() >= Duration::from_secs(1);
+        if *seq <= self.last_record_sent.1 || *seq > self.outbox.acked() || !due {
+            return;
+        }
+        let (seq, topic) = (*seq, self.s.topics.last_record());
+        if let Some(l) = self.link.as_mut().filter(|l| l.connected()) {
+            if l.send(&topic, QoS::AtMostOnce, true, payload.as_bytes()) {
+                self.last_record_sent = (Instant::now(), seq);
+            }
+        }
+    }
+
+    /// Publishes each device's state that changed since it was last published.
+    fn refresh_state(&mut self) {
+        let connected = self.link.as_ref().is_some_and(Link::connected);
+        let since = self.state_asked.elapsed();
+        let due = (self.state_due && since >= STATE_MIN_GAP) || since >= STATE_REFRESH;
+        if !connected || !due || self.loop_gone {
+            return;
+        }
+        self.state_asked = Instant::now();
+        self.state_due = false;
+        let snapshot = match self.ask.ask(Request::Snapshot, SNAPSHOT_WAIT) {
+            Ok(Answer::Snapshot(s)) => s,
+            Err(AskError::Gone) => {
+                self.loop_gone = true;
+                return;
+            }
+            // A loop behind on requests: the next turn asks again.
+            _ => {
+                self.state_due = true;
+                return;
+            }
+        };
+        if self.s.ha_discovery && !self.discovered {
+            self.discover(&snapshot);
+        }
+        let at = now_text();
+        for (name, device) in &snapshot.devices {
+            let Ok(serde_json::Value::Object(mut fields)) = serde_json::to_value(device) else {
+                continue;
+            };
+            let plain = serde_json::Value::Object(fields.clone()).to_string();
+            if self.state_sent.get(name) == Some(&plain) {
+                continue;
+            }
+            fields.insert("at".into(), at.clone().into());
+            let payload = serde_json::Value::Object(fields).to_string();
+            let topic = self.s.topics.state(name);
+            if let Some(l) = self.link.as_mut() {
+                if l.send(&topic, QoS::AtLeastOnce, true, payload.as_bytes()) {
+                    self.state_sent.insert(name.clone(), plain);
+                } else {
+                    self.state_due = true;
+                }
+            }
+        }
+    }
+
+    /// Home Assistant's discovery configs, once a connection.
+    fn discover(&mut self, snapshot: &RigSnapshot) {
+        let configs = discovery::configs(&self.s.rig, &self.s.topics, snapshot);
+        if let Some(l) = self.link.as_mut() {
+            self.discovered = configs
+                .iter()
+                .all(|(topic, payload)| l.send(topic, QoS::AtLeastOnce, true, payload.as_bytes()));
+        }
+    }
+
+    /// Subscribes to the topics the script's `on_message` handlers watch.
+    fn refresh_watched(&mut self) {
+        let connected = self.link.as_ref().is_some_and(Link::connected);
+        if !connected || self.loop_gone || self.watched_asked.elapsed() < Duration::from_secs(2) {
+            return;
+        }
+        self.watched_asked = Instant::now();
+        let (tx, rx) = mpsc::sync_channel(1);
+        match self.ask.ask(
+            Request::Remote(Remote::Watched(ReplyTo(tx))),
+            Duration::ZERO,
+        ) {
+            Ok(_) | Err(AskError::NoAnswer(_)) => {}
+            Err(_) => return,
+        }
+        let Ok(Ok(text)) = rx.recv_timeout(SNAPSHOT_WAIT) else {
+            return;
+        };
+        let filters: Vec<String> = serde_json::from_str(&text).unwrap_or_default();
+        for f in filters {
+            if !self.watched.contains(&f) {
+                if let Some(l) = self.link.as_mut() {
+                    if l.subscribe(&f) {
+                        self.watched.insert(f);
+                    }
+                }
+            }
+        }
+    }
+
+    /// An inbound message: a command for the loop, or a watched topic's.
+    fn on_message(&mut self, topic: String, payload: Vec<u8>) {
+        if let Some(name) = self.s.topics.command_name(&topic).map(str::to_string) {
+            return self.on_command(name, payload);
+        }
+        if topic.ends_with("/reply")
+            && self
+                .s
+                .topics
+                .command_name(topic.trim_end_matches("/reply"))
+                .is_some()
+        {
+            return;
+        }
+        let now = Instant::now();
+        if now.duration_since(self.messages_this_second.0) >= Duration::from_secs(1) {
+            self.messages_this_second = (now, 0);
+        }
+        if self.messages_this_second.1 >= MESSAGES_PER_SECOND || payload.len() > MAX_PAYLOAD {
+            self.dropped_messages += 1;
+            self.warn_counted(
+                "messages",
+                1,
+                &format!(
+                    "mqtt: messages for on_message dropped (more than {MESSAGES_PER_SECOND} a \
+                     second, or over {MAX_PAYLOAD} bytes; the last on {topic})"
+                ),
+            );
+            return;
+        }
+        self.messages_this_second.1 += 1;
+        let payload = String::from_utf8_lossy(&payload).into_owned();
+        let asked = self.ask.ask(
+            Request::Remote(Remote::Message { topic, payload }),
+            Duration::ZERO,
+        );
+        if matches!(asked, Err(AskError::Busy)) {
+            self.dropped_messages += 1;
+        }
+    }
+
+    fn on_command(&mut self, name: String, payload: Vec<u8>) {
+        let refuse = |why: String| Err(why);
+        let reply = if payload.len() > MAX_PAYLOAD {
+            refuse(format!(
+                "a payload of {} bytes; at most {MAX_PAYLOAD}",
+                payload.len()
+            ))
+        } else if self.commands.len() >= MAX_PENDING_COMMANDS {
+            refuse(format!(
+                "{MAX_PENDING_COMMANDS} commands wait for the rig already; try again"
+            ))
+        } else if self.loop_gone {
+            refuse("the run has ended".into())
+        } else {
+            let (tx, rx) = mpsc::sync_channel(1);
+            let command = Command {
+                name: name.clone(),
+                payload: String::from_utf8_lossy(&payload).into_owned(),
+                reply: ReplyTo(tx),
+            };
+            match self
+                .ask
+                .ask(Request::Remote(Remote::Command(command)), Duration::ZERO)
+            {
+                Ok(_) | Err(AskError::NoAnswer(_)) => {
+                    self.commands
+                        .push((name, rx, Instant::now() + COMMAND_WAIT));
+                    return;
+                }
+                Err(e) => refuse(e.to_string()),
+            }
+        };
+        self.reply(&name, reply);
+    }
+
+    /// Publishes the replies the loop gave, and the error of those it did not give in time.
+    fn answer_commands(&mut self) {
+        let mut done = Vec::new();
+        for (n, (name, rx, until)) in self.commands.iter().enumerate() {
+            match rx.try_recv() {
+                Ok(reply) => done.push((n, name.clone(), reply)),
+                Err(TryRecvError::Disconnected) => {
+                    done.push((n, name.clone(), Err("the run has ended".into())))
+                }
+                Err(TryRecvError::Empty) if Instant::now() >= *until => done.push((
+                    n,
+                    name.clone(),
+                    Err(format!(
+                        "no reply within {}",
+                        crate::time::duration::format_duration(COMMAND_WAIT)
+                    )),
+                )),
+                Err(TryRecvError::Empty) => {}
+            }
+        }
+        for (n, name, reply) in done.into_iter().rev() {
+            self.commands.remove(n);
+            self.reply(&name, reply);
+        }
+    }
+
+    fn reply(&mut self, name: &str, reply: Reply) {
+        let value = reply.and_then(|text| {
+            serde_json::from_str::<serde_json::Value>(&text).map_err(|e| e.to_string())
+        });
+        let payload = reply_payload(&value);
+        let topic = self.s.topics.reply(name);
+        if let Some(l) = self.link.as_mut() {
+            l.send(&topic, QoS::AtLeastOnce, false, payload.as_bytes());
+        }
+    }
+
+    /// Writes the acknowledged seq to disk.
+    fn commit(&mut self) {
+        self.committed = Instant::now();
+        if let Err(e) = self.outbox.commit() {
+            self.warn_counted("outbox-commit", 1, &format!("mqtt: {e}"));
+        }
+    }
+
+    /// The end: the outbox gets up to `FLUSH_WAIT`, the commands still waiting an error, the
+    /// status `offline`; what is left waits in the outbox for the next start.
+    fn flush(&mut self) {
+        let until = Instant::now() + FLUSH_WAIT;
+        while Instant::now() < until && !self.outbox.waiting().is_empty() {
+            // Records told as the run ended are still in the stream.
+            self.take_events(Duration::ZERO);
+            self.turn();
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        self.take_events(Duration::ZERO);
+        self.commit();
+        for (name, _, _) in std::mem::take(&mut self.commands) {
+            self.reply(&name, Err("the run has ended".into()));
+        }
+        let left = self.outbox.waiting().len();
+        if left > 0 {
+            self.warn(&format!(
+                "mqtt: {left} records not delivered to broker {} within {}s: they wait in {} \
+                 for the next start",
+                self.s.broker,
+                FLUSH_WAIT.as_secs(),
+                self.s.outbox_dir.display()
+            ));
+        }
+        let lost = [
+            (self.dropped_messages, "watched-topic messages dropped"),
+            (self.dropped_publishes, "mqtt_publish messages dropped"),
+            (
+                self.outbox.dropped(),
+                "records dropped: the outbox was full",
+            ),
+        ];
+        for (n, what) in lost {
+            if n > 0 {
+                self.warn(&format!("mqtt: {n} {what}"));
+            }
+        }
+        self.publish_last_record(true);
+        if let Some(mut l) = self.link.take() {
+            if l.connected() {
+                let status = self.s.topics.status();
+                l.send(&status, QoS::AtLeastOnce, true, topics::OFFLINE.as_bytes());
+            }
+            l.disconnect(Duration::from_millis(500));
+        }
+    }
+
+    /// A line for the run's log at info.
+    fn info(&mut self, message: &str) {
+        self.tell(false, message);
+    }
+
+    /// A warning for the run's log.
+    fn warn(&mut self, message: &str) {
+        self.tell(true, message);
+    }
+
+    /// A warning told once, then at most every `NOTICE_GAP` with the count since.
+    fn warn_counted(&mut self, key: &'static str, n: u64, message: &str) {
+        let now = Instant::now();
+        let (told, count) = self.notices.entry(key).or_insert((now - NOTICE_GAP * 2, 0));
+        *count += n;
+        if now.duration_since(*told) < NOTICE_GAP {
+            return;
+        }
+        let line = if *count > 1 {
+            format!("{message} ({count} times)")
+        } else {
+            message.to_string()
+        };
+        *told = now;
+        *count = 0;
+        self.warn(&line);
+    }
+
+    /// Through the loop's log while the loop runs; to standard error after.
+    fn tell(&mut self, warning: bool, message: &str) {
+        if !self.loop_gone {
+            let asked = self.ask.ask(
+                Request::Remote(Remote::Log {
+                    warning,
+                    message: message.to_string(),
+                }),
+                Duration::ZERO,
+            );
+            match asked {
+                Ok(_) | Err(AskError::NoAnswer(_)) => return,
+                Err(AskError::Gone) => self.loop_gone = true,
+                Err(AskError::Busy) => {}
+            }
+        }
+        let level = if warning { "warning: " } else { "" };
+        let _ =
+            std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{level}{message}\n"));
+    }
+}
+
+/// A connection's failure in words naming the broker and the user.
+fn describe_failure(e: &ConnectionError, s: &Settings) -> String {
+    let broker = &s.broker;
+    match e {
+        ConnectionError::ConnectionRefused(
+            ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
+        ) => format!(
+            "broker {broker} refused user {}: wrong user name or password, or not allowed \
+             (password_file / password_env)",
+            s.user()
+        ),
+        ConnectionError::ConnectionRefused(code) => {
+            format!(
+                "broker {broker} refused the connection of user {}: {code:?}",
+                s.user()
+            )
+        }
+        ConnectionError::Tls(t) => format!(
+            "TLS to broker {broker} failed: {t} (is ca_file the CA that signed the broker's \
+             certificate, and does the certificate name {}?)",
+            s.host
+        ),
+        ConnectionError::Io(io) => format!("cannot reach broker {broker}: {io}"),
+        ConnectionError::NetworkTimeout => {
+            format!("broker {broker} did not answer the connection in time")
+        }
+        other => format!("broker {broker}: {other}"),
+    }
+}
+
+/// Wall time now, local, RFC 3339 with milliseconds.
+fn now_text() -> String {
+    chrono::Local::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, false)
+}

@@ -1,0 +1,662 @@
+//! `[mqtt]` against a real Mosquitto broker the tests start on free loopback ports, with a
+//! generated password file and ACL and a TLS listener from a CA the test makes, and real
+//! `rigscript run` processes on simulated devices: the last will announces a killed or a
+//! frozen runner, retained state follows the simulated inputs, records made while the broker
+//! was down all arrive after it is back (in order, once, equal to the records file), commands
+//! reach their handler (or get an error reply) and an ACL-forbidden client cannot command, and
+//! TLS connects with the right CA and is refused, saying why, with a wrong one.
+
+mod common;
+
+use common::{require_tool, rigscript, until, TempDir};
+use serde_json::Value;
+use std::fs::File;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+/// A child process killed when dropped (a failed test leaves no broker or runner behind).
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+impl Proc {
+    fn signal(&self, signal: i32) {
+        // SAFETY: a plain kill(2) on our own child.
+        unsafe { libc::kill(self.0.id() as i32, signal) };
+    }
+
+    /// Waits (bounded) for it to end; its exit status.
+    fn wait_end(&mut self) -> Option<i32> {
+        until(Duration::from_secs(15), || self.0.try_wait().unwrap())
+            .map(|s| s.code().unwrap_or(-1))
+    }
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn run_ok(cmd: &mut Command) {
+    let out = cmd.output().expect("start a tool");
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A CA and a certificate it signs for 127.0.0.1, made with the openssl CLI.
+fn make_ca(dir: &Path, name: &str) -> PathBuf {
+    let at = |f: &str| dir.join(format!("{name}-{f}"));
+    run_ok(
+        Command::new("openssl")
+            .args([
+                "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj",
+            ])
+            .arg(format!("/CN=test CA {name}"))
+            .arg("-keyout")
+            .arg(at("ca.key"))
+            .arg("-out")
+            .arg(at("ca.pem")),
+    );
+    at("ca.pem")
+}
+
+fn make_server_cert(dir: &Path, ca: &str) {
+    let at = |f: &str| dir.join(f);
+    let ca_at = |f: &str| dir.join(format!("{ca}-{f}"));
+    std::fs::write(at("san.ext"), "subjectAltName=IP:127.0.0.1,DNS:localhost\n").unwrap();
+    run_ok(
+        Command::new("openssl")
+            .args([
+                "req",
+                "-newkey",
+                "rsa:2048",
+                "-nodes",
+                "-subj",
+                "/CN=127.0.0.1",
+            ])
+            .arg("-keyout")
+            .arg(at("server.key"))
+            .arg("-out")
+            .arg(at("server.csr")),
+    );
+    run_ok(
+        Command::new("openssl")
+            .args(["x509", "-req", "-days", "2"])
+            .arg("-in")
+            .arg(at("server.csr"))
+            .arg("-CA")
+            .arg(ca_at("ca.pem"))
+            .arg("-CAkey")
+            .arg(ca_at("ca.key"))
+            .arg("-CAcreateserial")
+            .arg("-extfile")
+            .arg(at("san.ext"))
+            .arg("-out")
+            .arg(at("server.pem")),
+    );
+}
+
+/// Users of the test broker: the rig, an operator who may command, a viewer who may not.
+const USERS: &[(&str, &str)] = &[
+    ("rig", "rig-pw"),
+    ("ops", "ops-pw"),
+    ("viewer", "viewer-pw"),
+];
+
+/// A Mosquitto broker of the test's own: a plain listener with passwords and an ACL, and a
+/// TLS listener; stopped and started again on the same ports, its state kept on disk.
+struct Broker {
+    dir: TempDir,
+    port: u16,
+    tls_port: u16,
+    process: Option<Proc>,
+}
+
+impl Broker {
+    fn start(tag: &str) -> Self {
+        require_tool("mosquitto", "mosquitto");
+        require_tool("mosquitto_sub", "mosquitto-clients");
+        require_tool("openssl", "openssl");
+        let dir = TempDir::new(tag);
+        let d = &dir.0;
+        let passwords = d.join("passwords");
+        std::fs::write(&passwords, "").unwrap();
+        for (user, pw) in USERS {
+            run_ok(
+                Command::new("mosquitto_passwd")
+                    .arg("-b")
+                    .arg(&passwords)
+                    .args([user, pw]),
+            );
+        }
+        std::fs::write(
+            d.join("acl"),
+            "user rig\ntopic readwrite rigscript/#\ntopic readwrite homeassistant/#\n\
+             topic readwrite lab/#\n\n\
+             user ops\ntopic readwrite rigscript/+/cmd/#\ntopic read rigscript/#\n\n\
+             user viewer\ntopic read rigscript/#\ntopic read homeassistant/#\ntopic read lab/#\n",
+        )
+        .unwrap();
+        make_ca(d, "good");
+        make_ca(d, "wrong");
+        make_server_cert(d, "good");
+        let (port, tls_port) = (free_port(), free_port());
+        let p = |f: &str| d.join(f).display().to_string();
+        // Run as whoever runs the tests (as root Mosquitto would switch to its own user, who
+        // cannot read the test's files).
+        let config = format!(
+            "user {user}\npersistence true\npersistence_location {dir}/\nautosave_interval 1\n\
+             per_listener_settings false\nallow_anonymous false\npassword_file {pw}\n\
+             acl_file {acl}\nlog_dest stderr\nlog_type all\n\
+             listener {port} 127.0.0.1\n\
+             listener {tls_port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n",
+            user = std::env::var("USER").unwrap_or_else(|_| "root".into()),
+            dir = d.display(),
+            pw = p("passwords"),
+            acl = p("acl"),
+            ca = p("good-ca.pem"),
+            cert = p("server.pem"),
+            key = p("server.key"),
+        );
+        std::fs::write(d.join("mosquitto.conf"), config).unwrap();
+        let mut b = Self {
+            dir,
+            port,
+            tls_port,
+            process: None,
+        };
+        b.resume();
+        b
+    }
+
+    /// Starts the broker (again) and waits until it takes connections.
+    fn resume(&mut self) {
+        let log = File::create(self.dir.path("broker.log")).unwrap();
+        let child = Command::new("mosquitto")
+            .arg("-c")
+            .arg(self.dir.path("mosquitto.conf"))
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("start mosquitto");
+        self.process = Some(Proc(child));
+        let port = self.port;
+        until(Duration::from_secs(10), || {
+            std::net::TcpStream::connect(("127.0.0.1", port)).ok()
+        })
+        .unwrap_or_else(|| panic!("mosquitto never listened: {}", self.log()));
+    }
+
+    /// Stops it (SIGTERM: it saves its sessions and retained messages).
+    fn stop(&mut self) {
+        if let Some(mut p) = self.process.take() {
+            p.signal(libc::SIGTERM);
+            p.wait_end().expect("mosquitto stopped");
+        }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(self.dir.path("broker.log")).unwrap_or_default()
+    }
+
+    /// The retained message on `topic` as `user` sees it, if any.
+    fn retained(&self, topic: &str) -> Option<String> {
+        let out = Command::new("mosquitto_sub")
+            .args(["-h", "127.0.0.1", "-p", &self.port.to_string()])
+            .args([
+                "-u",
+                "viewer",
+                "-P",
+                "viewer-pw",
+                "-t",
+                topic,
+                "-C",
+                "1",
+                "-W",
+                "1",
+            ])
+            .output()
+            .ok()?;
+        out.status
+            .success()
+            .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+    }
+
+    /// Polls until the retained message on `topic` satisfies `ok` (10 s at most).
+    fn retained_until(&self, topic: &str, ok: impl Fn(&str) -> bool) -> String {
+        until(Duration::from_secs(10), || {
+            self.retained(topic).filter(|m| ok(m))
+        })
+        .unwrap_or_else(|| {
+            panic!(
+                "retained {topic} never as expected (last: {:?}); broker log:\n{}",
+                self.retained(topic),
+                self.log()
+            )
+        })
+    }
+
+    /// A `mosquitto_sub` of `user` on `topic` writing `topic payload` lines to `file`; with
+    /// `session`, a persistent QoS 1 session of that id (the broker keeps what comes while
+    /// the subscriber is away).
+    fn subscribe(&self, user: &str, topic: &str, file: &Path, session: Option<&str>) -> Proc {
+        let pw = USERS.iter().find(|(u, _)| *u == user).unwrap().1;
+        let mut c = Command::new("mosquitto_sub");
+        c.args([
+            "-h",
+            "127.0.0.1",
+            "-p",
+            &self.port.to_string(),
+            "-u",
+            user,
+            "-P",
+            pw,
+        ])
+        .args(["-t", topic, "-v", "-q", "1"]);
+        if let Some(id) = session {
+            c.args(["-c", "-i", id]);
+        }
+        let child = c
+            .stdout(File::create(file).unwrap())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start mosquitto_sub");
+        Proc(child)
+    }
+
+    /// `rigscript lab --json` as the viewer sees it.
+    fn lab(&self) -> Value {
+        let out = Command::new(rigscript())
+            .args([
+                "lab",
+                "--broker",
+                &format!("mqtt://127.0.0.1:{}", self.port),
+            ])
+            .args([
+                "--username",
+                "viewer",
+                "--password-env",
+                "TEST_MQTT_PW",
+                "--json",
+            ])
+            .env("TEST_MQTT_PW", "viewer-pw")
+            .output()
+            .expect("run rigscript lab");
+        assert!(
+            out.status.success(),
+            "rigscript lab: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice(&out.stdout).expect("lab's JSON")
+    }
+
+    /// Waits (bounded) until the broker has acknowledged a subscription of client `id`.
+    fn wait_subscribed(&self, id: &str) {
+        let said = format!("Sending SUBACK to {id}");
+        until(Duration::from_secs(10), || {
+            self.log().contains(&said).then_some(())
+        })
+        .unwrap_or_else(|| panic!("{id} never subscribed: {}", self.log()));
+    }
+
+    fn publish(&self, user: &str, topic: &str, payload: &str) {
+        let pw = USERS.iter().find(|(u, _)| *u == user).unwrap().1;
+        run_ok(
+            Command::new("mosquitto_pub")
+                .args([
+                    "-h",
+                    "127.0.0.1",
+                    "-p",
+                    &self.port.to_string(),
+                    "-u",
+                    user,
+                    "-P",
+                    pw,
+                ])
+                .args(["-t", topic, "-m", payload, "-q", "1"]),
+        );
+    }
+
+    /// rig.toml's `[mqtt]` for rig `rig` on the plain listener.
+    fn mqtt_table(&self, rig: &str, keepalive: &str) -> String {
+        format!(
+            "[mqtt]\nurl = \"mqtt://127.0.0.1:{}\"\nrig = \"{rig}\"\nusername = \"rig\"\n\
+             password_env = \"TEST_MQTT_PW\"\nkeepalive = \"{keepalive}\"\noutbox = \"{}\"\n",
+            self.port,
+            self.dir.path(&format!("outbox-{rig}")).display()
+        )
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// A simulated rig (io, a TRP-C29U) with `mqtt` as its `[mqtt]` table, running `script`;
+/// its log goes to `run.log` in `dir`.
+fn run_rig(dir: &TempDir, name: &str, mqtt: &str, script: &str) -> Proc {
+    let records = dir.path(&format!("{name}.jsonl"));
+    let config = dir.file(
+        &format!("{name}.toml"),
+        &format!(
+            "name = \"{name}\"\nrecords = \"{}\"\n{mqtt}\n[devices.io]\nkind = \"trp-c29u\"\nsim = true\n",
+            records.display()
+        ),
+    );
+    let script = dir.file(&format!("{name}.rhai"), script);
+    let log = File::create(dir.path(&format!("{name}.log"))).unwrap();
+    let child = Command::new(rigscript())
+        .args(["run", "--config", &config, &script])
+        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env_remove("RUNTIME_DIRECTORY")
+        .env("TEST_MQTT_PW", "rig-pw")
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .expect("start rigscript run");
+    Proc(child)
+}
+
+fn lines(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .map(str::to_string)
+        .collect()
+}
+
+#[test]
+fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
+    let broker = Broker::start("mqtt-will");
+    let dir = TempDir::new("mqtt-will-run");
+    let script = "every(\"100ms\", || {});\n";
+    let rig = run_rig(&dir, "killed", &broker.mqtt_table("killed", "1s"), script);
+    broker.retained_until("rigscript/killed/status", |m| m == "online");
+    rig.signal(libc::SIGKILL);
+    broker.retained_until("rigscript/killed/status", |m| m == "offline");
+
+    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "1s"), script);
+    broker.retained_until("rigscript/frozen/status", |m| m == "online");
+    frozen.signal(libc::SIGSTOP);
+    // 1.5 x keepalive and the broker's one-second clock: well inside the 10 s poll.
+    broker.retained_until("rigscript/frozen/status", |m| m == "offline");
+    frozen.signal(libc::SIGCONT);
+}
+
+#[test]
+fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() {
+    let broker = Broker::start("mqtt-state");
+    let dir = TempDir::new("mqtt-state-run");
+    let script = "io.on_rise(0, || { io.outputs = 0x80; });\n";
+    let mqtt = format!("{}ha_discovery = true\n", broker.mqtt_table("state", "10s"));
+    let mut rig = run_rig(&dir, "state", &mqtt, script);
+    let state = |m: &str| serde_json::from_str::<Value>(m).unwrap_or(Value::Null);
+    broker.retained_until("rigscript/state/state/io", |m| state(m)["inputs"] == 0);
+    let drive = |value: &str| {
+        let ok = until(Duration::from_secs(10), || {
+            Command::new(rigscript())
+                .args(["drive", "state", "set-inputs", "io", value])
+                .env("XDG_RUNTIME_DIR", &dir.0)
+                .env_remove("RUNTIME_DIRECTORY")
+                .output()
+                .ok()
+                .filter(|o| o.status.success())
+        });
+        assert!(ok.is_some(), "drive state set-inputs io {value} failed");
+    };
+    drive("0x05");
+    let m = broker.retained_until("rigscript/state/state/io", |m| state(m)["inputs"] == 5);
+    let v = state(&m);
+    assert_eq!(v["online"], true);
+    assert_eq!(v["kind"], "trp-c29u");
+    assert_eq!(v["outputs"], 0x80, "the handler's outputs: {v}");
+    // One screen for the lab, from the retained topics alone.
+    let lab = broker.lab();
+    let rigs = lab["rigs"].as_array().unwrap();
+    let mine = rigs
+        .iter()
+        .find(|r| r["rig"] == "state")
+        .expect("the rig on the lab screen");
+    assert_eq!(mine["status"], "online", "{lab}");
+    assert_eq!(mine["devices"]["io"]["inputs"], 5, "{lab}");
+    assert!(mine["last_heard"].is_string(), "{lab}");
+    // Home Assistant sees DI0 as a binary sensor reading the state topic.
+    let config = broker.retained_until("homeassistant/binary_sensor/state/io_di0/config", |m| {
+        !m.is_empty()
+    });
+    let config = state(&config);
+    assert_eq!(
+        config["state_topic"], "rigscript/state/state/io",
+        "{config}"
+    );
+    assert_eq!(
+        config["availability_topic"], "rigscript/state/status",
+        "{config}"
+    );
+    drive("0x00");
+    broker.retained_until("rigscript/state/state/io", |m| state(m)["inputs"] == 0);
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    broker.retained_until("rigscript/state/status", |m| m == "offline");
+    let lab = broker.lab();
+    let mine = lab["rigs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["rig"] == "state")
+        .cloned();
+    assert_eq!(mine.unwrap()["status"], "offline", "{lab}");
+}
+
+/// The records file's lines, and the records the subscriber got with their seq taken out.
+fn delivered(file: &Path) -> Vec<(u64, String)> {
+    lines(file)
+        .iter()
+        .filter_map(|l| l.split_once(' '))
+        .map(|(_, payload)| {
+            let mut v: serde_json::Map<String, Value> = serde_json::from_str(payload).unwrap();
+            let seq = v.remove("seq").and_then(|s| s.as_u64()).expect("a seq");
+            (seq, Value::Object(v).to_string())
+        })
+        .collect()
+}
+
+fn canonical(line: &str) -> String {
+    serde_json::from_str::<Value>(line).unwrap().to_string()
+}
+
+#[test]
+fn records_made_while_the_broker_is_down_all_arrive_in_order_once_and_equal_the_records_file() {
+    let mut broker = Broker::start("mqtt-records");
+    let dir = TempDir::new("mqtt-records-run");
+    let got = dir.path("records.sub");
+    let _sub = broker.subscribe("viewer", "rigscript/rec/records", &got, Some("records-sub"));
+    // The subscriber's session exists before the first record.
+    broker.wait_subscribed("records-sub");
+    let script =
+        "let n = 0;\nrecord(\"start\", 0);\nevery(\"50ms\", || { n += 1; record(\"n\", n); });\n";
+    let mut rig = run_rig(&dir, "rec", &broker.mqtt_table("rec", "2s"), script);
+    let records = dir.path("rec.jsonl");
+    until(Duration::from_secs(10), || {
+        (delivered(&got).len() >= 5).then_some(())
+    })
+    .expect("records arrive while the broker is up");
+    broker.stop();
+    let at_stop = lines(&records).len();
+    // The rig runs on and records while the broker is away.
+    until(Duration::from_secs(20), || {
+        (lines(&records).len() >= at_stop + 40).then_some(())
+    })
+    .expect("the rig goes on recording without its broker");
+    broker.resume();
+    let made = lines(&records).len();
+    until(Duration::from_secs(20), || {
+        (delivered(&got).len() >= made).then_some(())
+    })
+    .unwrap_or_else(|| panic!("only {} of {made} records arrived", delivered(&got).len()));
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
+    until(Duration::from_secs(10), || {
+        (delivered(&got).len() >= file.len()).then_some(())
+    })
+    .expect("the stop flushed the outbox");
+    // QoS 1 is at least once: a message in flight as the broker stopped may come twice (to
+    // the broker or from it to the subscriber); its seq lets the consumer drop the second.
+    let all = delivered(&got);
+    let mut got: Vec<(u64, String)> = Vec::new();
+    for (seq, body) in all.iter().cloned() {
+        if got.last().map_or(true, |(last, _)| seq > *last) {
+            got.push((seq, body));
+        }
+    }
+    let again = all.len() - got.len();
+    assert!(
+        again <= 64,
+        "{again} records came twice: more than were in flight"
+    );
+    let seqs: Vec<u64> = got.iter().map(|(s, _)| *s).collect();
+    let expected: Vec<u64> = (1..=file.len() as u64).collect();
+    assert_eq!(
+        seqs, expected,
+        "every record, in order, each seq once after duplicates dropped"
+    );
+    let bodies: Vec<String> = got.into_iter().map(|(_, b)| canonical(&b)).collect();
+    assert_eq!(bodies, file, "the records delivered are the records file");
+    let log = std::fs::read_to_string(dir.path("rec.log")).unwrap();
+    assert!(log.contains("mqtt: lost broker"), "{log}");
+
+    // A restart goes on numbering where the last run stopped.
+    let again = dir.path("again.sub");
+    let _sub2 = broker.subscribe("viewer", "rigscript/rec/records", &again, Some("again-sub"));
+    broker.wait_subscribed("again-sub");
+    let mut rig = run_rig(
+        &dir,
+        "rec",
+        &broker.mqtt_table("rec", "2s"),
+        "record(\"again\", 1);\n",
+    );
+    let first = until(Duration::from_secs(10), || {
+        delivered(&again).first().cloned()
+    })
+    .expect("the restarted rig's record arrives");
+    assert_eq!(first.0, expected.len() as u64 + 1, "{first:?}");
+    rig.wait_end();
+}
+
+#[test]
+fn a_command_gets_its_handlers_reply_an_unknown_one_an_error_and_a_forbidden_client_none() {
+    let broker = Broker::start("mqtt-cmd");
+    let dir = TempDir::new("mqtt-cmd-run");
+    let script = "let calls = 0;\n\
+                  on_command(\"arm\", |p| { calls += 1; #{ calls: calls, level: p.level } });\n\
+                  on_message(\"lab/+/ping\", |t, p| mqtt_publish(\"lab/pong\", #{ topic: t, n: p.n }));\n";
+    let _rig = run_rig(&dir, "cmd", &broker.mqtt_table("cmd", "10s"), script);
+    broker.retained_until("rigscript/cmd/status", |m| m == "online");
+    let replies = dir.path("replies.sub");
+    let _sub = broker.subscribe(
+        "viewer",
+        "rigscript/cmd/cmd/+/reply",
+        &replies,
+        Some("replies-sub"),
+    );
+    broker.wait_subscribed("replies-sub");
+    // The viewer may not command: the broker drops its message, the handler never runs.
+    broker.publish("viewer", "rigscript/cmd/cmd/arm", "{\"level\":1}");
+    broker.publish("ops", "rigscript/cmd/cmd/arm", "{\"level\":2}");
+    broker.publish("ops", "rigscript/cmd/cmd/disarm", "{}");
+    let reply = |name: &str| {
+        let topic = format!("rigscript/cmd/cmd/{name}/reply");
+        until(Duration::from_secs(10), || {
+            lines(&replies)
+                .iter()
+                .find_map(|l| l.strip_prefix(&format!("{topic} ")).map(str::to_string))
+        })
+        .unwrap_or_else(|| panic!("no reply on {topic}: {:?}", lines(&replies)))
+    };
+    let arm: Value = serde_json::from_str(&reply("arm")).unwrap();
+    assert_eq!(
+        arm,
+        serde_json::json!({"ok": true, "value": {"calls": 1, "level": 2}}),
+        "the forbidden command never reached the handler"
+    );
+    // A watched topic reaches on_message (once the rig has subscribed: asked again until then).
+    let pongs = dir.path("pong.sub");
+    let _pong = broker.subscribe("viewer", "lab/pong", &pongs, Some("pong-sub"));
+    broker.wait_subscribed("pong-sub");
+    let pong = until(Duration::from_secs(15), || {
+        broker.publish("rig", "lab/bench2/ping", "{\"n\":7}");
+        std::thread::sleep(Duration::from_millis(200));
+        lines(&pongs).first().cloned()
+    })
+    .expect("on_message answered the ping");
+    let pong: Value = serde_json::from_str(pong.strip_prefix("lab/pong ").unwrap()).unwrap();
+    assert_eq!(
+        pong,
+        serde_json::json!({"topic": "lab/bench2/ping", "n": 7})
+    );
+    let disarm: Value = serde_json::from_str(&reply("disarm")).unwrap();
+    assert_eq!(disarm["ok"], false);
+    assert!(
+        disarm["error"]
+            .as_str()
+            .unwrap()
+            .contains("no handler for command \"disarm\""),
+        "{disarm}"
+    );
+}
+
+#[test]
+fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
+    let broker = Broker::start("mqtt-tls");
+    let dir = TempDir::new("mqtt-tls-run");
+    let tls = |rig: &str, ca: &str| {
+        format!(
+            "[mqtt]\nurl = \"mqtts://127.0.0.1:{}\"\nrig = \"{rig}\"\nusername = \"rig\"\n\
+             password_env = \"TEST_MQTT_PW\"\nca_file = \"{}\"\noutbox = \"{}\"\n",
+            broker.tls_port,
+            broker.dir.path(&format!("{ca}-ca.pem")).display(),
+            dir.path(&format!("outbox-{rig}")).display()
+        )
+    };
+    let script = "every(\"100ms\", || {});\n";
+    let _good = run_rig(&dir, "good", &tls("good", "good"), script);
+    broker.retained_until("rigscript/good/status", |m| m == "online");
+    let _wrong = run_rig(&dir, "wrong", &tls("wrong", "wrong"), script);
+    let log = until(Duration::from_secs(10), || {
+        let log = std::fs::read_to_string(dir.path("wrong.log")).unwrap_or_default();
+        log.contains("TLS to broker").then_some(log)
+    })
+    .unwrap_or_else(|| {
+        panic!(
+            "no TLS refusal in the log:\n{}",
+            std::fs::read_to_string(dir.path("wrong.log")).unwrap_or_default()
+        )
+    });
+    assert!(
+        log.contains(&format!(
+            "TLS to broker 127.0.0.1:{} failed",
+            broker.tls_port
+        )) && log.contains("UnknownIssuer")
+            && log.contains("the run goes on"),
+        "{log}"
+    );
+    assert_eq!(broker.retained("rigscript/wrong/status"), None);
+}
