@@ -196,6 +196,8 @@ pub enum EventKind {
     Record,
     /// `RunEvent::Ended`.
     Ended,
+    /// `RunEvent::Published`.
+    Published,
 }
 
 impl EventKind {
@@ -213,6 +215,7 @@ impl RunEvent {
                 RunEvent::Record { line } => line.len(),
                 RunEvent::Outputs { cause, .. } | RunEvent::DeviceLost { cause, .. } => cause.len(),
                 RunEvent::Ended { reason, .. } => reason.len(),
+                RunEvent::Published { topic, payload } => topic.len() + payload.len(),
                 _ => 0,
             }
     }
@@ -231,6 +234,7 @@ impl RunEvent {
             RunEvent::Log { .. } => EventKind::Log,
             RunEvent::Record { .. } => EventKind::Record,
             RunEvent::Ended { .. } => EventKind::Ended,
+            RunEvent::Published { .. } => EventKind::Published,
         }
     }
 }

@@ -80,7 +80,7 @@ impl Topics {
 /// safe state, devices lost and back, script failures and the end.
 pub fn log_payload(event: &RunEvent, time: &str) -> Option<String> {
     let v = match event {
-        RunEvent::Log { level, message } => {
+        RunEvent::Log { level, message, .. } => {
             let safe = message.contains("safe state") || message.contains("safe value");
             if !(matches!(*level, "warning" | "error") || safe) {
                 return None;
@@ -154,11 +154,15 @@ mod tests {
         let info = RunEvent::Log {
             level: "info",
             message: "hello".into(),
+            time: chrono::DateTime::UNIX_EPOCH,
+            routine: true,
         };
         assert_eq!(log_payload(&info, "t"), None);
         let warn = RunEvent::Log {
             level: "warning",
             message: "io: late".into(),
+            time: chrono::DateTime::UNIX_EPOCH,
+            routine: false,
         };
         let v: Value = serde_json::from_str(&log_payload(&warn, "t").unwrap()).unwrap();
         assert_eq!(v["level"], "warning");
