@@ -269,8 +269,14 @@ impl SimRig {
     pub fn power_cycle(&self, dev: &str) -> Result<(), FieldError> {
         match self.get(dev)? {
             SimDevice::C29u { model, .. } => lock(model).power_cycle(),
-            SimDevice::Trc { board: b, .. } => {
-                // The board forgets its relay and counters; held switches stay held.
+            SimDevice::Trc {
+                board: b, faults, ..
+            } => {
+                // A board that loses power falls off the USB bus: the request under way gets no
+                // answer, and the runner takes it back at its next try. It comes back with relay
+                // 0 and its counts at 0; held switches stay held.
+                faults.clear();
+                faults.push(AnswerFault::Drop, 1);
                 let mut b = board(b);
                 let held = b.switches();
                 *b = Trc1000Sim::new();
