@@ -210,6 +210,32 @@ impl Action {
         )
     }
 
+    /// What the action acts on, when something else in a plan may act on it too (an input, a
+    /// switch, a rotary, a counter, a device's line, the clocks): events on the same thing may
+    /// only shrink away together (a press and its release, a loss and its end, a bounce).
+    pub fn subject(&self) -> Option<String> {
+        Some(match self {
+            Action::Input { dev, ch, .. } => format!("{dev} DI{ch}"),
+            Action::Inputs { dev, .. } => format!("{dev} DI"),
+            Action::Pulse { dev, ch, .. } | Action::CounterTo { dev, ch, .. } => {
+                format!("{dev} counter {ch}")
+            }
+            Action::Press { dev, switch } | Action::Release { dev, switch } => {
+                format!("{dev} {switch}")
+            }
+            Action::Turn { dev, rotary, .. } => format!("{dev} {}", rotary.name()),
+            Action::Fail { dev } | Action::Restore { dev } | Action::PowerCycle { dev } => {
+                format!("{dev} line")
+            }
+            Action::DropAnswers { dev, .. }
+            | Action::GarbleAnswers { dev, .. }
+            | Action::LateAnswers { dev, .. }
+            | Action::DuplicateAnswers { dev, .. } => format!("{dev} answers"),
+            Action::Stall { .. } | Action::WallStep { .. } => "clocks".into(),
+            Action::Stop => return None,
+        })
+    }
+
     /// Simpler versions of this action, simplest first (for shrinking).
     pub fn simpler(&self) -> Vec<Action> {
         let mut out = Vec::new();
