@@ -87,6 +87,10 @@ pub struct Trc1000<L: PacketLink> {
     timeout: Duration,
     discarded: u64,
     cancel: Cancel,
+    /// A request timed out, so its answer may still come: dropped before the next request,
+    /// which would otherwise take it (same first byte) and leave every later reading one
+    /// behind.
+    late_answer_possible: bool,
 }
 
 impl<L: PacketLink> Trc1000<L> {
@@ -103,6 +107,7 @@ impl<L: PacketLink> Trc1000<L> {
             timeout: DEFAULT_TIMEOUT,
             discarded: 0,
             cancel: Cancel::never(),
+            late_answer_possible: false,
         }
     }
 
@@ -146,6 +151,7 @@ impl<L: PacketLink> Trc1000<L> {
     pub fn select_relay(&mut self, relay: u8) -> Result<(), Trc1000Error> {
         let command = Command::SelectRelay(Relay::new(relay)?);
         self.unless_cancelled(command)?;
+        self.drop_late_answers()?;
         self.link.send(&command.encode(), self.timeout)?;
         Ok(())
     }
@@ -206,6 +212,21 @@ impl<L: PacketLink> Trc1000<L> {
         Ok(())
     }
 
+    /// After a timeout, drops what has arrived since (the late answer), without waiting: a
+    /// USB read of nothing takes the shortest transfer timeout, so this is done only then.
+    fn drop_late_answers(&mut self) -> Result<(), Trc1000Error> {
+        if !std::mem::take(&mut self.late_answer_possible) {
+            return Ok(());
+        }
+        for _ in 0..MAX_DISCARDED {
+            if self.link.receive(Duration::ZERO)?.is_none() {
+                break;
+            }
+            self.discarded = self.discarded.saturating_add(1);
+        }
+        Ok(())
+    }
+
     /// Sends `command` and waits for the first packet `accept` takes, dropping others.
     fn request<T>(
         &mut self,
@@ -213,6 +234,7 @@ impl<L: PacketLink> Trc1000<L> {
         accept: impl Fn(Response) -> Option<T>,
     ) -> Result<T, Trc1000Error> {
         self.unless_cancelled(command)?;
+        self.drop_late_answers()?;
         self.link.send(&command.encode(), self.timeout)?;
         let deadline = self.clock.now().saturating_add(self.timeout);
         let mut discarded = 0usize;
@@ -239,6 +261,7 @@ impl<L: PacketLink> Trc1000<L> {
                 break;
             }
         }
+        self.late_answer_possible = true;
         Err(Trc1000Error::Timeout {
             board: self.link.describe(),
             request: command.describe(),
@@ -485,6 +508,38 @@ mod tests {
         let mut trc = injecting(sim, &stale);
         assert_eq!(trc.read_switches().unwrap().pressed_names(), vec!["S45"]);
         assert_eq!(trc.discarded(), 4);
+    }
+
+    #[test]
+    fn an_answer_that_comes_after_its_timeout_is_not_taken_for_the_next() {
+        // Fails without drop_late_answers: the late (empty) reading answers the next request,
+        // and every reading after is one behind.
+        let clock = VirtualClock::at_epoch();
+        let late = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+        let first = std::sync::Arc::clone(&late);
+        let board = std::sync::Arc::new(std::sync::Mutex::new(Trc1000Sim::new()));
+        let link = MemoryPacketLink::new(std::sync::Arc::clone(&board), "TRC1000 unit 0")
+            .with_clock(Arc::new(clock.clone()))
+            .deliver_with(move || crate::link::memory::Delivery {
+                late: if first.swap(false, std::sync::atomic::Ordering::SeqCst) {
+                    Duration::from_millis(300)
+                } else {
+                    Duration::ZERO
+                },
+                twice: false,
+            });
+        let mut trc = Trc1000::with_clock(link, Arc::new(clock.clone()));
+        trc.set_timeout(Duration::from_millis(250));
+        assert!(matches!(
+            trc.read_switches(),
+            Err(Trc1000Error::Timeout { .. })
+        ));
+        assert!(!late.load(std::sync::atomic::Ordering::SeqCst));
+        board.lock().unwrap().press("S45").unwrap();
+        clock.advance(Duration::from_secs(1));
+        assert_eq!(trc.read_switches().unwrap().pressed_names(), vec!["S45"]);
+        assert_eq!(trc.read_switches().unwrap().pressed_names(), vec!["S45"]);
+        assert_eq!(trc.discarded(), 1, "the late answer");
     }
 
     #[test]

@@ -10,6 +10,18 @@ use std::time::Duration;
 /// How late the answer to the n-th write (from 0) comes, on top of its time on the wire.
 pub type AnswerDelay = Box<dyn FnMut(u64) -> Duration + Send>;
 
+/// How a packet link delivers the answer its device just gave: when, and how many times.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Delivery {
+    /// How much later than at once.
+    pub late: Duration,
+    /// Sent twice.
+    pub twice: bool,
+}
+
+/// Asked after each answer a packet device gives.
+pub type PacketDelivery = Box<dyn FnMut() -> Delivery + Send>;
+
 /// A byte link whose far end is a simulated device. Without a clock, answers are available as
 /// soon as a write returns. With one, an empty read waits out its timeout on that clock (so
 /// virtual time moves as it would on a wire), and an answer arrives when its frame would end:
@@ -144,11 +156,13 @@ impl<D: ByteDevice> ByteLink for MemoryByteLink<D> {
 }
 
 /// A packet link whose far end is a simulated device; empty reads behave as on `MemoryByteLink`.
+/// An answer can be delivered late or twice (`deliver_with`); it never overtakes an earlier one.
 pub struct MemoryPacketLink<D: PacketDevice> {
     device: D,
-    pending: VecDeque<[u8; 8]>,
+    pending: VecDeque<(Duration, [u8; 8])>,
     name: String,
     clock: Option<SharedClock>,
+    delivery: Option<PacketDelivery>,
 }
 
 impl<D: PacketDevice> MemoryPacketLink<D> {
@@ -159,13 +173,34 @@ impl<D: PacketDevice> MemoryPacketLink<D> {
             pending: VecDeque::new(),
             name: name.into(),
             clock: None,
+            delivery: None,
         }
     }
 
-    /// Makes empty reads wait out their timeout on `clock`.
+    /// Makes empty reads wait out their timeout on `clock`, and late answers arrive in its time.
     pub fn with_clock(mut self, clock: SharedClock) -> Self {
         self.clock = Some(clock);
         self
+    }
+
+    /// Asks `delivery` after each answer how to deliver it (late, twice).
+    pub fn deliver_with(mut self, delivery: impl FnMut() -> Delivery + Send + 'static) -> Self {
+        self.delivery = Some(Box::new(delivery));
+        self
+    }
+
+    fn now(&self) -> Duration {
+        self.clock.as_ref().map_or(Duration::ZERO, |c| c.now())
+    }
+
+    /// The first answer, if it has arrived by `now`.
+    fn take_arrived(&mut self, now: Duration) -> Option<[u8; 8]> {
+        match self.pending.front() {
+            Some((at, _)) if self.clock.is_none() || *at <= now => {
+                self.pending.pop_front().map(|(_, p)| p)
+            }
+            _ => None,
+        }
     }
 
     /// The simulated device at the far end.
@@ -177,16 +212,28 @@ impl<D: PacketDevice> MemoryPacketLink<D> {
 impl<D: PacketDevice> PacketLink for MemoryPacketLink<D> {
     fn send(&mut self, packet: &[u8; 8], _timeout: Duration) -> Result<(), LinkError> {
         if let Some(answer) = self.device.receive(packet) {
-            self.pending.push_back(answer);
+            let d = self.delivery.as_mut().map_or(Delivery::default(), |f| f());
+            let after_earlier = self.pending.back().map_or(Duration::ZERO, |(at, _)| *at);
+            let at = self.now().saturating_add(d.late).max(after_earlier);
+            self.pending.push_back((at, answer));
+            if d.twice {
+                self.pending.push_back((at, answer));
+            }
         }
         Ok(())
     }
 
     fn receive(&mut self, timeout: Duration) -> Result<Option<[u8; 8]>, LinkError> {
-        if self.pending.is_empty() {
-            wait_out(self.clock.as_ref(), timeout);
+        let now = self.now();
+        if let Some(p) = self.take_arrived(now) {
+            return Ok(Some(p));
         }
-        Ok(self.pending.pop_front())
+        match (&self.clock, self.pending.front()) {
+            (Some(clock), Some((at, _))) => clock.sleep_until((*at).min(now + timeout)),
+            _ => wait_out(self.clock.as_ref(), timeout),
+        }
+        let now = self.now();
+        Ok(self.take_arrived(now))
     }
 
     fn describe(&self) -> String {

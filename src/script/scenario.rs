@@ -17,8 +17,10 @@
 //!   go on to look at the rig).
 //! - Field side: `r.press(dev, name)`, `r.release(dev, name)`, `r.turn(dev, name,
 //!   half_turns)`, `r.set_inputs(dev, byte)`, `r.set_input(dev, ch, on)`, `r.pulse(dev, ch,
-//!   n)`, `r.fail(dev)`, `r.restore(dev)`, `r.power_cycle(dev)`, `r.drop_answers(dev, n)` and
-//!   `r.garble_answers(dev, n)` (the device's next `n` answers lost or garbled),
+//!   n)`, `r.fail(dev)` (a silent line), `r.restore(dev)`, `r.power_cycle(dev)` (either
+//!   device), `r.drop_answers(dev, n)`, `r.garble_answers(dev, n)`, `r.late_answers(dev, n,
+//!   dur)` and `r.duplicate_answers(dev, n)` (the device's next `n` answers lost, garbled,
+//!   arriving `dur` late, or twice),
 //!   `r.ignore_writes(dev)` (a module acknowledges output writes without applying them),
 //!   `r.refuse_writes(dev, code)` (it refuses them with that Modbus exception code: 4, 0xFF),
 //!   `r.accept_writes(dev)` (its output stage sound again), `r.swap_module(dev, #{name,
@@ -393,19 +395,38 @@ fn register_field(engine: &mut Engine) {
     for (name, fault) in [
         ("drop_answers", AnswerFault::Drop),
         ("garble_answers", AnswerFault::Garble),
+        ("duplicate_answers", AnswerFault::Duplicate),
     ] {
         engine.register_fn(name, move |r: &mut RigHandle, dev: &str, n: i64| -> R<()> {
-            let n = usize::try_from(n).or_else(|_| fail(format!("{name}: {n} answers?")))?;
-            let queued = r.sim(|s| s.fault_answers(dev, fault, n))?;
-            if queued < n {
-                return fail(format!(
-                    "{name}({dev:?}, {n}): only {queued} more can wait; make the device gone \
-                     with r.fail(dev) for a dead line"
-                ));
-            }
-            Ok(())
+            queue_answer_faults(r, name, dev, fault, n)
         });
     }
+    engine.register_fn(
+        "late_answers",
+        |r: &mut RigHandle, dev: &str, n: i64, late: Dynamic| -> R<()> {
+            let late = duration(&late)?;
+            queue_answer_faults(r, "late_answers", dev, AnswerFault::Late(late), n)
+        },
+    );
+}
+
+/// Queues `fault` for the device's next `n` answers, or fails the test saying how many can wait.
+fn queue_answer_faults(
+    r: &mut RigHandle,
+    name: &str,
+    dev: &str,
+    fault: AnswerFault,
+    n: i64,
+) -> R<()> {
+    let n = usize::try_from(n).or_else(|_| fail(format!("{name}: {n} answers?")))?;
+    let queued = r.sim(|s| s.fault_answers(dev, fault, n))?;
+    if queued < n {
+        return fail(format!(
+            "{name}({dev:?}, {n}): only {queued} more can wait; make the device gone \
+             with r.fail(dev) for a dead line"
+        ));
+    }
+    Ok(())
 }
 
 /// The module `r.swap_module` puts in place, from the test's map.

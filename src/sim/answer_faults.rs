@@ -1,7 +1,11 @@
 //! Faults in a simulated device's answers, on demand: the next answers dropped (the driver
-//! times out) or garbled (a byte of each gets its top bit flipped, which no frame of either
-//! TRP-C29U protocol survives: the CRC or checksum fails, or the ASCII turns non-ASCII). Put
-//! between an in-memory link and its simulator; a scenario test or `verify` queues the faults.
+//! times out), garbled (a byte of each gets its top bit flipped, which no frame of either
+//! TRP-C29U protocol survives: the CRC or checksum fails, or the ASCII turns non-ASCII), late
+//! (given on time, arriving later: within the driver's timeout a slow answer, past it one that
+//! lands in a later exchange's window) or sent twice. Put between an in-memory link and its
+//! simulator; a scenario test or `verify` queues the faults. Lateness and the second copy are
+//! the link's business (it holds the answer's arrival): the wrapper hands them over through
+//! `AnswerFaults::take_delivery`, which the link asks after each answer.
 //!
 //! (Drawn faults at a probability per answer are `pty::Faults`, for the pty server.)
 
@@ -20,39 +24,64 @@ pub enum AnswerFault {
     Drop,
     /// The answer arrives with one byte's top bit flipped.
     Garble,
+    /// The answer arrives this much later than the device gave it.
+    Late(std::time::Duration),
+    /// The answer arrives twice, the copy right behind it.
+    Duplicate,
 }
+
+pub use crate::link::memory::Delivery;
 
 /// The faults waiting for a device's next answers; shared between the wrapper and whoever
 /// queues them.
 #[derive(Debug, Clone, Default)]
-pub struct AnswerFaults(Arc<Mutex<VecDeque<AnswerFault>>>);
+pub struct AnswerFaults(Arc<Mutex<Queued>>);
+
+#[derive(Debug, Default)]
+struct Queued {
+    faults: VecDeque<AnswerFault>,
+    /// The last answer's delivery, until the link takes it.
+    delivery: Delivery,
+}
 
 impl AnswerFaults {
-    fn queue(&self) -> std::sync::MutexGuard<'_, VecDeque<AnswerFault>> {
+    fn queue(&self) -> std::sync::MutexGuard<'_, Queued> {
         self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// How the answer the device just gave is to be delivered (late, twice), taken once: the
+    /// link asks after each answer.
+    pub fn take_delivery(&self) -> Delivery {
+        std::mem::take(&mut self.queue().delivery)
+    }
+
+    fn hand_over(&self, delivery: Delivery) {
+        self.queue().delivery = delivery;
     }
 
     /// Queues `fault` for each of the next `n` answers (after those already queued); returns
     /// how many were queued (the queue holds `MAX_QUEUED` at most).
     pub fn push(&self, fault: AnswerFault, n: usize) -> usize {
         let mut q = self.queue();
-        let room = MAX_QUEUED.saturating_sub(q.len()).min(n);
-        q.extend(std::iter::repeat(fault).take(room));
+        let room = MAX_QUEUED.saturating_sub(q.faults.len()).min(n);
+        q.faults.extend(std::iter::repeat(fault).take(room));
         room
     }
 
     /// How many faults are waiting.
     pub fn pending(&self) -> usize {
-        self.queue().len()
+        self.queue().faults.len()
     }
 
     /// Forgets the waiting faults.
     pub fn clear(&self) {
-        self.queue().clear();
+        let mut q = self.queue();
+        q.faults.clear();
+        q.delivery = Delivery::default();
     }
 
     fn next(&self) -> Option<AnswerFault> {
-        self.queue().pop_front()
+        self.queue().faults.pop_front()
     }
 }
 
@@ -63,6 +92,18 @@ fn garble(mut answer: Vec<u8>) -> Vec<u8> {
         *b ^= 0x80;
     }
     answer
+}
+
+/// What a lateness or a copy asks of the link.
+fn delivery(fault: AnswerFault) -> Delivery {
+    match fault {
+        AnswerFault::Late(late) => Delivery { late, twice: false },
+        AnswerFault::Duplicate => Delivery {
+            late: std::time::Duration::ZERO,
+            twice: true,
+        },
+        AnswerFault::Drop | AnswerFault::Garble => Delivery::default(),
+    }
 }
 
 /// A simulated device whose answers suffer the faults queued in its `AnswerFaults`.
@@ -85,6 +126,11 @@ impl<D> Faulty<D> {
             None => answer,
             Some(AnswerFault::Drop) => Vec::new(),
             Some(AnswerFault::Garble) => garble(answer),
+            Some(AnswerFault::Duplicate) => [answer.as_slice(), answer.as_slice()].concat(),
+            Some(fault) => {
+                self.faults.hand_over(delivery(fault));
+                answer
+            }
         }
     }
 }
@@ -108,6 +154,10 @@ impl<D: PacketDevice> PacketDevice for Faulty<D> {
             None => Some(answer),
             // USB packets carry a CRC: a garbled one is never delivered, so it is lost too.
             Some(AnswerFault::Drop | AnswerFault::Garble) => None,
+            Some(fault) => {
+                self.faults.hand_over(delivery(fault));
+                Some(answer)
+            }
         }
     }
 }
@@ -153,6 +203,27 @@ mod tests {
         assert_eq!(faults.push(AnswerFault::Drop, 1000), MAX_QUEUED - 1);
         faults.clear();
         assert_eq!(faults.pending(), 0);
+    }
+
+    #[test]
+    fn lateness_and_copies_are_handed_to_the_link_once() {
+        let faults = AnswerFaults::default();
+        let mut d = Faulty::new(Echo, faults.clone());
+        let late = std::time::Duration::from_millis(300);
+        faults.push(AnswerFault::Late(late), 1);
+        faults.push(AnswerFault::Duplicate, 1);
+        assert_eq!(ByteDevice::receive(&mut d, b"ab"), b"ab");
+        assert_eq!(faults.take_delivery(), Delivery { late, twice: false });
+        assert_eq!(faults.take_delivery(), Delivery::default(), "taken once");
+        faults.push(AnswerFault::Duplicate, 1);
+        assert_eq!(
+            ByteDevice::receive(&mut d, b"ab"),
+            b"abab",
+            "a byte line carries both"
+        );
+        faults.push(AnswerFault::Duplicate, 1);
+        assert_eq!(PacketDevice::receive(&mut d, &[2; 8]), Some([2; 8]));
+        assert!(faults.take_delivery().twice);
     }
 
     #[test]

@@ -177,6 +177,12 @@ impl Player<'_> {
             Action::GarbleAnswers { dev, n } => sim
                 .fault_answers(dev, AnswerFault::Garble, *n as usize)
                 .map(|_| true),
+            Action::LateAnswers { dev, n, by } => sim
+                .fault_answers(dev, AnswerFault::Late(*by), *n as usize)
+                .map(|_| true),
+            Action::DuplicateAnswers { dev, n } => sim
+                .fault_answers(dev, AnswerFault::Duplicate, *n as usize)
+                .map(|_| true),
             Action::PowerCycle { dev } => sim.power_cycle(dev).map(|()| true),
             Action::Stall { by } => {
                 self.clock.advance(*by);

@@ -25,11 +25,45 @@ pub const FAULT_CHANCE: f64 = 0.12;
 /// Where wall time starts unless a run starts near a cron time or a DST change.
 pub const BASE_START: &str = "2026-03-28T12:00:00Z";
 
-/// The zone of the runs that cross a DST change.
-pub const DST_ZONE: &str = "Europe/Berlin";
+/// The zones of the runs that cross a DST change: both hemispheres, and a change at another
+/// hour of the UTC day.
+pub const DST_ZONES: [&str; 3] = ["Europe/Berlin", "America/New_York", "Australia/Sydney"];
 
-/// DST changes in `DST_ZONE` (spring forward, fall back), in UTC.
-pub const DST_CHANGES: [&str; 2] = ["2026-03-29T01:00:00Z", "2026-10-25T01:00:00Z"];
+/// The years runs start in: any date in them (leap days, year ends and DST changes included).
+pub const YEARS: std::ops::RangeInclusive<i32> = 2024..=2040;
+
+/// The times in `year` at which `zone`'s offset from UTC changes, to the second.
+pub fn offset_changes(zone: &Zone, year: i32) -> Vec<DateTime<Utc>> {
+    use chrono::{Datelike, Offset};
+    let offset = |t: DateTime<Utc>| zone.at(t).offset().fix();
+    let Some(start) = chrono::NaiveDate::from_ymd_opt(year, 1, 1)
+        .and_then(|d| d.and_hms_opt(0, 0, 0))
+        .map(|t| t.and_utc())
+    else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    let day = TimeDelta::days(1);
+    let mut t = start;
+    while t.year() == year {
+        let next = t + day;
+        if offset(t) != offset(next) {
+            // Bisect the day, in whole seconds, to the first second of the new offset.
+            let (mut lo, mut hi) = (0i64, 86_400i64);
+            while hi - lo > 1 {
+                let mid = (lo + hi) / 2;
+                if offset(t + TimeDelta::seconds(mid)) == offset(t) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            out.push(t + TimeDelta::seconds(hi));
+        }
+        t = next;
+    }
+    out
+}
 
 /// The step event times are made of: a millisecond, or a quarter of a shorter scan period
 /// (round numbers in the test files people read).
@@ -163,8 +197,8 @@ impl<'a> Gen<'a> {
         q.saturating_mul(u32::try_from(self.rng.u64(0..=steps)).unwrap_or(u32::MAX))
     }
 
-    /// Where the run starts: mostly a time of day on an ordinary day in UTC; some runs just
-    /// before a cron time, some across a DST change.
+    /// Where the run starts: mostly any time of any day of the years `YEARS` in UTC; some
+    /// runs just before a cron time, some across a DST change of one of `DST_ZONES` that year.
     fn start_point(rng: &mut fastrand::Rng, profile: &Profile) -> StartPoint {
         let span = profile.run_for.mul_f64(0.9);
         let before = |rng: &mut fastrand::Rng, t: DateTime<Utc>| {
@@ -174,16 +208,31 @@ impl<'a> Gen<'a> {
         let roll = rng.f64();
         let dst_share = if profile.crons.is_empty() { 0.1 } else { 0.3 };
         let utc_zone = Zone::utc();
+        let year = rng.i32(YEARS);
         if roll < dst_share {
-            let change = utc(DST_CHANGES[rng.usize(0..DST_CHANGES.len())]);
-            let wall = before(rng, change);
-            let zone = Zone::parse(DST_ZONE).unwrap_or(utc_zone);
-            return StartPoint {
-                wall: zone.at(wall).fixed_offset(),
-                zone: DST_ZONE.into(),
-            };
+            let name = DST_ZONES[rng.usize(0..DST_ZONES.len())];
+            let zone = Zone::parse(name).unwrap_or(utc_zone);
+            let changes = offset_changes(&zone, year);
+            if !changes.is_empty() {
+                let change = changes[rng.usize(0..changes.len())];
+                let wall = before(rng, change);
+                return StartPoint {
+                    wall: zone.at(wall).fixed_offset(),
+                    zone: name.into(),
+                };
+            }
         }
-        let day = utc(BASE_START) + TimeDelta::seconds(rng.i64(0..86_400));
+        // Any second of any day of the year (the base day's year moved to `year`).
+        let base = utc(BASE_START);
+        let jan1 = chrono::NaiveDate::from_ymd_opt(year, 1, 1)
+            .and_then(|d| d.and_hms_opt(0, 0, 0))
+            .map_or(base, |t| t.and_utc());
+        let days = if chrono::NaiveDate::from_ymd_opt(year, 2, 29).is_some() {
+            366
+        } else {
+            365
+        };
+        let day = jan1 + TimeDelta::seconds(rng.i64(0..days * 86_400));
         if roll < dst_share + 0.3 {
             if let Some(at) = next_cron(&profile.crons, day, utc_zone) {
                 return StartPoint {
@@ -295,9 +344,12 @@ impl<'a> Gen<'a> {
         }
         self.press(dev, s);
         if self.rng.f64() < 0.15 {
-            if let Some(other) = self.another_switch(dev, s) {
-                if !self.held.get(&(dev, other)).is_some_and(|u| *u > self.t) {
-                    self.press(dev, other);
+            // One, two or three more at the same instant (a palm across the panel).
+            for _ in 0..self.rng.u32(1..=3) {
+                if let Some(other) = self.another_switch(dev, s) {
+                    if !self.held.get(&(dev, other)).is_some_and(|u| *u > self.t) {
+                        self.press(dev, other);
+                    }
                 }
             }
         }
@@ -466,6 +518,31 @@ mod tests {
             Duration::from_millis(20),
             Duration::from_secs(60),
         )
+    }
+
+    #[test]
+    fn dst_changes_are_found_for_any_year_and_runs_start_on_many_dates() {
+        let berlin = Zone::parse("Europe/Berlin").unwrap();
+        let changes: Vec<String> = offset_changes(&berlin, 2031)
+            .iter()
+            .map(|t| t.to_rfc3339())
+            .collect();
+        assert_eq!(
+            changes,
+            ["2031-03-30T01:00:00+00:00", "2031-10-26T01:00:00+00:00"]
+        );
+        assert!(offset_changes(&Zone::utc(), 2031).is_empty());
+        let p = profile();
+        let (mut years, mut zones) = (BTreeMap::new(), std::collections::BTreeSet::new());
+        for seed in 0..200 {
+            let start = generate(&p, seed, false).start;
+            *years
+                .entry(chrono::Datelike::year(&start.wall))
+                .or_insert(0) += 1;
+            zones.insert(start.zone);
+        }
+        assert!(years.len() >= 10, "{years:?}");
+        assert!(zones.len() >= 3, "{zones:?}");
     }
 
     #[test]

@@ -97,7 +97,25 @@ pub enum Action {
         /// How many.
         n: u32,
     },
-    /// A module reset or power cycled behind the runner's back.
+    /// A device's next answers arrive late (given on time; past the driver's timeout they land
+    /// in a later exchange's window).
+    LateAnswers {
+        /// Device name.
+        dev: Arc<str>,
+        /// How many.
+        n: u32,
+        /// How late each.
+        by: Duration,
+    },
+    /// A device's next answers arrive twice.
+    DuplicateAnswers {
+        /// Device name.
+        dev: Arc<str>,
+        /// How many.
+        n: u32,
+    },
+    /// A device reset or power cycled behind the runner's back (a module at its power-on
+    /// value, a panel with its relay and counts at zero).
     PowerCycle {
         /// Device name.
         dev: Arc<str>,
@@ -162,6 +180,10 @@ impl fmt::Display for Action {
             Action::Restore { dev } => write!(f, "{dev} back"),
             Action::DropAnswers { dev, n } => write!(f, "{dev} {n} answer(s) lost"),
             Action::GarbleAnswers { dev, n } => write!(f, "{dev} {n} answer(s) garbled"),
+            Action::LateAnswers { dev, n, by } => {
+                write!(f, "{dev} {n} answer(s) {} late", format_duration(*by))
+            }
+            Action::DuplicateAnswers { dev, n } => write!(f, "{dev} {n} answer(s) sent twice"),
             Action::PowerCycle { dev } => write!(f, "{dev} power cycled"),
             Action::Stall { by } => write!(f, "host stalled {}", format_duration(*by)),
             Action::WallStep { seconds } => write!(f, "wall clock {}", wall_step_text(*seconds)),
@@ -179,11 +201,39 @@ impl Action {
                 | Action::Restore { .. }
                 | Action::DropAnswers { .. }
                 | Action::GarbleAnswers { .. }
+                | Action::LateAnswers { .. }
+                | Action::DuplicateAnswers { .. }
                 | Action::PowerCycle { .. }
                 | Action::Stall { .. }
                 | Action::WallStep { .. }
                 | Action::Stop
         )
+    }
+
+    /// What the action acts on, when something else in a plan may act on it too (an input, a
+    /// switch, a rotary, a counter, a device's line, the clocks): events on the same thing may
+    /// only shrink away together (a press and its release, a loss and its end, a bounce).
+    pub fn subject(&self) -> Option<String> {
+        Some(match self {
+            Action::Input { dev, ch, .. } => format!("{dev} DI{ch}"),
+            Action::Inputs { dev, .. } => format!("{dev} DI"),
+            Action::Pulse { dev, ch, .. } | Action::CounterTo { dev, ch, .. } => {
+                format!("{dev} counter {ch}")
+            }
+            Action::Press { dev, switch } | Action::Release { dev, switch } => {
+                format!("{dev} {switch}")
+            }
+            Action::Turn { dev, rotary, .. } => format!("{dev} {}", rotary.name()),
+            Action::Fail { dev } | Action::Restore { dev } | Action::PowerCycle { dev } => {
+                format!("{dev} line")
+            }
+            Action::DropAnswers { dev, .. }
+            | Action::GarbleAnswers { dev, .. }
+            | Action::LateAnswers { dev, .. }
+            | Action::DuplicateAnswers { dev, .. } => format!("{dev} answers"),
+            Action::Stall { .. } | Action::WallStep { .. } => "clocks".into(),
+            Action::Stop => return None,
+        })
     }
 
     /// Simpler versions of this action, simplest first (for shrinking).
@@ -235,6 +285,26 @@ impl Action {
                 n: n - 1,
             }),
             Action::GarbleAnswers { dev, n } if *n > 1 => out.push(Action::GarbleAnswers {
+                dev: Arc::clone(dev),
+                n: n - 1,
+            }),
+            Action::LateAnswers { dev, n, by } => {
+                if *n > 1 {
+                    out.push(Action::LateAnswers {
+                        dev: Arc::clone(dev),
+                        n: n - 1,
+                        by: *by,
+                    });
+                }
+                if *by > Duration::from_millis(1) {
+                    out.push(Action::LateAnswers {
+                        dev: Arc::clone(dev),
+                        n: *n,
+                        by: *by / 2,
+                    });
+                }
+            }
+            Action::DuplicateAnswers { dev, n } if *n > 1 => out.push(Action::DuplicateAnswers {
                 dev: Arc::clone(dev),
                 n: n - 1,
             }),

@@ -34,6 +34,8 @@ pub struct DeviceInfo {
     pub kind: Kind,
     /// Its host watchdog, if one was seen on.
     pub watchdog: Option<Duration>,
+    /// How long its driver waits for an answer (late answers are drawn around it).
+    pub timeout: Duration,
 }
 
 /// What a run saw of the script, for the next runs' fields.
@@ -146,6 +148,10 @@ impl Profile {
                 watchdog: match d {
                     DeviceConfig::C29u(c) => c.watchdog.map(|w| w.as_duration()),
                     DeviceConfig::Trc1000(_) => None,
+                },
+                timeout: match d {
+                    DeviceConfig::C29u(c) => c.timeout,
+                    DeviceConfig::Trc1000(_) => crate::config::feeding::TRC1000_TIMEOUT,
                 },
             })
             .collect();

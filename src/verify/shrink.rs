@@ -1,7 +1,9 @@
 //! Shrinking a counterexample to one a person can act on: the fewest events, each as simple as
 //! it can be, as early and as close together as they can be, that still make the same check
 //! fail. Greedy and deterministic: drop chunks of events, halving the chunk size down to single
-//! events (delta debugging); simplify each event (fewer pulses, fewer inputs, a shorter stall);
+//! events (delta debugging); drop pairs that only go together (neighbours across a chunk's
+//! edge, and two events on the same thing however far apart: a press and its release, a loss
+//! and its end, the flips of a bounce); simplify each event (fewer pulses, fewer inputs, a shorter stall);
 //! shorten each wait (to nothing first: two events between the same two ticks, then by halves),
 //! the wait before the end too. Repeats until nothing helps or the budget is spent.
 
@@ -127,6 +129,40 @@ impl<O: Replay, F: FnMut(&Candidate) -> Option<O>> Shrinker<O, F> {
         }
     }
 
+    /// Drops two events at once: neighbours (which chunks drop only when they share a chunk)
+    /// and any two on the same thing, which may only go away together.
+    fn drop_pairs(&mut self) -> bool {
+        let mut changed = false;
+        let mut i = 0;
+        while i < self.best.plan.events.len() && !self.exhausted {
+            let mut j = i + 1;
+            let mut dropped = false;
+            while j < self.best.plan.events.len() && !self.exhausted {
+                let events = &self.best.plan.events;
+                let together = j == i + 1
+                    || events[i]
+                        .action
+                        .subject()
+                        .is_some_and(|s| events[j].action.subject().as_ref() == Some(&s));
+                if together {
+                    let mut fewer = events.clone();
+                    fewer.remove(j);
+                    fewer.remove(i);
+                    if self.try_candidate(self.with_events(fewer)) {
+                        changed = true;
+                        dropped = true;
+                        break;
+                    }
+                }
+                j += 1;
+            }
+            if !dropped {
+                i += 1;
+            }
+        }
+        changed
+    }
+
     /// Replaces each event by a simpler one where that still fails.
     fn simplify_events(&mut self) -> bool {
         let mut changed = false;
@@ -221,9 +257,10 @@ pub fn shrink<O: Replay>(
     };
     loop {
         let dropped = s.drop_events();
+        let paired = s.drop_pairs();
         let simpler = s.simplify_events();
         let shorter = s.shorten_waits();
-        if !(dropped || simpler || shorter) || s.exhausted {
+        if !(dropped || paired || simpler || shorter) || s.exhausted {
             break;
         }
     }
@@ -280,6 +317,95 @@ mod tests {
             }
         }
         None
+    }
+
+    /// A made-up failure that needs DI1 on at 300 ms or more before DI2 goes on, where a lone
+    /// press of S5 (without its release) or a lone release (without its press) hides it: a
+    /// press and its release shrink away only together.
+    fn fails_unless_s5_half_there(c: &Candidate) -> Option<Seen> {
+        let (mut presses, mut releases) = (0, 0);
+        for e in &c.plan.events {
+            match e.action {
+                Action::Press { .. } => presses += 1,
+                Action::Release { .. } => releases += 1,
+                _ => {}
+            }
+        }
+        if presses != releases {
+            return None;
+        }
+        fails(c)
+    }
+
+    #[test]
+    fn a_press_and_its_release_far_apart_shrink_away_together() {
+        // Fails without drop_pairs: neither can go alone, and they are never in one chunk.
+        let dev: Arc<str> = Arc::from("io");
+        let panel: Arc<str> = Arc::from("panel");
+        let s5 = crate::protocol::trc1000::Switch::new(5).unwrap();
+        let input = |ms: u64, ch: u8| Event {
+            at: Duration::from_millis(ms),
+            action: Action::Input {
+                dev: dev.clone(),
+                ch,
+                on: true,
+            },
+        };
+        let events = vec![
+            Event {
+                at: Duration::from_millis(10),
+                action: Action::Press {
+                    dev: panel.clone(),
+                    switch: s5,
+                },
+            },
+            input(20, 1),
+            input(30, 3),
+            input(500, 2),
+            Event {
+                at: Duration::from_millis(600),
+                action: Action::Release {
+                    dev: panel.clone(),
+                    switch: s5,
+                },
+            },
+        ];
+        let c = Candidate {
+            plan: Plan {
+                start: StartPoint {
+                    wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
+                    zone: "UTC".into(),
+                },
+                events,
+            },
+            horizon: Duration::from_secs(2),
+        };
+        // The failure at DI2 comes before the release is played, so count them all played.
+        let played = |c: &Candidate| {
+            fails_unless_s5_half_there(c).map(|s| Seen {
+                at: s.at,
+                played: c.plan.events.len(),
+            })
+        };
+        let first = played(&c).expect("fails");
+        let budget = Budget {
+            replays: 10_000,
+            time: Duration::from_secs(60),
+        };
+        let s = shrink(
+            c,
+            first,
+            played,
+            budget,
+            Duration::from_millis(40),
+            Duration::from_millis(1),
+        );
+        assert_eq!(
+            s.candidate.plan.events.len(),
+            2,
+            "{:?}",
+            s.candidate.plan.events
+        );
     }
 
     #[test]

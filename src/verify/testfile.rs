@@ -79,6 +79,14 @@ fn action_line(a: &Action) -> String {
         Action::Restore { dev } => format!("r.restore({});", quoted(dev)),
         Action::DropAnswers { dev, n } => format!("r.drop_answers({}, {n});", quoted(dev)),
         Action::GarbleAnswers { dev, n } => format!("r.garble_answers({}, {n});", quoted(dev)),
+        Action::LateAnswers { dev, n, by } => format!(
+            "r.late_answers({}, {n}, {});",
+            quoted(dev),
+            quoted(&format_duration_exact(*by))
+        ),
+        Action::DuplicateAnswers { dev, n } => {
+            format!("r.duplicate_answers({}, {n});", quoted(dev))
+        }
         Action::PowerCycle { dev } => format!("r.power_cycle({});", quoted(dev)),
         Action::Stall { by } => format!("r.stall({});", quoted(&format_duration_exact(*by))),
         Action::WallStep { seconds } => {

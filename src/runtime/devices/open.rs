@@ -103,7 +103,11 @@ fn simulated_trc(
         .with_clock(Arc::clone(clock)),
         format!("TRC1000 {name}"),
     )
-    .with_clock(Arc::clone(clock));
+    .with_clock(Arc::clone(clock))
+    .deliver_with({
+        let faults = faults.clone();
+        move || faults.take_delivery()
+    });
     let link: Box<dyn PacketLink> = Box::new(Counted::new(link, Arc::clone(count)));
     let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
     driver.set_timeout(TRC1000_TIMEOUT);
@@ -196,7 +200,11 @@ fn simulated_c29u(
             .with_clock(Arc::clone(clock)),
         format!("TRP-C29U {name}"),
     )
-    .with_clock(Arc::clone(clock));
+    .with_clock(Arc::clone(clock))
+    .delay_answers({
+        let faults = faults.clone();
+        move |_| faults.take_delivery().late
+    });
     let line = share(Box::new(Counted::new(link, Arc::clone(count))));
     let (driver, probe) = drivers(name, c, &line, clock)?;
     Ok((

@@ -219,16 +219,24 @@ impl SimRig {
         Ok(())
     }
 
-    /// Drops (or garbles) the next `n` answers of a simulated device; returns how many were
-    /// queued (`answer_faults::MAX_QUEUED` wait at most).
+    /// Drops, garbles, delays or (on a module) duplicates the next `n` answers of a simulated
+    /// device; returns how many were queued (`answer_faults::MAX_QUEUED` wait at most).
     pub fn fault_answers(
         &self,
         dev: &str,
         fault: AnswerFault,
         n: usize,
     ) -> Result<usize, FieldError> {
-        match self.get(dev)? {
-            SimDevice::Trc { faults, .. } | SimDevice::C29u { faults, .. } => {
+        match (self.get(dev)?, fault) {
+            // USB's data toggle makes the host drop a packet sent again: a board's answer never
+            // arrives twice.
+            (SimDevice::Trc { .. }, AnswerFault::Duplicate) => Err(FieldError::WrongKind {
+                name: dev.to_string(),
+                kind: "TRC1000 (on USB, where a packet never arrives twice)",
+                what: "a duplicated answer".into(),
+                wanted: "TRP-C29U",
+            }),
+            (SimDevice::Trc { faults, .. } | SimDevice::C29u { faults, .. }, _) => {
                 Ok(faults.push(fault, n))
             }
         }
@@ -261,8 +269,14 @@ impl SimRig {
     pub fn power_cycle(&self, dev: &str) -> Result<(), FieldError> {
         match self.get(dev)? {
             SimDevice::C29u { model, .. } => lock(model).power_cycle(),
-            SimDevice::Trc { board: b, .. } => {
-                // The board forgets its relay and counters; held switches stay held.
+            SimDevice::Trc {
+                board: b, faults, ..
+            } => {
+                // A board that loses power falls off the USB bus: the request under way gets no
+                // answer, and the runner takes it back at its next try. It comes back with relay
+                // 0 and its counts at 0; held switches stay held.
+                faults.clear();
+                faults.push(AnswerFault::Drop, 1);
                 let mut b = board(b);
                 let held = b.switches();
                 *b = Trc1000Sim::new();

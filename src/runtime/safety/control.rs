@@ -498,6 +498,9 @@ mod tests {
         r.rt.set_relay(PANEL, 5);
         r.rt.flush_outputs();
         r.sim.power_cycle("panel").unwrap();
+        assert_eq!(r.sim.relay("panel").unwrap(), 0);
+        // The board fell off the bus: the first try finds it gone, the next takes it back.
+        assert!(!r.rt.take_control(PANEL));
         assert!(r.rt.take_control(PANEL));
         r.rt.flush_outputs();
         assert_eq!(r.sim.relay("panel").unwrap(), 5);
