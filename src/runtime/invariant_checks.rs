@@ -1,6 +1,7 @@
 //! Invariants on the run: stated, turned into this tick's checks, and a violation read from the
 //! devices, recorded and logged (what they are: `invariants`).
 
+use super::device_view::DeviceView;
 use super::devices::Device;
 use super::invariants::{
     DeviceReading, Invariant, InvariantCheck, InvariantError, Violation, MAX_INVARIANTS,
@@ -60,19 +61,9 @@ impl<H: Clone> Runtime<H> {
                     t.switches.current.is_some() || Some(t.relay) != t.config.safe_relay
                 }
             })
-            .map(|d| match d {
-                Device::C29u(c) => DeviceReading::C29u {
-                    name: c.name.clone(),
-                    inputs: c.inputs.current,
-                    outputs: c.outputs,
-                    online: c.health.online(),
-                },
-                Device::Trc(t) => DeviceReading::Trc {
-                    name: t.name.clone(),
-                    pressed: t.switches.current.map(|s| s.pressed_names()),
-                    relay: t.relay,
-                    online: t.health.online(),
-                },
+            .map(|d| DeviceReading {
+                name: d.name().to_string(),
+                view: DeviceView::of(d),
             })
             .collect()
     }

@@ -5,6 +5,7 @@
 //! are and describes a violation with the inputs and outputs of the tick it happened in;
 //! stating and checking them on the run is `invariant_checks`.
 
+use super::device_view::DeviceView;
 use super::subscriptions::Call;
 use serde_json::{json, Value};
 use std::fmt;
@@ -49,92 +50,57 @@ pub enum InvariantError {
     NoName,
 }
 
-/// What a device showed in the tick an invariant was found false.
+/// What a device showed in the tick an invariant was found false: its name and its reading.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum DeviceReading {
-    /// A TRP-C29U.
-    C29u {
-        /// Its name.
-        name: String,
-        /// The DI byte last read (`None`: never read).
-        inputs: Option<u8>,
-        /// The DO byte the script wanted.
-        outputs: u8,
-        /// Whether it answered.
-        online: bool,
-    },
-    /// A TRC1000.
-    Trc {
-        /// Its name.
-        name: String,
-        /// The switches pressed at the last reading (`None`: never read).
-        pressed: Option<Vec<&'static str>>,
-        /// The relay the script wanted.
-        relay: u8,
-        /// Whether it answered.
-        online: bool,
-    },
+pub struct DeviceReading {
+    /// Its name.
+    pub name: String,
+    /// What it showed.
+    pub view: DeviceView,
 }
 
 impl DeviceReading {
     /// The reading as JSON, for the records.
     pub fn to_json(&self) -> Value {
-        match self {
-            DeviceReading::C29u {
-                inputs,
-                outputs,
-                online,
-                ..
-            } => json!({"inputs": inputs, "outputs": outputs, "online": online}),
-            DeviceReading::Trc {
-                pressed,
-                relay,
-                online,
-                ..
-            } => json!({"pressed": pressed, "relay": relay, "online": online}),
+        match &self.view {
+            DeviceView::C29u(m) => {
+                json!({"inputs": m.inputs, "outputs": m.outputs, "online": m.online})
+            }
+            DeviceView::Trc(p) => json!({
+                "pressed": p.switches.map(|s| s.pressed_names()),
+                "relay": p.relay,
+                "online": p.online,
+            }),
         }
     }
 
     /// The device's name.
     pub fn name(&self) -> &str {
-        match self {
-            DeviceReading::C29u { name, .. } | DeviceReading::Trc { name, .. } => name,
-        }
+        &self.name
     }
 }
 
 impl fmt::Display for DeviceReading {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let lost = |online: bool| if online { "" } else { " (lost)" };
-        match self {
-            DeviceReading::C29u {
-                name,
-                inputs,
-                outputs,
-                online,
-            } => {
-                write!(f, "{name} outputs {outputs:#04x}, inputs ")?;
-                match inputs {
+        let name = &self.name;
+        match &self.view {
+            DeviceView::C29u(m) => {
+                write!(f, "{name} outputs {:#04x}, inputs ", m.outputs)?;
+                match m.inputs {
                     Some(i) => write!(f, "{i:#04x}")?,
                     None => f.write_str("not read")?,
                 }
-                f.write_str(lost(*online))
             }
-            DeviceReading::Trc {
-                name,
-                pressed,
-                relay,
-                online,
-            } => {
-                write!(f, "{name} relay {relay}, pressed ")?;
-                match pressed {
-                    Some(p) if p.is_empty() => f.write_str("none")?,
-                    Some(p) => f.write_str(&p.join(" "))?,
+            DeviceView::Trc(p) => {
+                write!(f, "{name} relay {}, pressed ", p.relay)?;
+                match p.switches.map(|s| s.pressed_names()) {
+                    Some(names) if names.is_empty() => f.write_str("none")?,
+                    Some(names) => f.write_str(&names.join(" "))?,
                     None => f.write_str("not read")?,
                 }
-                f.write_str(lost(*online))
             }
         }
+        f.write_str(if self.view.online() { "" } else { " (lost)" })
     }
 }
 

@@ -7,6 +7,8 @@
 //! handler reads shows as `None`, never a reading made for the asker, which would cost the
 //! loop exchanges and could steal an edge from the script).
 
+pub use super::device_view::LatchState;
+use super::device_view::{ModuleView, PanelView};
 use super::devices::Device;
 use super::forcing::ForceShown;
 use super::observe::Dropped;
@@ -286,15 +288,6 @@ pub enum DeviceState {
     },
 }
 
-/// A TRP-C29U's latches as read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct LatchState {
-    /// Channels energized since the last clear.
-    pub energized: u8,
-    /// Channels released since the last clear.
-    pub released: u8,
-}
-
 impl DeviceState {
     /// `device` as it stands; `simulated` as the rig says.
     pub fn of(device: &Device, simulated: bool, now: std::time::Duration) -> Self {
@@ -308,41 +301,43 @@ impl DeviceState {
             )
         });
         match device {
-            Device::C29u(c) => DeviceState::C29u {
-                online,
-                offline_reason,
-                simulated,
-                inputs: c.inputs.current,
-                outputs: c.outputs,
-                outputs_written: c.outputs_written(),
-                counters: c.counters.current,
-                latches: c.latches.current.map(|l| LatchState {
-                    energized: l.energized,
-                    released: l.released,
-                }),
-                watchdog_ms: c
-                    .watchdog
-                    .filter(|_| c.watchdog_ours)
-                    .map(|w| u64::from(w.tenths()) * 100),
-                safe_value: c.config.safe_value,
-                safe_mode: c.refusing,
-            },
-            Device::Trc(t) => DeviceState::Trc {
-                online,
-                offline_reason,
-                simulated,
-                relay: t.relay,
-                relay_written: t.relay_written,
-                pressed: t
-                    .switches
-                    .current
-                    .map(|s| s.pressed_names().into_iter().map(String::from).collect()),
-                rotaries: t.rotaries.current.map(|r| {
-                    r.iter()
-                        .map(|(rotary, value)| (rotary.name().to_string(), value))
-                        .collect()
-                }),
-            },
+            Device::C29u(c) => {
+                let view = ModuleView::of(c);
+                DeviceState::C29u {
+                    online,
+                    offline_reason,
+                    simulated,
+                    inputs: view.inputs,
+                    outputs: view.outputs,
+                    outputs_written: c.outputs_written(),
+                    counters: view.counters,
+                    latches: view.latches,
+                    watchdog_ms: c
+                        .watchdog
+                        .filter(|_| c.watchdog_ours)
+                        .map(|w| u64::from(w.tenths()) * 100),
+                    safe_value: c.config.safe_value,
+                    safe_mode: c.refusing,
+                }
+            }
+            Device::Trc(t) => {
+                let view = PanelView::of(t);
+                DeviceState::Trc {
+                    online,
+                    offline_reason,
+                    simulated,
+                    relay: view.relay,
+                    relay_written: t.relay_written,
+                    pressed: view
+                        .switches
+                        .map(|s| s.pressed_names().into_iter().map(String::from).collect()),
+                    rotaries: view.rotaries.map(|r| {
+                        r.iter()
+                            .map(|(rotary, value)| (rotary.name().to_string(), value))
+                            .collect()
+                    }),
+                }
+            }
         }
     }
 

@@ -4,111 +4,85 @@
 //! A handler that never fired, an invariant whose values never changed or a value compared with
 //! that its counter or rotary never reached is a warning.
 
-use crate::device::c29u::Latches;
-use crate::protocol::trc1000::{Rotary, RotaryValues, Switch, SwitchSet};
-use crate::runtime::devices::Device;
+use crate::protocol::trc1000::{Rotary, Switch};
+use crate::runtime::device_view::{DeviceView, ModuleView, PanelView};
 use crate::script::reads::{Item, ReadSet};
 use crate::script::rig::Rig;
 use serde_json::{json, Value};
 use std::collections::{BTreeMap, BTreeSet};
 
-/// What one device showed at the end of a tick, for telling what changed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-struct Shown {
-    switches: Option<SwitchSet>,
-    rotaries: Option<RotaryValues>,
-    inputs: Option<u8>,
-    counters: Option<[u16; 8]>,
-    latches: Option<(u8, u8)>,
-    online: bool,
-    outputs: u8,
-    relay: u8,
+/// The items of `now` that differ from `before`, as a mask (a device does not change kind).
+fn changed(now: &DeviceView, before: &DeviceView) -> u128 {
+    let mut m = 0u128;
+    match (now, before) {
+        (DeviceView::Trc(now), DeviceView::Trc(before)) => {
+            if now.switches != before.switches {
+                let (a, b) = (
+                    before.switches.unwrap_or_default(),
+                    now.switches.unwrap_or_default(),
+                );
+                for s in Switch::all() {
+                    if a.is_pressed(s) != b.is_pressed(s) {
+                        m |= Item::Switch(s).mask();
+                    }
+                }
+            }
+            if now.rotaries != before.rotaries {
+                let (a, b) = (
+                    before.rotaries.unwrap_or_default(),
+                    now.rotaries.unwrap_or_default(),
+                );
+                for r in Rotary::ALL {
+                    if a.get(r) != b.get(r) {
+                        m |= Item::Rotary(r).mask();
+                    }
+                }
+            }
+            if now.relay != before.relay {
+                m |= Item::Relay.mask();
+            }
+        }
+        (DeviceView::C29u(now), DeviceView::C29u(before)) => {
+            if now.inputs != before.inputs {
+                let diff = now.inputs.unwrap_or(0) ^ before.inputs.unwrap_or(0);
+                for ch in 0..8u8 {
+                    if diff & (1 << ch) != 0 {
+                        m |= Item::Input(ch).mask();
+                    }
+                }
+            }
+            if now.counters != before.counters {
+                let (a, b) = (
+                    before.counters.unwrap_or([0; 8]),
+                    now.counters.unwrap_or([0; 8]),
+                );
+                for (ch, (x, y)) in (0u8..).zip(a.iter().zip(b.iter())) {
+                    if x != y {
+                        m |= Item::Counter(ch).mask();
+                    }
+                }
+            }
+            if now.latches != before.latches {
+                m |= Item::Latches.mask();
+            }
+            if now.outputs != before.outputs {
+                m |= Item::Outputs.mask();
+            }
+        }
+        _ => {}
+    }
+    if now.online() != before.online() {
+        m |= Item::Online.mask();
+    }
+    m
 }
 
-impl Shown {
-    fn of(d: &Device) -> Self {
-        match d {
-            Device::Trc(t) => Shown {
-                switches: t.switches.current,
-                rotaries: t.rotaries.current,
-                online: t.health.online(),
-                relay: t.relay,
-                ..Shown::default()
-            },
-            Device::C29u(c) => Shown {
-                inputs: c.inputs.current,
-                counters: c.counters.current,
-                latches: c.latches.current.map(
-                    |Latches {
-                         energized,
-                         released,
-                         ..
-                     }| (energized, released),
-                ),
-                online: c.health.online(),
-                outputs: c.outputs,
-                ..Shown::default()
-            },
-        }
-    }
-
-    /// The items that differ from `before`, as a mask.
-    fn changed(&self, before: &Shown) -> u128 {
-        let mut m = 0u128;
-        if self.switches != before.switches {
-            let (a, b) = (
-                before.switches.unwrap_or_default(),
-                self.switches.unwrap_or_default(),
-            );
-            for s in Switch::all() {
-                if a.is_pressed(s) != b.is_pressed(s) {
-                    m |= Item::Switch(s).mask();
-                }
-            }
-        }
-        if self.rotaries != before.rotaries {
-            let (a, b) = (
-                before.rotaries.unwrap_or_default(),
-                self.rotaries.unwrap_or_default(),
-            );
-            for r in Rotary::ALL {
-                if a.get(r) != b.get(r) {
-                    m |= Item::Rotary(r).mask();
-                }
-            }
-        }
-        if self.inputs != before.inputs {
-            let diff = self.inputs.unwrap_or(0) ^ before.inputs.unwrap_or(0);
-            for ch in 0..8u8 {
-                if diff & (1 << ch) != 0 {
-                    m |= Item::Input(ch).mask();
-                }
-            }
-        }
-        if self.counters != before.counters {
-            let (a, b) = (
-                before.counters.unwrap_or([0; 8]),
-                self.counters.unwrap_or([0; 8]),
-            );
-            for (ch, (x, y)) in (0u8..).zip(a.iter().zip(b.iter())) {
-                if x != y {
-                    m |= Item::Counter(ch).mask();
-                }
-            }
-        }
-        if self.latches != before.latches {
-            m |= Item::Latches.mask();
-        }
-        if self.online != before.online {
-            m |= Item::Online.mask();
-        }
-        if self.outputs != before.outputs {
-            m |= Item::Outputs.mask();
-        }
-        if self.relay != before.relay {
-            m |= Item::Relay.mask();
-        }
-        m
+/// Whether a counter or a rotary moved from `before` to `now`.
+fn moved(now: &DeviceView, before: &DeviceView) -> bool {
+    match (now, before) {
+        (DeviceView::C29u(a), DeviceView::C29u(b)) => a.counters != b.counters,
+        (DeviceView::Trc(a), DeviceView::Trc(b)) => a.rotaries != b.rotaries,
+        _ => true,
     }
 }
 
@@ -120,16 +94,25 @@ fn widen(ranges: &mut BTreeMap<(usize, Item), (i64, i64)>, key: (usize, Item), v
 }
 
 /// Takes the counters and rotaries device `idx` shows into their ranges.
-fn note_ranges(ranges: &mut BTreeMap<(usize, Item), (i64, i64)>, idx: usize, shown: &Shown) {
-    if let Some(counters) = shown.counters {
-        for (ch, n) in (0u8..).zip(counters) {
-            widen(ranges, (idx, Item::Counter(ch)), i64::from(n));
+fn note_ranges(ranges: &mut BTreeMap<(usize, Item), (i64, i64)>, idx: usize, shown: &DeviceView) {
+    match shown {
+        DeviceView::C29u(ModuleView {
+            counters: Some(counters),
+            ..
+        }) => {
+            for (ch, n) in (0u8..).zip(*counters) {
+                widen(ranges, (idx, Item::Counter(ch)), i64::from(n));
+            }
         }
-    }
-    if let Some(rotaries) = shown.rotaries {
-        for r in Rotary::ALL {
-            widen(ranges, (idx, Item::Rotary(r)), i64::from(rotaries.get(r)));
+        DeviceView::Trc(PanelView {
+            rotaries: Some(rotaries),
+            ..
+        }) => {
+            for r in Rotary::ALL {
+                widen(ranges, (idx, Item::Rotary(r)), i64::from(rotaries.get(r)));
+            }
         }
+        _ => {}
     }
 }
 
@@ -167,14 +150,14 @@ pub struct Coverage {
     pub ranges: BTreeMap<(usize, Item), (i64, i64)>,
     /// Counter or rotary → the values the script compares it with (from its text).
     pub compared: BTreeMap<Item, BTreeSet<i64>>,
-    last: Vec<Shown>,
+    last: Vec<DeviceView>,
 }
 
 impl Coverage {
     /// Starts following a rig.
     pub fn start(rig: &Rig) -> Self {
         let rt = rig.runner.runtime().borrow();
-        let last: Vec<Shown> = rt.devices().iter().map(Shown::of).collect();
+        let last: Vec<DeviceView> = rt.devices().iter().map(DeviceView::of).collect();
         let mut ranges = BTreeMap::new();
         for (idx, shown) in last.iter().enumerate() {
             note_ranges(&mut ranges, idx, shown);
@@ -194,14 +177,14 @@ impl Coverage {
         let rt = rig.runner.runtime().borrow();
         let invariants = rig.runner.program().coverage();
         for (idx, d) in rt.devices().iter().enumerate() {
-            let now = Shown::of(d);
+            let now = DeviceView::of(d);
             let Some(before) = self.last.get_mut(idx) else {
                 continue;
             };
             // Ranges only when a value moved: a lookup per counter and rotary every tick would
             // cost a tenth of the search.
-            let moved = now.counters != before.counters || now.rotaries != before.rotaries;
-            let changed = now.changed(before);
+            let moved = moved(&now, before);
+            let changed = changed(&now, before);
             *before = now;
             if moved {
                 note_ranges(&mut self.ranges, idx, &now);
