@@ -1192,3 +1192,68 @@ fn an_ascii_answer_garbled_into_another_well_formed_one_is_not_held_against_the_
         assert_keeps_promises(&case);
     }
 }
+
+/// Found by a soak (`FAULT_SEARCH_SEED=147441 FAULT_SEARCH_CASES=3000`, case 712), reported as
+/// `safe-value-changed`: a 12 s stall of a call on line 0 from 19 s held the runner's one
+/// thread, io1 (line 1) was swapped for a module storing safe value 0x05 at 25 s, and the next
+/// call on line 1, after the stall, panicked (an injected bug); the safe state after the panic
+/// wrote io1's outputs safe but the runner had had no moment to check it and find the swap. The
+/// runner kept its promises; the oracle counted a stall as blind time only on the swapped
+/// module's own line, though a stall on any line stops every check.
+#[test]
+fn a_stall_on_another_line_counts_as_time_the_runner_could_not_find_a_swap() {
+    let module = |line: u8| Module {
+        line,
+        ..plain(Proto::Modbus, None, 0x00)
+    };
+    let case = Case {
+        rig: Rig {
+            modules: vec![module(0), module(1)],
+            ..bare(100, 25_601, module(0))
+        },
+        script: vec![Stmt::After {
+            ms: 500,
+            body: vec![Stmt::OnRise {
+                dev: 0,
+                ch: 0,
+                body: vec![],
+            }],
+        }],
+        faults: vec![
+            (25_001, InjectedFault::Panic { line: 1 }),
+            (
+                25_001,
+                InjectedFault::Swap {
+                    dev: 1,
+                    safe: 0x05,
+                    power_on: 0x9C,
+                },
+            ),
+            (
+                19_001,
+                InjectedFault::LinkStall {
+                    line: 0,
+                    ms: 12_000,
+                },
+            ),
+        ],
+    };
+    let run = harness::run(&case);
+    let harness::End::Ran { status, .. } = &run.end else {
+        panic!("{}", describe(&case, &run));
+    };
+    assert_eq!(
+        *status,
+        rigscript::runtime::exit::INTERNAL,
+        "{}",
+        describe(&case, &run)
+    );
+    let io1 = run.module_of(1).unwrap_or_else(|| panic!("no io1"));
+    assert_eq!(
+        (run.at_end[io1].outputs, run.at_end[io1].safe_value),
+        (0x00, 0x05),
+        "io1 safe, its swap unseen: {}",
+        describe(&case, &run)
+    );
+    assert_keeps_promises(&case);
+}

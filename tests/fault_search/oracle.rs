@@ -316,8 +316,9 @@ impl Facts<'_> {
     /// Whether module `i` was swapped for another too shortly before `t` for the runner's
     /// periodic check to have found it (5 s, and the check's exchanges), or after it (no one
     /// is left to take control of the new one).
-    /// A frozen runner checks nothing, nor does one whose line to the module is down, so
-    /// that time between the swap and `t` does not count towards the check's window.
+    /// A frozen runner checks nothing, nor does one stalled in a call on any line (its one
+    /// thread waits in that call), nor one whose line to the module is down, so that time
+    /// between the swap and `t` does not count towards the check's window.
     fn swapped_unseen(&self, i: usize, t: Duration) -> bool {
         let window = ms(5000) + ms(2 * self.case.rig.period_ms) + self.slowest_exchange() * 8;
         self.case.faults.iter().any(|&(start, f)| match f {
@@ -329,8 +330,9 @@ impl Facts<'_> {
         })
     }
 
-    /// How long, between `from` and `to`, the runner was frozen or module `i`'s line down
-    /// (overlaps counted once each: an over-estimate only widens the excuse by that much).
+    /// How long, between `from` and `to`, the runner was frozen, stalled in a link call (on
+    /// any line: the scan loop is one thread) or module `i`'s line down (overlaps counted once
+    /// each: an over-estimate only widens the excuse by that much).
     fn blind_between(&self, i: usize, from: Duration, to: Duration) -> Duration {
         let line = self.run.modules[i].line;
         self.case
@@ -338,9 +340,10 @@ impl Facts<'_> {
             .iter()
             .filter_map(|&(start, f)| {
                 match f {
-                    InjectedFault::Freeze { ms: d } => Some(d),
-                    InjectedFault::LinkStall { line: l, ms: d }
-                    | InjectedFault::Silence { line: l, ms: d }
+                    InjectedFault::Freeze { ms: d } | InjectedFault::LinkStall { ms: d, .. } => {
+                        Some(d)
+                    }
+                    InjectedFault::Silence { line: l, ms: d }
                     | InjectedFault::Unplug { line: l, ms: d }
                         if self.case.line(l) == line =>
                     {
