@@ -660,3 +660,70 @@ fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
     );
     assert_eq!(broker.retained("rigscript/wrong/status"), None);
 }
+
+/// `rigscript status NAME` of a rig `run_rig` started in `dir` (`--json`: the snapshot).
+fn status(dir: &TempDir, name: &str, json: bool) -> Option<String> {
+    let mut c = Command::new(rigscript());
+    c.args(["status", name]);
+    if json {
+        c.arg("--json");
+    }
+    let out = c
+        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env_remove("RUNTIME_DIRECTORY")
+        .output()
+        .expect("run rigscript status");
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+#[test]
+fn a_flood_on_a_watched_topic_is_counted_in_status_as_messages_dropped() {
+    let broker = Broker::start("mqtt-flood");
+    let dir = TempDir::new("mqtt-flood-run");
+    let script = "on_message(\"lab/flood\", |t, p| {});\n";
+    let _rig = run_rig(&dir, "flood", &broker.mqtt_table("flood", "10s"), script);
+    broker.retained_until("rigscript/flood/status", |m| m == "online");
+    let mqtt = || {
+        let text = status(&dir, "flood", true)?;
+        let v: Value = serde_json::from_str(&text).ok()?;
+        Some(v["mqtt"].clone())
+    };
+    let connected = until(Duration::from_secs(10), || {
+        mqtt().filter(|m| m["connected"] == true)
+    })
+    .expect("status shows the client connected");
+    assert_eq!(connected["broker"], format!("127.0.0.1:{}", broker.port));
+    assert_eq!(connected["dropped"]["messages"], 0, "{connected}");
+    // More messages at once than the client hands the loop in a second (100); sent again
+    // until the rig has subscribed to the watched topic and counts what it drops.
+    let flood: String = (0..400).map(|n| format!("{{\"n\":{n}}}\n")).collect();
+    let pw = USERS.iter().find(|(u, _)| *u == "rig").unwrap().1;
+    let shown = until(Duration::from_secs(15), || {
+        let mut pub_ = Command::new("mosquitto_pub")
+            .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
+            .args(["-u", "rig", "-P", pw, "-t", "lab/flood", "-l", "-q", "0"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start mosquitto_pub");
+        use std::io::Write as _;
+        let _ = pub_.stdin.take().unwrap().write_all(flood.as_bytes());
+        let _ = pub_.wait();
+        mqtt().filter(|m| m["dropped"]["messages"].as_u64() > Some(0))
+    })
+    .unwrap_or_else(|| panic!("status never showed messages dropped: {:?}", mqtt()));
+    assert_eq!(shown["connected"], true, "{shown}");
+    assert_eq!(shown["dropped"]["commands"], 0, "{shown}");
+    let text = status(&dir, "flood", false).expect("status");
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("mqtt: broker"))
+        .unwrap_or_else(|| panic!("no mqtt line in\n{text}"));
+    assert!(
+        line.contains("connected") && line.contains("dropped: messages "),
+        "{line}"
+    );
+}

@@ -406,6 +406,9 @@ fn run_started(
     };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
+    if let Some(c) = &client {
+        rig.runner.watch_mqtt(c.health());
+    }
     let page = web.map(|w| {
         say(&format!("rigscript run: ui: http://{}/", w.addr()));
         w.serve(requester.clone(), rig.runner.events())

@@ -7,7 +7,7 @@
 use super::output::say;
 use crate::config::RigConfig;
 use crate::runtime::exit;
-use crate::runtime::snapshot::{DeviceState, RigSnapshot};
+use crate::runtime::snapshot::{DeviceState, MqttState, RigSnapshot};
 use crate::service::control_client::Connection;
 use crate::service::control_protocol::{ClientRequest, Hello};
 use crate::service::rig_dir::{self, Knock};
@@ -203,6 +203,12 @@ fn same_state(a: &RigSnapshot, b: &RigSnapshot) -> bool {
             .all(|(x, y)| x.point == y.point && x.value == y.value)
         && a.ticks.overruns == b.ticks.overruns
         && a.dropped == b.dropped
+        && a.mqtt
+            .as_ref()
+            .map(|m| (m.connected, m.connect_failures, &m.dropped))
+            == b.mqtt
+                .as_ref()
+                .map(|m| (m.connected, m.connect_failures, &m.dropped))
         && a.script.uptime_ms / 1000 == b.script.uptime_ms / 1000
 }
 
@@ -391,7 +397,41 @@ pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
             }
         ));
     }
+    if let Some(m) = &s.mqtt {
+        out.push(render_mqtt(m));
+    }
     out.join("\n")
+}
+
+/// The MQTT client's line: the connection, then what it lost (only the kinds that lost some).
+fn render_mqtt(m: &MqttState) -> String {
+    let mut line = format!(
+        "mqtt: broker {} {}",
+        m.broker,
+        if m.connected {
+            "connected"
+        } else {
+            "NOT CONNECTED"
+        }
+    );
+    if m.connect_failures > 0 {
+        line.push_str(&format!("; {} failed connections", m.connect_failures));
+        if let Some(e) = &m.last_error {
+            line.push_str(&format!(", last: {e}"));
+        }
+    }
+    line.push_str(&format!("; outbox {} waiting", m.outbox_waiting));
+    let lost: Vec<String> = m
+        .dropped
+        .by_kind()
+        .iter()
+        .filter(|(_, n)| *n > 0)
+        .map(|(kind, n)| format!("{kind} {n}"))
+        .collect();
+    if !lost.is_empty() {
+        line.push_str(&format!("; dropped: {}", lost.join(", ")));
+    }
+    line
 }
 
 fn render_device(name: &str, d: &DeviceState) -> Vec<String> {

@@ -49,6 +49,62 @@ pub struct RigSnapshot {
     /// Events lost by every consumer the run has had, those gone since included.
     #[serde(default)]
     pub dropped_in_all: u64,
+    /// The MQTT client's connection and losses (a run with `[mqtt]` only).
+    #[serde(default)]
+    pub mqtt: Option<MqttState>,
+}
+
+/// The MQTT client as its thread counted it (`service::mqtt::health`).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MqttState {
+    /// The broker, `host:port`.
+    pub broker: String,
+    /// Whether the broker has accepted the connection now.
+    pub connected: bool,
+    /// Connections that failed or were refused so far.
+    pub connect_failures: u64,
+    /// Why the last one failed.
+    pub last_error: Option<String>,
+    /// Records waiting in the outbox for the broker's acknowledgement.
+    pub outbox_waiting: u64,
+    /// What the client lost, by kind.
+    pub dropped: MqttDropped,
+}
+
+/// What the MQTT client lost, by kind (each bound it has).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MqttDropped {
+    /// Records the outbox had no room for (`outbox_max`).
+    pub outbox_full: u64,
+    /// Records the outbox could not write to disk.
+    pub outbox_write: u64,
+    /// Watched topics' messages over the rate or the size, or the loop too busy.
+    pub messages: u64,
+    /// Commands refused: too large, too many waiting, the loop busy or gone.
+    pub commands: u64,
+    /// `mqtt_publish` messages not sent (not connected, or the client's queue full).
+    pub publishes: u64,
+    /// Log lines for the broker not sent.
+    pub log: u64,
+}
+
+impl MqttDropped {
+    /// Every kind as `(kind, count)`, the kinds as `/metrics` labels them.
+    pub fn by_kind(&self) -> [(&'static str, u64); 6] {
+        [
+            ("outbox_full", self.outbox_full),
+            ("outbox_write", self.outbox_write),
+            ("messages", self.messages),
+            ("commands", self.commands),
+            ("publishes", self.publishes),
+            ("log", self.log),
+        ]
+    }
+
+    /// All lost, every kind.
+    pub fn total(&self) -> u64 {
+        self.by_kind().iter().map(|(_, n)| n).sum()
+    }
 }
 
 /// The script's side of a run.

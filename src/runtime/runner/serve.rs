@@ -10,6 +10,7 @@ use crate::runtime::requests::{Answer, Request, Requests};
 use crate::runtime::snapshot::{
     DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
+use crate::service::mqtt::health::Health;
 use std::sync::Arc;
 
 /// A run served to askers from outside the loop (`Runner::serve`).
@@ -21,6 +22,8 @@ pub(super) struct Served {
     field: SimRig,
     /// The snapshot last made, with the tick and the exchange count it was made at.
     pub(super) made: Option<((u64, u64), Arc<RigSnapshot>)>,
+    /// The MQTT client's counts, once `watch_mqtt` gave them.
+    mqtt: Option<Health>,
 }
 
 impl<P: Program> Runner<P> {
@@ -32,7 +35,15 @@ impl<P: Program> Runner<P> {
             script: script.to_string(),
             field,
             made: None,
+            mqtt: None,
         });
+    }
+
+    /// Shows the MQTT client's `health` in the snapshot from now on (after `serve`).
+    pub fn watch_mqtt(&mut self, health: Health) {
+        if let Some(s) = self.served.as_mut() {
+            s.mqtt = Some(health);
+        }
     }
 
     /// What the loop measured so far (the snapshot's figures come from it).
@@ -84,6 +95,11 @@ impl<P: Program> Runner<P> {
             forces: rt.forces_shown(),
             records_lost: self.trouble.records_lost,
             dropped_in_all: self.events.dropped_in_all(),
+            mqtt: self
+                .served
+                .as_ref()
+                .and_then(|s| s.mqtt.as_ref())
+                .map(Health::shown),
         }
     }
 

@@ -1,8 +1,9 @@
 //! `GET /metrics`: a run's snapshot in the Prometheus text format (version 0.0.4), for a
 //! fleet's monitoring to scrape: ticks, overruns, jitter and work, transactions, each
-//! device's online state, inputs, outputs and counters, and the events consumers lost.
+//! device's online state, inputs, outputs and counters, the events consumers lost, and the
+//! MQTT client's connection and losses.
 
-use crate::runtime::snapshot::{Buckets, DeviceState, RigSnapshot, BUCKET_BOUNDS_US};
+use crate::runtime::snapshot::{Buckets, DeviceState, MqttState, RigSnapshot, BUCKET_BOUNDS_US};
 use std::fmt::Write;
 
 /// The media type of the text format.
@@ -96,7 +97,40 @@ pub fn render(s: &RigSnapshot) -> String {
         );
     }
     device_metrics(&mut out, s);
+    if let Some(m) = &s.mqtt {
+        mqtt_metrics(&mut out, m);
+    }
     out.0
+}
+
+fn mqtt_metrics(out: &mut Metrics, m: &MqttState) {
+    out.one(
+        "rigscript_mqtt_connected",
+        "gauge",
+        "1 while the broker has accepted the MQTT client's connection.",
+        u8::from(m.connected),
+    );
+    out.one(
+        "rigscript_mqtt_connect_failures_total",
+        "counter",
+        "MQTT connections that failed or were refused.",
+        m.connect_failures,
+    );
+    out.one(
+        "rigscript_mqtt_outbox_waiting",
+        "gauge",
+        "Records in the MQTT outbox waiting for the broker.",
+        m.outbox_waiting,
+    );
+    out.family(
+        "rigscript_mqtt_dropped_total",
+        "counter",
+        "What the MQTT client lost, by kind (outbox_full, outbox_write, messages, commands, \
+         publishes, log).",
+    );
+    for (kind, n) in m.dropped.by_kind() {
+        out.sample("rigscript_mqtt_dropped_total", &[("kind", kind)], n);
+    }
 }
 
 fn device_metrics(out: &mut Metrics, s: &RigSnapshot) {
@@ -223,7 +257,7 @@ fn escape(v: &str) -> String {
 mod tests {
     use super::*;
     use crate::runtime::observe::Dropped;
-    use crate::runtime::snapshot::{ScriptState, TickFigures, SNAPSHOT_VERSION};
+    use crate::runtime::snapshot::{MqttDropped, ScriptState, TickFigures, SNAPSHOT_VERSION};
     use std::collections::BTreeMap;
 
     fn snapshot() -> RigSnapshot {
@@ -285,6 +319,17 @@ mod tests {
             forces: Vec::new(),
             records_lost: 0,
             dropped_in_all: 7,
+            mqtt: Some(MqttState {
+                broker: "b:1883".into(),
+                connected: true,
+                connect_failures: 2,
+                last_error: Some("refused".into()),
+                outbox_waiting: 4,
+                dropped: MqttDropped {
+                    messages: 5,
+                    ..MqttDropped::default()
+                },
+            }),
         }
     }
 
@@ -311,6 +356,11 @@ mod tests {
             "rigscript_tick_work_seconds_count 5",
             "rigscript_jitter_seconds_count 0",
             "rigscript_forced_points 0",
+            "rigscript_mqtt_connected 1",
+            "rigscript_mqtt_connect_failures_total 2",
+            "rigscript_mqtt_outbox_waiting 4",
+            "rigscript_mqtt_dropped_total{kind=\"messages\"} 5",
+            "rigscript_mqtt_dropped_total{kind=\"outbox_full\"} 0",
         ] {
             assert!(text.lines().any(|l| l == line), "no {line:?} in\n{text}");
         }

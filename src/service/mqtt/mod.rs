@@ -9,6 +9,7 @@
 //! (`runtime::remote`) and publishes the commands' replies.
 
 pub mod discovery;
+pub mod health;
 mod link;
 pub mod outbox;
 mod pump;
@@ -208,6 +209,7 @@ fn default_outbox(records: Option<&Path>) -> PathBuf {
 /// The running client: `finish` ends it (flushing the outbox for up to `FLUSH_WAIT`).
 pub struct MqttService {
     closing: Arc<AtomicBool>,
+    health: health::Health,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -232,18 +234,28 @@ impl Prepared {
         let closing = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&closing);
         let Prepared { settings, outbox } = self;
+        let health = health::Health::new(&settings.broker);
+        let counts = health.clone();
         let thread = std::thread::Builder::new()
             .name("mqtt".into())
-            .spawn(move || pump::Pump::new(settings, subscription, requester, outbox, flag).run())
+            .spawn(move || {
+                pump::Pump::new(settings, subscription, requester, outbox, flag, counts).run()
+            })
             .map_err(MqttError::Thread)?;
         Ok(MqttService {
             closing,
+            health,
             thread: Some(thread),
         })
     }
 }
 
 impl MqttService {
+    /// The client's counts, for the loop's snapshot (`Runner::watch_mqtt`).
+    pub fn health(&self) -> health::Health {
+        self.health.clone()
+    }
+
     /// Ends the client once the run has ended: the outbox gets up to `FLUSH_WAIT` to go
     /// out, the status goes `offline`, what is left waits for the next start.
     pub fn finish(mut self) {

@@ -3,6 +3,7 @@
 //! replies, and hands inbound commands and messages to the loop. It never waits on the loop
 //! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
 
+use super::health::{Health, Loss};
 use super::link::{Link, NetEvent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
@@ -74,10 +75,8 @@ pub struct Pump {
     last_record_sent: (Instant, u64),
     loop_gone: bool,
     notices: HashMap<&'static str, (Instant, u64)>,
-    /// Counts of what was lost, for the end's line.
-    dropped_messages: u64,
-    dropped_publishes: u64,
-    dropped_logs: u64,
+    /// What was lost and how the connection goes, shared with the loop's snapshot.
+    health: Health,
 }
 
 impl Pump {
@@ -88,6 +87,7 @@ impl Pump {
         ask: Requester,
         outbox: Outbox,
         closing: Arc<AtomicBool>,
+        health: Health,
     ) -> Self {
         let now = Instant::now();
         Self {
@@ -113,9 +113,7 @@ impl Pump {
             last_record_sent: (now, 0),
             loop_gone: false,
             notices: HashMap::new(),
-            dropped_messages: 0,
-            dropped_publishes: 0,
-            dropped_logs: 0,
+            health,
         }
     }
 
@@ -149,6 +147,7 @@ impl Pump {
     fn turn(&mut self) {
         self.keep_link();
         self.send_records();
+        self.health.waiting(self.outbox.waiting().len());
         self.refresh_state();
         self.refresh_watched();
         self.answer_commands();
@@ -190,17 +189,23 @@ impl Pump {
         match event {
             RunEvent::Record { line } => match self.outbox.push(line) {
                 Ok(Pushed::Kept(_)) => {}
-                Ok(Pushed::Full) => self.warn_counted(
-                    "outbox-full",
-                    1,
-                    &format!(
-                        "mqtt: OUTBOX FULL ({} holds its outbox_max): records dropped, not \
+                Ok(Pushed::Full) => {
+                    self.health.lost(Loss::OutboxFull);
+                    self.warn_counted(
+                        "outbox-full",
+                        1,
+                        &format!(
+                            "mqtt: OUTBOX FULL ({} holds its outbox_max): records dropped, not \
                          delivered to broker {} until it takes the waiting ones",
-                        self.s.outbox_dir.display(),
-                        self.s.broker
-                    ),
-                ),
-                Err(e) => self.warn_counted("outbox-write", 1, &format!("mqtt: {e}")),
+                            self.s.outbox_dir.display(),
+                            self.s.broker
+                        ),
+                    );
+                }
+                Err(e) => {
+                    self.health.lost(Loss::OutboxWrite);
+                    self.warn_counted("outbox-write", 1, &format!("mqtt: {e}"));
+                }
             },
             RunEvent::Inputs { .. }
             | RunEvent::Outputs { .. }
@@ -215,7 +220,7 @@ impl Pump {
                     _ => false,
                 };
                 if !sent {
-                    self.dropped_publishes += 1;
+                    self.health.lost(Loss::Publish);
                     self.warn_counted(
                         "publish",
                         1,
@@ -233,10 +238,10 @@ impl Pump {
             match self.link.as_mut() {
                 Some(l) if l.connected() => {
                     if !l.send(&topic, QoS::AtMostOnce, false, payload.as_bytes()) {
-                        self.dropped_logs += 1;
+                        self.health.lost(Loss::Log);
                     }
                 }
-                _ => self.dropped_logs += 1,
+                _ => self.health.lost(Loss::Log),
             }
         }
         matches!(event, RunEvent::Ended { .. })
@@ -264,6 +269,7 @@ impl Pump {
     }
 
     fn on_connected(&mut self) {
+        self.health.connected();
         self.backoff = FIRST_RETRY;
         let waiting = self.outbox.waiting().len();
         let again = if self.was_connected { "again" } else { "" };
@@ -297,6 +303,7 @@ impl Pump {
         self.link = None;
         let waiting = self.outbox.waiting().len();
         let why = describe_failure(e, &self.s);
+        self.health.failed(&why);
         let message = if was_up || self.was_connected && self.backoff == FIRST_RETRY {
             format!(
                 "mqtt: lost broker {}: {why}; the run goes on, records wait in the outbox \
@@ -456,7 +463,7 @@ impl Pump {
             self.messages_this_second = (now, 0);
         }
         if self.messages_this_second.1 >= MESSAGES_PER_SECOND || payload.len() > MAX_PAYLOAD {
-            self.dropped_messages += 1;
+            self.health.lost(Loss::Message);
             self.warn_counted(
                 "messages",
                 1,
@@ -474,7 +481,7 @@ impl Pump {
             Duration::ZERO,
         );
         if matches!(asked, Err(AskError::Busy)) {
-            self.dropped_messages += 1;
+            self.health.lost(Loss::Message);
         }
     }
 
@@ -510,6 +517,9 @@ impl Pump {
                 Err(e) => refuse(e.to_string()),
             }
         };
+        if reply.is_err() {
+            self.health.lost(Loss::Command);
+        }
         self.reply(&name, reply);
     }
 
@@ -583,12 +593,15 @@ impl Pump {
                 self.s.outbox_dir.display()
             ));
         }
+        let dropped = self.health.shown().dropped;
         let lost = [
-            (self.dropped_messages, "watched-topic messages dropped"),
-            (self.dropped_publishes, "mqtt_publish messages dropped"),
+            (dropped.messages, "watched-topic messages dropped"),
+            (dropped.commands, "commands refused"),
+            (dropped.publishes, "mqtt_publish messages dropped"),
+            (dropped.outbox_full, "records dropped: the outbox was full"),
             (
-                self.outbox.dropped(),
-                "records dropped: the outbox was full",
+                dropped.outbox_write,
+                "records dropped: the outbox could not write them",
             ),
         ];
         for (n, what) in lost {
@@ -603,6 +616,7 @@ impl Pump {
                 l.send(&status, QoS::AtLeastOnce, true, topics::OFFLINE.as_bytes());
             }
             l.disconnect(Duration::from_millis(500));
+            self.health.disconnected();
         }
     }
 
