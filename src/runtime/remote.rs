@@ -1,8 +1,9 @@
 //! What a remote consumer of the run (the MQTT client, `service::mqtt`) asks of the loop,
 //! through the control queue (`Request::Remote`): a line for the run's log, a command or a
-//! watched topic's message for the script's handler. Answered between ticks like every
-//! request; a command's reply goes back on a channel of its own, so the asker never waits on
-//! the loop.
+//! watched topic's message for the script's handler. Taken between ticks like every
+//! request; a command or a message then waits for a tick to run its handler
+//! (`runner::remote`), and a command's reply goes back on a channel of its own, so the asker
+//! never waits on the loop.
 
 use std::sync::mpsc::SyncSender;
 

@@ -146,6 +146,7 @@ impl<P: Program> Runner<P> {
             unconfirmed: unconfirmed.into_iter().map(|d| d.device.clone()).collect(),
         });
         self.answer_requests();
+        self.refuse_waiting();
         self.served = None;
     }
 

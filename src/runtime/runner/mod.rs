@@ -1,6 +1,7 @@
 //! The scan loop. Each tick: (0) supervise devices (retry lost ones, hold outputs safe past
 //! the grace time); (1) read the inputs the handlers wait for, lazily, once per device per
-//! tick; (2) turn edges and due timers into handler calls; (3) run the handlers; (4) write
+//! tick; (2) turn edges and due timers into handler calls; (3) run the handlers, then what
+//! waits from outside (at most one command and a few watched messages, `remote`); (4) write
 //! the outputs that changed, one transaction per device; (5) feed the host watchdogs (at a
 //! quarter of their timeout) and, every few seconds, check the modules still drive what was
 //! written; (6) sleep to the next deadline. Overruns are counted and the schedule skips to

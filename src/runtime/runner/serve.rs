@@ -3,6 +3,7 @@
 
 use super::contract::Program;
 use super::force::answer_force;
+use super::remote::Waiting;
 use super::{Runner, State};
 use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
@@ -23,7 +24,9 @@ pub(super) struct Served {
     /// The snapshot last made, with the tick and the exchange count it was made at.
     pub(super) made: Option<((u64, u64), Arc<RigSnapshot>)>,
     /// The MQTT client's counts, once `watch_mqtt` gave them.
-    mqtt: Option<Health>,
+    pub(super) mqtt: Option<Health>,
+    /// The commands and messages waiting for a tick to run their handlers.
+    pub(super) waiting: Waiting,
 }
 
 impl<P: Program> Runner<P> {
@@ -36,6 +39,7 @@ impl<P: Program> Runner<P> {
             field,
             made: None,
             mqtt: None,
+            waiting: Waiting::default(),
         });
     }
 
@@ -110,7 +114,7 @@ impl<P: Program> Runner<P> {
         };
         // The snapshot of this turn, looked for or made only when a request asks for one.
         let mut made: Option<((u64, u64), Arc<RigSnapshot>)> = None;
-        // Remote requests run script handlers, which need the loop itself: after the drain.
+        // Remote requests may run script handlers, which need the loop itself: after the drain.
         let mut remote = Vec::new();
         let mut forced = false;
         served.requests.drain(|request| match request {
@@ -145,8 +149,12 @@ impl<P: Program> Runner<P> {
             served.made = Some(made);
         }
         for r in remote {
-            self.answer_remote(r);
+            self.take_remote(r);
         }
         self.forces_changed(forced);
+        // What waits runs at the next period boundary, even when the loop was idle until later.
+        if self.served.as_ref().is_some_and(|s| !s.waiting.is_empty()) {
+            self.tick_soon();
+        }
     }
 }

@@ -48,6 +48,11 @@ impl<P: Program> Runner<P> {
             State::Running => self.run_handlers(),
             _ => {}
         }
+        // A command or a watched message waiting from outside runs after the tick's own
+        // handlers, one command a tick: this tick's invariants and writes follow it.
+        if self.status().is_none() && self.stop_signal().is_none() {
+            self.run_waiting();
+        }
         // A signal that came during the handlers ends the run before the tick's writes: the
         // end writes the safe state anyway, and each exchange could be a silent module's.
         if self.status().is_some() || self.ended_by_signal() {
