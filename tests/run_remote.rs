@@ -6,13 +6,12 @@
 //! `on_message`, and a command whose handler sets an output the invariant forbids: the output
 //! is never written, the safe state is.
 
+mod common;
+
 use rigscript::config::RigConfig;
 use rigscript::runtime::remote::{Command, Remote, Reply, ReplyTo};
-use rigscript::runtime::requests::{self, Request, Requester};
-use rigscript::RigBuilder;
-use std::sync::atomic::AtomicUsize;
+use rigscript::runtime::requests::{Request, Requester};
 use std::sync::mpsc;
-use std::sync::Arc;
 use std::time::Duration;
 
 const SCRIPT: &str = r#"
@@ -37,17 +36,7 @@ fn started() -> (rigscript::Rig, Requester) {
 }
 
 fn started_with(config: RigConfig) -> (rigscript::Rig, Requester) {
-    let flag = Arc::new(AtomicUsize::new(0));
-    let mut rig = RigBuilder::from_config(config)
-        .simulated()
-        .virtual_time_from(chrono::DateTime::UNIX_EPOCH)
-        .keep_log()
-        .stop_flag(Arc::clone(&flag))
-        .start(SCRIPT, "remote.rhai")
-        .unwrap();
-    let (ask, requests) = requests::queue(&flag);
-    let field = rig.sim.clone();
-    rig.runner.serve(requests, "remote.rhai", field);
+    let (rig, ask, _flag) = common::served(config, SCRIPT, "remote.rhai");
     (rig, ask)
 }
 

@@ -2,10 +2,11 @@
 //! inputs that change, outputs written, log lines, the end), the snapshot answered through the
 //! control queue, a requested stop, and a consumer that falls behind losing events, counted.
 
+mod common;
+
 use rigscript::config::RigConfig;
 use rigscript::runtime::observe::{Reading, RunEvent};
 use rigscript::runtime::requests::{self, Answer, AskError, Request};
-use rigscript::RigBuilder;
 use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
@@ -15,18 +16,7 @@ every("20ms", || { io.outputs = io.inputs; });
 "#;
 
 fn started() -> (rigscript::Rig, requests::Requester, Arc<AtomicUsize>) {
-    let flag = Arc::new(AtomicUsize::new(0));
-    let mut rig = RigBuilder::from_config(RigConfig::simulated_default())
-        .simulated()
-        .virtual_time_from(chrono::DateTime::UNIX_EPOCH)
-        .keep_log()
-        .stop_flag(Arc::clone(&flag))
-        .start(SCRIPT, "mirror.rhai")
-        .unwrap();
-    let (ask, requests) = requests::queue(&flag);
-    let field = rig.sim.clone();
-    rig.runner.serve(requests, "mirror.rhai", field);
-    (rig, ask, flag)
+    common::served(RigConfig::simulated_default(), SCRIPT, "mirror.rhai")
 }
 
 /// Asks for a snapshot from another thread while the loop runs ticks in virtual time.

@@ -276,3 +276,28 @@ pub fn until<T>(limit: Duration, mut probe: impl FnMut() -> Option<T>) -> Option
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// A run of `script` (named `file`) on simulated devices in virtual time from the epoch, its log
+/// kept, served a control queue: the rig, the queue's asker, and the run's stop flag.
+pub fn served(
+    config: rigscript::config::RigConfig,
+    script: &str,
+    file: &str,
+) -> (
+    rigscript::Rig,
+    rigscript::runtime::requests::Requester,
+    Arc<std::sync::atomic::AtomicUsize>,
+) {
+    let flag = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let mut rig = rigscript::RigBuilder::from_config(config)
+        .simulated()
+        .virtual_time_from(chrono::DateTime::UNIX_EPOCH)
+        .keep_log()
+        .stop_flag(Arc::clone(&flag))
+        .start(script, file)
+        .unwrap();
+    let (ask, requests) = rigscript::runtime::requests::queue(&flag);
+    let field = rig.sim.clone();
+    rig.runner.serve(requests, file, field);
+    (rig, ask, flag)
+}
