@@ -213,8 +213,7 @@ impl<P: Program> Runner<P> {
             }
             match waiter {
                 Waiter::Command(command) => {
-                    let reply = self.run_command(&command);
-                    command.reply.send(reply);
+                    self.run_command(&command);
                 }
                 Waiter::Message { topic, payload } => self.hand_message(&topic, &payload),
             }
@@ -290,11 +289,27 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    fn run_command(&mut self, command: &Command) -> Result<String, String> {
+    /// Runs `command`'s handler and sends its reply, before what a runaway handler does to
+    /// the run (whose end answers the commands waiting behind it).
+    fn run_command(&mut self, command: &Command) {
+        match self.answer_command(command) {
+            Ok(value) => command.reply.send(Ok(value)),
+            Err((message, fault)) => {
+                command.reply.send(Err(message.clone()));
+                if let Some((fault, label)) = fault {
+                    self.remote_fault(&fault, &label, &message);
+                }
+            }
+        }
+    }
+
+    /// The command's reply, or why there is none and the handler's fault with its label.
+    fn answer_command(&mut self, command: &Command) -> Result<String, Unanswered> {
         if !self.can_run_remote() {
-            return Err(self
+            let why = self
                 .refusal()
-                .unwrap_or_else(|| "the run is ending".to_string()));
+                .unwrap_or_else(|| "the run is ending".to_string());
+            return Err((why, None));
         }
         let call = {
             let rt = self.rt.borrow();
@@ -306,10 +321,11 @@ impl<P: Program> Runner<P> {
                 .map(|s| s.call(vec![Arg::Json(command.payload.clone())]))
         };
         let Some(call) = call else {
-            return Err(format!(
+            let why = format!(
                 "no handler for command {:?} (the script has no on_command({:?}, ...))",
                 command.name, command.name
-            ));
+            );
+            return Err((why, None));
         };
         {
             let mut rt = self.rt.borrow_mut();
@@ -323,7 +339,7 @@ impl<P: Program> Runner<P> {
         }
         match self.program.answer(&call) {
             Ok(value) => Ok(value),
-            Err(fault) => Err(self.remote_fault(&fault, &call.label)),
+            Err(fault) => Err((describe(&fault, &call.label), Some((fault, call.label)))),
         }
     }
 
@@ -350,7 +366,8 @@ impl<P: Program> Runner<P> {
                 rt.cause.clone_from(&call.label);
             }
             if let Err(fault) = self.program.call(&call) {
-                self.remote_fault(&fault, &call.label);
+                let message = describe(&fault, &call.label);
+                self.remote_fault(&fault, &call.label, &message);
             }
             if !self.can_run_remote() {
                 return;
@@ -358,20 +375,22 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    /// What a remote handler's failure does, and its message: one that throws is the asker's
-    /// to hear (a warning, the run goes on: a bad payload must not stop the rig); one past
-    /// its limits is a runaway, handled by `on_error` as any handler's (never skipped), so a
-    /// command cannot hold the loop for a budget after a budget.
-    fn remote_fault(&mut self, fault: &HandlerFault, label: &str) -> String {
-        let message = describe(fault, label);
+    /// What a remote handler's failure (told as `message`) does: one that throws is the
+    /// asker's to hear (a warning, the run goes on: a bad payload must not stop the rig); one
+    /// past its limits is a runaway, handled by `on_error` as any handler's (never skipped),
+    /// so a command cannot hold the loop for a budget after a budget.
+    fn remote_fault(&mut self, fault: &HandlerFault, label: &str, message: &str) {
         if fault.over_budget {
             self.handle_fault(fault, label);
         } else {
-            self.rt.borrow_mut().log_mut().warn(&message);
+            self.rt.borrow_mut().log_mut().warn(message);
         }
-        message
     }
 }
+
+/// Why a command got no value: the error reply, and the handler's fault with its label when
+/// its handler ran and failed.
+type Unanswered = (String, Option<(HandlerFault, String)>);
 
 /// A payload as the log shows it: at most 200 characters.
 fn shorten(payload: &str) -> String {
