@@ -898,3 +898,40 @@ fn a_cancelled_on_message_handler_unsubscribes_its_filter() {
         "nothing counted as dropped: {m}"
     );
 }
+
+#[test]
+fn a_broker_that_accepts_and_never_answers_costs_the_loop_nothing_and_a_stop_ends_promptly() {
+    let dir = TempDir::new("mqtt-mute-run");
+    // Takes the TCP connection and never says a word (no CONNACK).
+    let mute = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = mute.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        let mut held = Vec::new();
+        for s in mute.incoming().flatten() {
+            held.push(s);
+        }
+    });
+    let mqtt = format!(
+        "[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\nrig = \"mute\"\nusername = \"rig\"\n\
+         password_env = \"TEST_MQTT_PW\"\noutbox = \"{}\"\n",
+        dir.path("outbox-mute").display()
+    );
+    let mut rig = run_rig(&dir, "mute", &mqtt, "every(\"50ms\", || {});\n");
+    let m = until(Duration::from_secs(30), || {
+        mqtt_status(&dir, "mute").filter(|m| m["connect_failures"].as_u64() >= Some(1))
+    })
+    .expect("status shows a failed connection");
+    assert_eq!(m["connected"], false, "{m}");
+    let why = m["last_error"].as_str().unwrap_or_default();
+    assert!(
+        why.contains(&format!("broker 127.0.0.1:{port} did not answer")),
+        "{m}"
+    );
+    let snap: Value = serde_json::from_str(&status(&dir, "mute", true).unwrap()).unwrap();
+    assert!(snap["ticks"]["count"].as_u64() > Some(0), "{snap}");
+    assert_eq!(snap["ticks"]["overruns"], 0, "{snap}");
+    let text = status(&dir, "mute", false).expect("status");
+    assert!(text.contains("NOT CONNECTED"), "{text}");
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
