@@ -935,3 +935,37 @@ fn a_broker_that_accepts_and_never_answers_costs_the_loop_nothing_and_a_stop_end
     rig.signal(libc::SIGTERM);
     assert_eq!(rig.wait_end(), Some(143));
 }
+
+#[test]
+fn a_wrong_password_is_told_naming_broker_and_user_and_retried_while_the_rig_runs() {
+    let broker = Broker::start("mqtt-badpw");
+    let dir = TempDir::new("mqtt-badpw-run");
+    let wrong = dir.file("wrong-pw", "not-the-password\n");
+    let mqtt = broker.mqtt_table("badpw", "10s").replace(
+        "password_env = \"TEST_MQTT_PW\"",
+        &format!("password_file = \"{wrong}\""),
+    );
+    let mut rig = run_rig(&dir, "badpw", &mqtt, "every(\"50ms\", || {});\n");
+    // Retried (with back-off): the failures go on growing while the run goes on.
+    let m = until(Duration::from_secs(30), || {
+        mqtt_status(&dir, "badpw").filter(|m| m["connect_failures"].as_u64() >= Some(3))
+    })
+    .expect("status shows repeated refusals");
+    assert_eq!(m["connected"], false, "{m}");
+    let said = format!(
+        "broker 127.0.0.1:{} refused user rig: wrong user name or password",
+        broker.port
+    );
+    assert!(
+        m["last_error"].as_str().unwrap_or("").contains(&said),
+        "{m}"
+    );
+    let log = std::fs::read_to_string(dir.path("badpw.log")).unwrap();
+    assert!(
+        log.contains(&said) && log.contains("the run goes on, retrying in"),
+        "{log}"
+    );
+    assert_eq!(broker.retained("rigscript/badpw/status"), None);
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
