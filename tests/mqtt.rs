@@ -4,7 +4,10 @@
 //! frozen runner, retained state follows the simulated inputs, records made while the broker
 //! was down all arrive after it is back (in order, once, equal to the records file), commands
 //! reach their handler (or get an error reply) and an ACL-forbidden client cannot command, and
-//! TLS connects with the right CA and is refused, saying why, with a wrong one.
+//! TLS connects with the right CA and is refused, saying why, with a wrong one. Hostile
+//! brokers: megabytes retained on watched and command topics (dropped by the broker for the
+//! rig's announced packet size), a listener that never answers, a proxy that cuts every
+//! connection after a second, a wrong password; a cancelled handler's filter is unsubscribed.
 
 mod common;
 
@@ -968,4 +971,84 @@ fn a_wrong_password_is_told_naming_broker_and_user_and_retried_while_the_rig_run
     assert_eq!(broker.retained("rigscript/badpw/status"), None);
     rig.signal(libc::SIGTERM);
     assert_eq!(rig.wait_end(), Some(143));
+}
+
+/// A TCP proxy to `port` that, while `cutting`, ends each connection about 1 s after it came.
+fn cutting_proxy(port: u16, cutting: std::sync::Arc<std::sync::atomic::AtomicBool>) -> u16 {
+    use std::net::{Shutdown, TcpStream};
+    use std::sync::atomic::Ordering;
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let at = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for client in listener.incoming().flatten() {
+            let Ok(server) = TcpStream::connect(("127.0.0.1", port)) else {
+                continue;
+            };
+            let pipe = |mut from: TcpStream, mut to: TcpStream| {
+                std::thread::spawn(move || {
+                    let _ = std::io::copy(&mut from, &mut to);
+                    let _ = to.shutdown(Shutdown::Both);
+                });
+            };
+            pipe(client.try_clone().unwrap(), server.try_clone().unwrap());
+            pipe(server.try_clone().unwrap(), client.try_clone().unwrap());
+            if cutting.load(Ordering::SeqCst) {
+                std::thread::spawn(move || {
+                    std::thread::sleep(Duration::from_secs(1));
+                    let _ = client.shutdown(Shutdown::Both);
+                    let _ = server.shutdown(Shutdown::Both);
+                });
+            }
+        }
+    });
+    at
+}
+
+#[test]
+fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order_once() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let broker = Broker::start("mqtt-cut");
+    let dir = TempDir::new("mqtt-cut-run");
+    let got = dir.path("records.sub");
+    let _sub = broker.subscribe("viewer", "rigscript/cut/records", &got, Some("cut-sub"));
+    broker.wait_subscribed("cut-sub");
+    let cutting = Arc::new(AtomicBool::new(true));
+    let port = cutting_proxy(broker.port, Arc::clone(&cutting));
+    let mqtt = broker
+        .mqtt_table("cut", "10s")
+        .replace(&format!(":{}\"", broker.port), &format!(":{port}\""));
+    let script = "let n = 0;\nevery(\"50ms\", || { n += 1; record(\"n\", n); });\n";
+    let mut rig = run_rig(&dir, "cut", &mqtt, script);
+    // Five connections made and cut.
+    until(Duration::from_secs(40), || {
+        let log = broker.log();
+        (log.matches("as rigscript-cut ").count() >= 5).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the rig did not connect again and again: {}", broker.log()));
+    cutting.store(false, Ordering::SeqCst);
+    let records = dir.path("cut.jsonl");
+    let made = lines(&records).len();
+    until(Duration::from_secs(30), || {
+        (delivered(&got).len() >= made).then_some(())
+    })
+    .unwrap_or_else(|| panic!("only {} of {made} records arrived", delivered(&got).len()));
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
+    until(Duration::from_secs(10), || {
+        (delivered(&got).len() >= file.len()).then_some(())
+    })
+    .expect("the stop flushed the outbox");
+    let mut kept: Vec<(u64, String)> = Vec::new();
+    for (seq, body) in delivered(&got) {
+        if kept.last().map_or(true, |(last, _)| seq > *last) {
+            kept.push((seq, body));
+        }
+    }
+    let seqs: Vec<u64> = kept.iter().map(|(s, _)| *s).collect();
+    let expected: Vec<u64> = (1..=file.len() as u64).collect();
+    assert_eq!(seqs, expected, "every record, in order, once");
+    let bodies: Vec<String> = kept.into_iter().map(|(_, b)| canonical(&b)).collect();
+    assert_eq!(bodies, file, "the records delivered are the records file");
 }
