@@ -1052,3 +1052,38 @@ fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order
     let bodies: Vec<String> = kept.into_iter().map(|(_, b)| canonical(&b)).collect();
     assert_eq!(bodies, file, "the records delivered are the records file");
 }
+
+#[test]
+fn publishes_the_acl_refuses_are_counted_and_told_naming_broker_user_and_topic() {
+    let broker = Broker::start("mqtt-acl");
+    let dir = TempDir::new("mqtt-acl-run");
+    // The rig's user may write rigscript/# only: this prefix is outside its ACL.
+    let mqtt = format!(
+        "{}prefix = \"forbidden/{{rig}}\"\n",
+        broker.mqtt_table("acl", "10s")
+    );
+    let script = "let n = 0;\nevery(\"100ms\", || { n += 1; record(\"n\", n); });\n";
+    let mut rig = run_rig(&dir, "acl", &mqtt, script);
+    let m = until(Duration::from_secs(15), || {
+        mqtt_status(&dir, "acl").filter(|m| m["dropped"]["refused"].as_u64() >= Some(3))
+    })
+    .expect("status counts the refused publishes");
+    assert_eq!(m["connected"], true, "{m}");
+    assert_eq!(m["connect_failures"], 0, "{m}");
+    // Refused records are not waited on for ever.
+    let m = until(Duration::from_secs(10), || {
+        mqtt_status(&dir, "acl").filter(|m| m["outbox_waiting"].as_u64() < Some(10))
+    })
+    .expect("the outbox does not fill with refused records");
+    assert_eq!(m["dropped"]["outbox_full"], 0, "{m}");
+    let log = std::fs::read_to_string(dir.path("acl.log")).unwrap();
+    assert!(
+        log.contains(&format!(
+            "broker 127.0.0.1:{} refused user rig's publish on forbidden/acl/",
+            broker.port
+        )) && log.contains("NotAuthorized"),
+        "{log}"
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
