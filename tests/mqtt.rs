@@ -4,7 +4,10 @@
 //! frozen runner, retained state follows the simulated inputs, records made while the broker
 //! was down all arrive after it is back (in order, once, equal to the records file), commands
 //! reach their handler (or get an error reply) and an ACL-forbidden client cannot command, and
-//! TLS connects with the right CA and is refused, saying why, with a wrong one.
+//! TLS connects with the right CA and is refused, saying why, with a wrong one. Hostile
+//! brokers: megabytes retained on watched and command topics (dropped by the broker for the
+//! rig's announced packet size), a listener that never answers, a proxy that cuts every
+//! connection after a second, a wrong password; a cancelled handler's filter is unsubscribed.
 
 mod common;
 
@@ -332,6 +335,18 @@ impl Broker {
         );
     }
 
+    /// Publishes the contents of `file` on `topic` as `user` (QoS 1), retained with `retain`.
+    fn publish_file(&self, user: &str, topic: &str, file: &str, retain: bool) {
+        let pw = USERS.iter().find(|(u, _)| *u == user).unwrap().1;
+        let mut c = Command::new("mosquitto_pub");
+        c.args(["-h", "127.0.0.1", "-p", &self.port.to_string()])
+            .args(["-u", user, "-P", pw, "-t", topic, "-f", file, "-q", "1"]);
+        if retain {
+            c.arg("-r");
+        }
+        run_ok(&mut c);
+    }
+
     /// rig.toml's `[mqtt]` for rig `rig` on the plain listener.
     fn mqtt_table(&self, rig: &str, keepalive: &str) -> String {
         format!(
@@ -387,16 +402,19 @@ fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
     let broker = Broker::start("mqtt-will");
     let dir = TempDir::new("mqtt-will-run");
     let script = "every(\"100ms\", || {});\n";
-    let rig = run_rig(&dir, "killed", &broker.mqtt_table("killed", "1s"), script);
+    let rig = run_rig(&dir, "killed", &broker.mqtt_table("killed", "5s"), script);
     broker.retained_until("rigscript/killed/status", |m| m == "online");
     rig.signal(libc::SIGKILL);
     broker.retained_until("rigscript/killed/status", |m| m == "offline");
 
-    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "1s"), script);
+    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "5s"), script);
     broker.retained_until("rigscript/frozen/status", |m| m == "online");
     frozen.signal(libc::SIGSTOP);
-    // 1.5 x keepalive and the broker's one-second clock: well inside the 10 s poll.
-    broker.retained_until("rigscript/frozen/status", |m| m == "offline");
+    // 1.5 x keepalive (5 s, the shortest) and the broker's one-second clock: inside 20 s.
+    until(Duration::from_secs(20), || {
+        (broker.retained("rigscript/frozen/status").as_deref() == Some("offline")).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the frozen runner never offline: {}", broker.log()));
     frozen.signal(libc::SIGCONT);
 }
 
@@ -483,7 +501,8 @@ fn canonical(line: &str) -> String {
 }
 
 #[test]
-fn records_made_while_the_broker_is_down_all_arrive_in_order_once_and_equal_the_records_file() {
+fn records_made_while_the_broker_is_down_10_s_all_arrive_in_order_once_and_equal_the_records_file()
+{
     let mut broker = Broker::start("mqtt-records");
     let dir = TempDir::new("mqtt-records-run");
     let got = dir.path("records.sub");
@@ -492,7 +511,7 @@ fn records_made_while_the_broker_is_down_all_arrive_in_order_once_and_equal_the_
     broker.wait_subscribed("records-sub");
     let script =
         "let n = 0;\nrecord(\"start\", 0);\nevery(\"50ms\", || { n += 1; record(\"n\", n); });\n";
-    let mut rig = run_rig(&dir, "rec", &broker.mqtt_table("rec", "2s"), script);
+    let mut rig = run_rig(&dir, "rec", &broker.mqtt_table("rec", "5s"), script);
     let records = dir.path("rec.jsonl");
     until(Duration::from_secs(10), || {
         (delivered(&got).len() >= 5).then_some(())
@@ -500,9 +519,10 @@ fn records_made_while_the_broker_is_down_all_arrive_in_order_once_and_equal_the_
     .expect("records arrive while the broker is up");
     broker.stop();
     let at_stop = lines(&records).len();
-    // The rig runs on and records while the broker is away.
-    until(Duration::from_secs(20), || {
-        (lines(&records).len() >= at_stop + 40).then_some(())
+    // The rig runs on and records while the broker is away: 200 records at one per 50 ms,
+    // an outage of 10 s.
+    until(Duration::from_secs(30), || {
+        (lines(&records).len() >= at_stop + 200).then_some(())
     })
     .expect("the rig goes on recording without its broker");
     broker.resume();
@@ -550,7 +570,7 @@ fn records_made_while_the_broker_is_down_all_arrive_in_order_once_and_equal_the_
     let mut rig = run_rig(
         &dir,
         "rec",
-        &broker.mqtt_table("rec", "2s"),
+        &broker.mqtt_table("rec", "5s"),
         "record(\"again\", 1);\n",
     );
     let first = until(Duration::from_secs(10), || {
@@ -726,4 +746,344 @@ fn a_flood_on_a_watched_topic_is_counted_in_status_as_messages_dropped() {
         line.contains("connected") && line.contains("dropped: messages "),
         "{line}"
     );
+}
+
+/// The `mqtt` part of `rigscript status NAME --json`, once it answers.
+fn mqtt_status(dir: &TempDir, name: &str) -> Option<Value> {
+    let text = status(dir, name, true)?;
+    let v: Value = serde_json::from_str(&text).ok()?;
+    Some(v["mqtt"].clone())
+}
+
+/// Waits (bounded) for a line starting with `prefix` in `file`.
+fn line_with(file: &Path, prefix: &str) -> String {
+    until(Duration::from_secs(15), || {
+        lines(file).into_iter().find(|l| l.starts_with(prefix))
+    })
+    .unwrap_or_else(|| panic!("no {prefix:?} line in {file:?}: {:?}", lines(file)))
+}
+
+#[test]
+fn huge_retained_messages_on_a_watched_topic_and_on_cmd_leave_the_connection_up() {
+    let broker = Broker::start("mqtt-huge");
+    let dir = TempDir::new("mqtt-huge-run");
+    // Megabytes on a watched topic and on a command, retained: sent to the rig at each
+    // subscription. The client announces its packet size limit; the broker drops these for it.
+    let huge = dir.file("huge", &"x".repeat(3 << 20));
+    broker.publish_file("rig", "lab/in/huge", &huge, true);
+    broker.publish_file("ops", "rigscript/huge/cmd/arm", &huge, true);
+    // A little over the payload bound: within the packet limit, so it arrives, and the client
+    // drops it, counted.
+    let over = dir.file("over", &"y".repeat(64 * 1024 + 100));
+    broker.publish_file("rig", "lab/in/over", &over, true);
+    let script = "on_message(\"lab/in/#\", |t, p| mqtt_publish(\"lab/out\", t));\n\
+                  on_command(\"arm\", |p| \"armed\");\n";
+    let _rig = run_rig(&dir, "huge", &broker.mqtt_table("huge", "10s"), script);
+    until(Duration::from_secs(10), || {
+        mqtt_status(&dir, "huge").filter(|m| m["connected"] == true)
+    })
+    .expect("status shows the client connected");
+    let out = dir.path("out.sub");
+    let _out = broker.subscribe("viewer", "lab/out", &out, Some("out-sub"));
+    broker.wait_subscribed("out-sub");
+    // Sent again until the rig has subscribed to the watched filter (it asks every 2 s): by
+    // then the retained messages, huge and over, came before this one.
+    until(Duration::from_secs(15), || {
+        broker.publish("rig", "lab/in/ok", "{}");
+        std::thread::sleep(Duration::from_millis(200));
+        lines(&out)
+            .contains(&"lab/out lab/in/ok".to_string())
+            .then_some(())
+    })
+    .unwrap_or_else(|| panic!("the handler never saw lab/in/ok: {:?}", lines(&out)));
+    let replies = dir.path("replies.sub");
+    let _replies = broker.subscribe(
+        "viewer",
+        "rigscript/huge/cmd/+/reply",
+        &replies,
+        Some("huge-replies"),
+    );
+    broker.wait_subscribed("huge-replies");
+    broker.publish("ops", "rigscript/huge/cmd/arm", "{}");
+    let reply = line_with(&replies, "rigscript/huge/cmd/arm/reply ");
+    assert!(reply.ends_with(r#"{"ok":true,"value":"armed"}"#), "{reply}");
+    broker.publish_file("ops", "rigscript/huge/cmd/arm", &over, false);
+    let refused = until(Duration::from_secs(15), || {
+        lines(&replies)
+            .into_iter()
+            .find(|l| l.contains("\"ok\":false"))
+    })
+    .expect("an error reply for the command over the bound");
+    assert!(refused.contains("a payload of 65636 bytes"), "{refused}");
+    let m = mqtt_status(&dir, "huge").expect("status");
+    assert_eq!(m["connected"], true, "{m}");
+    assert_eq!(
+        m["connect_failures"], 0,
+        "the connection was never lost: {m}"
+    );
+    assert_eq!(m["dropped"]["messages"], 1, "the one over the bound: {m}");
+    assert_eq!(m["dropped"]["commands"], 1, "the one over the bound: {m}");
+    // What the broker dropped for the rig: the two huge ones, at each subscription.
+    let log = broker.log();
+    let dropped = log
+        .lines()
+        .filter(|l| l.contains("Dropping too large outgoing PUBLISH for rigscript-huge"))
+        .count();
+    assert_eq!(dropped, 2, "{log}");
+    let seen = lines(&out);
+    assert!(
+        !seen
+            .iter()
+            .any(|l| l.contains("huge") || l.contains("over")),
+        "{seen:?}"
+    );
+}
+
+#[test]
+fn a_cancelled_on_message_handler_unsubscribes_its_filter() {
+    let broker = Broker::start("mqtt-unwatch");
+    let dir = TempDir::new("mqtt-unwatch-run");
+    let script =
+        "let watch = on_message(\"lab/gone\", |t, p| mqtt_publish(\"lab/seen\", `gone ${p}`));\n\
+                  on_message(\"lab/still\", |t, p| mqtt_publish(\"lab/seen\", `still ${p}`));\n\
+                  on_command(\"unwatch\", |p| cancel(watch));\n";
+    let _rig = run_rig(
+        &dir,
+        "unwatch",
+        &broker.mqtt_table("unwatch", "10s"),
+        script,
+    );
+    broker.retained_until("rigscript/unwatch/status", |m| m == "online");
+    let seen = dir.path("seen.sub");
+    let _seen = broker.subscribe("viewer", "lab/seen", &seen, Some("seen-sub"));
+    broker.wait_subscribed("seen-sub");
+    let saw = |what: &str| lines(&seen).contains(&format!("lab/seen {what}"));
+    until(Duration::from_secs(15), || {
+        broker.publish("rig", "lab/gone", "1");
+        std::thread::sleep(Duration::from_millis(200));
+        saw("gone 1").then_some(())
+    })
+    .expect("the handler answers before it is cancelled");
+    let replies = dir.path("replies.sub");
+    let _replies = broker.subscribe(
+        "viewer",
+        "rigscript/unwatch/cmd/+/reply",
+        &replies,
+        Some("unwatch-replies"),
+    );
+    broker.wait_subscribed("unwatch-replies");
+    broker.publish("ops", "rigscript/unwatch/cmd/unwatch", "{}");
+    let reply = line_with(&replies, "rigscript/unwatch/cmd/unwatch/reply ");
+    assert!(reply.ends_with(r#"{"ok":true,"value":true}"#), "{reply}");
+    let said = "Received UNSUBSCRIBE from rigscript-unwatch";
+    until(Duration::from_secs(10), || {
+        broker.log().contains(said).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the rig never unsubscribed: {}", broker.log()));
+    broker.publish("rig", "lab/gone", "2");
+    broker.publish("rig", "lab/still", "3");
+    // The broker routes in order: once the later message reached the rig, the earlier one
+    // would have too, had the rig still subscribed.
+    until(Duration::from_secs(15), || saw("still 3").then_some(()))
+        .expect("the other handler still answers");
+    assert!(!saw("gone 2"), "{:?}", lines(&seen));
+    let log = broker.log();
+    let after = &log[log.find(said).unwrap()..];
+    assert!(
+        !after
+            .lines()
+            .any(|l| l.contains("Sending PUBLISH to rigscript-unwatch") && l.contains("'lab/gone'")),
+        "the broker still sent lab/gone to the rig:\n{after}"
+    );
+    let m = mqtt_status(&dir, "unwatch").expect("status");
+    assert_eq!(
+        m["dropped"]["messages"], 0,
+        "nothing counted as dropped: {m}"
+    );
+}
+
+#[test]
+fn a_broker_that_accepts_and_never_answers_costs_the_loop_nothing_and_a_stop_ends_promptly() {
+    let dir = TempDir::new("mqtt-mute-run");
+    // Takes the TCP connection and never says a word (no CONNACK).
+    let mute = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = mute.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        let mut held = Vec::new();
+        for s in mute.incoming().flatten() {
+            held.push(s);
+        }
+    });
+    let mqtt = format!(
+        "[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\nrig = \"mute\"\nusername = \"rig\"\n\
+         password_env = \"TEST_MQTT_PW\"\noutbox = \"{}\"\n",
+        dir.path("outbox-mute").display()
+    );
+    let mut rig = run_rig(&dir, "mute", &mqtt, "every(\"50ms\", || {});\n");
+    let m = until(Duration::from_secs(30), || {
+        mqtt_status(&dir, "mute").filter(|m| m["connect_failures"].as_u64() >= Some(1))
+    })
+    .expect("status shows a failed connection");
+    assert_eq!(m["connected"], false, "{m}");
+    let why = m["last_error"].as_str().unwrap_or_default();
+    assert!(
+        why.contains(&format!("broker 127.0.0.1:{port} did not answer")),
+        "{m}"
+    );
+    let snap: Value = serde_json::from_str(&status(&dir, "mute", true).unwrap()).unwrap();
+    assert!(snap["ticks"]["count"].as_u64() > Some(0), "{snap}");
+    assert_eq!(snap["ticks"]["overruns"], 0, "{snap}");
+    let text = status(&dir, "mute", false).expect("status");
+    assert!(text.contains("NOT CONNECTED"), "{text}");
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
+
+#[test]
+fn a_wrong_password_is_told_naming_broker_and_user_and_retried_while_the_rig_runs() {
+    let broker = Broker::start("mqtt-badpw");
+    let dir = TempDir::new("mqtt-badpw-run");
+    let wrong = dir.file("wrong-pw", "not-the-password\n");
+    let mqtt = broker.mqtt_table("badpw", "10s").replace(
+        "password_env = \"TEST_MQTT_PW\"",
+        &format!("password_file = \"{wrong}\""),
+    );
+    let mut rig = run_rig(&dir, "badpw", &mqtt, "every(\"50ms\", || {});\n");
+    // Retried (with back-off): the failures go on growing while the run goes on.
+    let m = until(Duration::from_secs(30), || {
+        mqtt_status(&dir, "badpw").filter(|m| m["connect_failures"].as_u64() >= Some(3))
+    })
+    .expect("status shows repeated refusals");
+    assert_eq!(m["connected"], false, "{m}");
+    let said = format!(
+        "broker 127.0.0.1:{} refused user rig: wrong user name or password",
+        broker.port
+    );
+    assert!(
+        m["last_error"].as_str().unwrap_or("").contains(&said),
+        "{m}"
+    );
+    let log = std::fs::read_to_string(dir.path("badpw.log")).unwrap();
+    assert!(
+        log.contains(&said) && log.contains("the run goes on, retrying in"),
+        "{log}"
+    );
+    assert_eq!(broker.retained("rigscript/badpw/status"), None);
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
+
+/// A TCP proxy to `port` that, while `cutting`, ends each connection about 1 s after it came.
+fn cutting_proxy(port: u16, cutting: std::sync::Arc<std::sync::atomic::AtomicBool>) -> u16 {
+    use std::net::{Shutdown, TcpStream};
+    use std::sync::atomic::Ordering;
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let at = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for client in listener.incoming().flatten() {
+            let Ok(server) = TcpStream::connect(("127.0.0.1", port)) else {
+                continue;
+            };
+            let pipe = |mut from: TcpStream, mut to: TcpStream| {
+                std::thread::spawn(move || {
+                    let _ = std::io::copy(&mut from, &mut to);
+                    let _ = to.shutdown(Shutdown::Both);
+                });
+            };
+            pipe(client.try_clone().unwrap(), server.try_clone().unwrap());
+            pipe(server.try_clone().unwrap(), client.try_clone().unwrap());
+            if cutting.load(Ordering::SeqCst) {
+                std::thread::spawn(move || {
+                    std::thread::sleep(Duration::from_secs(1));
+                    let _ = client.shutdown(Shutdown::Both);
+                    let _ = server.shutdown(Shutdown::Both);
+                });
+            }
+        }
+    });
+    at
+}
+
+#[test]
+fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order_once() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let broker = Broker::start("mqtt-cut");
+    let dir = TempDir::new("mqtt-cut-run");
+    let got = dir.path("records.sub");
+    let _sub = broker.subscribe("viewer", "rigscript/cut/records", &got, Some("cut-sub"));
+    broker.wait_subscribed("cut-sub");
+    let cutting = Arc::new(AtomicBool::new(true));
+    let port = cutting_proxy(broker.port, Arc::clone(&cutting));
+    let mqtt = broker
+        .mqtt_table("cut", "10s")
+        .replace(&format!(":{}\"", broker.port), &format!(":{port}\""));
+    let script = "let n = 0;\nevery(\"50ms\", || { n += 1; record(\"n\", n); });\n";
+    let mut rig = run_rig(&dir, "cut", &mqtt, script);
+    // Five connections made and cut.
+    until(Duration::from_secs(40), || {
+        let log = broker.log();
+        (log.matches("as rigscript-cut ").count() >= 5).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the rig did not connect again and again: {}", broker.log()));
+    cutting.store(false, Ordering::SeqCst);
+    let records = dir.path("cut.jsonl");
+    let made = lines(&records).len();
+    until(Duration::from_secs(30), || {
+        (delivered(&got).len() >= made).then_some(())
+    })
+    .unwrap_or_else(|| panic!("only {} of {made} records arrived", delivered(&got).len()));
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
+    until(Duration::from_secs(10), || {
+        (delivered(&got).len() >= file.len()).then_some(())
+    })
+    .expect("the stop flushed the outbox");
+    let mut kept: Vec<(u64, String)> = Vec::new();
+    for (seq, body) in delivered(&got) {
+        if kept.last().map_or(true, |(last, _)| seq > *last) {
+            kept.push((seq, body));
+        }
+    }
+    let seqs: Vec<u64> = kept.iter().map(|(s, _)| *s).collect();
+    let expected: Vec<u64> = (1..=file.len() as u64).collect();
+    assert_eq!(seqs, expected, "every record, in order, once");
+    let bodies: Vec<String> = kept.into_iter().map(|(_, b)| canonical(&b)).collect();
+    assert_eq!(bodies, file, "the records delivered are the records file");
+}
+
+#[test]
+fn publishes_the_acl_refuses_are_counted_and_told_naming_broker_user_and_topic() {
+    let broker = Broker::start("mqtt-acl");
+    let dir = TempDir::new("mqtt-acl-run");
+    // The rig's user may write rigscript/# only: this prefix is outside its ACL.
+    let mqtt = format!(
+        "{}prefix = \"forbidden/{{rig}}\"\n",
+        broker.mqtt_table("acl", "10s")
+    );
+    let script = "let n = 0;\nevery(\"100ms\", || { n += 1; record(\"n\", n); });\n";
+    let mut rig = run_rig(&dir, "acl", &mqtt, script);
+    let m = until(Duration::from_secs(15), || {
+        mqtt_status(&dir, "acl").filter(|m| m["dropped"]["refused"].as_u64() >= Some(3))
+    })
+    .expect("status counts the refused publishes");
+    assert_eq!(m["connected"], true, "{m}");
+    assert_eq!(m["connect_failures"], 0, "{m}");
+    // Refused records are not waited on for ever.
+    let m = until(Duration::from_secs(10), || {
+        mqtt_status(&dir, "acl").filter(|m| m["outbox_waiting"].as_u64() < Some(10))
+    })
+    .expect("the outbox does not fill with refused records");
+    assert_eq!(m["dropped"]["outbox_full"], 0, "{m}");
+    let log = std::fs::read_to_string(dir.path("acl.log")).unwrap();
+    assert!(
+        log.contains(&format!(
+            "broker 127.0.0.1:{} refused user rig's publish on forbidden/acl/",
+            broker.port
+        )) && log.contains("NotAuthorized"),
+        "{log}"
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
 }

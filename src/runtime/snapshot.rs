@@ -86,11 +86,14 @@ pub struct MqttDropped {
     pub publishes: u64,
     /// Log lines for the broker not sent.
     pub log: u64,
+    /// Publishes the broker refused (its ACL, a quota): records, states, replies...
+    #[serde(default)]
+    pub refused: u64,
 }
 
 impl MqttDropped {
     /// Every kind as `(kind, count)`, the kinds as `/metrics` labels them.
-    pub fn by_kind(&self) -> [(&'static str, u64); 6] {
+    pub fn by_kind(&self) -> [(&'static str, u64); 7] {
         [
             ("outbox_full", self.outbox_full),
             ("outbox_write", self.outbox_write),
@@ -98,6 +101,7 @@ impl MqttDropped {
             ("commands", self.commands),
             ("publishes", self.publishes),
             ("log", self.log),
+            ("refused", self.refused),
         ]
     }
 

@@ -20,6 +20,8 @@ pub enum Loss {
     Publish,
     /// A log line for the broker not sent.
     Log,
+    /// A publish the broker refused (its ACL, a quota): a record, a state, a reply...
+    Refused,
 }
 
 /// The shared counts: cheap to clone, one for the client's thread, one for the loop.
@@ -38,6 +40,7 @@ struct Counts {
     commands: AtomicU64,
     publishes: AtomicU64,
     log: AtomicU64,
+    refused: AtomicU64,
     /// Held only to swap the text, never across I/O: the loop's read waits on no network.
     last_error: Mutex<Option<String>>,
 }
@@ -61,6 +64,7 @@ impl Health {
             Loss::Command => &c.commands,
             Loss::Publish => &c.publishes,
             Loss::Log => &c.log,
+            Loss::Refused => &c.refused,
         };
         counter.fetch_add(1, Ordering::Relaxed);
     }
@@ -104,6 +108,7 @@ impl Health {
                 commands: load(&c.commands),
                 publishes: load(&c.publishes),
                 log: load(&c.log),
+                refused: load(&c.refused),
             },
         }
     }
@@ -124,6 +129,7 @@ mod tests {
         client.lost(Loss::Command);
         client.lost(Loss::Publish);
         client.lost(Loss::Publish);
+        client.lost(Loss::Refused);
         client.connected();
         client.failed("cannot reach broker broker:1883: refused");
         client.waiting(12);
@@ -145,9 +151,10 @@ mod tests {
                 commands: 1,
                 publishes: 2,
                 log: 0,
+                refused: 1,
             }
         );
-        assert_eq!(s.dropped.total(), 7);
+        assert_eq!(s.dropped.total(), 8);
         client.connected();
         assert!(loop_side.shown().connected);
     }

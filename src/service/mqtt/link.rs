@@ -1,22 +1,29 @@
-//! One connection to the broker: rumqttc's client, its network thread (which drives the
-//! connection and hands its events over a channel), and which records are in flight.
+//! One connection to the broker: rumqttc's MQTT 5 client, its network thread (which drives
+//! the connection and hands its events over a channel), and which records are in flight.
+//!
+//! MQTT 5 because its CONNECT carries a Maximum Packet Size: the broker never sends this
+//! client a larger packet (it drops it for this client), so a neighbour's huge retained
+//! message on a watched topic cannot end the connection each time it is made.
 //!
 //! A connection that fails is not reconnected by rumqttc (it would resend what it holds on
 //! its own): the link ends, and the next one resends from the outbox, so the outbox alone
 //! says what the broker has.
 
-use rumqttc::{Client, ConnectionError, Event, MqttOptions, Outgoing, Packet, QoS};
+use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason};
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::{Client, ConnectionError, Event, MqttOptions};
+use rumqttc::Outgoing;
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::thread;
 
 /// What a publish was, for when its packet id is known.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Tag {
-    /// A record with this seq.
-    Record(u64),
-    /// Anything else.
-    Other,
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Tag {
+    /// A record's seq, if it is one.
+    record: Option<u64>,
+    /// Its topic (for a refusal's message).
+    topic: String,
 }
 
 /// What the network thread tells.
@@ -25,6 +32,18 @@ pub enum NetEvent {
     Connected,
     /// The broker acknowledged this record (all before it may still be in flight).
     Acked(u64),
+    /// The broker acknowledged a publish with a refusal (its ACL, a quota): it is not
+    /// delivered, and sending it again would be refused again.
+    Refused {
+        /// The publish's topic.
+        topic: String,
+        /// For a record: the highest seq now done with every one before it (a refused
+        /// record is done: the outbox must not wait for ever on what the broker will not
+        /// take).
+        acked: Option<u64>,
+        /// The broker's reason.
+        reason: PubAckReason,
+    },
     /// A message on a topic the rig subscribed to.
     Message {
         /// Its topic.
@@ -44,7 +63,7 @@ pub struct Link {
     client: Client,
     net: Receiver<Event2>,
     tags: VecDeque<Tag>,
-    by_packet: HashMap<u16, u64>,
+    by_packet: HashMap<u16, Tag>,
     unacked: BTreeSet<u64>,
     highest_sent: Option<u64>,
     connected: bool,
@@ -113,19 +132,37 @@ impl Link {
                     return Some(NetEvent::Connected);
                 }
                 Ok(Event::Outgoing(Outgoing::Publish(pkid))) => {
-                    if let Some(Tag::Record(seq)) = self.tags.pop_front() {
-                        self.by_packet.insert(pkid, seq);
+                    // QoS 0 publishes get packet id 0 and no acknowledgement.
+                    if let Some(tag) = self.tags.pop_front().filter(|_| pkid != 0) {
+                        self.by_packet.insert(pkid, tag);
                     }
                 }
                 Ok(Event::Incoming(Packet::PubAck(ack))) => {
-                    if let Some(seq) = self.by_packet.remove(&ack.pkid) {
+                    let refused = !matches!(
+                        ack.reason,
+                        PubAckReason::Success | PubAckReason::NoMatchingSubscribers
+                    );
+                    let Some(tag) = self.by_packet.remove(&ack.pkid) else {
+                        continue;
+                    };
+                    let acked = tag.record.map(|seq| {
                         self.unacked.remove(&seq);
-                        return Some(NetEvent::Acked(self.acked_through()));
+                        self.acked_through()
+                    });
+                    if refused {
+                        return Some(NetEvent::Refused {
+                            topic: tag.topic,
+                            acked,
+                            reason: ack.reason,
+                        });
+                    }
+                    if let Some(seq) = acked {
+                        return Some(NetEvent::Acked(seq));
                     }
                 }
                 Ok(Event::Incoming(Packet::Publish(p))) => {
                     return Some(NetEvent::Message {
-                        topic: p.topic,
+                        topic: String::from_utf8_lossy(&p.topic).into_owned(),
                         payload: p.payload.to_vec(),
                     })
                 }
@@ -160,7 +197,10 @@ impl Link {
             .try_publish(topic, QoS::AtLeastOnce, false, payload.as_bytes().to_vec())
             .is_ok();
         if sent {
-            self.tags.push_back(Tag::Record(seq));
+            self.tags.push_back(Tag {
+                record: Some(seq),
+                topic: topic.to_string(),
+            });
             self.unacked.insert(seq);
             self.highest_sent = Some(seq);
         }
@@ -174,7 +214,10 @@ impl Link {
             .try_publish(topic, qos, retain, payload.to_vec())
             .is_ok();
         if sent {
-            self.tags.push_back(Tag::Other);
+            self.tags.push_back(Tag {
+                record: None,
+                topic: topic.to_string(),
+            });
         }
         sent
     }
@@ -182,6 +225,11 @@ impl Link {
     /// Subscribes to `filter` (QoS 1); false if the client's queue is full.
     pub fn subscribe(&mut self, filter: &str) -> bool {
         self.client.try_subscribe(filter, QoS::AtLeastOnce).is_ok()
+    }
+
+    /// Unsubscribes from `filter`; false if the client's queue is full.
+    pub fn unsubscribe(&mut self, filter: &str) -> bool {
+        self.client.try_unsubscribe(filter).is_ok()
     }
 
     /// Says goodbye to the broker (no last will) and lets the network thread end.

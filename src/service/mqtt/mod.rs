@@ -19,7 +19,10 @@ pub mod topics;
 use crate::config::mqtt::{MqttConfig, PasswordSource, Transport};
 use crate::runtime::observe::{Events, TooManySubscribers};
 use crate::runtime::requests::Requester;
-use rumqttc::{LastWill, MqttOptions, QoS, TlsConfiguration};
+use rumqttc::v5::mqttbytes::v5::LastWill;
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::MqttOptions;
+use rumqttc::TlsConfiguration;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -29,6 +32,12 @@ pub use topics::Topics;
 
 /// Events the client's queue holds: records must not be lost to a burst (each is small).
 const EVENT_QUEUE: usize = 16_384;
+
+/// The largest packet the client takes, as it tells the broker: a command or watched message
+/// at its bounds (`topics::MAX_PAYLOAD`, `topics::MAX_TOPIC`) and room for the headers and a
+/// publisher's properties. A message a little over the payload bound still arrives, and is
+/// dropped here, counted; a larger one the broker drops.
+pub const MAX_INBOUND_PACKET: u32 = (topics::MAX_PAYLOAD + topics::MAX_TOPIC + 1024) as u32;
 
 /// How long a normal stop waits for the outbox to go out.
 pub const FLUSH_WAIT: Duration = Duration::from_secs(2);
@@ -144,19 +153,21 @@ impl Settings {
             self.host.clone(),
             self.port,
         );
-        o.set_keep_alive(self.keepalive);
-        o.set_clean_session(true);
+        // rig.toml allows no shorter one; rumqttc's MQTT 5 client would panic on it.
+        o.set_keep_alive(self.keepalive.max(crate::config::mqtt::MIN_KEEPALIVE));
+        o.set_clean_start(true);
         o.set_last_will(LastWill::new(
             self.topics.status(),
             topics::OFFLINE,
             QoS::AtLeastOnce,
             true,
+            None,
         ));
-        // Inbound: a command or watched message and its topic; larger packets end the
-        // connection (rumqttc's bound), which is retried.
-        let inbound = topics::MAX_PAYLOAD + topics::MAX_TOPIC + 64;
-        o.set_max_packet_size(inbound, 1 << 20);
-        o.set_inflight(pump::WINDOW as u16 + 16);
+        // Announced in CONNECT: the broker drops a larger packet for this client instead of
+        // sending it (rumqttc would end the connection on it, and a retained one would end
+        // every connection made again).
+        o.set_max_packet_size(Some(MAX_INBOUND_PACKET));
+        o.set_outgoing_inflight_upper_limit(pump::WINDOW as u16 + 16);
         if let Some(user) = &self.username {
             o.set_credentials(user.clone(), self.password.clone().unwrap_or_default());
         }

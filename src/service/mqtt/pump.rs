@@ -12,7 +12,9 @@ use crate::runtime::observe::{RunEvent, Subscription};
 use crate::runtime::remote::{Command, Remote, Reply, ReplyTo};
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
 use crate::runtime::snapshot::RigSnapshot;
-use rumqttc::{ConnectReturnCode, ConnectionError, QoS};
+use rumqttc::v5::mqttbytes::v5::{ConnectReturnCode, PubAckReason};
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::{ConnectionError, StateError};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
@@ -259,6 +261,11 @@ impl Pump {
             match event {
                 NetEvent::Connected => self.on_connected(),
                 NetEvent::Acked(seq) => self.outbox.ack_through(seq),
+                NetEvent::Refused {
+                    topic,
+                    acked,
+                    reason,
+                } => self.on_refused(&topic, acked, reason),
                 NetEvent::Message { topic, payload } => self.on_message(topic, payload),
                 NetEvent::Failed(e) => {
                     self.on_failed(&e);
@@ -296,6 +303,26 @@ impl Pump {
         self.discovered = false;
         self.watched.clear();
         self.watched_asked = Instant::now() - STATE_REFRESH;
+    }
+
+    /// The broker refused a publish (its ACL, most likely): counted, told, not sent again.
+    fn on_refused(&mut self, topic: &str, acked: Option<u64>, reason: PubAckReason) {
+        self.health.lost(Loss::Refused);
+        let what = if acked.is_some() {
+            "records are not delivered"
+        } else {
+            "not delivered"
+        };
+        let message = format!(
+            "mqtt: broker {} refused user {}'s publish on {topic}: {reason:?} ({what}; does \
+             the broker's ACL let the user write there?)",
+            self.s.broker,
+            self.s.user()
+        );
+        self.warn_counted("refused", 1, &message);
+        if let Some(seq) = acked {
+            self.outbox.ack_through(seq);
+        }
     }
 
     fn on_failed(&mut self, e: &ConnectionError) {
@@ -414,7 +441,8 @@ impl Pump {
         }
     }
 
-    /// Subscribes to the topics the script's `on_message` handlers watch.
+    /// Subscribes to the topics the script's `on_message` handlers watch, and unsubscribes
+    /// from those they no longer do.
     fn refresh_watched(&mut self) {
         let connected = self.link.as_ref().is_some_and(Link::connected);
         if !connected || self.loop_gone || self.watched_asked.elapsed() < Duration::from_secs(2) {
@@ -432,14 +460,23 @@ impl Pump {
         let Ok(Ok(text)) = rx.recv_timeout(SNAPSHOT_WAIT) else {
             return;
         };
-        let filters: Vec<String> = serde_json::from_str(&text).unwrap_or_default();
+        let Ok(filters) = serde_json::from_str::<BTreeSet<String>>(&text) else {
+            return;
+        };
+        let Some(l) = self.link.as_mut() else {
+            return;
+        };
+        // A filter no handler watches any more (cancelled) is left, so its messages stop
+        // coming at all: nothing for the loop to take and nothing to count as dropped.
+        let gone: Vec<String> = self.watched.difference(&filters).cloned().collect();
+        for f in gone {
+            if l.unsubscribe(&f) {
+                self.watched.remove(&f);
+            }
+        }
         for f in filters {
-            if !self.watched.contains(&f) {
-                if let Some(l) = self.link.as_mut() {
-                    if l.subscribe(&f) {
-                        self.watched.insert(f);
-                    }
-                }
+            if !self.watched.contains(&f) && l.subscribe(&f) {
+                self.watched.insert(f);
             }
         }
     }
@@ -598,6 +635,7 @@ impl Pump {
             (dropped.messages, "watched-topic messages dropped"),
             (dropped.commands, "commands refused"),
             (dropped.publishes, "mqtt_publish messages dropped"),
+            (dropped.refused, "publishes the broker refused"),
             (dropped.outbox_full, "records dropped: the outbox was full"),
             (
                 dropped.outbox_write,
@@ -681,6 +719,13 @@ fn describe_failure(e: &ConnectionError, s: &Settings) -> String {
              (password_file / password_env)",
             s.user()
         ),
+        ConnectionError::ConnectionRefused(
+            ConnectReturnCode::UnsupportedProtocolVersion
+            | ConnectReturnCode::RefusedProtocolVersion,
+        ) => format!(
+            "broker {broker} does not speak MQTT 5, which the rig's client needs (Mosquitto \
+             1.6 or later does)"
+        ),
         ConnectionError::ConnectionRefused(code) => {
             format!(
                 "broker {broker} refused the connection of user {}: {code:?}",
@@ -693,8 +738,28 @@ fn describe_failure(e: &ConnectionError, s: &Settings) -> String {
             s.host
         ),
         ConnectionError::Io(io) => format!("cannot reach broker {broker}: {io}"),
-        ConnectionError::NetworkTimeout => {
+        ConnectionError::Timeout(_) => {
             format!("broker {broker} did not answer the connection in time")
+        }
+        ConnectionError::NotConnAck(packet) => format!(
+            "broker {broker} answered the connection with {packet:?}, not a CONNACK (does it \
+             speak MQTT 5?)"
+        ),
+        ConnectionError::MqttState(StateError::ServerDisconnect {
+            reason_code,
+            reason_string,
+        }) => format!(
+            "broker {broker} ended the connection: {reason_code:?}{}",
+            reason_string
+                .as_deref()
+                .map(|r| format!(" ({r})"))
+                .unwrap_or_default()
+        ),
+        ConnectionError::MqttState(StateError::ConnectionAborted) => {
+            format!("broker {broker} closed the connection")
+        }
+        ConnectionError::MqttState(StateError::AwaitPingResp) => {
+            format!("broker {broker} stopped answering (no reply to the keep-alive ping)")
         }
         other => format!("broker {broker}: {other}"),
     }
