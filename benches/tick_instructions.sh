@@ -9,6 +9,17 @@
 # for the measured run: the count then includes every thread of the runner (the socket's
 # threads serving them too), an upper bound on what watching costs the loop.
 #
+# With MQTT=1, rig.toml has `[mqtt]` to a Mosquitto of the script's own on a free loopback port,
+# up for the whole run: the client connects, publishes the rig's status and the module's state
+# once, then has nothing to tell (no record, the inputs do not change), as a run without
+# records. Its connection takes valgrind a while, so the start-up run lasts 2 s (the measured
+# one 6 s) and both must have connected (the broker's log is checked). Without MQTT=1 the same
+# durations are had with SHORT=2s LONG=6s, for a like-for-like pair.
+#
+# Besides all threads' count it prints the scan loop's thread alone (callgrind
+# --separate-threads; the thread that runs `Runner::run`: the ticks and the requests served
+# between them) a tick, and the other threads' instructions a second of the measured run.
+#
 # Run from the crate root: sh benches/tick_instructions.sh [BINARY]
 # (default target/profiling/rigscript, `cargo build --profile profiling`: the release code with
 # debug info, so a kept callgrind output shows source lines; give another build to compare).
@@ -21,7 +32,8 @@ if ! command -v valgrind >/dev/null; then
 fi
 cargo build --profile profiling --quiet
 dir=$(mktemp -d)
-trap 'kill "$sim" 2>/dev/null; rm -rf "$dir"' EXIT
+broker=
+trap 'kill "$sim" $broker 2>/dev/null; rm -rf "$dir"' EXIT
 target/profiling/rigscript sim c29u --baud 115200 --link "$dir/pty" >/dev/null 2>&1 &
 sim=$!
 for _ in 1 2 3 4 5 6 7 8 9 10; do [ -e "$dir/pty" ] && break; sleep 0.2; done
@@ -29,16 +41,38 @@ printf '[devices.io]\nkind = "trp-c29u"\nport = "%s"\nbaud = 115200\n' "$dir/pty
 echo 'io.on_rise(0, || {});' >"$dir/poll.rhai"
 # Builds before the guardian have no such flag (and no guardian).
 no_guardian=$("$binary" run --help | grep -q -- --no-guardian && echo --no-guardian || true)
-# Prints "TICKS INSTRUCTIONS" for a run of DURATION.
+short=${SHORT:-10ms}
+long=${LONG:-4s}
+if [ "${MQTT:-0}" = 1 ]; then
+    if ! command -v mosquitto >/dev/null; then
+        echo "tick_instructions.sh: MQTT=1 needs mosquitto (apt-get install mosquitto)" >&2
+        exit 2
+    fi
+    short=${SHORT:-2s}
+    long=${LONG:-6s}
+    port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    printf 'listener %s 127.0.0.1\nallow_anonymous true\npersistence false\n' "$port" \
+        >"$dir/mosquitto.conf"
+    mosquitto -c "$dir/mosquitto.conf" >"$dir/mosquitto.log" 2>&1 &
+    broker=$!
+    printf '[mqtt]\nurl = "mqtt://127.0.0.1:%s"\nrig = "tick"\noutbox = "%s/outbox"\n' \
+        "$port" "$dir" >>"$dir/rig.toml"
+fi
+# Prints "TICKS INSTRUCTIONS LOOP_THREAD_INSTRUCTIONS" for a run of DURATION.
 count() {
+    rm -f "$dir"/cg.*
     # --no-guardian: valgrind follows the fork, and the guardian's own count (it only waits)
     # would be the last one printed; it costs the tick nothing.
     if [ "${2:-}" = watch ]; then watch_rig >/dev/null 2>&1 & fi
-    XDG_RUNTIME_DIR="$dir" valgrind --tool=callgrind --callgrind-out-file=/dev/null \
-        "$binary" run "$dir/poll.rhai" \
+    XDG_RUNTIME_DIR="$dir" valgrind --tool=callgrind --separate-threads=yes \
+        --callgrind-out-file="$dir/cg.%p" "$binary" run "$dir/poll.rhai" \
         --config "$dir/rig.toml" --period 1us --wake-latency off --quiet --stats --for "$1" \
         $no_guardian 2>&1 |
-        awk '/^ticks:/ { t = $2 } /Collected :/ { gsub(",", "", $NF); i = $NF } END { print t, i }'
+        awk '/^ticks:/ { t = $2 } /Collected :/ { gsub(",", "", $NF); i = $NF } END { printf "%s %s ", t, i }'
+    # The loop's thread: its file names Runner::run.
+    for f in "$dir"/cg.*-*; do
+        if grep -q 'Runner<P>::run$' "$f"; then awk '/^totals:/ { print $2 }' "$f"; fi
+    done
 }
 # Attaches the watchers once the run's socket is there; they end with the run.
 watch_rig() {
@@ -49,8 +83,20 @@ watch_rig() {
 }
 mode=
 [ "${WATCHERS:-0}" = 1 ] && mode=watch
-set -- $(count 10ms) $(count 4s $mode)
-awk -v t0="$1" -v i0="$2" -v t1="$3" -v i1="$4" 'BEGIN {
+set -- $(count "$short") $(count "$long" $mode)
+if [ -n "$broker" ]; then
+    connected=$(grep -c 'New client connected' "$dir/mosquitto.log" || true)
+    if [ "$connected" -lt 2 ]; then
+        echo "tick_instructions.sh: the client connected in $connected of the 2 runs" >&2
+        exit 1
+    fi
+fi
+seconds() { awk -v d="$1" 'BEGIN { n = d + 0; sub(/^[0-9.]+/, "", d)
+    print n * (d == "ms" ? 0.001 : d == "us" ? 0.000001 : d == "m" ? 60 : 1) }'; }
+awk -v t0="$1" -v i0="$2" -v l0="$3" -v t1="$4" -v i1="$5" -v l1="$6" \
+    -v s0="$(seconds "$short")" -v s1="$(seconds "$long")" 'BEGIN {
     printf "%d ticks, %.0f instructions a tick (start-up of %.1f M taken off)\n",
         t1 - t0, (i1 - i0) / (t1 - t0), i0 / 1e6
+    printf "the loop'"'"'s thread: %.0f a tick; the other threads: %.0f a second\n",
+        (l1 - l0) / (t1 - t0), ((i1 - l1) - (i0 - l0)) / (s1 - s0)
 }'
