@@ -241,7 +241,23 @@ impl Prepared {
 
     /// Starts the client, fed by `events`, asking the loop through `requester`.
     pub fn start(self, events: &Events, requester: Requester) -> Result<MqttService, MqttError> {
-        let subscription = events.subscribe("mqtt", EVENT_QUEUE)?;
+        // Every kind but ticks, which the client never reads: a tick's event would be built
+        // and queued for it on the loop's thread every period.
+        use crate::runtime::observe::{Bound, EventKind, Kinds};
+        let kinds = Kinds::of(&[
+            EventKind::ScriptStarted,
+            EventKind::ScriptFailed,
+            EventKind::ScriptRestarting,
+            EventKind::Inputs,
+            EventKind::Outputs,
+            EventKind::DeviceLost,
+            EventKind::DeviceBack,
+            EventKind::Log,
+            EventKind::Record,
+            EventKind::Ended,
+            EventKind::Published,
+        ]);
+        let subscription = events.subscribe_to("mqtt", Bound::events(EVENT_QUEUE), kinds)?;
         let closing = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&closing);
         let Prepared { settings, outbox } = self;
