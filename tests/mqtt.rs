@@ -500,6 +500,39 @@ fn canonical(line: &str) -> String {
     serde_json::from_str::<Value>(line).unwrap().to_string()
 }
 
+/// Waits up to `limit` for every record the run has made (its `records` file) to reach the
+/// subscriber writing `got`, stops the rig (SIGTERM: 143, the outbox flushed), and checks that
+/// what arrived, a record's repeats dropped by seq (QoS 1 is at least once), is the records
+/// file: every seq once, in order, the same bodies. Returns how many came twice.
+fn stop_and_check_delivery(rig: &mut Proc, records: &Path, got: &Path, limit: Duration) -> usize {
+    let made = lines(records).len();
+    until(limit, || (delivered(got).len() >= made).then_some(()))
+        .unwrap_or_else(|| panic!("only {} of {made} records arrived", delivered(got).len()));
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    let file: Vec<String> = lines(records).iter().map(|l| canonical(l)).collect();
+    until(Duration::from_secs(10), || {
+        (delivered(got).len() >= file.len()).then_some(())
+    })
+    .expect("the stop flushed the outbox");
+    let all = delivered(got);
+    let mut kept: Vec<(u64, String)> = Vec::new();
+    for (seq, body) in all.iter().cloned() {
+        if kept.last().map_or(true, |(last, _)| seq > *last) {
+            kept.push((seq, body));
+        }
+    }
+    let seqs: Vec<u64> = kept.iter().map(|(s, _)| *s).collect();
+    let expected: Vec<u64> = (1..=file.len() as u64).collect();
+    assert_eq!(
+        seqs, expected,
+        "every record, in order, each seq once after duplicates dropped"
+    );
+    let bodies: Vec<String> = kept.iter().map(|(_, b)| canonical(b)).collect();
+    assert_eq!(bodies, file, "the records delivered are the records file");
+    all.len() - kept.len()
+}
+
 #[test]
 fn records_made_while_the_broker_is_down_10_s_all_arrive_in_order_once_and_equal_the_records_file()
 {
@@ -526,44 +559,16 @@ fn records_made_while_the_broker_is_down_10_s_all_arrive_in_order_once_and_equal
     })
     .expect("the rig goes on recording without its broker");
     broker.resume();
-    let made = lines(&records).len();
-    until(Duration::from_secs(20), || {
-        (delivered(&got).len() >= made).then_some(())
-    })
-    .unwrap_or_else(|| panic!("only {} of {made} records arrived", delivered(&got).len()));
-    rig.signal(libc::SIGTERM);
-    assert_eq!(rig.wait_end(), Some(143));
-    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
-    until(Duration::from_secs(10), || {
-        (delivered(&got).len() >= file.len()).then_some(())
-    })
-    .expect("the stop flushed the outbox");
-    // QoS 1 is at least once: a message in flight as the broker stopped may come twice (to
-    // the broker or from it to the subscriber); its seq lets the consumer drop the second.
-    let all = delivered(&got);
-    let mut got: Vec<(u64, String)> = Vec::new();
-    for (seq, body) in all.iter().cloned() {
-        if got.last().map_or(true, |(last, _)| seq > *last) {
-            got.push((seq, body));
-        }
-    }
-    let again = all.len() - got.len();
+    let again = stop_and_check_delivery(&mut rig, &records, &got, Duration::from_secs(20));
     assert!(
         again <= 64,
         "{again} records came twice: more than were in flight"
     );
-    let seqs: Vec<u64> = got.iter().map(|(s, _)| *s).collect();
-    let expected: Vec<u64> = (1..=file.len() as u64).collect();
-    assert_eq!(
-        seqs, expected,
-        "every record, in order, each seq once after duplicates dropped"
-    );
-    let bodies: Vec<String> = got.into_iter().map(|(_, b)| canonical(&b)).collect();
-    assert_eq!(bodies, file, "the records delivered are the records file");
     let log = std::fs::read_to_string(dir.path("rec.log")).unwrap();
     assert!(log.contains("mqtt: lost broker"), "{log}");
 
     // A restart goes on numbering where the last run stopped.
+    let first_run = lines(&records).len();
     let again = dir.path("again.sub");
     let _sub2 = broker.subscribe("viewer", "rigscript/rec/records", &again, Some("again-sub"));
     broker.wait_subscribed("again-sub");
@@ -577,7 +582,7 @@ fn records_made_while_the_broker_is_down_10_s_all_arrive_in_order_once_and_equal
         delivered(&again).first().cloned()
     })
     .expect("the restarted rig's record arrives");
-    assert_eq!(first.0, expected.len() as u64 + 1, "{first:?}");
+    assert_eq!(first.0, first_run as u64 + 1, "{first:?}");
     rig.wait_end();
 }
 
@@ -1028,29 +1033,7 @@ fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order
     .unwrap_or_else(|| panic!("the rig did not connect again and again: {}", broker.log()));
     cutting.store(false, Ordering::SeqCst);
     let records = dir.path("cut.jsonl");
-    let made = lines(&records).len();
-    until(Duration::from_secs(30), || {
-        (delivered(&got).len() >= made).then_some(())
-    })
-    .unwrap_or_else(|| panic!("only {} of {made} records arrived", delivered(&got).len()));
-    rig.signal(libc::SIGTERM);
-    assert_eq!(rig.wait_end(), Some(143));
-    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
-    until(Duration::from_secs(10), || {
-        (delivered(&got).len() >= file.len()).then_some(())
-    })
-    .expect("the stop flushed the outbox");
-    let mut kept: Vec<(u64, String)> = Vec::new();
-    for (seq, body) in delivered(&got) {
-        if kept.last().map_or(true, |(last, _)| seq > *last) {
-            kept.push((seq, body));
-        }
-    }
-    let seqs: Vec<u64> = kept.iter().map(|(s, _)| *s).collect();
-    let expected: Vec<u64> = (1..=file.len() as u64).collect();
-    assert_eq!(seqs, expected, "every record, in order, once");
-    let bodies: Vec<String> = kept.into_iter().map(|(_, b)| canonical(&b)).collect();
-    assert_eq!(bodies, file, "the records delivered are the records file");
+    stop_and_check_delivery(&mut rig, &records, &got, Duration::from_secs(30));
 }
 
 #[test]
