@@ -87,7 +87,7 @@ impl Waiting {
 impl<P: Program> Runner<P> {
     /// Takes what `remote` asks: a log line or the watched filters at once, a command or a
     /// message into the queue for the next tick (refused or dropped when it is full, or when
-    /// no handler can run now).
+    /// no handler can run now); `answer_requests` then brings that tick near.
     pub(super) fn take_remote(&mut self, remote: Remote) {
         match remote {
             Remote::Log { warning, message } => {
@@ -133,7 +133,6 @@ impl<P: Program> Runner<P> {
         if let Some(s) = self.served.as_mut() {
             s.waiting.push(Waiter::Command(command));
         }
-        self.tick_soon();
     }
 
     fn queue_message(&mut self, topic: String, payload: String) {
@@ -147,7 +146,6 @@ impl<P: Program> Runner<P> {
         };
         if !restarting && waiting.messages() < WAITING_MESSAGES {
             waiting.push(Waiter::Message { topic, payload });
-            self.tick_soon();
             return;
         }
         waiting.dropped = waiting.dropped.saturating_add(1);
@@ -193,16 +191,6 @@ impl<P: Program> Runner<P> {
     /// `MESSAGES_PER_TICK` messages; while the script is not running, refuses the commands
     /// and drops the messages instead.
     pub(super) fn run_waiting(&mut self) {
-        let Some(served) = self.served.as_mut() else {
-            return;
-        };
-        if served.waiting.is_empty() {
-            return;
-        }
-        if !self.can_run_remote() {
-            self.refuse_waiting();
-            return;
-        }
         let Some(waiting) = self.served.as_mut().map(|s| &mut s.waiting) else {
             return;
         };
@@ -305,12 +293,6 @@ impl<P: Program> Runner<P> {
 
     /// The command's reply, or why there is none and the handler's fault with its label.
     fn answer_command(&mut self, command: &Command) -> Result<String, Unanswered> {
-        if !self.can_run_remote() {
-            let why = self
-                .refusal()
-                .unwrap_or_else(|| "the run is ending".to_string());
-            return Err((why, None));
-        }
         let call = {
             let rt = self.rt.borrow();
             let handlers = rt.handlers();
