@@ -423,6 +423,38 @@ mod tests {
         fails(c)
     }
 
+    /// Shrinks `events` (a run of `horizon` from the base time) that `fails`, with a budget
+    /// it never reaches.
+    fn shrunk(
+        events: Vec<Event>,
+        horizon: Duration,
+        fails: impl Fn(&Candidate) -> Option<Seen>,
+    ) -> Shrunk<Seen> {
+        let c = Candidate {
+            plan: Plan {
+                start: StartPoint {
+                    wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
+                    zone: "UTC".into(),
+                },
+                events,
+            },
+            horizon,
+        };
+        let first = fails(&c).expect("fails");
+        let budget = Budget {
+            replays: 10_000,
+            time: Duration::from_secs(60),
+        };
+        shrink(
+            c,
+            first,
+            fails,
+            budget,
+            Duration::from_millis(40),
+            Duration::from_millis(1),
+        )
+    }
+
     #[test]
     fn a_press_and_its_release_far_apart_shrink_away_together() {
         // Fails without drop_pairs: neither can go alone, and they are never in one chunk.
@@ -456,16 +488,6 @@ mod tests {
                 },
             },
         ];
-        let c = Candidate {
-            plan: Plan {
-                start: StartPoint {
-                    wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
-                    zone: "UTC".into(),
-                },
-                events,
-            },
-            horizon: Duration::from_secs(2),
-        };
         // The failure at DI2 comes before the release is played, so count them all played.
         let played = |c: &Candidate| {
             fails_unless_s5_half_there(c).map(|s| Seen {
@@ -473,19 +495,7 @@ mod tests {
                 played: c.plan.events.len(),
             })
         };
-        let first = played(&c).expect("fails");
-        let budget = Budget {
-            replays: 10_000,
-            time: Duration::from_secs(60),
-        };
-        let s = shrink(
-            c,
-            first,
-            played,
-            budget,
-            Duration::from_millis(40),
-            Duration::from_millis(1),
-        );
+        let s = shrunk(events, Duration::from_secs(2), played);
         assert_eq!(
             s.candidate.plan.events.len(),
             2,
@@ -540,29 +550,7 @@ mod tests {
                 },
             });
         }
-        let c = Candidate {
-            plan: Plan {
-                start: StartPoint {
-                    wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
-                    zone: "UTC".into(),
-                },
-                events,
-            },
-            horizon: Duration::from_secs(2),
-        };
-        let first = counts_to_300(&c).expect("fails");
-        let budget = Budget {
-            replays: 10_000,
-            time: Duration::from_secs(60),
-        };
-        let s = shrink(
-            c,
-            first,
-            counts_to_300,
-            budget,
-            Duration::from_millis(40),
-            Duration::from_millis(1),
-        );
+        let s = shrunk(events, Duration::from_secs(2), counts_to_300);
         let e = &s.candidate.plan.events;
         assert_eq!(e.len(), 1, "{e:?}");
         assert!(
@@ -586,30 +574,7 @@ mod tests {
                 },
             });
         }
-        let plan = Plan {
-            start: StartPoint {
-                wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
-                zone: "UTC".into(),
-            },
-            events,
-        };
-        let c = Candidate {
-            plan,
-            horizon: Duration::from_secs(60),
-        };
-        let first = fails(&c).expect("the long run fails");
-        let budget = Budget {
-            replays: 10_000,
-            time: Duration::from_secs(60),
-        };
-        let s = shrink(
-            c,
-            first,
-            fails,
-            budget,
-            Duration::from_millis(40),
-            Duration::from_millis(1),
-        );
+        let s = shrunk(events, Duration::from_secs(60), fails);
         assert!(!s.exhausted);
         let e = &s.candidate.plan.events;
         assert_eq!(e.len(), 2, "{e:?}");
