@@ -1,7 +1,8 @@
 //! A random but plausible field for one run: inputs opening and closing (with contact bounce),
 //! counter pulses in steps of every size (to the values the script compares counters with, and
 //! to their 16-bit wrap), switches pressed and released (several at once too), rotaries turned
-//! both ways across their wrap; and, with faults on, the faults of `verify::faults`. Choices
+//! both ways across their wrap; and, with faults on, the faults of `verify::faults` (twice as
+//! often while a switch the script reads is held). Choices
 //! lean toward what the script reads (each item it reads is left out of some runs, so none
 //! starves another) and the gaps between events toward its timers, grace time and watchdogs.
 //! The same seed makes the same plan.
@@ -21,6 +22,11 @@ pub const READ_WEIGHT: u32 = 10;
 
 /// Chance that the next event is a fault, when faults are on.
 pub const FAULT_CHANCE: f64 = 0.12;
+
+/// The chance of a fault while a switch the script reads is held: a fault in the middle of an
+/// operator's action (one hand on the button, the other on its way) is where a script's
+/// timing shows.
+pub const FAULT_CHANCE_HELD: f64 = 0.24;
 
 /// Where wall time starts unless a run starts near a cron time or a DST change.
 pub const BASE_START: &str = "2026-03-28T12:00:00Z";
@@ -304,6 +310,17 @@ impl<'a> Gen<'a> {
         (!read.is_empty()).then(|| read[self.rng.usize(0..read.len())])
     }
 
+    /// Whether a switch the script reads is held now.
+    fn holding_read_switch(&self) -> bool {
+        self.held.iter().any(|(&(dev, s), until)| {
+            *until > self.t
+                && self
+                    .targets
+                    .iter()
+                    .any(|(t, w)| *t == Target::Switch(dev, s) && *w > 1)
+        })
+    }
+
     fn hold(&mut self) -> Duration {
         let period = self.profile.period;
         match self.rng.u8(0..10) {
@@ -481,7 +498,12 @@ impl<'a> Gen<'a> {
             if self.t >= self.profile.run_for || self.stopped {
                 break;
             }
-            if faults && self.rng.f64() < FAULT_CHANCE {
+            let chance = if self.holding_read_switch() {
+                FAULT_CHANCE_HELD
+            } else {
+                FAULT_CHANCE
+            };
+            if faults && self.rng.f64() < chance {
                 self.fault_event();
             } else {
                 self.field_event();

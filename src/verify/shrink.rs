@@ -3,11 +3,13 @@
 //! fail. Greedy and deterministic: drop chunks of events, halving the chunk size down to single
 //! events (delta debugging); drop pairs that only go together (neighbours across a chunk's
 //! edge, and two events on the same thing however far apart: a press and its release, a loss
-//! and its end, the flips of a bounce); simplify each event (fewer pulses, fewer inputs, a shorter stall);
+//! and its end, the flips of a bounce); fold a counted input's flips into its count (a count
+//! carried to 296 and four bounced edges become a count carried to 300); simplify each event
+//! (fewer pulses, fewer inputs, a shorter stall);
 //! shorten each wait (to nothing first: two events between the same two ticks, then by halves),
 //! the wait before the end too. Repeats until nothing helps or the budget is spent.
 
-use super::plan::{Event, Plan};
+use super::plan::{Action, Event, Plan};
 use std::time::{Duration, Instant};
 
 /// A plan and how long its run lasts.
@@ -163,6 +165,68 @@ impl<O: Replay, F: FnMut(&Candidate) -> Option<O>> Shrinker<O, F> {
         changed
     }
 
+    /// Folds flips of an input into a count of it: a flip, or it and the input's next one,
+    /// dropped and a pulse added to the nearest counter event of that input; with no counter
+    /// event, two flips made one pulse. Dropping them alone would change the count.
+    fn fold_pulses(&mut self) -> bool {
+        let mut changed = false;
+        let mut i = 0;
+        while i < self.best.plan.events.len() && !self.exhausted {
+            let events = &self.best.plan.events;
+            let Some(Action::Input { dev, ch, .. }) = events.get(i).map(|e| &e.action) else {
+                i += 1;
+                continue;
+            };
+            let flip_of = |a: &Action| matches!(a, Action::Input { dev: d, ch: c, .. } if d == dev && c == ch);
+            let next = (i + 1..events.len()).find(|j| flip_of(&events[*j].action));
+            let counter = (0..events.len())
+                .filter(|k| one_pulse_more(&events[*k].action, dev, *ch).is_some())
+                .min_by_key(|k| k.abs_diff(i));
+            let mut tries = Vec::new();
+            match counter {
+                Some(k) => {
+                    for drop in [next.map(|j| vec![i, j]), Some(vec![i])]
+                        .into_iter()
+                        .flatten()
+                    {
+                        let mut fewer = events.clone();
+                        if let Some(more) = one_pulse_more(&events[k].action, dev, *ch) {
+                            fewer[k].action = more;
+                        }
+                        for d in drop.iter().rev() {
+                            fewer.remove(*d);
+                        }
+                        tries.push(fewer);
+                    }
+                }
+                None => {
+                    if let Some(j) = next {
+                        let mut fewer = events.clone();
+                        fewer.remove(j);
+                        fewer[i].action = Action::Pulse {
+                            dev: dev.clone(),
+                            ch: *ch,
+                            n: 1,
+                        };
+                        tries.push(fewer);
+                    }
+                }
+            }
+            let mut folded = false;
+            for events in tries {
+                if self.try_candidate(self.with_events(events)) {
+                    changed = true;
+                    folded = true;
+                    break;
+                }
+            }
+            if !folded {
+                i += 1;
+            }
+        }
+        changed
+    }
+
     /// Replaces each event by a simpler one where that still fails.
     fn simplify_events(&mut self) -> bool {
         let mut changed = false;
@@ -230,6 +294,27 @@ impl<O: Replay, F: FnMut(&Candidate) -> Option<O>> Shrinker<O, F> {
     }
 }
 
+/// `action` counting one pulse more, if it is a counter event of `dev`'s DI`ch`.
+fn one_pulse_more(action: &Action, dev: &str, ch: u8) -> Option<Action> {
+    match action {
+        Action::Pulse { dev: d, ch: c, n } if &**d == dev && *c == ch => Some(Action::Pulse {
+            dev: d.clone(),
+            ch,
+            n: n.saturating_add(1),
+        }),
+        Action::CounterTo {
+            dev: d,
+            ch: c,
+            value,
+        } if &**d == dev && *c == ch && *value < u16::MAX => Some(Action::CounterTo {
+            dev: d.clone(),
+            ch,
+            value: value + 1,
+        }),
+        _ => None,
+    }
+}
+
 /// Shrinks `candidate` (whose replay is `replay`); `fails` replays a candidate and says how it
 /// failed the same check, or `None`. `margin` is how long a run goes on past the failure (a
 /// scan period or two); waits are shortened in whole steps of `quantum`.
@@ -258,9 +343,10 @@ pub fn shrink<O: Replay>(
     loop {
         let dropped = s.drop_events();
         let paired = s.drop_pairs();
+        let folded = s.fold_pulses();
         let simpler = s.simplify_events();
         let shorter = s.shorten_waits();
-        if !(dropped || paired || simpler || shorter) || s.exhausted {
+        if !(dropped || paired || folded || simpler || shorter) || s.exhausted {
             break;
         }
     }
@@ -337,6 +423,38 @@ mod tests {
         fails(c)
     }
 
+    /// Shrinks `events` (a run of `horizon` from the base time) that `fails`, with a budget
+    /// it never reaches.
+    fn shrunk(
+        events: Vec<Event>,
+        horizon: Duration,
+        fails: impl Fn(&Candidate) -> Option<Seen>,
+    ) -> Shrunk<Seen> {
+        let c = Candidate {
+            plan: Plan {
+                start: StartPoint {
+                    wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
+                    zone: "UTC".into(),
+                },
+                events,
+            },
+            horizon,
+        };
+        let first = fails(&c).expect("fails");
+        let budget = Budget {
+            replays: 10_000,
+            time: Duration::from_secs(60),
+        };
+        shrink(
+            c,
+            first,
+            fails,
+            budget,
+            Duration::from_millis(40),
+            Duration::from_millis(1),
+        )
+    }
+
     #[test]
     fn a_press_and_its_release_far_apart_shrink_away_together() {
         // Fails without drop_pairs: neither can go alone, and they are never in one chunk.
@@ -370,16 +488,6 @@ mod tests {
                 },
             },
         ];
-        let c = Candidate {
-            plan: Plan {
-                start: StartPoint {
-                    wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
-                    zone: "UTC".into(),
-                },
-                events,
-            },
-            horizon: Duration::from_secs(2),
-        };
         // The failure at DI2 comes before the release is played, so count them all played.
         let played = |c: &Candidate| {
             fails_unless_s5_half_there(c).map(|s| Seen {
@@ -387,24 +495,67 @@ mod tests {
                 played: c.plan.events.len(),
             })
         };
-        let first = played(&c).expect("fails");
-        let budget = Budget {
-            replays: 10_000,
-            time: Duration::from_secs(60),
-        };
-        let s = shrink(
-            c,
-            first,
-            played,
-            budget,
-            Duration::from_millis(40),
-            Duration::from_millis(1),
-        );
+        let s = shrunk(events, Duration::from_secs(2), played);
         assert_eq!(
             s.candidate.plan.events.len(),
             2,
             "{:?}",
             s.candidate.plan.events
+        );
+    }
+
+    /// A made-up failure: DI0's count (carried, pulsed, and one a rising edge) reaches 300.
+    fn counts_to_300(c: &Candidate) -> Option<Seen> {
+        let (mut count, mut on) = (0u32, false);
+        for (i, e) in c.plan.events.iter().enumerate() {
+            match e.action {
+                Action::CounterTo { value, .. } => count = u32::from(value),
+                Action::Pulse { n, .. } => count += n,
+                Action::Input { on: level, .. } => {
+                    count += u32::from(level && !on);
+                    on = level;
+                }
+                _ => {}
+            }
+            if count >= 300 {
+                return Some(Seen {
+                    at: e.at + Duration::from_millis(20),
+                    played: i + 1,
+                });
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn bounced_edges_after_a_count_fold_into_it() {
+        // Without fold_pulses this stays at 8 events: no flip can go alone, and the count
+        // is never simplified upward.
+        let dev: Arc<str> = Arc::from("io");
+        let mut events = vec![Event {
+            at: Duration::ZERO,
+            action: Action::CounterTo {
+                dev: dev.clone(),
+                ch: 0,
+                value: 296,
+            },
+        }];
+        for i in 0..7u64 {
+            events.push(Event {
+                at: Duration::from_millis(i),
+                action: Action::Input {
+                    dev: dev.clone(),
+                    ch: 0,
+                    on: i % 2 == 0,
+                },
+            });
+        }
+        let s = shrunk(events, Duration::from_secs(2), counts_to_300);
+        let e = &s.candidate.plan.events;
+        assert_eq!(e.len(), 1, "{e:?}");
+        assert!(
+            matches!(e[0].action, Action::CounterTo { value: 300, .. }),
+            "{e:?}"
         );
     }
 
@@ -423,30 +574,7 @@ mod tests {
                 },
             });
         }
-        let plan = Plan {
-            start: StartPoint {
-                wall: chrono::DateTime::parse_from_rfc3339("2026-03-28T12:00:00Z").unwrap(),
-                zone: "UTC".into(),
-            },
-            events,
-        };
-        let c = Candidate {
-            plan,
-            horizon: Duration::from_secs(60),
-        };
-        let first = fails(&c).expect("the long run fails");
-        let budget = Budget {
-            replays: 10_000,
-            time: Duration::from_secs(60),
-        };
-        let s = shrink(
-            c,
-            first,
-            fails,
-            budget,
-            Duration::from_millis(40),
-            Duration::from_millis(1),
-        );
+        let s = shrunk(events, Duration::from_secs(60), fails);
         assert!(!s.exhausted);
         let e = &s.candidate.plan.events;
         assert_eq!(e.len(), 2, "{e:?}");

@@ -23,8 +23,16 @@ pub struct TrcDevice {
     pub health: Health,
     /// The 45 switches, read lazily.
     pub switches: Snapshot<SwitchSet>,
-    /// The 14 rotary counters, read lazily.
+    /// The 14 rotary counters, read lazily, as the script sees them (the board's plus
+    /// `rotary_offset`).
     pub rotaries: Snapshot<RotaryValues>,
+    /// Added (wrapping) to each count the board reports, so that the counts the script sees
+    /// carry on across a loss: a board power cycled comes back counting from 0, and that is
+    /// no turn of a knob.
+    rotary_offset: [u8; 14],
+    /// Taken (back) control of: the next reading of the rotaries sets `rotary_offset` so that
+    /// it shows the counts last seen.
+    rebase_pending: bool,
     /// The relay the script wants (0-7).
     pub relay: u8,
     /// The relay last selected on the board (`None`: unknown, select again).
@@ -53,6 +61,8 @@ impl TrcDevice {
             health: Health::default(),
             switches: Snapshot::default(),
             rotaries: Snapshot::default(),
+            rotary_offset: [0; 14],
+            rebase_pending: false,
             relay_written: None,
             relay_last: None,
             relay_cause: String::new(),
@@ -66,11 +76,36 @@ impl TrcDevice {
         Ok(s)
     }
 
-    /// Reads the rotaries into the snapshot at `tick`.
+    /// Reads the rotaries into the snapshot at `tick` (rebased, after a loss, to the counts
+    /// last seen).
     pub fn read_rotaries(&mut self, tick: u64) -> Result<RotaryValues, DeviceError> {
-        let r = self.driver.read_rotaries()?;
+        let board = self.driver.read_rotaries()?.to_array();
+        if std::mem::take(&mut self.rebase_pending) {
+            if let Some(seen) = self.rotaries.current {
+                for ((offset, seen), board) in self
+                    .rotary_offset
+                    .iter_mut()
+                    .zip(seen.to_array())
+                    .zip(board)
+                {
+                    *offset = seen.wrapping_sub(board);
+                }
+            }
+        }
+        let mut shown = board;
+        for (v, offset) in shown.iter_mut().zip(self.rotary_offset) {
+            *v = v.wrapping_add(offset);
+        }
+        let r = RotaryValues::from_array(shown);
         self.rotaries.update(r, tick);
         Ok(r)
+    }
+
+    /// Taken control of again after a loss (or at start): the counts the board reports next
+    /// are the ones last seen, whatever it counts from now (a power cycle resets its counts;
+    /// turns made while it was lost are not seen either: the runner cannot tell them apart).
+    pub fn rebase_rotaries(&mut self) {
+        self.rebase_pending = true;
     }
 
     /// Selects `relay` on the board and remembers it as written.

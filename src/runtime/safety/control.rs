@@ -129,9 +129,10 @@ impl<H: Clone> Runtime<H> {
     /// The one way to take control of a device, at start, after a loss and out of safe mode:
     /// a TRP-C29U gets its safe and power-on values (only where they differ), its outputs
     /// (the safe value while held safe) and its watchdog, one exchange at a time with the
-    /// other modules' watchdogs fed between them (`Takeover`); a TRC1000 must answer, and
-    /// gets its relay selected (at once where a safe relay is configured, else at the next
-    /// write). Returns what it found, in log lines.
+    /// other modules' watchdogs fed between them (`Takeover`); a TRC1000 must answer, gets
+    /// its relay selected (at once where a safe relay is configured, else at the next write)
+    /// and its rotaries rebased (a power cycle's reset of its counts is no turn). Returns what
+    /// it found, in log lines.
     pub fn try_take_control(&mut self, idx: usize) -> Result<Vec<String>, DeviceError> {
         let held = self.held_safe;
         let forces = &self.forces;
@@ -143,6 +144,7 @@ impl<H: Clone> Runtime<H> {
             }),
             Some(Device::Trc(d)) => {
                 d.relay_written = None;
+                d.rebase_rotaries();
                 d.probe()?;
                 if let Some(safe) = d.config.safe_relay {
                     d.select_relay(if held {
