@@ -8,6 +8,8 @@
 //! brokers: megabytes retained on watched and command topics (dropped by the broker for the
 //! rig's announced packet size), a listener that never answers, a proxy that cuts every
 //! connection after a second, a wrong password; a cancelled handler's filter is unsubscribed.
+//! A panic in the client's thread (made real: no file left to open) is an error in the log and
+//! in `status`, and the rig runs on.
 
 mod common;
 
@@ -1066,6 +1068,91 @@ fn publishes_the_acl_refuses_are_counted_and_told_naming_broker_user_and_topic()
             broker.port
         )) && log.contains("NotAuthorized"),
         "{log}"
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
+
+/// Sets the soft limit on the open files of process `pid` to `soft`; the limit it had.
+fn limit_open_files(pid: u32, soft: u64) -> u64 {
+    let mut old = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: reads the limit into `old`, a valid rlimit.
+    let got = unsafe { libc::prlimit(pid as i32, libc::RLIMIT_NOFILE, std::ptr::null(), &mut old) };
+    assert_eq!(got, 0, "prlimit: {}", std::io::Error::last_os_error());
+    let new = libc::rlimit {
+        rlim_cur: soft,
+        rlim_max: old.rlim_max,
+    };
+    // SAFETY: a valid rlimit for our own child, the old one not asked for.
+    let set = unsafe { libc::prlimit(pid as i32, libc::RLIMIT_NOFILE, &new, std::ptr::null_mut()) };
+    assert_eq!(set, 0, "prlimit: {}", std::io::Error::last_os_error());
+    old.rlim_cur
+}
+
+#[test]
+fn a_panic_in_the_clients_thread_is_an_error_in_the_log_and_in_status_and_the_rig_runs_on() {
+    let dir = TempDir::new("mqtt-panic-run");
+    // Nothing listens there: the client connects again and again.
+    let mqtt = format!(
+        "[mqtt]\nurl = \"mqtt://127.0.0.1:{}\"\nrig = \"panic\"\noutbox = \"{}\"\n",
+        free_port(),
+        dir.path("outbox-panic").display()
+    );
+    let script = "io.outputs = 0x21;\nevery(\"50ms\", || {});\n";
+    let mut rig = run_rig(&dir, "panic", &mqtt, script);
+    until(Duration::from_secs(30), || {
+        mqtt_status(&dir, "panic").filter(|m| m["connect_failures"].as_u64() >= Some(1))
+    })
+    .expect("status shows a failed connection");
+    // With no file to open, the MQTT library's client panics as the next connection is made
+    // (it builds a runtime for each and unwraps the failure): a real panic in the client's
+    // thread, while the scan loop, which opens nothing as it runs, goes on.
+    let pid = rig.0.id();
+    let was = limit_open_files(pid, 3);
+    let log = until(Duration::from_secs(20), || {
+        let log = std::fs::read_to_string(dir.path("panic.log")).unwrap_or_default();
+        log.contains("error: mqtt: the client's thread panicked")
+            .then_some(log)
+    });
+    limit_open_files(pid, was);
+    let log = log.unwrap_or_else(|| {
+        panic!(
+            "no error line for the panic:\n{}",
+            std::fs::read_to_string(dir.path("panic.log")).unwrap_or_default()
+        )
+    });
+    assert!(
+        log.contains("Too many open files") && log.contains("MQTT is off for the rest of the run"),
+        "{log}"
+    );
+    let m = mqtt_status(&dir, "panic").expect("status answers again");
+    assert_eq!(m["connected"], false, "{m}");
+    let failed = m["failed"].as_str().unwrap_or_default();
+    assert!(
+        failed.starts_with("the client's thread panicked: ")
+            && failed.contains("Too many open files"),
+        "{m}"
+    );
+    // The outputs are still the script's, and the loop still scans.
+    let snap = |dir: &TempDir| -> Value {
+        serde_json::from_str(&status(dir, "panic", true).expect("status")).unwrap()
+    };
+    let before = snap(&dir);
+    assert_eq!(before["devices"]["io"]["outputs"], 0x21, "{before}");
+    assert_eq!(before["script"]["state"], "running", "{before}");
+    assert_eq!(before["held_safe"], false, "{before}");
+    let ticks = before["ticks"]["count"].as_u64().unwrap();
+    until(Duration::from_secs(10), || {
+        (snap(&dir)["ticks"]["count"].as_u64() > Some(ticks)).then_some(())
+    })
+    .expect("the loop scans on");
+    let text = status(&dir, "panic", false).expect("status");
+    assert!(
+        text.contains("FAILED: the client's thread panicked"),
+        "{text}"
     );
     rig.signal(libc::SIGTERM);
     assert_eq!(rig.wait_end(), Some(143));

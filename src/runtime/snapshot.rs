@@ -65,6 +65,10 @@ pub struct MqttState {
     pub connect_failures: u64,
     /// Why the last one failed.
     pub last_error: Option<String>,
+    /// Why the client stopped for good (its thread panicked): nothing more goes to the
+    /// broker in this run, and the rig runs on.
+    #[serde(default)]
+    pub failed: Option<String>,
     /// Records waiting in the outbox for the broker's acknowledgement.
     pub outbox_waiting: u64,
     /// What the client lost, by kind.

@@ -43,6 +43,8 @@ struct Counts {
     refused: AtomicU64,
     /// Held only to swap the text, never across I/O: the loop's read waits on no network.
     last_error: Mutex<Option<String>>,
+    /// Why the client stopped for good (its thread panicked), under the same rule.
+    stopped: Mutex<Option<String>>,
 }
 
 impl Health {
@@ -81,6 +83,12 @@ impl Health {
         *crate::sync::lock(&self.0.last_error) = Some(why.to_string());
     }
 
+    /// The client's thread ended for `why` (a panic): nothing more reaches the broker.
+    pub fn stopped(&self, why: &str) {
+        self.0.connected.store(false, Ordering::Relaxed);
+        *crate::sync::lock(&self.0.stopped) = Some(why.to_string());
+    }
+
     /// The connection was closed on purpose (the run's end).
     pub fn disconnected(&self) {
         self.0.connected.store(false, Ordering::Relaxed);
@@ -100,6 +108,7 @@ impl Health {
             connected: c.connected.load(Ordering::Relaxed),
             connect_failures: load(&c.connect_failures),
             last_error: crate::sync::lock(&c.last_error).clone(),
+            failed: crate::sync::lock(&c.stopped).clone(),
             outbox_waiting: load(&c.waiting),
             dropped: MqttDropped {
                 outbox_full: load(&c.outbox_full),
@@ -157,5 +166,13 @@ mod tests {
         assert_eq!(s.dropped.total(), 8);
         client.connected();
         assert!(loop_side.shown().connected);
+        assert_eq!(loop_side.shown().failed, None);
+        client.stopped("the client's thread panicked: boom");
+        let s = loop_side.shown();
+        assert!(!s.connected);
+        assert_eq!(
+            s.failed.as_deref(),
+            Some("the client's thread panicked: boom")
+        );
     }
 }

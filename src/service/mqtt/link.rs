@@ -53,6 +53,9 @@ pub enum NetEvent {
     },
     /// The connection failed or was refused: the link is over.
     Failed(ConnectionError),
+    /// The network thread panicked (a fault in the MQTT library), saying this: the link is
+    /// over.
+    Panicked(String),
 }
 
 /// Requests rumqttc's client may hold before `try_publish` says full.
@@ -71,7 +74,15 @@ pub struct Link {
 }
 
 /// The network thread's raw events (kept apart from `NetEvent` so tags are matched here).
-type Event2 = Result<Event, ConnectionError>;
+type Event2 = Result<Event, Over>;
+
+/// How the network thread ended.
+enum Over {
+    /// The connection failed.
+    Failed(ConnectionError),
+    /// The thread panicked, saying this.
+    Panicked(String),
+}
 
 impl Link {
     /// Starts connecting with `options`.
@@ -80,18 +91,23 @@ impl Link {
         let (tx, net) = mpsc::sync_channel(1024);
         let thread = thread::Builder::new()
             .name("mqtt-net".into())
-            .spawn(move || loop {
-                match connection.recv() {
-                    Ok(Ok(event)) => {
-                        if tx.send(Ok(event)).is_err() {
+            .spawn(move || {
+                let ran = super::catching(|| loop {
+                    match connection.recv() {
+                        Ok(Ok(event)) => {
+                            if tx.send(Ok(event)).is_err() {
+                                return;
+                            }
+                        }
+                        Ok(Err(e)) => {
+                            let _ = tx.send(Err(Over::Failed(e)));
                             return;
                         }
+                        Err(_) => return,
                     }
-                    Ok(Err(e)) => {
-                        let _ = tx.send(Err(e));
-                        return;
-                    }
-                    Err(_) => return,
+                });
+                if let Err(why) = ran {
+                    let _ = tx.send(Err(Over::Panicked(why)));
                 }
             })
             .ok();
@@ -123,9 +139,12 @@ impl Link {
                 }
             };
             match event {
-                Err(e) => {
+                Err(over) => {
                     self.connected = false;
-                    return Some(NetEvent::Failed(e));
+                    return Some(match over {
+                        Over::Failed(e) => NetEvent::Failed(e),
+                        Over::Panicked(why) => NetEvent::Panicked(why),
+                    });
                 }
                 Ok(Event::Incoming(Packet::ConnAck(_))) => {
                     self.connected = true;

@@ -8,6 +8,7 @@ use super::link::{Link, NetEvent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
 use super::{discovery, Settings, FLUSH_WAIT};
+use crate::runtime::log::Level;
 use crate::runtime::observe::{RunEvent, Subscription};
 use crate::runtime::remote::{Command, Remote, Reply, ReplyTo};
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
@@ -271,6 +272,10 @@ impl Pump {
                     self.on_failed(&e);
                     break;
                 }
+                NetEvent::Panicked(why) => {
+                    self.on_net_panic(&why);
+                    break;
+                }
             }
         }
     }
@@ -344,6 +349,28 @@ impl Pump {
             )
         };
         self.warn_counted("connect", 1, &message);
+        self.retry_later();
+    }
+
+    /// The network thread panicked (a fault in the MQTT library, on what the broker sent,
+    /// say): an error in the log, a failed connection in the status, connected again like one.
+    fn on_net_panic(&mut self, why: &str) {
+        self.link = None;
+        let why = format!("the client's network thread panicked: {why}");
+        self.health.failed(&why);
+        let message = format!(
+            "mqtt: {why}; the run goes on, connecting to broker {} again in {} ({} records \
+             waiting)",
+            self.s.broker,
+            crate::time::duration::format_duration(self.backoff),
+            self.outbox.waiting().len()
+        );
+        self.tell_counted(Level::Error, "net-panic", 1, &message);
+        self.retry_later();
+    }
+
+    /// The next connection after the back-off, which doubles (to `MAX_RETRY`).
+    fn retry_later(&mut self) {
         self.retry_at = Instant::now() + self.backoff;
         self.backoff = (self.backoff * 2).min(MAX_RETRY);
     }
@@ -660,16 +687,21 @@ impl Pump {
 
     /// A line for the run's log at info.
     fn info(&mut self, message: &str) {
-        self.tell(false, message);
+        self.tell(Level::Info, message);
     }
 
     /// A warning for the run's log.
     fn warn(&mut self, message: &str) {
-        self.tell(true, message);
+        self.tell(Level::Warn, message);
     }
 
     /// A warning told once, then at most every `NOTICE_GAP` with the count since.
     fn warn_counted(&mut self, key: &'static str, n: u64, message: &str) {
+        self.tell_counted(Level::Warn, key, n, message);
+    }
+
+    /// A line at `level` told once, then at most every `NOTICE_GAP` with the count since.
+    fn tell_counted(&mut self, level: Level, key: &'static str, n: u64, message: &str) {
         let now = Instant::now();
         let (told, count) = self.notices.entry(key).or_insert((now - NOTICE_GAP * 2, 0));
         *count += n;
@@ -683,29 +715,37 @@ impl Pump {
         };
         *told = now;
         *count = 0;
-        self.warn(&line);
+        self.tell(level, &line);
     }
 
     /// Through the loop's log while the loop runs; to standard error after.
-    fn tell(&mut self, warning: bool, message: &str) {
-        if !self.loop_gone {
-            let asked = self.ask.ask(
-                Request::Remote(Remote::Log {
-                    warning,
-                    message: message.to_string(),
-                }),
-                Duration::ZERO,
-            );
-            match asked {
-                Ok(_) | Err(AskError::NoAnswer(_)) => return,
-                Err(AskError::Gone) => self.loop_gone = true,
-                Err(AskError::Busy) => {}
-            }
-        }
-        let level = if warning { "warning: " } else { "" };
-        let _ =
-            std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{level}{message}\n"));
+    fn tell(&mut self, level: Level, message: &str) {
+        self.loop_gone = !tell(&self.ask, !self.loop_gone, level, message);
     }
+}
+
+/// Tells `message` at `level` through the loop's log (`Remote::Log`) if `loop_runs`, else (or
+/// when the loop is gone or its queue full) to standard error; false once the loop is gone.
+pub(super) fn tell(ask: &Requester, loop_runs: bool, level: Level, message: &str) -> bool {
+    let gone = !loop_runs
+        || match ask.ask(
+            Request::Remote(Remote::Log {
+                level,
+                message: message.to_string(),
+            }),
+            Duration::ZERO,
+        ) {
+            Ok(_) | Err(AskError::NoAnswer(_)) => return true,
+            Err(AskError::Gone) => true,
+            Err(AskError::Busy) => false,
+        };
+    let prefix = match level {
+        Level::Warn => "warning: ",
+        Level::Error => "error: ",
+        _ => "",
+    };
+    let _ = std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{prefix}{message}\n"));
+    !gone
 }
 
 /// A connection's failure in words naming the broker and the user.
