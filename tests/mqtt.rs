@@ -134,6 +134,11 @@ struct Broker {
 
 impl Broker {
     fn start(tag: &str) -> Self {
+        Self::start_with(tag, "")
+    }
+
+    /// A broker whose configuration has `extra` lines too (global options).
+    fn start_with(tag: &str, extra: &str) -> Self {
         require_tool("mosquitto", "mosquitto");
         require_tool("mosquitto_sub", "mosquitto-clients");
         require_tool("openssl", "openssl");
@@ -167,7 +172,7 @@ impl Broker {
         let config = format!(
             "user {user}\npersistence true\npersistence_location {dir}/\nautosave_interval 1\n\
              per_listener_settings false\nallow_anonymous false\npassword_file {pw}\n\
-             acl_file {acl}\nlog_dest stderr\nlog_type all\n\
+             acl_file {acl}\nlog_dest stderr\nlog_type all\n{extra}\
              listener {port} 127.0.0.1\n\
              listener {tls_port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n",
             user = std::env::var("USER").unwrap_or_else(|_| "root".into()),
@@ -1156,4 +1161,76 @@ fn a_panic_in_the_clients_thread_is_an_error_in_the_log_and_in_status_and_the_ri
     );
     rig.signal(libc::SIGTERM);
     assert_eq!(rig.wait_end(), Some(143));
+}
+
+#[test]
+fn a_record_over_the_brokers_packet_size_is_counted_and_told_and_the_rest_arrive_in_order() {
+    let broker = Broker::start_with("mqtt-big", "max_packet_size 2048\n");
+    let dir = TempDir::new("mqtt-big-run");
+    let got = dir.path("records.sub");
+    let _sub = broker.subscribe("viewer", "rigscript/big/records", &got, Some("big-sub"));
+    broker.wait_subscribed("big-sub");
+    // One record of 3,000 characters between small ones; the broker takes 2,048 bytes a packet.
+    let script = "let n = 0;\n\
+                  every(\"50ms\", || {\n\
+                    n += 1;\n\
+                    if n == 5 { let big = \"\"; for i in 0..300 { big += \"0123456789\"; } record(\"big\", big); }\n\
+                    else if n <= 10 { record(\"n\", n); }\n\
+                  });\n";
+    let mut rig = run_rig(&dir, "big", &broker.mqtt_table("big", "10s"), script);
+    let records = dir.path("big.jsonl");
+    until(Duration::from_secs(15), || {
+        (delivered(&got).len() >= 9).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the small records never all arrived: {:?}", lines(&got)));
+    let m = mqtt_status(&dir, "big").expect("status");
+    assert_eq!(m["dropped"]["too_large"], 1, "{m}");
+    assert_eq!(m["connected"], true, "{m}");
+    assert_eq!(
+        m["connect_failures"], 0,
+        "the connection was never lost: {m}"
+    );
+    assert_eq!(
+        m["outbox_waiting"], 0,
+        "nothing held behind the big one: {m}"
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    // Every record but the big one, in order, each once: the records file has them all.
+    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
+    assert_eq!(file.len(), 10, "{file:?}");
+    let big = file
+        .iter()
+        .position(|l| l.contains("\"big\""))
+        .expect("the big record") as u64
+        + 1;
+    let got = delivered(&got);
+    let seqs: Vec<u64> = got.iter().map(|(s, _)| *s).collect();
+    let expected: Vec<u64> = (1..=10).filter(|s| *s != big).collect();
+    assert_eq!(seqs, expected);
+    let bodies: Vec<String> = got.iter().map(|(_, b)| canonical(b)).collect();
+    let small: Vec<String> = file
+        .iter()
+        .filter(|l| !l.contains("\"big\""))
+        .cloned()
+        .collect();
+    assert_eq!(bodies, small);
+    let log = std::fs::read_to_string(dir.path("big.log")).unwrap();
+    let told = log
+        .lines()
+        .find(|l| l.contains("not sent:"))
+        .unwrap_or_else(|| panic!("no line for the big record:\n{log}"));
+    assert!(
+        told.contains("a record on rigscript/big/records")
+            && told.contains(&format!(
+                "over broker 127.0.0.1:{}'s limit of 2048",
+                broker.port
+            )),
+        "{told}"
+    );
+    assert!(!log.contains("lost broker"), "{log}");
+    assert!(
+        log.contains("1 publishes over the broker's Maximum Packet Size"),
+        "{log}"
+    );
 }

@@ -93,11 +93,14 @@ pub struct MqttDropped {
     /// Publishes the broker refused (its ACL, a quota): records, states, replies...
     #[serde(default)]
     pub refused: u64,
+    /// Publishes over the broker's Maximum Packet Size, not sent: records, states, log lines...
+    #[serde(default)]
+    pub too_large: u64,
 }
 
 impl MqttDropped {
     /// Every kind as `(kind, count)`, the kinds as `/metrics` labels them.
-    pub fn by_kind(&self) -> [(&'static str, u64); 7] {
+    pub fn by_kind(&self) -> [(&'static str, u64); 8] {
         [
             ("outbox_full", self.outbox_full),
             ("outbox_write", self.outbox_write),
@@ -106,6 +109,7 @@ impl MqttDropped {
             ("publishes", self.publishes),
             ("log", self.log),
             ("refused", self.refused),
+            ("too_large", self.too_large),
         ]
     }
 

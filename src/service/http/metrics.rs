@@ -132,7 +132,7 @@ fn mqtt_metrics(out: &mut Metrics, m: &MqttState) {
         "rigscript_mqtt_dropped_total",
         "counter",
         "What the MQTT client lost, by kind (outbox_full, outbox_write, messages, commands, \
-         publishes, log, refused).",
+         publishes, log, refused, too_large).",
     );
     for (kind, n) in m.dropped.by_kind() {
         out.sample("rigscript_mqtt_dropped_total", &[("kind", kind)], n);

@@ -22,6 +22,8 @@ pub enum Loss {
     Log,
     /// A publish the broker refused (its ACL, a quota): a record, a state, a reply...
     Refused,
+    /// A publish over the broker's Maximum Packet Size, not sent (a record among them done).
+    TooLarge,
 }
 
 /// The shared counts: cheap to clone, one for the client's thread, one for the loop.
@@ -41,6 +43,7 @@ struct Counts {
     publishes: AtomicU64,
     log: AtomicU64,
     refused: AtomicU64,
+    too_large: AtomicU64,
     /// Held only to swap the text, never across I/O: the loop's read waits on no network.
     last_error: Mutex<Option<String>>,
     /// Why the client stopped for good (its thread panicked), under the same rule.
@@ -67,6 +70,7 @@ impl Health {
             Loss::Publish => &c.publishes,
             Loss::Log => &c.log,
             Loss::Refused => &c.refused,
+            Loss::TooLarge => &c.too_large,
         };
         counter.fetch_add(1, Ordering::Relaxed);
     }
@@ -118,6 +122,7 @@ impl Health {
                 publishes: load(&c.publishes),
                 log: load(&c.log),
                 refused: load(&c.refused),
+                too_large: load(&c.too_large),
             },
         }
     }
@@ -139,6 +144,7 @@ mod tests {
         client.lost(Loss::Publish);
         client.lost(Loss::Publish);
         client.lost(Loss::Refused);
+        client.lost(Loss::TooLarge);
         client.connected();
         client.failed("cannot reach broker broker:1883: refused");
         client.waiting(12);
@@ -161,9 +167,10 @@ mod tests {
                 publishes: 2,
                 log: 0,
                 refused: 1,
+                too_large: 1,
             }
         );
-        assert_eq!(s.dropped.total(), 8);
+        assert_eq!(s.dropped.total(), 9);
         client.connected();
         assert!(loop_side.shown().connected);
         assert_eq!(loop_side.shown().failed, None);

@@ -9,7 +9,7 @@
 //! its own): the link ends, and the next one resends from the outbox, so the outbox alone
 //! says what the broker has.
 
-use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason};
+use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason, Publish};
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, ConnectionError, Event, MqttOptions};
 use rumqttc::Outgoing;
@@ -44,6 +44,19 @@ pub enum NetEvent {
         /// The broker's reason.
         reason: PubAckReason,
     },
+    /// A publish over the broker's Maximum Packet Size (its CONNACK's), not sent: the broker
+    /// would end the connection on it, and on every resend.
+    TooLarge {
+        /// The publish's topic.
+        topic: String,
+        /// Its packet's size in bytes.
+        size: usize,
+        /// The broker's limit.
+        max: u32,
+        /// For a record: its seq and the highest seq now done with every one before it (it
+        /// is done: it never will be sent).
+        record: Option<(u64, u64)>,
+    },
     /// A message on a topic the rig subscribed to.
     Message {
         /// Its topic.
@@ -70,7 +83,22 @@ pub struct Link {
     unacked: BTreeSet<u64>,
     highest_sent: Option<u64>,
     connected: bool,
+    /// The broker's Maximum Packet Size (its CONNACK's), if it gave one.
+    max_packet: Option<u32>,
+    /// Publishes not sent, to be told by the next `poll`.
+    too_large: VecDeque<NetEvent>,
     thread: Option<thread::JoinHandle<()>>,
+}
+
+/// What became of a record handed to `send_record`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sent {
+    /// Queued for the broker.
+    Queued,
+    /// Over the broker's limit: not sent, done (`poll` tells a `TooLarge`).
+    TooLarge,
+    /// The client's queue is full: try again later.
+    Full,
 }
 
 /// The network thread's raw events (kept apart from `NetEvent` so tags are matched here).
@@ -119,6 +147,8 @@ impl Link {
             unacked: BTreeSet::new(),
             highest_sent: None,
             connected: false,
+            max_packet: None,
+            too_large: VecDeque::new(),
             thread,
         }
     }
@@ -130,6 +160,9 @@ impl Link {
 
     /// The next thing the connection tells, if any; `Failed` when it is over.
     pub fn poll(&mut self) -> Option<NetEvent> {
+        if let Some(told) = self.too_large.pop_front() {
+            return Some(told);
+        }
         loop {
             let event = match self.net.try_recv() {
                 Ok(e) => e,
@@ -146,7 +179,10 @@ impl Link {
                         Over::Panicked(why) => NetEvent::Panicked(why),
                     });
                 }
-                Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                Ok(Event::Incoming(Packet::ConnAck(ack))) => {
+                    // rumqttc ends the connection on a larger publish (as the broker would):
+                    // known here, such a publish is never handed to it.
+                    self.max_packet = ack.properties.and_then(|p| p.max_packet_size);
                     self.connected = true;
                     return Some(NetEvent::Connected);
                 }
@@ -209,28 +245,56 @@ impl Link {
         self.highest_sent
     }
 
-    /// Publishes a record (QoS 1, not retained); false if the client's queue is full.
-    pub fn send_record(&mut self, topic: &str, seq: u64, payload: &str) -> bool {
-        let sent = self
+    /// Publishes a record (QoS 1, not retained), unless it is over the broker's limit.
+    pub fn send_record(&mut self, topic: &str, seq: u64, payload: &str) -> Sent {
+        let publish = match self.fitting(topic, QoS::AtLeastOnce, payload.as_bytes()) {
+            Ok(p) => p,
+            Err((size, max)) => {
+                // Sent as far as the order goes: done with, never waited on.
+                self.highest_sent = Some(seq);
+                self.too_large.push_back(NetEvent::TooLarge {
+                    topic: topic.to_string(),
+                    size,
+                    max,
+                    record: Some((seq, self.acked_through())),
+                });
+                return Sent::TooLarge;
+            }
+        };
+        if self
             .client
-            .try_publish(topic, QoS::AtLeastOnce, false, payload.as_bytes().to_vec())
-            .is_ok();
-        if sent {
-            self.tags.push_back(Tag {
-                record: Some(seq),
-                topic: topic.to_string(),
-            });
-            self.unacked.insert(seq);
-            self.highest_sent = Some(seq);
+            .try_publish(topic, QoS::AtLeastOnce, false, publish.payload)
+            .is_err()
+        {
+            return Sent::Full;
         }
-        sent
+        self.tags.push_back(Tag {
+            record: Some(seq),
+            topic: topic.to_string(),
+        });
+        self.unacked.insert(seq);
+        self.highest_sent = Some(seq);
+        Sent::Queued
     }
 
-    /// Publishes anything else; false if the client's queue is full.
+    /// Publishes anything else; false if the client's queue is full (one over the broker's
+    /// limit is done with: not sent, `poll` tells a `TooLarge`).
     pub fn send(&mut self, topic: &str, qos: QoS, retain: bool, payload: &[u8]) -> bool {
+        let publish = match self.fitting(topic, qos, payload) {
+            Ok(p) => p,
+            Err((size, max)) => {
+                self.too_large.push_back(NetEvent::TooLarge {
+                    topic: topic.to_string(),
+                    size,
+                    max,
+                    record: None,
+                });
+                return true;
+            }
+        };
         let sent = self
             .client
-            .try_publish(topic, qos, retain, payload.to_vec())
+            .try_publish(topic, qos, retain, publish.payload)
             .is_ok();
         if sent {
             self.tags.push_back(Tag {
@@ -239,6 +303,19 @@ impl Link {
             });
         }
         sent
+    }
+
+    /// The publish, if its packet (sized as rumqttc sizes it) is within the broker's limit;
+    /// else its size and the limit.
+    fn fitting(&self, topic: &str, qos: QoS, payload: &[u8]) -> Result<Publish, (usize, u32)> {
+        let mut publish = Publish::new(topic, qos, payload.to_vec(), None);
+        // Room for the packet id rumqttc gives a QoS 1 publish.
+        publish.pkid = u16::from(qos != QoS::AtMostOnce);
+        let size = publish.size();
+        match self.max_packet {
+            Some(max) if size > max as usize => Err((size, max)),
+            _ => Ok(publish),
+        }
     }
 
     /// Subscribes to `filter` (QoS 1); false if the client's queue is full.

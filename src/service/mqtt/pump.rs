@@ -4,6 +4,7 @@
 //! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
 
 use super::health::{Health, Loss};
+use super::link::Sent;
 use super::link::{Link, NetEvent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
@@ -77,6 +78,8 @@ pub struct Pump {
     last_record: Option<(u64, String)>,
     last_record_sent: (Instant, u64),
     loop_gone: bool,
+    /// The highest record seq counted as too large (a record met again is not counted again).
+    too_large_through: u64,
     notices: HashMap<&'static str, (Instant, u64)>,
     /// What was lost and how the connection goes, shared with the loop's snapshot.
     health: Health,
@@ -115,6 +118,7 @@ impl Pump {
             last_record: None,
             last_record_sent: (now, 0),
             loop_gone: false,
+            too_large_through: 0,
             notices: HashMap::new(),
             health,
         }
@@ -267,6 +271,12 @@ impl Pump {
                     acked,
                     reason,
                 } => self.on_refused(&topic, acked, reason),
+                NetEvent::TooLarge {
+                    topic,
+                    size,
+                    max,
+                    record,
+                } => self.on_too_large(&topic, size, max, record),
                 NetEvent::Message { topic, payload } => self.on_message(topic, payload),
                 NetEvent::Failed(e) => {
                     self.on_failed(&e);
@@ -330,6 +340,30 @@ impl Pump {
         }
     }
 
+    /// A publish over the broker's limit, not sent: counted and told (a record once, though
+    /// a connection made again meets it again), a record done with.
+    fn on_too_large(&mut self, topic: &str, size: usize, max: u32, record: Option<(u64, u64)>) {
+        if let Some((seq, acked)) = record {
+            self.outbox.ack_through(acked);
+            if seq <= self.too_large_through {
+                return;
+            }
+            self.too_large_through = seq;
+        }
+        self.health.lost(Loss::TooLarge);
+        let what = if record.is_some() {
+            "a record"
+        } else {
+            "a publish"
+        };
+        let message = format!(
+            "mqtt: {what} on {topic} not sent: {size} bytes, over broker {}'s limit of {max} \
+             (its Maximum Packet Size); counted as too_large",
+            self.s.broker
+        );
+        self.warn_counted("too-large", 1, &message);
+    }
+
     fn on_failed(&mut self, e: &ConnectionError) {
         let was_up = self.link.as_ref().is_some_and(Link::connected);
         self.link = None;
@@ -387,10 +421,14 @@ impl Pump {
         let start = waiting.partition_point(|p| p.seq < from);
         let topic = self.s.topics.records();
         for p in waiting.iter().skip(start) {
-            if link.in_flight() >= WINDOW || !link.send_record(&topic, p.seq, &p.payload) {
+            if link.in_flight() >= WINDOW {
                 break;
             }
-            self.last_record = Some((p.seq, p.payload.clone()));
+            match link.send_record(&topic, p.seq, &p.payload) {
+                Sent::Queued => self.last_record = Some((p.seq, p.payload.clone())),
+                Sent::TooLarge => {}
+                Sent::Full => break,
+            }
         }
     }
 
@@ -663,6 +701,10 @@ impl Pump {
             (dropped.commands, "commands refused"),
             (dropped.publishes, "mqtt_publish messages dropped"),
             (dropped.refused, "publishes the broker refused"),
+            (
+                dropped.too_large,
+                "publishes over the broker's Maximum Packet Size not sent",
+            ),
             (dropped.outbox_full, "records dropped: the outbox was full"),
             (
                 dropped.outbox_write,
