@@ -9,7 +9,8 @@
 //! rig's announced packet size), a listener that never answers, a proxy that cuts every
 //! connection after a second, a wrong password; a cancelled handler's filter is unsubscribed.
 //! A panic in the client's thread (made real: no file left to open) is an error in the log and
-//! in `status`, and the rig runs on.
+//! in `status`, and the rig runs on; a record over the broker's packet size is counted and the
+//! rest arrive; a broker's shorter keep-alive is heeded and told.
 
 mod common;
 
@@ -1232,5 +1233,61 @@ fn a_record_over_the_brokers_packet_size_is_counted_and_told_and_the_rest_arrive
     assert!(
         log.contains("1 publishes over the broker's Maximum Packet Size"),
         "{log}"
+    );
+}
+
+#[test]
+fn a_broker_asking_for_a_shorter_keep_alive_is_heeded_and_told_and_calls_a_frozen_rig_offline_sooner(
+) {
+    // Mosquitto's max_keepalive (10 s at least) sends MQTT 5 clients asking for more a Server
+    // Keep Alive; the client library pings at it.
+    let broker = Broker::start_with("mqtt-maxka", "max_keepalive 10\n");
+    let dir = TempDir::new("mqtt-maxka-run");
+    let frozen = run_rig(
+        &dir,
+        "maxka",
+        &broker.mqtt_table("maxka", "60s"),
+        "every(\"100ms\", || {});\n",
+    );
+    broker.retained_until("rigscript/maxka/status", |m| m == "online");
+    let log = until(Duration::from_secs(10), || {
+        let log = std::fs::read_to_string(dir.path("maxka.log")).unwrap_or_default();
+        log.contains("asks for a keep-alive").then_some(log)
+    })
+    .unwrap_or_else(|| {
+        panic!(
+            "no keep-alive line:\n{}",
+            std::fs::read_to_string(dir.path("maxka.log")).unwrap_or_default()
+        )
+    });
+    assert!(
+        log.contains(&format!(
+            "broker 127.0.0.1:{} asks for a keep-alive of 10s (rig.toml's keepalive is 1m): a \
+             frozen rig is called offline within 15s",
+            broker.port
+        )),
+        "{log}"
+    );
+    // It pings at the broker's keep-alive (at its own it would first ping after 60 s, and the
+    // broker would have dropped it after 15 s).
+    until(Duration::from_secs(30), || {
+        broker
+            .log()
+            .contains("Received PINGREQ from rigscript-maxka")
+            .then_some(())
+    })
+    .unwrap_or_else(|| panic!("no ping within 30 s: {}", broker.log()));
+    frozen.signal(libc::SIGSTOP);
+    // 1.5 x 10 s and the broker's clock, well before 1.5 x 60 s.
+    until(Duration::from_secs(40), || {
+        (broker.retained("rigscript/maxka/status").as_deref() == Some("offline")).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the frozen runner never offline: {}", broker.log()));
+    frozen.signal(libc::SIGCONT);
+    let log = broker.log();
+    assert_eq!(
+        log.matches("as rigscript-maxka ").count(),
+        1,
+        "one connection until it froze: {log}"
     );
 }

@@ -16,6 +16,7 @@ use rumqttc::Outgoing;
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::thread;
+use std::time::Duration;
 
 /// What a publish was, for when its packet id is known.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -85,6 +86,8 @@ pub struct Link {
     connected: bool,
     /// The broker's Maximum Packet Size (its CONNACK's), if it gave one.
     max_packet: Option<u32>,
+    /// The keep-alive the broker asked for (its CONNACK's Server Keep Alive), if it did.
+    server_keep_alive: Option<Duration>,
     /// Publishes not sent, to be told by the next `poll`.
     too_large: VecDeque<NetEvent>,
     thread: Option<thread::JoinHandle<()>>,
@@ -148,6 +151,7 @@ impl Link {
             highest_sent: None,
             connected: false,
             max_packet: None,
+            server_keep_alive: None,
             too_large: VecDeque::new(),
             thread,
         }
@@ -156,6 +160,12 @@ impl Link {
     /// Whether the broker has accepted the connection.
     pub fn connected(&self) -> bool {
         self.connected
+    }
+
+    /// The keep-alive the broker asked for as it accepted the connection, if it did (rumqttc
+    /// pings at it instead of the one asked for).
+    pub fn server_keep_alive(&self) -> Option<Duration> {
+        self.server_keep_alive
     }
 
     /// The next thing the connection tells, if any; `Failed` when it is over.
@@ -182,7 +192,12 @@ impl Link {
                 Ok(Event::Incoming(Packet::ConnAck(ack))) => {
                     // rumqttc ends the connection on a larger publish (as the broker would):
                     // known here, such a publish is never handed to it.
-                    self.max_packet = ack.properties.and_then(|p| p.max_packet_size);
+                    let properties = ack.properties.as_ref();
+                    self.max_packet = properties.and_then(|p| p.max_packet_size);
+                    // rumqttc takes it as its own keep-alive (the broker's wins).
+                    self.server_keep_alive = properties
+                        .and_then(|p| p.server_keep_alive)
+                        .map(|k| Duration::from_secs(k.into()));
                     self.connected = true;
                     return Some(NetEvent::Connected);
                 }

@@ -307,6 +307,19 @@ impl Pump {
             }
         ));
         self.was_connected = true;
+        let asked = self.link.as_ref().and_then(Link::server_keep_alive);
+        if let Some(k) = asked.filter(|k| *k != self.s.keepalive) {
+            // rumqttc pings at the broker's keep-alive from now on: it says when a frozen rig
+            // is called offline, not rig.toml.
+            self.info(&format!(
+                "mqtt: broker {} asks for a keep-alive of {} (rig.toml's keepalive is {}): a \
+                 frozen rig is called offline within {}",
+                self.s.broker,
+                crate::time::duration::format_duration(k),
+                crate::time::duration::format_duration(self.s.keepalive),
+                crate::time::duration::format_duration(k * 3 / 2)
+            ));
+        }
         let status = self.s.topics.status();
         let commands = self.s.topics.commands();
         if let Some(l) = self.link.as_mut() {
