@@ -673,16 +673,7 @@ fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
     let _good = run_rig(&dir, "good", &tls("good", "good"), script);
     broker.retained_until("rigscript/good/status", |m| m == "online");
     let _wrong = run_rig(&dir, "wrong", &tls("wrong", "wrong"), script);
-    let log = until(Duration::from_secs(10), || {
-        let log = std::fs::read_to_string(dir.path("wrong.log")).unwrap_or_default();
-        log.contains("TLS to broker").then_some(log)
-    })
-    .unwrap_or_else(|| {
-        panic!(
-            "no TLS refusal in the log:\n{}",
-            std::fs::read_to_string(dir.path("wrong.log")).unwrap_or_default()
-        )
-    });
+    let log = log_with(&dir, "wrong", "TLS to broker");
     assert!(
         log.contains(&format!(
             "TLS to broker 127.0.0.1:{} failed",
@@ -692,6 +683,17 @@ fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
         "{log}"
     );
     assert_eq!(broker.retained("rigscript/wrong/status"), None);
+}
+
+/// Waits (bounded) until the log of the rig `run_rig` started as `name` in `dir` has `what`;
+/// the log.
+fn log_with(dir: &TempDir, name: &str, what: &str) -> String {
+    let read = || std::fs::read_to_string(dir.path(&format!("{name}.log"))).unwrap_or_default();
+    until(Duration::from_secs(15), || {
+        let log = read();
+        log.contains(what).then_some(log)
+    })
+    .unwrap_or_else(|| panic!("no {what:?} in the log:\n{}", read()))
 }
 
 /// `rigscript status NAME` of a rig `run_rig` started in `dir` (`--json`: the snapshot).
@@ -1250,16 +1252,7 @@ fn a_broker_asking_for_a_shorter_keep_alive_is_heeded_and_told_and_calls_a_froze
         "every(\"100ms\", || {});\n",
     );
     broker.retained_until("rigscript/maxka/status", |m| m == "online");
-    let log = until(Duration::from_secs(10), || {
-        let log = std::fs::read_to_string(dir.path("maxka.log")).unwrap_or_default();
-        log.contains("asks for a keep-alive").then_some(log)
-    })
-    .unwrap_or_else(|| {
-        panic!(
-            "no keep-alive line:\n{}",
-            std::fs::read_to_string(dir.path("maxka.log")).unwrap_or_default()
-        )
-    });
+    let log = log_with(&dir, "maxka", "asks for a keep-alive");
     assert!(
         log.contains(&format!(
             "broker 127.0.0.1:{} asks for a keep-alive of 10s (rig.toml's keepalive is 1m): a \
