@@ -852,6 +852,25 @@ fn huge_retained_messages_on_a_watched_topic_and_on_cmd_leave_the_connection_up(
             .any(|l| l.contains("huge") || l.contains("over")),
         "{seen:?}"
     );
+    // The lab screen reads every retained topic under the root: a huge retained message among
+    // them is dropped by the broker for it too, and the screen still shows the rig.
+    broker.publish_file("rig", "rigscript/huge/state/big", &huge, true);
+    let lab = broker.lab();
+    let mine = lab["rigs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["rig"] == "huge")
+        .cloned()
+        .unwrap_or_else(|| panic!("the rig on the lab screen: {lab}"));
+    assert_eq!(mine["status"], "online", "{lab}");
+    assert!(
+        broker
+            .log()
+            .lines()
+            .any(|l| l.contains("Dropping too large outgoing PUBLISH for rigscript-lab-")),
+        "the broker dropped the huge message for the lab screen"
+    );
 }
 
 #[test]

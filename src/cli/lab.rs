@@ -8,9 +8,12 @@
 use super::output::say;
 use crate::config::mqtt::{check_prefix, parse_url, Transport};
 use crate::runtime::exit;
-use crate::service::mqtt::tls;
+use crate::service::mqtt::{failure, tls, MAX_INBOUND_PACKET};
 use clap::Args;
-use rumqttc::{Client, Event, MqttOptions, Packet, QoS, TlsConfiguration};
+use rumqttc::v5::mqttbytes::v5::Packet;
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::{Client, Event, MqttOptions, RecvTimeoutError};
+use rumqttc::TlsConfiguration;
 use serde_json::{json, Map, Value};
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -93,7 +96,9 @@ pub fn run(args: LabArgs) -> i32 {
         port,
     );
     o.set_keep_alive(Duration::from_secs(10));
-    o.set_max_packet_size(1 << 20, 1 << 16);
+    // Announced in CONNECT (MQTT 5): the broker drops a larger retained message for this
+    // client instead of sending it, so one huge message under the root cannot end the view.
+    o.set_max_packet_size(Some(MAX_INBOUND_PACKET));
     if let Some(user) = &args.username {
         let pw = match &args.password_env {
             Some(var) => match std::env::var(var) {
@@ -138,20 +143,26 @@ pub fn run(args: LabArgs) -> i32 {
                 quiet_since = Instant::now();
             }
             Ok(Ok(Event::Incoming(Packet::Publish(p)))) => {
-                take(&mut rigs, &root, &p.topic, &p.payload);
+                take(
+                    &mut rigs,
+                    &root,
+                    &String::from_utf8_lossy(&p.topic),
+                    &p.payload,
+                );
                 quiet_since = Instant::now();
             }
             Ok(Ok(_)) => {}
             Ok(Err(e)) => {
-                say(&format!(
-                    "rigscript lab: broker {host}:{port}{}: {e}",
-                    args.username
-                        .as_ref()
-                        .map_or(String::new(), |u| format!(" (user {u})"))
-                ));
+                let peer = failure::Peer {
+                    broker: &format!("{host}:{port}"),
+                    user: args.username.as_deref().unwrap_or("(anonymous)"),
+                    host: &host,
+                    password_from: "--username / --password-env",
+                };
+                say(&format!("rigscript lab: {}", failure::describe(&e, &peer)));
                 return exit::UNAVAILABLE;
             }
-            Err(rumqttc::RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Timeout) => {}
             Err(_) => return exit::UNAVAILABLE,
         }
         let settled = subscribed && quiet_since.elapsed() >= SETTLE;

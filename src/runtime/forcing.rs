@@ -426,7 +426,7 @@ impl<H: Clone> Runtime<H> {
             f.point
         ));
         self.record_force(&f.point, "removed", None, None, by);
-        self.reread_forced(f.device);
+        self.ended(&f, "removed");
         Ok(())
     }
 
@@ -444,7 +444,7 @@ impl<H: Clone> Runtime<H> {
                 format_duration(f.held_for)
             ));
             self.record_force(&f.point, "expired", None, None, "expiry");
-            self.reread_forced(f.device);
+            self.ended(f, "expired");
         }
         !over.is_empty()
     }
@@ -489,6 +489,18 @@ impl<H: Clone> Runtime<H> {
             Some(Device::Trc(d)) => d.switches.tick = None,
             None => {}
         }
+    }
+
+    /// Names a force's end (`force on io.DO3 expired`) as the cause of the write that puts
+    /// the script's value back, which would otherwise give the script's last cause.
+    fn ended(&mut self, f: &Force, how: &str) {
+        let cause = format!("force on {} {how}", f.point);
+        match (self.devices.get_mut(f.device), f.target) {
+            (Some(Device::C29u(d)), Target::Outputs { .. }) => d.outputs_cause = cause,
+            (Some(Device::Trc(d)), Target::Relay(_)) => d.relay_cause = cause,
+            _ => {}
+        }
+        self.reread_forced(f.device);
     }
 
     /// One record line of a force's life (`{"name":"force","value":{...}}`).
@@ -641,6 +653,11 @@ mod tests {
             r.sim.outputs("io").unwrap(),
             0x05,
             "the script's (the safe value)"
+        );
+        let log = r.log();
+        assert!(
+            log.contains("io: outputs 0x0f -> 0x05 (force on io.outputs removed)"),
+            "the write the removal makes says so: {log}"
         );
         let events: Vec<_> = records(&r).iter().map(|v| v["event"].clone()).collect();
         assert_eq!(events, ["set", "changed", "removed"]);

@@ -9,6 +9,7 @@
 //! (`runtime::remote`) and publishes the commands' replies.
 
 pub mod discovery;
+pub mod failure;
 pub mod health;
 mod link;
 pub mod outbox;

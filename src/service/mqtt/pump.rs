@@ -4,19 +4,18 @@
 //! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
 
 use super::health::{Health, Loss};
-use super::link::Sent;
-use super::link::{Link, NetEvent};
+use super::link::{Link, NetEvent, Sent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
-use super::{discovery, Settings, FLUSH_WAIT};
+use super::{discovery, failure, Settings, FLUSH_WAIT};
 use crate::runtime::log::Level;
 use crate::runtime::observe::{RunEvent, Subscription};
 use crate::runtime::remote::{Command, Remote, Reply, ReplyTo};
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
 use crate::runtime::snapshot::RigSnapshot;
-use rumqttc::v5::mqttbytes::v5::{ConnectReturnCode, PubAckReason};
+use rumqttc::v5::mqttbytes::v5::PubAckReason;
 use rumqttc::v5::mqttbytes::QoS;
-use rumqttc::v5::{ConnectionError, StateError};
+use rumqttc::v5::ConnectionError;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
@@ -381,7 +380,15 @@ impl Pump {
         let was_up = self.link.as_ref().is_some_and(Link::connected);
         self.link = None;
         let waiting = self.outbox.waiting().len();
-        let why = describe_failure(e, &self.s);
+        let why = failure::describe(
+            e,
+            &failure::Peer {
+                broker: &self.s.broker,
+                user: self.s.user(),
+                host: &self.s.host,
+                password_from: "password_file / password_env",
+            },
+        );
         self.health.failed(&why);
         let message = if was_up || self.was_connected && self.backoff == FIRST_RETRY {
             format!(
@@ -801,63 +808,6 @@ pub(super) fn tell(ask: &Requester, loop_runs: bool, level: Level, message: &str
     };
     let _ = std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{prefix}{message}\n"));
     !gone
-}
-
-/// A connection's failure in words naming the broker and the user.
-fn describe_failure(e: &ConnectionError, s: &Settings) -> String {
-    let broker = &s.broker;
-    match e {
-        ConnectionError::ConnectionRefused(
-            ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
-        ) => format!(
-            "broker {broker} refused user {}: wrong user name or password, or not allowed \
-             (password_file / password_env)",
-            s.user()
-        ),
-        ConnectionError::ConnectionRefused(
-            ConnectReturnCode::UnsupportedProtocolVersion
-            | ConnectReturnCode::RefusedProtocolVersion,
-        ) => format!(
-            "broker {broker} does not speak MQTT 5, which the rig's client needs (Mosquitto \
-             1.6 or later does)"
-        ),
-        ConnectionError::ConnectionRefused(code) => {
-            format!(
-                "broker {broker} refused the connection of user {}: {code:?}",
-                s.user()
-            )
-        }
-        ConnectionError::Tls(t) => format!(
-            "TLS to broker {broker} failed: {t} (is ca_file the CA that signed the broker's \
-             certificate, and does the certificate name {}?)",
-            s.host
-        ),
-        ConnectionError::Io(io) => format!("cannot reach broker {broker}: {io}"),
-        ConnectionError::Timeout(_) => {
-            format!("broker {broker} did not answer the connection in time")
-        }
-        ConnectionError::NotConnAck(packet) => format!(
-            "broker {broker} answered the connection with {packet:?}, not a CONNACK (does it \
-             speak MQTT 5?)"
-        ),
-        ConnectionError::MqttState(StateError::ServerDisconnect {
-            reason_code,
-            reason_string,
-        }) => format!(
-            "broker {broker} ended the connection: {reason_code:?}{}",
-            reason_string
-                .as_deref()
-                .map(|r| format!(" ({r})"))
-                .unwrap_or_default()
-        ),
-        ConnectionError::MqttState(StateError::ConnectionAborted) => {
-            format!("broker {broker} closed the connection")
-        }
-        ConnectionError::MqttState(StateError::AwaitPingResp) => {
-            format!("broker {broker} stopped answering (no reply to the keep-alive ping)")
-        }
-        other => format!("broker {broker}: {other}"),
-    }
 }
 
 /// Wall time now, local, RFC 3339 with milliseconds.

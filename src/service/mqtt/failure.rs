@@ -1,0 +1,75 @@
+//! A failed or refused MQTT connection in words for people: what the broker said, naming the
+//! broker and the user, and what to check. The rig's client and `rigscript lab` both use it.
+
+use rumqttc::v5::mqttbytes::v5::ConnectReturnCode;
+use rumqttc::v5::{ConnectionError, StateError};
+
+/// Who was connecting where, for the messages.
+pub struct Peer<'a> {
+    /// The broker, `HOST:PORT`.
+    pub broker: &'a str,
+    /// The user, or `(anonymous)`.
+    pub user: &'a str,
+    /// The host the broker's certificate must name.
+    pub host: &'a str,
+    /// Where the password comes from, as the user wrote it (`password_file / password_env`).
+    pub password_from: &'a str,
+}
+
+/// A connection's failure in words naming the broker and the user.
+pub fn describe(e: &ConnectionError, peer: &Peer) -> String {
+    let Peer {
+        broker,
+        user,
+        host,
+        password_from,
+    } = peer;
+    match e {
+        ConnectionError::ConnectionRefused(
+            ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
+        ) => format!(
+            "broker {broker} refused user {user}: wrong user name or password, or not allowed \
+             ({password_from})"
+        ),
+        ConnectionError::ConnectionRefused(
+            ConnectReturnCode::UnsupportedProtocolVersion
+            | ConnectReturnCode::RefusedProtocolVersion,
+        ) => format!(
+            "broker {broker} does not speak MQTT 5, which rigscript needs (Mosquitto \
+             1.6 or later does)"
+        ),
+        ConnectionError::ConnectionRefused(code) => {
+            format!("broker {broker} refused the connection of user {user}: {code:?}")
+        }
+        ConnectionError::Tls(t) => format!(
+            "TLS to broker {broker} failed: {t} (is ca_file the CA that signed the broker's \
+             certificate, and does the certificate name {}?)",
+            host
+        ),
+        ConnectionError::Io(io) => format!("cannot reach broker {broker}: {io}"),
+        ConnectionError::Timeout(_) => {
+            format!("broker {broker} did not answer the connection in time")
+        }
+        ConnectionError::NotConnAck(packet) => format!(
+            "broker {broker} answered the connection with {packet:?}, not a CONNACK (does it \
+             speak MQTT 5?)"
+        ),
+        ConnectionError::MqttState(StateError::ServerDisconnect {
+            reason_code,
+            reason_string,
+        }) => format!(
+            "broker {broker} ended the connection: {reason_code:?}{}",
+            reason_string
+                .as_deref()
+                .map(|r| format!(" ({r})"))
+                .unwrap_or_default()
+        ),
+        ConnectionError::MqttState(StateError::ConnectionAborted) => {
+            format!("broker {broker} closed the connection")
+        }
+        ConnectionError::MqttState(StateError::AwaitPingResp) => {
+            format!("broker {broker} stopped answering (no reply to the keep-alive ping)")
+        }
+        other => format!("broker {broker}: {other}"),
+    }
+}
