@@ -8,6 +8,9 @@
 //! brokers: megabytes retained on watched and command topics (dropped by the broker for the
 //! rig's announced packet size), a listener that never answers, a proxy that cuts every
 //! connection after a second, a wrong password; a cancelled handler's filter is unsubscribed.
+//! A panic in the client's thread (made real: no file left to open) is an error in the log and
+//! in `status`, and the rig runs on; a record over the broker's packet size is counted and the
+//! rest arrive; a broker's shorter keep-alive is heeded and told.
 
 mod common;
 
@@ -132,6 +135,11 @@ struct Broker {
 
 impl Broker {
     fn start(tag: &str) -> Self {
+        Self::start_with(tag, "")
+    }
+
+    /// A broker whose configuration has `extra` lines too (global options).
+    fn start_with(tag: &str, extra: &str) -> Self {
         require_tool("mosquitto", "mosquitto");
         require_tool("mosquitto_sub", "mosquitto-clients");
         require_tool("openssl", "openssl");
@@ -165,7 +173,7 @@ impl Broker {
         let config = format!(
             "user {user}\npersistence true\npersistence_location {dir}/\nautosave_interval 1\n\
              per_listener_settings false\nallow_anonymous false\npassword_file {pw}\n\
-             acl_file {acl}\nlog_dest stderr\nlog_type all\n\
+             acl_file {acl}\nlog_dest stderr\nlog_type all\n{extra}\
              listener {port} 127.0.0.1\n\
              listener {tls_port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n",
             user = std::env::var("USER").unwrap_or_else(|_| "root".into()),
@@ -665,16 +673,7 @@ fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
     let _good = run_rig(&dir, "good", &tls("good", "good"), script);
     broker.retained_until("rigscript/good/status", |m| m == "online");
     let _wrong = run_rig(&dir, "wrong", &tls("wrong", "wrong"), script);
-    let log = until(Duration::from_secs(10), || {
-        let log = std::fs::read_to_string(dir.path("wrong.log")).unwrap_or_default();
-        log.contains("TLS to broker").then_some(log)
-    })
-    .unwrap_or_else(|| {
-        panic!(
-            "no TLS refusal in the log:\n{}",
-            std::fs::read_to_string(dir.path("wrong.log")).unwrap_or_default()
-        )
-    });
+    let log = log_with(&dir, "wrong", "TLS to broker");
     assert!(
         log.contains(&format!(
             "TLS to broker 127.0.0.1:{} failed",
@@ -684,6 +683,17 @@ fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
         "{log}"
     );
     assert_eq!(broker.retained("rigscript/wrong/status"), None);
+}
+
+/// Waits (bounded) until the log of the rig `run_rig` started as `name` in `dir` has `what`;
+/// the log.
+fn log_with(dir: &TempDir, name: &str, what: &str) -> String {
+    let read = || std::fs::read_to_string(dir.path(&format!("{name}.log"))).unwrap_or_default();
+    until(Duration::from_secs(15), || {
+        let log = read();
+        log.contains(what).then_some(log)
+    })
+    .unwrap_or_else(|| panic!("no {what:?} in the log:\n{}", read()))
 }
 
 /// `rigscript status NAME` of a rig `run_rig` started in `dir` (`--json`: the snapshot).
@@ -1088,4 +1098,208 @@ fn publishes_the_acl_refuses_are_counted_and_told_naming_broker_user_and_topic()
     );
     rig.signal(libc::SIGTERM);
     assert_eq!(rig.wait_end(), Some(143));
+}
+
+/// Sets the soft limit on the open files of process `pid` to `soft`; the limit it had.
+fn limit_open_files(pid: u32, soft: u64) -> u64 {
+    let mut old = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: reads the limit into `old`, a valid rlimit.
+    let got = unsafe { libc::prlimit(pid as i32, libc::RLIMIT_NOFILE, std::ptr::null(), &mut old) };
+    assert_eq!(got, 0, "prlimit: {}", std::io::Error::last_os_error());
+    let new = libc::rlimit {
+        rlim_cur: soft,
+        rlim_max: old.rlim_max,
+    };
+    // SAFETY: a valid rlimit for our own child, the old one not asked for.
+    let set = unsafe { libc::prlimit(pid as i32, libc::RLIMIT_NOFILE, &new, std::ptr::null_mut()) };
+    assert_eq!(set, 0, "prlimit: {}", std::io::Error::last_os_error());
+    old.rlim_cur
+}
+
+#[test]
+fn a_panic_in_the_clients_thread_is_an_error_in_the_log_and_in_status_and_the_rig_runs_on() {
+    let dir = TempDir::new("mqtt-panic-run");
+    // Nothing listens there: the client connects again and again.
+    let mqtt = format!(
+        "[mqtt]\nurl = \"mqtt://127.0.0.1:{}\"\nrig = \"panic\"\noutbox = \"{}\"\n",
+        free_port(),
+        dir.path("outbox-panic").display()
+    );
+    let script = "io.outputs = 0x21;\nevery(\"50ms\", || {});\n";
+    let mut rig = run_rig(&dir, "panic", &mqtt, script);
+    until(Duration::from_secs(30), || {
+        mqtt_status(&dir, "panic").filter(|m| m["connect_failures"].as_u64() >= Some(1))
+    })
+    .expect("status shows a failed connection");
+    // With no file to open, the MQTT library's client panics as the next connection is made
+    // (it builds a runtime for each and unwraps the failure): a real panic in the client's
+    // thread, while the scan loop, which opens nothing as it runs, goes on.
+    let pid = rig.0.id();
+    let was = limit_open_files(pid, 3);
+    let log = until(Duration::from_secs(20), || {
+        let log = std::fs::read_to_string(dir.path("panic.log")).unwrap_or_default();
+        log.contains("error: mqtt: the client's thread panicked")
+            .then_some(log)
+    });
+    limit_open_files(pid, was);
+    let log = log.unwrap_or_else(|| {
+        panic!(
+            "no error line for the panic:\n{}",
+            std::fs::read_to_string(dir.path("panic.log")).unwrap_or_default()
+        )
+    });
+    assert!(
+        log.contains("Too many open files") && log.contains("MQTT is off for the rest of the run"),
+        "{log}"
+    );
+    let m = mqtt_status(&dir, "panic").expect("status answers again");
+    assert_eq!(m["connected"], false, "{m}");
+    let failed = m["failed"].as_str().unwrap_or_default();
+    assert!(
+        failed.starts_with("the client's thread panicked: ")
+            && failed.contains("Too many open files"),
+        "{m}"
+    );
+    // The outputs are still the script's, and the loop still scans.
+    let snap = |dir: &TempDir| -> Value {
+        serde_json::from_str(&status(dir, "panic", true).expect("status")).unwrap()
+    };
+    let before = snap(&dir);
+    assert_eq!(before["devices"]["io"]["outputs"], 0x21, "{before}");
+    assert_eq!(before["script"]["state"], "running", "{before}");
+    assert_eq!(before["held_safe"], false, "{before}");
+    let ticks = before["ticks"]["count"].as_u64().unwrap();
+    until(Duration::from_secs(10), || {
+        (snap(&dir)["ticks"]["count"].as_u64() > Some(ticks)).then_some(())
+    })
+    .expect("the loop scans on");
+    let text = status(&dir, "panic", false).expect("status");
+    assert!(
+        text.contains("FAILED: the client's thread panicked"),
+        "{text}"
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
+
+#[test]
+fn a_record_over_the_brokers_packet_size_is_counted_and_told_and_the_rest_arrive_in_order() {
+    let broker = Broker::start_with("mqtt-big", "max_packet_size 2048\n");
+    let dir = TempDir::new("mqtt-big-run");
+    let got = dir.path("records.sub");
+    let _sub = broker.subscribe("viewer", "rigscript/big/records", &got, Some("big-sub"));
+    broker.wait_subscribed("big-sub");
+    // One record of 3,000 characters between small ones; the broker takes 2,048 bytes a packet.
+    let script = "let n = 0;\n\
+                  every(\"50ms\", || {\n\
+                    n += 1;\n\
+                    if n == 5 { let big = \"\"; for i in 0..300 { big += \"0123456789\"; } record(\"big\", big); }\n\
+                    else if n <= 10 { record(\"n\", n); }\n\
+                  });\n";
+    let mut rig = run_rig(&dir, "big", &broker.mqtt_table("big", "10s"), script);
+    let records = dir.path("big.jsonl");
+    until(Duration::from_secs(15), || {
+        (delivered(&got).len() >= 9).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the small records never all arrived: {:?}", lines(&got)));
+    let m = mqtt_status(&dir, "big").expect("status");
+    assert_eq!(m["dropped"]["too_large"], 1, "{m}");
+    assert_eq!(m["connected"], true, "{m}");
+    assert_eq!(
+        m["connect_failures"], 0,
+        "the connection was never lost: {m}"
+    );
+    assert_eq!(
+        m["outbox_waiting"], 0,
+        "nothing held behind the big one: {m}"
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    // Every record but the big one, in order, each once: the records file has them all.
+    let file: Vec<String> = lines(&records).iter().map(|l| canonical(l)).collect();
+    assert_eq!(file.len(), 10, "{file:?}");
+    let big = file
+        .iter()
+        .position(|l| l.contains("\"big\""))
+        .expect("the big record") as u64
+        + 1;
+    let got = delivered(&got);
+    let seqs: Vec<u64> = got.iter().map(|(s, _)| *s).collect();
+    let expected: Vec<u64> = (1..=10).filter(|s| *s != big).collect();
+    assert_eq!(seqs, expected);
+    let bodies: Vec<String> = got.iter().map(|(_, b)| canonical(b)).collect();
+    let small: Vec<String> = file
+        .iter()
+        .filter(|l| !l.contains("\"big\""))
+        .cloned()
+        .collect();
+    assert_eq!(bodies, small);
+    let log = std::fs::read_to_string(dir.path("big.log")).unwrap();
+    let told = log
+        .lines()
+        .find(|l| l.contains("not sent:"))
+        .unwrap_or_else(|| panic!("no line for the big record:\n{log}"));
+    assert!(
+        told.contains("a record on rigscript/big/records")
+            && told.contains(&format!(
+                "over broker 127.0.0.1:{}'s limit of 2048",
+                broker.port
+            )),
+        "{told}"
+    );
+    assert!(!log.contains("lost broker"), "{log}");
+    assert!(
+        log.contains("1 publishes over the broker's Maximum Packet Size"),
+        "{log}"
+    );
+}
+
+#[test]
+fn a_broker_asking_for_a_shorter_keep_alive_is_heeded_and_told_and_calls_a_frozen_rig_offline_sooner(
+) {
+    // Mosquitto's max_keepalive (10 s at least) sends MQTT 5 clients asking for more a Server
+    // Keep Alive; the client library pings at it.
+    let broker = Broker::start_with("mqtt-maxka", "max_keepalive 10\n");
+    let dir = TempDir::new("mqtt-maxka-run");
+    let frozen = run_rig(
+        &dir,
+        "maxka",
+        &broker.mqtt_table("maxka", "60s"),
+        "every(\"100ms\", || {});\n",
+    );
+    broker.retained_until("rigscript/maxka/status", |m| m == "online");
+    let log = log_with(&dir, "maxka", "asks for a keep-alive");
+    assert!(
+        log.contains(&format!(
+            "broker 127.0.0.1:{} asks for a keep-alive of 10s (rig.toml's keepalive is 1m): a \
+             frozen rig is called offline within 15s",
+            broker.port
+        )),
+        "{log}"
+    );
+    // It pings at the broker's keep-alive (at its own it would first ping after 60 s, and the
+    // broker would have dropped it after 15 s).
+    until(Duration::from_secs(30), || {
+        broker
+            .log()
+            .contains("Received PINGREQ from rigscript-maxka")
+            .then_some(())
+    })
+    .unwrap_or_else(|| panic!("no ping within 30 s: {}", broker.log()));
+    frozen.signal(libc::SIGSTOP);
+    // 1.5 x 10 s and the broker's clock, well before 1.5 x 60 s.
+    until(Duration::from_secs(40), || {
+        (broker.retained("rigscript/maxka/status").as_deref() == Some("offline")).then_some(())
+    })
+    .unwrap_or_else(|| panic!("the frozen runner never offline: {}", broker.log()));
+    frozen.signal(libc::SIGCONT);
+    let log = broker.log();
+    assert_eq!(
+        log.matches("as rigscript-maxka ").count(),
+        1,
+        "one connection until it froze: {log}"
+    );
 }

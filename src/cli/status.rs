@@ -205,10 +205,10 @@ fn same_state(a: &RigSnapshot, b: &RigSnapshot) -> bool {
         && a.dropped == b.dropped
         && a.mqtt
             .as_ref()
-            .map(|m| (m.connected, m.connect_failures, &m.dropped))
+            .map(|m| (m.connected, m.connect_failures, &m.failed, &m.dropped))
             == b.mqtt
                 .as_ref()
-                .map(|m| (m.connected, m.connect_failures, &m.dropped))
+                .map(|m| (m.connected, m.connect_failures, &m.failed, &m.dropped))
         && a.script.uptime_ms / 1000 == b.script.uptime_ms / 1000
 }
 
@@ -405,15 +405,12 @@ pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
 
 /// The MQTT client's line: the connection, then what it lost (only the kinds that lost some).
 fn render_mqtt(m: &MqttState) -> String {
-    let mut line = format!(
-        "mqtt: broker {} {}",
-        m.broker,
-        if m.connected {
-            "connected"
-        } else {
-            "NOT CONNECTED"
-        }
-    );
+    let state = match (&m.failed, m.connected) {
+        (Some(why), _) => format!("FAILED: {why}; MQTT is off for the rest of the run"),
+        (None, true) => "connected".into(),
+        (None, false) => "NOT CONNECTED".into(),
+    };
+    let mut line = format!("mqtt: broker {} {state}", m.broker);
     if m.connect_failures > 0 {
         line.push_str(&format!("; {} failed connections", m.connect_failures));
         if let Some(e) = &m.last_error {

@@ -87,23 +87,21 @@ impl<H: Clone> Runtime<H> {
         if !self.events.wants(EventKind::Inputs) {
             return;
         }
-        let Some(device) = self.devices.get_mut(idx) else {
-            return;
-        };
-        let name = device.name().to_string();
-        let Some(d) = (input.device)(device) else {
+        let Some(d) = self.devices.get_mut(idx).and_then(input.device) else {
             return;
         };
         let snapshot = (input.snapshot)(d);
         if snapshot.current == snapshot.previous {
             return;
         }
-        if let Some(reading) = snapshot.current.as_ref().and_then(input.event) {
-            self.events.publish(|| RunEvent::Inputs {
-                device: name,
-                reading,
-            });
-        }
+        let Some(reading) = snapshot.current.as_ref().and_then(input.event) else {
+            return;
+        };
+        // Named only for a change: the name's allocation would cost every tick.
+        let Some(device) = self.devices.get(idx).map(|d| d.name().to_string()) else {
+            return;
+        };
+        self.events.publish(|| RunEvent::Inputs { device, reading });
     }
 
     /// The switches of the TRC1000 at `idx` (nothing pressed before the first reading).

@@ -5,6 +5,7 @@
 //! (`runner::remote`), and a command's reply goes back on a channel of its own, so the asker
 //! never waits on the loop.
 
+use crate::runtime::log::Level;
 use std::sync::mpsc::SyncSender;
 
 /// A request from a remote consumer.
@@ -12,8 +13,8 @@ use std::sync::mpsc::SyncSender;
 pub enum Remote {
     /// A line for the run's log, from a thread that has no log of its own.
     Log {
-        /// A warning (else an info line).
-        warning: bool,
+        /// How much it matters (info, warning or error).
+        level: Level,
         /// The line.
         message: String,
     },

@@ -65,6 +65,10 @@ pub struct MqttState {
     pub connect_failures: u64,
     /// Why the last one failed.
     pub last_error: Option<String>,
+    /// Why the client stopped for good (its thread panicked): nothing more goes to the
+    /// broker in this run, and the rig runs on.
+    #[serde(default)]
+    pub failed: Option<String>,
     /// Records waiting in the outbox for the broker's acknowledgement.
     pub outbox_waiting: u64,
     /// What the client lost, by kind.
@@ -89,11 +93,14 @@ pub struct MqttDropped {
     /// Publishes the broker refused (its ACL, a quota): records, states, replies...
     #[serde(default)]
     pub refused: u64,
+    /// Publishes over the broker's Maximum Packet Size, not sent: records, states, log lines...
+    #[serde(default)]
+    pub too_large: u64,
 }
 
 impl MqttDropped {
     /// Every kind as `(kind, count)`, the kinds as `/metrics` labels them.
-    pub fn by_kind(&self) -> [(&'static str, u64); 7] {
+    pub fn by_kind(&self) -> [(&'static str, u64); 8] {
         [
             ("outbox_full", self.outbox_full),
             ("outbox_write", self.outbox_write),
@@ -102,6 +109,7 @@ impl MqttDropped {
             ("publishes", self.publishes),
             ("log", self.log),
             ("refused", self.refused),
+            ("too_large", self.too_large),
         ]
     }
 

@@ -90,14 +90,7 @@ impl<P: Program> Runner<P> {
     /// no handler can run now); `answer_requests` then brings that tick near.
     pub(super) fn take_remote(&mut self, remote: Remote) {
         match remote {
-            Remote::Log { warning, message } => {
-                let mut rt = self.rt.borrow_mut();
-                if warning {
-                    rt.log_mut().warn(&message);
-                } else {
-                    rt.log_mut().info(&message);
-                }
-            }
+            Remote::Log { level, message } => self.rt.borrow_mut().log_mut().line(level, &message),
             Remote::Watched(reply) => {
                 let rt = self.rt.borrow();
                 let filters: Vec<&str> = rt

@@ -111,6 +111,12 @@ fn mqtt_metrics(out: &mut Metrics, m: &MqttState) {
         u8::from(m.connected),
     );
     out.one(
+        "rigscript_mqtt_failed",
+        "gauge",
+        "1 once the MQTT client has stopped for good (its thread panicked; status says why).",
+        u8::from(m.failed.is_some()),
+    );
+    out.one(
         "rigscript_mqtt_connect_failures_total",
         "counter",
         "MQTT connections that failed or were refused.",
@@ -126,7 +132,7 @@ fn mqtt_metrics(out: &mut Metrics, m: &MqttState) {
         "rigscript_mqtt_dropped_total",
         "counter",
         "What the MQTT client lost, by kind (outbox_full, outbox_write, messages, commands, \
-         publishes, log, refused).",
+         publishes, log, refused, too_large).",
     );
     for (kind, n) in m.dropped.by_kind() {
         out.sample("rigscript_mqtt_dropped_total", &[("kind", kind)], n);
@@ -324,6 +330,7 @@ mod tests {
                 connected: true,
                 connect_failures: 2,
                 last_error: Some("refused".into()),
+                failed: None,
                 outbox_waiting: 4,
                 dropped: MqttDropped {
                     messages: 5,
@@ -357,6 +364,7 @@ mod tests {
             "rigscript_jitter_seconds_count 0",
             "rigscript_forced_points 0",
             "rigscript_mqtt_connected 1",
+            "rigscript_mqtt_failed 0",
             "rigscript_mqtt_connect_failures_total 2",
             "rigscript_mqtt_outbox_waiting 4",
             "rigscript_mqtt_dropped_total{kind=\"messages\"} 5",

@@ -22,6 +22,8 @@ pub enum Loss {
     Log,
     /// A publish the broker refused (its ACL, a quota): a record, a state, a reply...
     Refused,
+    /// A publish over the broker's Maximum Packet Size, not sent (a record among them done).
+    TooLarge,
 }
 
 /// The shared counts: cheap to clone, one for the client's thread, one for the loop.
@@ -41,8 +43,11 @@ struct Counts {
     publishes: AtomicU64,
     log: AtomicU64,
     refused: AtomicU64,
+    too_large: AtomicU64,
     /// Held only to swap the text, never across I/O: the loop's read waits on no network.
     last_error: Mutex<Option<String>>,
+    /// Why the client stopped for good (its thread panicked), under the same rule.
+    stopped: Mutex<Option<String>>,
 }
 
 impl Health {
@@ -65,6 +70,7 @@ impl Health {
             Loss::Publish => &c.publishes,
             Loss::Log => &c.log,
             Loss::Refused => &c.refused,
+            Loss::TooLarge => &c.too_large,
         };
         counter.fetch_add(1, Ordering::Relaxed);
     }
@@ -79,6 +85,12 @@ impl Health {
         self.0.connected.store(false, Ordering::Relaxed);
         self.0.connect_failures.fetch_add(1, Ordering::Relaxed);
         *crate::sync::lock(&self.0.last_error) = Some(why.to_string());
+    }
+
+    /// The client's thread ended for `why` (a panic): nothing more reaches the broker.
+    pub fn stopped(&self, why: &str) {
+        self.0.connected.store(false, Ordering::Relaxed);
+        *crate::sync::lock(&self.0.stopped) = Some(why.to_string());
     }
 
     /// The connection was closed on purpose (the run's end).
@@ -100,6 +112,7 @@ impl Health {
             connected: c.connected.load(Ordering::Relaxed),
             connect_failures: load(&c.connect_failures),
             last_error: crate::sync::lock(&c.last_error).clone(),
+            failed: crate::sync::lock(&c.stopped).clone(),
             outbox_waiting: load(&c.waiting),
             dropped: MqttDropped {
                 outbox_full: load(&c.outbox_full),
@@ -109,6 +122,7 @@ impl Health {
                 publishes: load(&c.publishes),
                 log: load(&c.log),
                 refused: load(&c.refused),
+                too_large: load(&c.too_large),
             },
         }
     }
@@ -130,6 +144,7 @@ mod tests {
         client.lost(Loss::Publish);
         client.lost(Loss::Publish);
         client.lost(Loss::Refused);
+        client.lost(Loss::TooLarge);
         client.connected();
         client.failed("cannot reach broker broker:1883: refused");
         client.waiting(12);
@@ -152,10 +167,19 @@ mod tests {
                 publishes: 2,
                 log: 0,
                 refused: 1,
+                too_large: 1,
             }
         );
-        assert_eq!(s.dropped.total(), 8);
+        assert_eq!(s.dropped.total(), 9);
         client.connected();
         assert!(loop_side.shown().connected);
+        assert_eq!(loop_side.shown().failed, None);
+        client.stopped("the client's thread panicked: boom");
+        let s = loop_side.shown();
+        assert!(!s.connected);
+        assert_eq!(
+            s.failed.as_deref(),
+            Some("the client's thread panicked: boom")
+        );
     }
 }

@@ -9,13 +9,14 @@
 //! its own): the link ends, and the next one resends from the outbox, so the outbox alone
 //! says what the broker has.
 
-use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason};
+use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason, Publish};
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, ConnectionError, Event, MqttOptions};
 use rumqttc::Outgoing;
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::thread;
+use std::time::Duration;
 
 /// What a publish was, for when its packet id is known.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -44,6 +45,19 @@ pub enum NetEvent {
         /// The broker's reason.
         reason: PubAckReason,
     },
+    /// A publish over the broker's Maximum Packet Size (its CONNACK's), not sent: the broker
+    /// would end the connection on it, and on every resend.
+    TooLarge {
+        /// The publish's topic.
+        topic: String,
+        /// Its packet's size in bytes.
+        size: usize,
+        /// The broker's limit.
+        max: u32,
+        /// For a record: its seq and the highest seq now done with every one before it (it
+        /// is done: it never will be sent).
+        record: Option<(u64, u64)>,
+    },
     /// A message on a topic the rig subscribed to.
     Message {
         /// Its topic.
@@ -53,6 +67,9 @@ pub enum NetEvent {
     },
     /// The connection failed or was refused: the link is over.
     Failed(ConnectionError),
+    /// The network thread panicked (a fault in the MQTT library), saying this: the link is
+    /// over.
+    Panicked(String),
 }
 
 /// Requests rumqttc's client may hold before `try_publish` says full.
@@ -67,11 +84,36 @@ pub struct Link {
     unacked: BTreeSet<u64>,
     highest_sent: Option<u64>,
     connected: bool,
+    /// The broker's Maximum Packet Size (its CONNACK's), if it gave one.
+    max_packet: Option<u32>,
+    /// The keep-alive the broker asked for (its CONNACK's Server Keep Alive), if it did.
+    server_keep_alive: Option<Duration>,
+    /// Publishes not sent, to be told by the next `poll`.
+    too_large: VecDeque<NetEvent>,
     thread: Option<thread::JoinHandle<()>>,
 }
 
+/// What became of a record handed to `send_record`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sent {
+    /// Queued for the broker.
+    Queued,
+    /// Over the broker's limit: not sent, done (`poll` tells a `TooLarge`).
+    TooLarge,
+    /// The client's queue is full: try again later.
+    Full,
+}
+
 /// The network thread's raw events (kept apart from `NetEvent` so tags are matched here).
-type Event2 = Result<Event, ConnectionError>;
+type Event2 = Result<Event, Over>;
+
+/// How the network thread ended.
+enum Over {
+    /// The connection failed.
+    Failed(ConnectionError),
+    /// The thread panicked, saying this.
+    Panicked(String),
+}
 
 impl Link {
     /// Starts connecting with `options`.
@@ -80,18 +122,23 @@ impl Link {
         let (tx, net) = mpsc::sync_channel(1024);
         let thread = thread::Builder::new()
             .name("mqtt-net".into())
-            .spawn(move || loop {
-                match connection.recv() {
-                    Ok(Ok(event)) => {
-                        if tx.send(Ok(event)).is_err() {
+            .spawn(move || {
+                let ran = super::catching(|| loop {
+                    match connection.recv() {
+                        Ok(Ok(event)) => {
+                            if tx.send(Ok(event)).is_err() {
+                                return;
+                            }
+                        }
+                        Ok(Err(e)) => {
+                            let _ = tx.send(Err(Over::Failed(e)));
                             return;
                         }
+                        Err(_) => return,
                     }
-                    Ok(Err(e)) => {
-                        let _ = tx.send(Err(e));
-                        return;
-                    }
-                    Err(_) => return,
+                });
+                if let Err(why) = ran {
+                    let _ = tx.send(Err(Over::Panicked(why)));
                 }
             })
             .ok();
@@ -103,6 +150,9 @@ impl Link {
             unacked: BTreeSet::new(),
             highest_sent: None,
             connected: false,
+            max_packet: None,
+            server_keep_alive: None,
+            too_large: VecDeque::new(),
             thread,
         }
     }
@@ -112,8 +162,17 @@ impl Link {
         self.connected
     }
 
+    /// The keep-alive the broker asked for as it accepted the connection, if it did (rumqttc
+    /// pings at it instead of the one asked for).
+    pub fn server_keep_alive(&self) -> Option<Duration> {
+        self.server_keep_alive
+    }
+
     /// The next thing the connection tells, if any; `Failed` when it is over.
     pub fn poll(&mut self) -> Option<NetEvent> {
+        if let Some(told) = self.too_large.pop_front() {
+            return Some(told);
+        }
         loop {
             let event = match self.net.try_recv() {
                 Ok(e) => e,
@@ -123,11 +182,22 @@ impl Link {
                 }
             };
             match event {
-                Err(e) => {
+                Err(over) => {
                     self.connected = false;
-                    return Some(NetEvent::Failed(e));
+                    return Some(match over {
+                        Over::Failed(e) => NetEvent::Failed(e),
+                        Over::Panicked(why) => NetEvent::Panicked(why),
+                    });
                 }
-                Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                Ok(Event::Incoming(Packet::ConnAck(ack))) => {
+                    // rumqttc ends the connection on a larger publish (as the broker would):
+                    // known here, such a publish is never handed to it.
+                    let properties = ack.properties.as_ref();
+                    self.max_packet = properties.and_then(|p| p.max_packet_size);
+                    // rumqttc takes it as its own keep-alive (the broker's wins).
+                    self.server_keep_alive = properties
+                        .and_then(|p| p.server_keep_alive)
+                        .map(|k| Duration::from_secs(k.into()));
                     self.connected = true;
                     return Some(NetEvent::Connected);
                 }
@@ -190,28 +260,56 @@ impl Link {
         self.highest_sent
     }
 
-    /// Publishes a record (QoS 1, not retained); false if the client's queue is full.
-    pub fn send_record(&mut self, topic: &str, seq: u64, payload: &str) -> bool {
-        let sent = self
+    /// Publishes a record (QoS 1, not retained), unless it is over the broker's limit.
+    pub fn send_record(&mut self, topic: &str, seq: u64, payload: &str) -> Sent {
+        let publish = match self.fitting(topic, QoS::AtLeastOnce, payload.as_bytes()) {
+            Ok(p) => p,
+            Err((size, max)) => {
+                // Sent as far as the order goes: done with, never waited on.
+                self.highest_sent = Some(seq);
+                self.too_large.push_back(NetEvent::TooLarge {
+                    topic: topic.to_string(),
+                    size,
+                    max,
+                    record: Some((seq, self.acked_through())),
+                });
+                return Sent::TooLarge;
+            }
+        };
+        if self
             .client
-            .try_publish(topic, QoS::AtLeastOnce, false, payload.as_bytes().to_vec())
-            .is_ok();
-        if sent {
-            self.tags.push_back(Tag {
-                record: Some(seq),
-                topic: topic.to_string(),
-            });
-            self.unacked.insert(seq);
-            self.highest_sent = Some(seq);
+            .try_publish(topic, QoS::AtLeastOnce, false, publish.payload)
+            .is_err()
+        {
+            return Sent::Full;
         }
-        sent
+        self.tags.push_back(Tag {
+            record: Some(seq),
+            topic: topic.to_string(),
+        });
+        self.unacked.insert(seq);
+        self.highest_sent = Some(seq);
+        Sent::Queued
     }
 
-    /// Publishes anything else; false if the client's queue is full.
+    /// Publishes anything else; false if the client's queue is full (one over the broker's
+    /// limit is done with: not sent, `poll` tells a `TooLarge`).
     pub fn send(&mut self, topic: &str, qos: QoS, retain: bool, payload: &[u8]) -> bool {
+        let publish = match self.fitting(topic, qos, payload) {
+            Ok(p) => p,
+            Err((size, max)) => {
+                self.too_large.push_back(NetEvent::TooLarge {
+                    topic: topic.to_string(),
+                    size,
+                    max,
+                    record: None,
+                });
+                return true;
+            }
+        };
         let sent = self
             .client
-            .try_publish(topic, qos, retain, payload.to_vec())
+            .try_publish(topic, qos, retain, publish.payload)
             .is_ok();
         if sent {
             self.tags.push_back(Tag {
@@ -220,6 +318,19 @@ impl Link {
             });
         }
         sent
+    }
+
+    /// The publish, if its packet (sized as rumqttc sizes it) is within the broker's limit;
+    /// else its size and the limit.
+    fn fitting(&self, topic: &str, qos: QoS, payload: &[u8]) -> Result<Publish, (usize, u32)> {
+        let mut publish = Publish::new(topic, qos, payload.to_vec(), None);
+        // Room for the packet id rumqttc gives a QoS 1 publish.
+        publish.pkid = u16::from(qos != QoS::AtMostOnce);
+        let size = publish.size();
+        match self.max_packet {
+            Some(max) if size > max as usize => Err((size, max)),
+            _ => Ok(publish),
+        }
     }
 
     /// Subscribes to `filter` (QoS 1); false if the client's queue is full.

@@ -202,6 +202,13 @@ fn host_name() -> String {
     }
 }
 
+/// Runs `f`, its panic caught as what it said (a thread of the client's that panicked would
+/// otherwise end unseen, the rig running on with MQTT silently dead).
+fn catching<T>(f: impl FnOnce() -> T) -> Result<T, String> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
+        .map_err(|payload| crate::runtime::runner::panic_message(payload.as_ref()))
+}
+
 /// Beside the records file (`records.jsonl` → `records.outbox/`), else the user's state
 /// directory (`$XDG_STATE_HOME/rigscript/outbox`, `~/.local/state/rigscript/outbox`).
 fn default_outbox(records: Option<&Path>) -> PathBuf {
@@ -264,10 +271,31 @@ impl Prepared {
         let Prepared { settings, outbox } = self;
         let health = health::Health::new(&settings.broker);
         let counts = health.clone();
+        let broker = settings.broker.clone();
         let thread = std::thread::Builder::new()
             .name("mqtt".into())
             .spawn(move || {
-                pump::Pump::new(settings, subscription, requester, outbox, flag, counts).run()
+                let asker = requester.clone();
+                let shown = counts.clone();
+                let ran = catching(|| {
+                    pump::Pump::new(settings, subscription, requester, outbox, flag, counts).run()
+                });
+                // Nothing else would tell: the rig runs on, its status says the client is gone
+                // (the broker sees the connection drop and publishes the last will).
+                if let Err(why) = ran {
+                    let why = format!("the client's thread panicked: {why}");
+                    shown.stopped(&why);
+                    pump::tell(
+                        &asker,
+                        true,
+                        crate::runtime::log::Level::Error,
+                        &format!(
+                            "mqtt: {why}; MQTT is off for the rest of the run: nothing more \
+                             goes to broker {broker} (its last will says offline); the rig runs \
+                             on"
+                        ),
+                    );
+                }
             })
             .map_err(MqttError::Thread)?;
         Ok(MqttService {
@@ -297,5 +325,24 @@ impl MqttService {
 impl Drop for MqttService {
     fn drop(&mut self) {
         self.closing.store(true, Ordering::SeqCst);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_panic_is_caught_as_what_it_said_and_a_value_passes_through() {
+        assert_eq!(catching(|| 7), Ok(7));
+        let n = 3;
+        assert_eq!(
+            catching(|| -> u8 { panic!("broke on {n}") }),
+            Err("broke on 3".to_string())
+        );
+        assert_eq!(
+            catching(|| -> u8 { panic!("static") }),
+            Err("static".to_string())
+        );
     }
 }

@@ -4,10 +4,11 @@
 //! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
 
 use super::health::{Health, Loss};
-use super::link::{Link, NetEvent};
+use super::link::{Link, NetEvent, Sent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
 use super::{discovery, failure, Settings, FLUSH_WAIT};
+use crate::runtime::log::Level;
 use crate::runtime::observe::{RunEvent, Subscription};
 use crate::runtime::remote::{Command, Remote, Reply, ReplyTo};
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
@@ -76,6 +77,8 @@ pub struct Pump {
     last_record: Option<(u64, String)>,
     last_record_sent: (Instant, u64),
     loop_gone: bool,
+    /// The highest record seq counted as too large (a record met again is not counted again).
+    too_large_through: u64,
     notices: HashMap<&'static str, (Instant, u64)>,
     /// What was lost and how the connection goes, shared with the loop's snapshot.
     health: Health,
@@ -114,6 +117,7 @@ impl Pump {
             last_record: None,
             last_record_sent: (now, 0),
             loop_gone: false,
+            too_large_through: 0,
             notices: HashMap::new(),
             health,
         }
@@ -266,9 +270,19 @@ impl Pump {
                     acked,
                     reason,
                 } => self.on_refused(&topic, acked, reason),
+                NetEvent::TooLarge {
+                    topic,
+                    size,
+                    max,
+                    record,
+                } => self.on_too_large(&topic, size, max, record),
                 NetEvent::Message { topic, payload } => self.on_message(topic, payload),
                 NetEvent::Failed(e) => {
                     self.on_failed(&e);
+                    break;
+                }
+                NetEvent::Panicked(why) => {
+                    self.on_net_panic(&why);
                     break;
                 }
             }
@@ -292,6 +306,19 @@ impl Pump {
             }
         ));
         self.was_connected = true;
+        let asked = self.link.as_ref().and_then(Link::server_keep_alive);
+        if let Some(k) = asked.filter(|k| *k != self.s.keepalive) {
+            // rumqttc pings at the broker's keep-alive from now on: it says when a frozen rig
+            // is called offline, not rig.toml.
+            self.info(&format!(
+                "mqtt: broker {} asks for a keep-alive of {} (rig.toml's keepalive is {}): a \
+                 frozen rig is called offline within {}",
+                self.s.broker,
+                crate::time::duration::format_duration(k),
+                crate::time::duration::format_duration(self.s.keepalive),
+                crate::time::duration::format_duration(k * 3 / 2)
+            ));
+        }
         let status = self.s.topics.status();
         let commands = self.s.topics.commands();
         if let Some(l) = self.link.as_mut() {
@@ -325,6 +352,30 @@ impl Pump {
         }
     }
 
+    /// A publish over the broker's limit, not sent: counted and told (a record once, though
+    /// a connection made again meets it again), a record done with.
+    fn on_too_large(&mut self, topic: &str, size: usize, max: u32, record: Option<(u64, u64)>) {
+        if let Some((seq, acked)) = record {
+            self.outbox.ack_through(acked);
+            if seq <= self.too_large_through {
+                return;
+            }
+            self.too_large_through = seq;
+        }
+        self.health.lost(Loss::TooLarge);
+        let what = if record.is_some() {
+            "a record"
+        } else {
+            "a publish"
+        };
+        let message = format!(
+            "mqtt: {what} on {topic} not sent: {size} bytes, over broker {}'s limit of {max} \
+             (its Maximum Packet Size); counted as too_large",
+            self.s.broker
+        );
+        self.warn_counted("too-large", 1, &message);
+    }
+
     fn on_failed(&mut self, e: &ConnectionError) {
         let was_up = self.link.as_ref().is_some_and(Link::connected);
         self.link = None;
@@ -352,6 +403,28 @@ impl Pump {
             )
         };
         self.warn_counted("connect", 1, &message);
+        self.retry_later();
+    }
+
+    /// The network thread panicked (a fault in the MQTT library, on what the broker sent,
+    /// say): an error in the log, a failed connection in the status, connected again like one.
+    fn on_net_panic(&mut self, why: &str) {
+        self.link = None;
+        let why = format!("the client's network thread panicked: {why}");
+        self.health.failed(&why);
+        let message = format!(
+            "mqtt: {why}; the run goes on, connecting to broker {} again in {} ({} records \
+             waiting)",
+            self.s.broker,
+            crate::time::duration::format_duration(self.backoff),
+            self.outbox.waiting().len()
+        );
+        self.tell_counted(Level::Error, "net-panic", 1, &message);
+        self.retry_later();
+    }
+
+    /// The next connection after the back-off, which doubles (to `MAX_RETRY`).
+    fn retry_later(&mut self) {
         self.retry_at = Instant::now() + self.backoff;
         self.backoff = (self.backoff * 2).min(MAX_RETRY);
     }
@@ -368,10 +441,14 @@ impl Pump {
         let start = waiting.partition_point(|p| p.seq < from);
         let topic = self.s.topics.records();
         for p in waiting.iter().skip(start) {
-            if link.in_flight() >= WINDOW || !link.send_record(&topic, p.seq, &p.payload) {
+            if link.in_flight() >= WINDOW {
                 break;
             }
-            self.last_record = Some((p.seq, p.payload.clone()));
+            match link.send_record(&topic, p.seq, &p.payload) {
+                Sent::Queued => self.last_record = Some((p.seq, p.payload.clone())),
+                Sent::TooLarge => {}
+                Sent::Full => break,
+            }
         }
     }
 
@@ -644,6 +721,10 @@ impl Pump {
             (dropped.commands, "commands refused"),
             (dropped.publishes, "mqtt_publish messages dropped"),
             (dropped.refused, "publishes the broker refused"),
+            (
+                dropped.too_large,
+                "publishes over the broker's Maximum Packet Size not sent",
+            ),
             (dropped.outbox_full, "records dropped: the outbox was full"),
             (
                 dropped.outbox_write,
@@ -668,16 +749,21 @@ impl Pump {
 
     /// A line for the run's log at info.
     fn info(&mut self, message: &str) {
-        self.tell(false, message);
+        self.tell(Level::Info, message);
     }
 
     /// A warning for the run's log.
     fn warn(&mut self, message: &str) {
-        self.tell(true, message);
+        self.tell(Level::Warn, message);
     }
 
     /// A warning told once, then at most every `NOTICE_GAP` with the count since.
     fn warn_counted(&mut self, key: &'static str, n: u64, message: &str) {
+        self.tell_counted(Level::Warn, key, n, message);
+    }
+
+    /// A line at `level` told once, then at most every `NOTICE_GAP` with the count since.
+    fn tell_counted(&mut self, level: Level, key: &'static str, n: u64, message: &str) {
         let now = Instant::now();
         let (told, count) = self.notices.entry(key).or_insert((now - NOTICE_GAP * 2, 0));
         *count += n;
@@ -691,29 +777,37 @@ impl Pump {
         };
         *told = now;
         *count = 0;
-        self.warn(&line);
+        self.tell(level, &line);
     }
 
     /// Through the loop's log while the loop runs; to standard error after.
-    fn tell(&mut self, warning: bool, message: &str) {
-        if !self.loop_gone {
-            let asked = self.ask.ask(
-                Request::Remote(Remote::Log {
-                    warning,
-                    message: message.to_string(),
-                }),
-                Duration::ZERO,
-            );
-            match asked {
-                Ok(_) | Err(AskError::NoAnswer(_)) => return,
-                Err(AskError::Gone) => self.loop_gone = true,
-                Err(AskError::Busy) => {}
-            }
-        }
-        let level = if warning { "warning: " } else { "" };
-        let _ =
-            std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{level}{message}\n"));
+    fn tell(&mut self, level: Level, message: &str) {
+        self.loop_gone = !tell(&self.ask, !self.loop_gone, level, message);
     }
+}
+
+/// Tells `message` at `level` through the loop's log (`Remote::Log`) if `loop_runs`, else (or
+/// when the loop is gone or its queue full) to standard error; false once the loop is gone.
+pub(super) fn tell(ask: &Requester, loop_runs: bool, level: Level, message: &str) -> bool {
+    let gone = !loop_runs
+        || match ask.ask(
+            Request::Remote(Remote::Log {
+                level,
+                message: message.to_string(),
+            }),
+            Duration::ZERO,
+        ) {
+            Ok(_) | Err(AskError::NoAnswer(_)) => return true,
+            Err(AskError::Gone) => true,
+            Err(AskError::Busy) => false,
+        };
+    let prefix = match level {
+        Level::Warn => "warning: ",
+        Level::Error => "error: ",
+        _ => "",
+    };
+    let _ = std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{prefix}{message}\n"));
+    !gone
 }
 
 /// Wall time now, local, RFC 3339 with milliseconds.
