@@ -415,15 +415,34 @@ fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
     rig.signal(libc::SIGKILL);
     broker.retained_until("rigscript/killed/status", |m| m == "offline");
 
-    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "5s"), script);
+    // The shortest keep-alive MQTT has, 1 s: the broker holds the rig to it (1.5 s without a
+    // packet ends the connection; Mosquitto checks on a cadence of its own, seen up to 6 s),
+    // and the rig's pings keep a live connection up meanwhile.
+    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "1s"), script);
     broker.retained_until("rigscript/frozen/status", |m| m == "online");
+    std::thread::sleep(Duration::from_secs(4));
+    let log = broker.log();
+    assert!(
+        log.contains("as rigscript-frozen (p5, c1, k1, u'rig')"),
+        "the rig asked for a 1 s keep-alive: {log}"
+    );
+    assert!(
+        !log.contains("Client rigscript-frozen has exceeded timeout"),
+        "a live rig pings within its keep-alive: {log}"
+    );
     frozen.signal(libc::SIGSTOP);
-    // 1.5 x keepalive (5 s, the shortest) and the broker's one-second clock: inside 20 s.
     until(Duration::from_secs(20), || {
         (broker.retained("rigscript/frozen/status").as_deref() == Some("offline")).then_some(())
     })
     .unwrap_or_else(|| panic!("the frozen runner never offline: {}", broker.log()));
     frozen.signal(libc::SIGCONT);
+    assert!(
+        broker
+            .log()
+            .contains("Client rigscript-frozen has exceeded timeout, disconnecting."),
+        "the broker called it offline for its keep-alive: {}",
+        broker.log()
+    );
 }
 
 #[test]

@@ -14,8 +14,8 @@ pub const DEFAULT_KEEPALIVE: Duration = Duration::from_secs(10);
 /// The outbox's bound when rig.toml gives none.
 pub const DEFAULT_OUTBOX_MAX: u64 = 64 << 20;
 
-/// The shortest keep-alive the client takes (rumqttc's MQTT 5 client refuses a shorter one).
-pub const MIN_KEEPALIVE: Duration = Duration::from_secs(5);
+/// The shortest keep-alive MQTT can say (it counts whole seconds; 0 would turn it off).
+pub const MIN_KEEPALIVE: Duration = Duration::from_secs(1);
 
 /// The longest keep-alive MQTT can say (a 16-bit count of seconds).
 const MAX_KEEPALIVE: Duration = Duration::from_secs(65_535);
@@ -194,8 +194,8 @@ pub(super) fn read_mqtt(r: &mut Reader<'_>, table: &TableRef<'_, '_>) -> Option<
         .read(table, "keepalive", |v| match duration(v)? {
             d if d < MIN_KEEPALIVE || d > MAX_KEEPALIVE || d.subsec_nanos() != 0 => Err(bad(
                 v,
-                "is not a keep-alive: use whole seconds from \"5s\" to \"65535s\" (MQTT counts \
-                 it in seconds; the MQTT 5 client pings no more often than every 5 s)",
+                "is not a keep-alive: use whole seconds from \"1s\" to \"65535s\" (MQTT counts \
+                 it in seconds)",
             )),
             d => Ok(d),
         })
@@ -303,14 +303,14 @@ mod tests {
     #[test]
     fn bad_values_are_told_with_their_line_and_key_all_at_once() {
         let problems = parse(
-            "[mqtt]\nurl = \"http://broker\"\nkeepalive = \"4s\"\nprefix = \"a/#\"\n\
+            "[mqtt]\nurl = \"http://broker\"\nkeepalive = \"1500ms\"\nprefix = \"a/#\"\n\
              outbox_max = \"1KiB\"\npassword_file = \"pw\"\npassword_env = \"PW\"\nport = 1\n",
         )
         .unwrap_err();
         let all = problems.join("\n");
         for expected in [
             "rig.toml:2: mqtt.url: \"http://broker\" is not a broker URL",
-            "rig.toml:3: mqtt.keepalive: \"4s\" is not a keep-alive",
+            "rig.toml:3: mqtt.keepalive: \"1500ms\" is not a keep-alive",
             "rig.toml:4: mqtt.prefix: \"a/#\" is not a topic prefix",
             "rig.toml:5: mqtt.outbox_max: \"1KiB\" is too small an outbox",
             "rig.toml:7: mqtt.password_env",
