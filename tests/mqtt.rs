@@ -405,6 +405,15 @@ fn lines(path: &Path) -> Vec<String> {
         .collect()
 }
 
+/// The rig called `name` on the lab screen (`rigscript lab --json`).
+fn lab_rig(lab: &Value, name: &str) -> Value {
+    lab["rigs"]
+        .as_array()
+        .and_then(|rigs| rigs.iter().find(|r| r["rig"] == name))
+        .cloned()
+        .unwrap_or_else(|| panic!("rig {name} not on the lab screen: {lab}"))
+}
+
 #[test]
 fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
     let broker = Broker::start("mqtt-will");
@@ -474,11 +483,7 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
     assert_eq!(v["outputs"], 0x80, "the handler's outputs: {v}");
     // One screen for the lab, from the retained topics alone.
     let lab = broker.lab();
-    let rigs = lab["rigs"].as_array().unwrap();
-    let mine = rigs
-        .iter()
-        .find(|r| r["rig"] == "state")
-        .expect("the rig on the lab screen");
+    let mine = lab_rig(&lab, "state");
     assert_eq!(mine["status"], "online", "{lab}");
     assert_eq!(mine["devices"]["io"]["inputs"], 5, "{lab}");
     assert!(mine["last_heard"].is_string(), "{lab}");
@@ -501,13 +506,7 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
     assert_eq!(rig.wait_end(), Some(143));
     broker.retained_until("rigscript/state/status", |m| m == "offline");
     let lab = broker.lab();
-    let mine = lab["rigs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|r| r["rig"] == "state")
-        .cloned();
-    assert_eq!(mine.unwrap()["status"], "offline", "{lab}");
+    assert_eq!(lab_rig(&lab, "state")["status"], "offline", "{lab}");
 }
 
 /// The records file's lines, and the records the subscriber got with their seq taken out.
@@ -875,13 +874,7 @@ fn huge_retained_messages_on_a_watched_topic_and_on_cmd_leave_the_connection_up(
     // them is dropped by the broker for it too, and the screen still shows the rig.
     broker.publish_file("rig", "rigscript/huge/state/big", &huge, true);
     let lab = broker.lab();
-    let mine = lab["rigs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|r| r["rig"] == "huge")
-        .cloned()
-        .unwrap_or_else(|| panic!("the rig on the lab screen: {lab}"));
+    let mine = lab_rig(&lab, "huge");
     assert_eq!(mine["status"], "online", "{lab}");
     assert!(
         broker
