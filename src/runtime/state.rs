@@ -10,7 +10,7 @@
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
 use super::forcing::Forces;
-use super::invariants::Invariant;
+use super::invariants::InvariantCheck;
 use super::log::Logger;
 use super::observe::Events;
 use super::records::Records;
@@ -18,6 +18,7 @@ use super::subscriptions::Subscriptions;
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
+use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
@@ -32,7 +33,7 @@ pub struct Runtime<H> {
     /// The script's handlers and timers.
     pub(super) handlers: Subscriptions<H>,
     /// What the script states must hold after every tick (`invariants`).
-    pub(super) invariants: Vec<Invariant<H>>,
+    pub(super) invariants: Rc<Vec<InvariantCheck<H>>>,
     /// Whether the invariants read device inputs when last evaluated (or have not been yet):
     /// then every tick runs, so the inputs they read are read every tick.
     pub(super) invariants_read_inputs: bool,
@@ -89,7 +90,7 @@ impl<H: Clone> Runtime<H> {
             zone,
             devices,
             handlers: Subscriptions::new(zone),
-            invariants: Vec::new(),
+            invariants: Rc::default(),
             invariants_read_inputs: true,
             input_accesses: 0,
             records,
@@ -203,7 +204,7 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// The invariants the script stated, in that order.
-    pub fn invariants(&self) -> &[Invariant<H>] {
+    pub fn invariants(&self) -> &[InvariantCheck<H>] {
         &self.invariants
     }
 
@@ -216,7 +217,7 @@ impl<H: Clone> Runtime<H> {
     /// hold handles to this runtime (a cycle of `Rc`s otherwise).
     pub fn forget_handlers(&mut self) {
         self.handlers.clear();
-        self.invariants.clear();
+        self.invariants = Rc::default();
     }
 
     /// Something that changes when handlers come or go (their count and the next id).

@@ -180,16 +180,16 @@ impl<P: Program> Runner<P> {
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
         let accesses = self.rt.borrow().input_accesses;
-        for check in checks {
+        for check in checks.iter() {
             self.rt.borrow_mut().cause.clone_from(&check.call.label);
-            match self.program.holds(&check) {
+            match self.program.holds(check) {
                 Ok(true) => {}
                 Ok(false) => {
                     let violation = {
                         let rt = self.rt.borrow();
                         Violation {
-                            name: check.name,
-                            at: check.at,
+                            name: check.name.clone(),
+                            at: check.at.clone(),
                             uptime: rt.uptime(),
                             devices: rt.readings(),
                         }
