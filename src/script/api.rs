@@ -57,25 +57,29 @@ impl Arities {
     /// The parameter counts `f` can be called with (its curried captures taken off), if
     /// it is a function of the script.
     pub fn of(&self, f: &FnPtr) -> Option<Vec<usize>> {
-        let curried = f.curry().len();
-        self.0.borrow().get(f.fn_name()).map(|counts| {
-            counts
-                .iter()
-                .filter_map(|n| n.checked_sub(curried))
-                .collect()
-        })
+        self.counts(f, |counts| counts.collect())
     }
 
     /// How many of `offered` arguments to pass to `f`: the most it takes, up to `offered`.
     pub fn pick(&self, f: &FnPtr, offered: usize) -> usize {
-        match self.of(f) {
-            Some(counts) => counts
-                .into_iter()
-                .filter(|n| *n <= offered)
-                .max()
-                .unwrap_or(offered),
-            None => offered,
-        }
+        self.counts(f, |counts| counts.filter(|n| *n <= offered).max())
+            .flatten()
+            .unwrap_or(offered)
+    }
+
+    /// `use_them` on `of(f)`'s counts, without collecting them (`pick` runs for every
+    /// handler call).
+    fn counts<T>(
+        &self,
+        f: &FnPtr,
+        use_them: impl FnOnce(&mut dyn Iterator<Item = usize>) -> T,
+    ) -> Option<T> {
+        let curried = f.curry().len();
+        let arities = self.0.borrow();
+        let counts = arities.get(f.fn_name())?;
+        Some(use_them(
+            &mut counts.iter().filter_map(|n| n.checked_sub(curried)),
+        ))
     }
 
     /// An error if `f` cannot be a handler for `what`, which passes `params`.
@@ -301,10 +305,12 @@ fn register_device(engine: &mut Engine, rt: &Rt, reads: &ReadTracker) {
 /// used (`engine::Guard::check_var`), and each device is a variable of its name (its reads
 /// noted in `reads`).
 pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads: &ReadTracker) {
-    // Each device is also a variable of its name. And a variable holding a device handle is
-    // read as a plain copy of it: a handler that uses the device it is registered on
-    // (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and locks while
-    // `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that.
+    // Each device is also a variable of its name. And a shared or constant variable holding a
+    // device handle is read as a plain copy of it: a handler that uses the device it is
+    // registered on (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and
+    // locks while `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that
+    // (and a constant's from refusing its methods). A plain one (a function's parameter) is
+    // used in place: a copy is an allocation, and a tick reads handles many times.
     let (r, t) = (Rc::clone(rt), reads.clone());
     let names: Vec<(String, usize)> = {
         let b = rt.borrow();
@@ -321,7 +327,11 @@ pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads:
         let value = ctx.scope().get(name);
         guard.check_var(value, &ctx)?;
         match value {
-            Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
+            Some(v)
+                if (v.is_shared() || v.is_read_only())
+                    && !v.is_locked()
+                    && (v.is::<Panel>() || v.is::<Io>()) =>
+            {
                 Ok(Some(v.flatten_clone()))
             }
             Some(_) => Ok(None),
