@@ -29,7 +29,7 @@ impl<H: Clone> Runtime<H> {
             call: Call {
                 handler,
                 args: Vec::new(),
-                label: format!("invariant {name:?}"),
+                label: format!("invariant {name:?}").into(),
             },
             name: name.to_string(),
             at,

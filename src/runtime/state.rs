@@ -9,12 +9,13 @@
 
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
+use super::events::Needs;
 use super::forcing::Forces;
 use super::invariants::InvariantCheck;
 use super::log::Logger;
 use super::observe::Events;
 use super::records::Records;
-use super::subscriptions::Subscriptions;
+use super::subscriptions::{Call, Subscriptions};
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
@@ -69,6 +70,10 @@ pub struct Runtime<H> {
     pub(super) events: Events,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
+    /// `collect_calls`'s lists, kept between ticks: a tick builds its calls without
+    /// allocating the lists.
+    pub(super) needs: Vec<Needs>,
+    pub(super) call_buffer: Vec<Call<H>>,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -106,6 +111,8 @@ impl<H: Clone> Runtime<H> {
             cancel: Cancel::never(),
             events,
             forces: Forces::default(),
+            needs: Vec::new(),
+            call_buffer: Vec::new(),
         }
     }
 
@@ -201,6 +208,12 @@ impl<H: Clone> Runtime<H> {
     /// The script's handlers and timers, to look at (`verify`'s coverage and profile).
     pub fn handlers(&self) -> &Subscriptions<H> {
         &self.handlers
+    }
+
+    /// The handler about to run is `label` (its buffer kept: this is every call).
+    pub(super) fn set_cause(&mut self, label: &str) {
+        self.cause.clear();
+        self.cause.push_str(label);
     }
 
     /// The invariants the script stated, in that order.

@@ -27,7 +27,11 @@ use std::rc::Rc;
 use std::time::Duration;
 
 /// The runtime as the bindings hold it.
-pub type Rt = Shared<FnPtr>;
+pub type Rt = Shared<Handler>;
+
+/// A script function the runtime calls (a handler, a timer's, an invariant's): shared, so a
+/// tick's call of it copies no captured values.
+pub type Handler = Rc<FnPtr>;
 
 /// What a binding returns.
 pub type R<T> = Result<T, Box<EvalAltResult>>;
@@ -409,7 +413,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                     }
                 };
                 let label = format!("{}.{method} {s}", p.name);
-                let id = p.rt.borrow_mut().subscribe(source, f, label);
+                let id = p.rt.borrow_mut().subscribe(source, Rc::new(f), label);
                 Ok(id_value(id))
             },
         );
@@ -426,7 +430,11 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                 dev: p.idx,
                 rotary: r,
             };
-            Ok(id_value(p.rt.borrow_mut().subscribe(source, f, label)))
+            Ok(id_value(p.rt.borrow_mut().subscribe(
+                source,
+                Rc::new(f),
+                label,
+            )))
         },
     );
 }
@@ -617,7 +625,11 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 Source::Fall { dev: d.idx, ch: c }
             };
             let label = format!("{}.{method} DI{c}", d.name);
-            Ok(id_value(d.rt.borrow_mut().subscribe(source, f, label)))
+            Ok(id_value(d.rt.borrow_mut().subscribe(
+                source,
+                Rc::new(f),
+                label,
+            )))
         });
     }
     let a = arities.clone();
@@ -639,7 +651,11 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 threshold: t,
                 armed: true,
             };
-            Ok(id_value(d.rt.borrow_mut().subscribe(source, f, label)))
+            Ok(id_value(d.rt.borrow_mut().subscribe(
+                source,
+                Rc::new(f),
+                label,
+            )))
         },
     );
 }
@@ -674,20 +690,20 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     engine.register_fn("every", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
         a.check(&f, "every", &["missed"])?;
-        let id = r.borrow_mut().every(d, f);
+        let id = r.borrow_mut().every(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
         a.check(&f, "after", &[])?;
-        let id = r.borrow_mut().after(d, f);
+        let id = r.borrow_mut().after(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {
         a.check(&f, "cron", &["missed"])?;
-        let id = r.borrow_mut().cron(expr, f);
+        let id = r.borrow_mut().cron(expr, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let r = Rc::clone(rt);
@@ -697,7 +713,7 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("on_stop", move |f: FnPtr| -> R<i64> {
         a.check(&f, "on_stop", &[])?;
-        let id = r.borrow_mut().on_stop(f);
+        let id = r.borrow_mut().on_stop(Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     register_remote(engine, rt, arities);
@@ -754,7 +770,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let label = format!("on_command {name}");
         Ok(id_value(r.borrow_mut().subscribe(
             Source::Command(name.to_string()),
-            f,
+            Rc::new(f),
             label,
         )))
     });
@@ -765,7 +781,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let label = format!("on_message {filter}");
         Ok(id_value(r.borrow_mut().subscribe(
             Source::Message(filter.to_string()),
-            f,
+            Rc::new(f),
             label,
         )))
     });
@@ -804,7 +820,7 @@ fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &st
         move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
             a.check(&f, "invariant", &[])?;
             let at = super::error::location(&file, ctx.call_position());
-            let added = r.borrow_mut().add_invariant(name, f, at);
+            let added = r.borrow_mut().add_invariant(name, Rc::new(f), at);
             added.or_else(|e| fail(e.to_string()))
         },
     );
