@@ -2,11 +2,13 @@
 //! (`memory` under `[limits]`) and stop a script that grows it without end.
 //!
 //! `CountingAlloc` wraps the system allocator and keeps two counts of the bytes allocated and
-//! not yet freed: the whole process's (one relaxed atomic) and each thread's (a const
-//! thread-local integer: allocated minus freed by that thread): a few nanoseconds an
-//! allocation, nothing per script operation. A run reads them through `RunHeap`. Only a program
-//! that installs the allocator (`#[global_allocator]`, as `rigscript` does) is counted;
-//! elsewhere nothing is, and no memory limit applies.
+//! not yet freed: the whole process's (a relaxed atomic) and each thread's (a const
+//! thread-local integer: allocated minus freed by that thread). A thread running a run
+//! (`RunHeap`) adds to the process's count only once its own has moved by `BATCH` bytes: an
+//! atomic per allocation cost a scan loop about a sixth of its time, more with two runs on two
+//! cores contending for it. A run reads the counts through `RunHeap`. Only a program that
+//! installs the allocator (`#[global_allocator]`, as `rigscript` does) is counted; elsewhere
+//! nothing is, and no memory limit applies.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -18,18 +20,67 @@ static LIVE: AtomicUsize = AtomicUsize::new(0);
 /// Runs (`RunHeap`s) alive in the process.
 static RUNS: AtomicUsize = AtomicUsize::new(0);
 
+/// How far a run's thread lets its count move before adding it to the process's: the
+/// process's count lags by less than this for each run going (the least memory limit is
+/// 256 times as much). Threads without a run add every allocation at once: one that ends
+/// takes nothing uncounted with it.
+const BATCH: usize = 64 << 10;
+
+/// One thread's counts.
+struct ThreadCount {
+    /// Allocated minus freed by this thread.
+    balance: Cell<isize>,
+    /// Counted in `balance`, not yet in `LIVE` (only while a run is on this thread).
+    pending: Cell<isize>,
+    /// `RunHeap`s alive on this thread.
+    runs: Cell<u32>,
+}
+
 thread_local! {
     // Const-initialised and without a destructor: reading it never allocates (it is read inside
     // the allocator) and it is there until the thread's last allocation.
-    static THREAD_LIVE: Cell<isize> = const { Cell::new(0) };
+    static THREAD: ThreadCount = const {
+        ThreadCount {
+            balance: Cell::new(0),
+            pending: Cell::new(0),
+            runs: Cell::new(0),
+        }
+    };
+}
+
+/// Adds `delta` to the process's count (two's complement: a negative delta's bit pattern
+/// subtracts, with no branch).
+fn add_live(delta: isize) {
+    LIVE.fetch_add(delta as usize, Ordering::Relaxed);
 }
 
 /// Counts `delta` bytes more (fewer, when negative) in use, on the process and on this thread.
 fn count(delta: isize) {
-    // Two's complement: adding a negative delta's bit pattern subtracts, with no branch.
-    LIVE.fetch_add(delta as usize, Ordering::Relaxed);
     // `try_with` and wrapping: the allocator must never panic.
-    let _ = THREAD_LIVE.try_with(|c| c.set(c.get().wrapping_add(delta)));
+    let batched = THREAD
+        .try_with(|t| {
+            t.balance.set(t.balance.get().wrapping_add(delta));
+            if t.runs.get() == 0 {
+                return false;
+            }
+            let pending = t.pending.get().wrapping_add(delta);
+            if pending.unsigned_abs() < BATCH {
+                t.pending.set(pending);
+            } else {
+                t.pending.set(0);
+                add_live(pending);
+            }
+            true
+        })
+        .unwrap_or(false);
+    if !batched {
+        add_live(delta);
+    }
+}
+
+/// What this thread has counted and not yet added to the process's count.
+fn pending() -> isize {
+    THREAD.try_with(|t| t.pending.get()).unwrap_or(0)
 }
 
 /// A `Layout`'s size, which always fits an isize.
@@ -79,7 +130,7 @@ unsafe impl GlobalAlloc for CountingAlloc {
 
 /// Bytes of heap the process has allocated and not freed, if `CountingAlloc` is the global
 /// allocator (`None` otherwise: nothing was ever counted, and a running program always holds
-/// some heap).
+/// some heap); less than `BATCH` off for each run going.
 pub fn in_use() -> Option<usize> {
     match LIVE.load(Ordering::Relaxed) {
         0 => None,
@@ -91,7 +142,7 @@ pub fn in_use() -> Option<usize> {
 /// global allocator (0 otherwise). Memory freed on another thread than the one that allocated
 /// it moves the two threads' counts apart (see `RunHeap`): compare readings of one thread.
 pub fn thread_balance() -> isize {
-    THREAD_LIVE.try_with(Cell::get).unwrap_or(0)
+    THREAD.try_with(|t| t.balance.get()).unwrap_or(0)
 }
 
 /// The heap one run holds, for its memory limit: made on the run's thread as the run starts,
@@ -119,6 +170,7 @@ impl RunHeap {
     /// A run starts on this thread.
     pub fn start() -> Self {
         RUNS.fetch_add(1, Ordering::Relaxed);
+        let _ = THREAD.try_with(|t| t.runs.set(t.runs.get().saturating_add(1)));
         Self {
             baseline: thread_balance(),
             _on_this_thread: PhantomData,
@@ -127,9 +179,9 @@ impl RunHeap {
 
     /// The bytes the run holds when they are more than `limit` (`None` when they are not, or
     /// when the heap is not counted). Cheap while the process is under `limit`: one atomic
-    /// load.
+    /// load (and this thread's own count not yet added to it).
     pub fn over(&self, limit: u64) -> Option<u64> {
-        let process = in_use()? as u64;
+        let process = (in_use()? as u64).saturating_add_signed(pending() as i64);
         if process <= limit {
             return None;
         }
@@ -143,6 +195,11 @@ impl RunHeap {
 
 impl Drop for RunHeap {
     fn drop(&mut self) {
+        // What the run counted goes to the process now: the thread may end without a run.
+        let _ = THREAD.try_with(|t| {
+            t.runs.set(t.runs.get().saturating_sub(1));
+            add_live(t.pending.replace(0));
+        });
         RUNS.fetch_sub(1, Ordering::Relaxed);
     }
 }
@@ -213,6 +270,38 @@ mod tests {
         // The free is the freeing thread's: the allocating thread's count stays up (drift).
         assert_eq!(there, -(1 << 16));
         assert_eq!(thread_balance(), here + (1 << 16));
+    }
+
+    #[test]
+    fn a_run_adds_to_the_process_count_in_batches_and_all_of_it_by_its_end() {
+        let a = CountingAlloc;
+        let small = Layout::from_size_align(4096, 8).unwrap();
+        let big = Layout::from_size_align(BATCH, 8).unwrap();
+        // On a thread of its own: this thread's counts are the test's alone.
+        std::thread::spawn(move || {
+            let run = RunHeap::start();
+            let here = thread_balance();
+            // SAFETY: valid non-zero layouts; each pointer is freed once with its layout.
+            unsafe {
+                let p = a.alloc(small);
+                assert_eq!(thread_balance(), here + 4096);
+                assert_eq!(pending(), 4096, "a small allocation waits");
+                let q = a.alloc(big);
+                assert_eq!(pending(), 0, "a batch's worth goes to the process");
+                a.dealloc(q, big);
+                assert_eq!(pending(), 0);
+                let r = a.alloc(small);
+                assert_eq!(pending(), 4096);
+                drop(run);
+                assert_eq!(pending(), 0, "the run's end adds what waited");
+                a.dealloc(r, small);
+                a.dealloc(p, small);
+                assert_eq!(pending(), 0, "without a run, nothing waits");
+                assert_eq!(thread_balance(), here);
+            }
+        })
+        .join()
+        .unwrap();
     }
 
     #[test]

@@ -279,6 +279,10 @@ impl SwitchSet {
     pub fn changes(&self, newer: &SwitchSet) -> (Vec<Switch>, Vec<Switch>) {
         let mut pressed = Vec::new();
         let mut released = Vec::new();
+        // Most readings are the last one again: no need to look at each of the 45.
+        if self == newer {
+            return (pressed, released);
+        }
         for s in Switch::all() {
             match (self.is_pressed(s), newer.is_pressed(s)) {
                 (false, true) => pressed.push(s),

@@ -17,7 +17,7 @@ pub const TIMER_LOG_INTERVAL: Duration = Duration::from_secs(3600);
 
 /// The inputs a device must be read for, by what its handlers wait for.
 #[derive(Debug, Clone, Copy, Default)]
-struct Needs {
+pub(super) struct Needs {
     switches: bool,
     rotaries: bool,
     inputs: bool,
@@ -29,7 +29,9 @@ impl<H: Clone> Runtime<H> {
     /// due, into handler calls, in order: device events (by device, then switch, rotary,
     /// input, counter), then timers (deadline order). Logs one line per event handled.
     pub fn collect_calls(&mut self) -> Vec<Call<H>> {
-        let mut needs = vec![Needs::default(); self.devices.len()];
+        let mut needs = std::mem::take(&mut self.needs);
+        needs.clear();
+        needs.resize(self.devices.len(), Needs::default());
         for s in &self.handlers.events {
             let Some(n) = source_device(&s.source).and_then(|dev| needs.get_mut(dev)) else {
                 continue;
@@ -42,7 +44,7 @@ impl<H: Clone> Runtime<H> {
                 Source::Timer(_) | Source::Stop | Source::Command(_) | Source::Message(_) => {}
             }
         }
-        let mut calls = Vec::new();
+        let mut calls = std::mem::take(&mut self.call_buffer);
         for (dev, need) in needs.iter().enumerate() {
             if need.switches {
                 self.switches(dev);
@@ -65,9 +67,16 @@ impl<H: Clone> Runtime<H> {
                 self.dispatch(&event, &args, &mut calls);
             }
         }
+        self.needs = needs;
         self.counter_calls(&mut calls);
         self.timer_calls(&mut calls);
         calls
+    }
+
+    /// Takes back the list `collect_calls` gave, once its calls are made, for the next tick.
+    pub fn reuse_calls(&mut self, mut calls: Vec<Call<H>>) {
+        calls.clear();
+        self.call_buffer = calls;
     }
 
     /// Adds the calls of the handlers waiting for `event`, logging it once if any.

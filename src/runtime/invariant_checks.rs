@@ -3,11 +3,10 @@
 
 use super::device_view::DeviceView;
 use super::devices::Device;
-use super::invariants::{
-    DeviceReading, Invariant, InvariantCheck, InvariantError, Violation, MAX_INVARIANTS,
-};
+use super::invariants::{DeviceReading, InvariantCheck, InvariantError, Violation, MAX_INVARIANTS};
 use super::state::Runtime;
 use super::subscriptions::Call;
+use std::rc::Rc;
 
 impl<H: Clone> Runtime<H> {
     /// States an invariant (checked from the next tick on).
@@ -26,28 +25,22 @@ impl<H: Clone> Runtime<H> {
         if self.invariants.len() >= MAX_INVARIANTS {
             return Err(InvariantError::TooMany);
         }
-        self.invariants.push(Invariant {
+        Rc::make_mut(&mut self.invariants).push(InvariantCheck {
+            call: Call {
+                handler,
+                args: Vec::new(),
+                label: format!("invariant {name:?}").into(),
+            },
             name: name.to_string(),
-            handler,
             at,
         });
         Ok(())
     }
 
-    /// How to evaluate each invariant, in the order they were stated.
-    pub fn invariant_checks(&self) -> Vec<InvariantCheck<H>> {
-        self.invariants
-            .iter()
-            .map(|i| InvariantCheck {
-                call: Call {
-                    handler: i.handler.clone(),
-                    args: Vec::new(),
-                    label: format!("invariant {:?}", i.name),
-                },
-                name: i.name.clone(),
-                at: i.at.clone(),
-            })
-            .collect()
+    /// How to evaluate each invariant, in the order they were stated: the list itself, shared
+    /// (the checks call the script, which may borrow the runtime meanwhile).
+    pub fn invariant_checks(&self) -> Rc<Vec<InvariantCheck<H>>> {
+        Rc::clone(&self.invariants)
     }
 
     /// What each device the script uses shows now: the last inputs read and the outputs the

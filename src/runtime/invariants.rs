@@ -14,25 +14,15 @@ use std::time::Duration;
 /// Invariants one script may state (each is evaluated every tick).
 pub const MAX_INVARIANTS: usize = 100;
 
-/// One stated invariant.
-#[derive(Debug, Clone)]
-pub struct Invariant<H> {
-    /// Its name, as the script gave it.
-    pub name: String,
-    /// The script's function that says whether it holds.
-    pub handler: H,
-    /// Where it was stated (`file:line:column`), when known.
-    pub at: Option<String>,
-}
-
-/// One invariant to evaluate this tick.
+/// One stated invariant, as the loop evaluates it every tick (built once, when stated: a
+/// tick only shares the list).
 #[derive(Debug, Clone)]
 pub struct InvariantCheck<H> {
     /// The call that evaluates it (label `invariant "name"`).
     pub call: Call<H>,
-    /// Its name.
+    /// Its name, as the script gave it.
     pub name: String,
-    /// Where it was stated.
+    /// Where it was stated (`file:line:column`), when known.
     pub at: Option<String>,
 }
 

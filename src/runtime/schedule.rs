@@ -180,6 +180,10 @@ pub struct Schedule<Tz: TimeZone = Local> {
     latest_search: Option<DateTime<Utc>>,
     max_timers: usize,
     missed_total: u64,
+    /// `due_at_tick`'s working lists, kept between ticks: a tick fires timers without
+    /// allocating for them (at most `max_timers` long).
+    due_mono: Vec<(Duration, TimerId)>,
+    fired: Vec<(Duration, TimerId, u64, bool)>,
 }
 
 impl Schedule<Local> {
@@ -223,6 +227,8 @@ impl<Tz: TimeZone> Schedule<Tz> {
             latest_search: None,
             max_timers: DEFAULT_MAX_TIMERS,
             missed_total: 0,
+            due_mono: Vec::new(),
+            fired: Vec::new(),
         }
     }
 
@@ -355,9 +361,12 @@ impl<Tz: TimeZone> Schedule<Tz> {
             self.search_again_after_step_back(now_wall);
         }
         // (how late, id, missed, last): the latest deadline passed is the one that fires first.
-        let mut fired: Vec<(Duration, TimerId, u64, bool)> = Vec::new();
+        let mut fired = std::mem::take(&mut self.fired);
+        fired.clear();
+        let mut due = std::mem::take(&mut self.due_mono);
+        take_due(&mut self.by_mono, now_mono, &mut due);
         let mut searched = false;
-        for (deadline, id) in take_due(&mut self.by_mono, now_mono) {
+        for &(deadline, id) in &due {
             let late = now_mono.saturating_sub(deadline);
             let Some(timer) = self.timers.get_mut(&id) else {
                 continue;
@@ -376,7 +385,9 @@ impl<Tz: TimeZone> Schedule<Tz> {
                 Trigger::Cron { .. } => {}
             }
         }
-        for (deadline, id) in take_due(&mut self.by_wall, now_wall) {
+        let mut due_wall = Vec::new();
+        take_due(&mut self.by_wall, now_wall, &mut due_wall);
+        for (deadline, id) in due_wall {
             let late = (now_wall - deadline).to_std().unwrap_or(Duration::ZERO);
             let Some(timer) = self.timers.get_mut(&id) else {
                 continue;
@@ -408,13 +419,16 @@ impl<Tz: TimeZone> Schedule<Tz> {
             self.note_search(now_wall);
         }
         fired.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
-        fired
-            .into_iter()
-            .map(|(_, id, missed, last)| {
+        let out = fired
+            .iter()
+            .map(|&(_, id, missed, last)| {
                 self.missed_total = self.missed_total.saturating_add(missed);
                 Fired { id, missed, last }
             })
-            .collect()
+            .collect();
+        self.fired = fired;
+        self.due_mono = due;
+        out
     }
 
     /// The monotonic time at which the earliest timer is due (possibly already past), or
@@ -496,14 +510,23 @@ impl<Tz: TimeZone> Schedule<Tz> {
     }
 }
 
-/// Takes the entries of `queue` due at or before `now`, earliest first (each is put back by
-/// its timer once re-armed, so a poll fires a timer at most once).
-fn take_due<K: Ord + Copy>(queue: &mut BTreeSet<(K, TimerId)>, now: K) -> Vec<(K, TimerId)> {
-    if queue.first().map_or(true, |(at, _)| *at > now) {
-        return Vec::new();
+/// Takes the entries of `queue` due at or before `now` into `into`, earliest first (each is
+/// put back by its timer once re-armed, so a poll fires a timer at most once).
+fn take_due<K: Ord + Copy>(
+    queue: &mut BTreeSet<(K, TimerId)>,
+    now: K,
+    into: &mut Vec<(K, TimerId)>,
+) {
+    into.clear();
+    // One by one, not `split_off`: that allocates a node for what stays every tick.
+    let end = (now, TimerId(u64::MAX));
+    while let Some(&first) = queue.first() {
+        if first >= end {
+            break;
+        }
+        queue.pop_first();
+        into.push(first);
     }
-    let later = queue.split_off(&(now, TimerId(u64::MAX)));
-    std::mem::replace(queue, later).into_iter().collect()
 }
 
 /// For an `every` timer due at `next` and polled at `now >= next`: how many further deadlines

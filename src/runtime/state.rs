@@ -9,15 +9,17 @@
 
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
+use super::events::Needs;
 use super::forcing::Forces;
-use super::invariants::Invariant;
+use super::invariants::InvariantCheck;
 use super::log::Logger;
 use super::observe::Events;
 use super::records::Records;
-use super::subscriptions::Subscriptions;
+use super::subscriptions::{Call, Subscriptions};
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
+use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
@@ -32,7 +34,7 @@ pub struct Runtime<H> {
     /// The script's handlers and timers.
     pub(super) handlers: Subscriptions<H>,
     /// What the script states must hold after every tick (`invariants`).
-    pub(super) invariants: Vec<Invariant<H>>,
+    pub(super) invariants: Rc<Vec<InvariantCheck<H>>>,
     /// Whether the invariants read device inputs when last evaluated (or have not been yet):
     /// then every tick runs, so the inputs they read are read every tick.
     pub(super) invariants_read_inputs: bool,
@@ -68,6 +70,10 @@ pub struct Runtime<H> {
     pub(super) events: Events,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
+    /// `collect_calls`'s lists, kept between ticks: a tick builds its calls without
+    /// allocating the lists.
+    pub(super) needs: Vec<Needs>,
+    pub(super) call_buffer: Vec<Call<H>>,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -89,7 +95,7 @@ impl<H: Clone> Runtime<H> {
             zone,
             devices,
             handlers: Subscriptions::new(zone),
-            invariants: Vec::new(),
+            invariants: Rc::default(),
             invariants_read_inputs: true,
             input_accesses: 0,
             records,
@@ -105,6 +111,8 @@ impl<H: Clone> Runtime<H> {
             cancel: Cancel::never(),
             events,
             forces: Forces::default(),
+            needs: Vec::new(),
+            call_buffer: Vec::new(),
         }
     }
 
@@ -202,8 +210,14 @@ impl<H: Clone> Runtime<H> {
         &self.handlers
     }
 
+    /// The handler about to run is `label` (its buffer kept: this is every call).
+    pub(super) fn set_cause(&mut self, label: &str) {
+        self.cause.clear();
+        self.cause.push_str(label);
+    }
+
     /// The invariants the script stated, in that order.
-    pub fn invariants(&self) -> &[Invariant<H>] {
+    pub fn invariants(&self) -> &[InvariantCheck<H>] {
         &self.invariants
     }
 
@@ -216,7 +230,7 @@ impl<H: Clone> Runtime<H> {
     /// hold handles to this runtime (a cycle of `Rc`s otherwise).
     pub fn forget_handlers(&mut self) {
         self.handlers.clear();
-        self.invariants.clear();
+        self.invariants = Rc::default();
     }
 
     /// Something that changes when handlers come or go (their count and the next id).

@@ -11,6 +11,7 @@ use crate::time::duration::format_duration;
 use crate::time::zone::Zone;
 use chrono::{DateTime, Utc};
 use std::collections::{BTreeMap, HashMap};
+use std::rc::Rc;
 use std::time::Duration;
 
 /// What a handler is subscribed to.
@@ -82,8 +83,9 @@ pub struct Subscription<H> {
     pub source: Source,
     /// The script's function.
     pub handler: H,
-    /// The handler in words for the log and error messages: `panel.on_press S1`.
-    pub label: String,
+    /// The handler in words for the log and error messages: `panel.on_press S1` (shared with
+    /// each call: a timer's every few milliseconds).
+    pub label: Rc<str>,
     /// What a timer's firings have been since its last log line.
     pub(super) firings: Firings,
 }
@@ -122,7 +124,7 @@ pub struct Call<H> {
     /// Its arguments (the script layer passes as many as the function takes).
     pub args: Vec<Arg>,
     /// The handler in words.
-    pub label: String,
+    pub label: Rc<str>,
 }
 
 impl<H: Clone> Subscription<H> {
@@ -131,7 +133,7 @@ impl<H: Clone> Subscription<H> {
         Call {
             handler: self.handler.clone(),
             args,
-            label: self.label.clone(),
+            label: Rc::clone(&self.label),
         }
     }
 }
@@ -184,7 +186,7 @@ impl<H: Clone> Subscriptions<H> {
             id,
             source,
             handler,
-            label,
+            label: Rc::from(label),
             firings: Firings::default(),
         };
         match sub.source {
@@ -390,7 +392,7 @@ mod tests {
         let c = s.cron("0 * * * * *", clock.wall(), "c").unwrap();
         let d = s.add(Source::Stop, "d", "on_stop".into());
         assert_eq!((a, b, c, d), (1, 2, 3, 4));
-        let labels: Vec<&str> = s.list().iter().map(|x| x.label.as_str()).collect();
+        let labels: Vec<&str> = s.list().iter().map(|x| &*x.label).collect();
         assert_eq!(
             labels,
             ["every 1s", "after 500ms", "cron \"0 * * * * *\"", "on_stop"]
@@ -468,7 +470,7 @@ mod tests {
         let calls: Vec<(&str, String)> = s
             .stop_calls()
             .into_iter()
-            .map(|c| (c.handler, c.label))
+            .map(|c| (c.handler, c.label.to_string()))
             .collect();
         assert_eq!(
             calls,

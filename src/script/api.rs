@@ -27,7 +27,11 @@ use std::rc::Rc;
 use std::time::Duration;
 
 /// The runtime as the bindings hold it.
-pub type Rt = Shared<FnPtr>;
+pub type Rt = Shared<Handler>;
+
+/// A script function the runtime calls (a handler, a timer's, an invariant's): shared, so a
+/// tick's call of it copies no captured values.
+pub type Handler = Rc<FnPtr>;
 
 /// What a binding returns.
 pub type R<T> = Result<T, Box<EvalAltResult>>;
@@ -57,25 +61,29 @@ impl Arities {
     /// The parameter counts `f` can be called with (its curried captures taken off), if
     /// it is a function of the script.
     pub fn of(&self, f: &FnPtr) -> Option<Vec<usize>> {
-        let curried = f.curry().len();
-        self.0.borrow().get(f.fn_name()).map(|counts| {
-            counts
-                .iter()
-                .filter_map(|n| n.checked_sub(curried))
-                .collect()
-        })
+        self.counts(f, |counts| counts.collect())
     }
 
     /// How many of `offered` arguments to pass to `f`: the most it takes, up to `offered`.
     pub fn pick(&self, f: &FnPtr, offered: usize) -> usize {
-        match self.of(f) {
-            Some(counts) => counts
-                .into_iter()
-                .filter(|n| *n <= offered)
-                .max()
-                .unwrap_or(offered),
-            None => offered,
-        }
+        self.counts(f, |counts| counts.filter(|n| *n <= offered).max())
+            .flatten()
+            .unwrap_or(offered)
+    }
+
+    /// `use_them` on `of(f)`'s counts, without collecting them (`pick` runs for every
+    /// handler call).
+    fn counts<T>(
+        &self,
+        f: &FnPtr,
+        use_them: impl FnOnce(&mut dyn Iterator<Item = usize>) -> T,
+    ) -> Option<T> {
+        let curried = f.curry().len();
+        let arities = self.0.borrow();
+        let counts = arities.get(f.fn_name())?;
+        Some(use_them(
+            &mut counts.iter().filter_map(|n| n.checked_sub(curried)),
+        ))
     }
 
     /// An error if `f` cannot be a handler for `what`, which passes `params`.
@@ -301,10 +309,12 @@ fn register_device(engine: &mut Engine, rt: &Rt, reads: &ReadTracker) {
 /// used (`engine::Guard::check_var`), and each device is a variable of its name (its reads
 /// noted in `reads`).
 pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads: &ReadTracker) {
-    // Each device is also a variable of its name. And a variable holding a device handle is
-    // read as a plain copy of it: a handler that uses the device it is registered on
-    // (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and locks while
-    // `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that.
+    // Each device is also a variable of its name. And a shared or constant variable holding a
+    // device handle is read as a plain copy of it: a handler that uses the device it is
+    // registered on (`io.on_rise(3, || io.outputs = 1)`) captures `io`, which Rhai shares and
+    // locks while `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that
+    // (and a constant's from refusing its methods). A plain one (a function's parameter) is
+    // used in place: a copy is an allocation, and a tick reads handles many times.
     let (r, t) = (Rc::clone(rt), reads.clone());
     let names: Vec<(String, usize)> = {
         let b = rt.borrow();
@@ -321,7 +331,11 @@ pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads:
         let value = ctx.scope().get(name);
         guard.check_var(value, &ctx)?;
         match value {
-            Some(v) if !v.is_locked() && (v.is::<Panel>() || v.is::<Io>()) => {
+            Some(v)
+                if (v.is_shared() || v.is_read_only())
+                    && !v.is_locked()
+                    && (v.is::<Panel>() || v.is::<Io>()) =>
+            {
                 Ok(Some(v.flatten_clone()))
             }
             Some(_) => Ok(None),
@@ -399,7 +413,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                     }
                 };
                 let label = format!("{}.{method} {s}", p.name);
-                let id = p.rt.borrow_mut().subscribe(source, f, label);
+                let id = p.rt.borrow_mut().subscribe(source, Rc::new(f), label);
                 Ok(id_value(id))
             },
         );
@@ -416,7 +430,11 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                 dev: p.idx,
                 rotary: r,
             };
-            Ok(id_value(p.rt.borrow_mut().subscribe(source, f, label)))
+            Ok(id_value(p.rt.borrow_mut().subscribe(
+                source,
+                Rc::new(f),
+                label,
+            )))
         },
     );
 }
@@ -607,7 +625,11 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 Source::Fall { dev: d.idx, ch: c }
             };
             let label = format!("{}.{method} DI{c}", d.name);
-            Ok(id_value(d.rt.borrow_mut().subscribe(source, f, label)))
+            Ok(id_value(d.rt.borrow_mut().subscribe(
+                source,
+                Rc::new(f),
+                label,
+            )))
         });
     }
     let a = arities.clone();
@@ -629,7 +651,11 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 threshold: t,
                 armed: true,
             };
-            Ok(id_value(d.rt.borrow_mut().subscribe(source, f, label)))
+            Ok(id_value(d.rt.borrow_mut().subscribe(
+                source,
+                Rc::new(f),
+                label,
+            )))
         },
     );
 }
@@ -664,20 +690,20 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     engine.register_fn("every", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
         a.check(&f, "every", &["missed"])?;
-        let id = r.borrow_mut().every(d, f);
+        let id = r.borrow_mut().every(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
         a.check(&f, "after", &[])?;
-        let id = r.borrow_mut().after(d, f);
+        let id = r.borrow_mut().after(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {
         a.check(&f, "cron", &["missed"])?;
-        let id = r.borrow_mut().cron(expr, f);
+        let id = r.borrow_mut().cron(expr, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let r = Rc::clone(rt);
@@ -687,7 +713,7 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("on_stop", move |f: FnPtr| -> R<i64> {
         a.check(&f, "on_stop", &[])?;
-        let id = r.borrow_mut().on_stop(f);
+        let id = r.borrow_mut().on_stop(Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     register_remote(engine, rt, arities);
@@ -744,7 +770,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let label = format!("on_command {name}");
         Ok(id_value(r.borrow_mut().subscribe(
             Source::Command(name.to_string()),
-            f,
+            Rc::new(f),
             label,
         )))
     });
@@ -755,7 +781,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let label = format!("on_message {filter}");
         Ok(id_value(r.borrow_mut().subscribe(
             Source::Message(filter.to_string()),
-            f,
+            Rc::new(f),
             label,
         )))
     });
@@ -794,7 +820,7 @@ fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &st
         move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
             a.check(&f, "invariant", &[])?;
             let at = super::error::location(&file, ctx.call_position());
-            let added = r.borrow_mut().add_invariant(name, f, at);
+            let added = r.borrow_mut().add_invariant(name, Rc::new(f), at);
             added.or_else(|e| fail(e.to_string()))
         },
     );

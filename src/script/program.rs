@@ -2,7 +2,7 @@
 //! and each handler call gets a fresh operation budget and time limit, and only the arguments
 //! it takes. A call over a limit is a fault placed where the limit was hit.
 
-use super::api::{register, resolve_variables, Arities, Rt};
+use super::api::{register, resolve_variables, Arities, Handler, Rt};
 use super::check::NotFound;
 use super::engine::{sandboxed, Guard};
 use super::error::{breach_fault, fault, innermost, is_stop};
@@ -134,7 +134,7 @@ impl ScriptProgram {
     /// Runs one handler, within `stop` too when it is an `on_stop` handler's call in a stop.
     fn call_limited(
         &mut self,
-        call: &Call<FnPtr>,
+        call: &Call<Handler>,
         stop: Option<StopLimit>,
     ) -> Result<(), HandlerFault> {
         self.call_for_value(call, stop).map(|_| ())
@@ -144,7 +144,7 @@ impl ScriptProgram {
     /// handler's call in a stop.
     fn call_for_value(
         &mut self,
-        call: &Call<FnPtr>,
+        call: &Call<Handler>,
         stop: Option<StopLimit>,
     ) -> Result<Dynamic, HandlerFault> {
         let n = self.arities.pick(&call.handler, call.args.len());
@@ -167,10 +167,10 @@ impl ScriptProgram {
         }
         let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, args);
         if let Some(c) = self.coverage.as_mut() {
-            match c.fired.get_mut(&call.label) {
+            match c.fired.get_mut(&*call.label) {
                 Some(n) => *n = n.saturating_add(1),
                 None => {
-                    c.fired.insert(call.label.clone(), 1);
+                    c.fired.insert(call.label.to_string(), 1);
                 }
             }
         }
@@ -215,7 +215,7 @@ impl ScriptProgram {
 }
 
 impl Program for ScriptProgram {
-    type Handler = FnPtr;
+    type Handler = Handler;
 
     fn start(&mut self) -> Result<(), HandlerFault> {
         self.guard.begin_call();
@@ -224,20 +224,20 @@ impl Program for ScriptProgram {
         self.outcome(result, || Position::NONE)
     }
 
-    fn call(&mut self, call: &Call<FnPtr>) -> Result<(), HandlerFault> {
+    fn call(&mut self, call: &Call<Handler>) -> Result<(), HandlerFault> {
         self.call_limited(call, None)
     }
 
-    fn answer(&mut self, call: &Call<FnPtr>) -> Result<String, HandlerFault> {
+    fn answer(&mut self, call: &Call<Handler>) -> Result<String, HandlerFault> {
         let value = self.call_for_value(call, None)?;
         Ok(super::values::to_json(&value).to_string())
     }
 
-    fn call_in_stop(&mut self, call: &Call<FnPtr>, limit: StopLimit) -> Result<(), HandlerFault> {
+    fn call_in_stop(&mut self, call: &Call<Handler>, limit: StopLimit) -> Result<(), HandlerFault> {
         self.call_limited(call, Some(limit))
     }
 
-    fn holds(&mut self, check: &InvariantCheck<FnPtr>) -> Result<bool, HandlerFault> {
+    fn holds(&mut self, check: &InvariantCheck<Handler>) -> Result<bool, HandlerFault> {
         let (call, at) = (&check.call, check.at.as_deref());
         self.guard.begin_call();
         let result = call.handler.call::<Dynamic>(&self.engine, &self.ast, ());

@@ -5,7 +5,7 @@
 
 use super::doorbell::Doorbell;
 use chrono::{DateTime, Utc};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -199,18 +199,29 @@ impl VirtualState {
 /// Virtual time for tests: it only moves when told to, and sleeping jumps straight to the deadline.
 #[derive(Debug, Clone)]
 pub struct VirtualClock {
-    state: Arc<Mutex<VirtualState>>,
+    shared: Arc<Shared>,
+}
+
+#[derive(Debug)]
+struct Shared {
+    state: Mutex<VirtualState>,
+    /// `state.now` in nanoseconds, set after each move and read without the lock (a scan
+    /// loop reads the time many times a tick); `u64::MAX` when it does not fit: read the lock.
+    now_nanos: AtomicU64,
 }
 
 impl VirtualClock {
     /// A virtual clock at monotonic zero whose wall time starts at `wall_origin`.
     pub fn new(wall_origin: DateTime<Utc>) -> Self {
         Self {
-            state: Arc::new(Mutex::new(VirtualState {
-                now: Duration::ZERO,
-                wall_origin,
-                alarms: Vec::new(),
-            })),
+            shared: Arc::new(Shared {
+                state: Mutex::new(VirtualState {
+                    now: Duration::ZERO,
+                    wall_origin,
+                    alarms: Vec::new(),
+                }),
+                now_nanos: AtomicU64::new(0),
+            }),
         }
     }
 
@@ -224,6 +235,7 @@ impl VirtualClock {
         let mut s = self.lock();
         let to = s.now.saturating_add(by);
         s.move_to(to);
+        self.publish(to);
     }
 
     /// Moves time forward to `to` (never backwards).
@@ -231,6 +243,7 @@ impl VirtualClock {
         let mut s = self.lock();
         if to > s.now {
             s.move_to(to);
+            self.publish(to);
         }
     }
 
@@ -263,13 +276,23 @@ impl VirtualClock {
 
     fn lock(&self) -> std::sync::MutexGuard<'_, VirtualState> {
         // A poisoned lock only means another test thread panicked; the time value is still valid.
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+        self.shared.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Makes `now` (just moved to, under the lock) what `now()` reads. After the move's alarms:
+    /// who sees the new time sees their flags too.
+    fn publish(&self, now: Duration) {
+        let nanos = u64::try_from(now.as_nanos()).unwrap_or(u64::MAX);
+        self.shared.now_nanos.store(nanos, Ordering::Release);
     }
 }
 
 impl Clock for VirtualClock {
     fn now(&self) -> Duration {
-        self.lock().now
+        match self.shared.now_nanos.load(Ordering::Acquire) {
+            u64::MAX => self.lock().now,
+            nanos => Duration::from_nanos(nanos),
+        }
     }
 
     fn wall(&self) -> DateTime<Utc> {

@@ -214,7 +214,7 @@ impl Coverage {
     pub fn finish(&mut self, rig: &Rig) {
         let rt = rig.runner.runtime().borrow();
         for s in rt.handlers().list() {
-            self.handlers.insert(s.label.clone());
+            self.handlers.insert(s.label.to_string());
         }
         if let Some(c) = rig.runner.program().coverage() {
             for (label, n) in &c.fired {

@@ -179,7 +179,7 @@ impl<P: Program> Runner<P> {
                 }
                 return;
             }
-            self.rt.borrow_mut().cause.clone_from(&call.label);
+            self.rt.borrow_mut().set_cause(&call.label);
             let limit = StopLimit {
                 until,
                 budget: STOP_BUDGET,

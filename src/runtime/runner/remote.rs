@@ -310,11 +310,14 @@ impl<P: Program> Runner<P> {
                 shorten(&command.payload)
             ));
             rt.feed_watchdogs();
-            rt.cause.clone_from(&call.label);
+            rt.set_cause(&call.label);
         }
         match self.program.answer(&call) {
             Ok(value) => Ok(value),
-            Err(fault) => Err((describe(&fault, &call.label), Some((fault, call.label)))),
+            Err(fault) => Err((
+                describe(&fault, &call.label),
+                Some((fault, call.label.to_string())),
+            )),
         }
     }
 
@@ -338,7 +341,7 @@ impl<P: Program> Runner<P> {
             {
                 let mut rt = self.rt.borrow_mut();
                 rt.feed_watchdogs();
-                rt.cause.clone_from(&call.label);
+                rt.set_cause(&call.label);
             }
             if let Err(fault) = self.program.call(&call) {
                 let message = describe(&fault, &call.label);

@@ -5,6 +5,7 @@ use super::{Runner, State};
 use crate::runtime::invariants::Violation;
 use crate::runtime::observe::{EventKind, RunEvent};
 use crate::runtime::snapshot::micros;
+use crate::runtime::subscriptions::Call;
 use std::time::Duration;
 
 /// How often each device is checked (`Runtime::check_devices`: a module reset, swapped or
@@ -144,13 +145,19 @@ impl<P: Program> Runner<P> {
     /// Runs the tick's handlers one by one; a signal that comes meanwhile ends the run before
     /// the next one (a tick with thousands of timers due must not delay SIGTERM).
     fn run_handlers(&mut self) {
-        let calls = self.rt.borrow_mut().collect_calls();
-        for call in calls {
+        let mut calls = self.rt.borrow_mut().collect_calls();
+        self.run_calls(&mut calls);
+        self.rt.borrow_mut().reuse_calls(calls);
+    }
+
+    /// Makes the tick's calls, in order (see `run_handlers`).
+    fn run_calls(&mut self, calls: &mut Vec<Call<P::Handler>>) {
+        for call in calls.drain(..) {
             {
                 let mut rt = self.rt.borrow_mut();
                 // A handler's own work is not an exchange; feed what fell due meanwhile.
                 rt.feed_watchdogs();
-                rt.cause.clone_from(&call.label);
+                rt.set_cause(&call.label);
             }
             let result = self.program.call(&call);
             if let Err(f) = result {
@@ -180,16 +187,16 @@ impl<P: Program> Runner<P> {
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
         let accesses = self.rt.borrow().input_accesses;
-        for check in checks {
-            self.rt.borrow_mut().cause.clone_from(&check.call.label);
-            match self.program.holds(&check) {
+        for check in checks.iter() {
+            self.rt.borrow_mut().set_cause(&check.call.label);
+            match self.program.holds(check) {
                 Ok(true) => {}
                 Ok(false) => {
                     let violation = {
                         let rt = self.rt.borrow();
                         Violation {
-                            name: check.name,
-                            at: check.at,
+                            name: check.name.clone(),
+                            at: check.at.clone(),
                             uptime: rt.uptime(),
                             devices: rt.readings(),
                         }
