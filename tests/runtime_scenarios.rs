@@ -213,7 +213,7 @@ fn rigs_built_in_a_loop_count_against_the_tests_memory() {
             ("s.rhai", "every(\"1s\", || {});\n"),
             (
                 "a.test.rhai",
-                "fn test_rigs() {\n    let rigs = [];\n    for i in 0..5000 {\n        \
+                "fn test_rigs() {\n    let rigs = [];\n    for i in 0..10000 {\n        \
                  rigs.push(rig(\"s.rhai\"));\n    }\n}\n",
             ),
         ],

@@ -21,6 +21,7 @@ use crate::heap::{self, format_bytes};
 use crate::runtime::runner::StopLimit;
 use crate::time::clock::SharedClock;
 use crate::time::duration::format_duration;
+use rhai::packages::{Package, StandardPackage};
 use rhai::{Array, Dynamic, Engine, EvalAltResult, EvalContext, ImmutableString, Map, Position};
 use std::cell::Cell;
 use std::rc::Rc;
@@ -58,7 +59,16 @@ pub const LIMIT_MARKER: &str = "rigscript limit: ";
 /// A new engine with the sandbox and its limits; `budget` is the operation budget of each
 /// call into the script. Prints are dropped until the caller routes them (`on_print`).
 pub fn sandboxed(budget: u64) -> Engine {
-    let mut engine = Engine::new();
+    thread_local! {
+        // Rhai's standard package, built once a thread and shared: `verify` makes an engine
+        // for every run, and building the package was most of that.
+        static STANDARD: rhai::Shared<rhai::Module> = StandardPackage::new().as_shared_module();
+    }
+    // What `Engine::new` makes (the package, its string interner at Rhai's default size; the
+    // printing it sets up is replaced below).
+    let mut engine = Engine::new_raw();
+    engine.set_max_strings_interned(rhai::default_limits::MAX_STRINGS_INTERNED);
+    engine.register_global_module(STANDARD.with(rhai::Shared::clone));
     engine.disable_symbol("eval");
     engine.set_max_operations(budget.max(1));
     engine.set_max_call_levels(MAX_CALL_LEVELS);
