@@ -155,7 +155,7 @@ pub fn run(args: LabArgs) -> i32 {
             Ok(Err(e)) => {
                 let peer = failure::Peer {
                     broker: &format!("{host}:{port}"),
-                    user: args.username.as_deref().unwrap_or("(anonymous)"),
+                    user: args.username.as_deref().unwrap_or(failure::ANONYMOUS),
                     host: &host,
                     password_from: "--username / --password-env",
                 };

@@ -4,6 +4,9 @@
 use rumqttc::v5::mqttbytes::v5::ConnectReturnCode;
 use rumqttc::v5::{ConnectionError, StateError};
 
+/// The user a message names when the connection gives none.
+pub const ANONYMOUS: &str = "(anonymous)";
+
 /// Who was connecting where, for the messages.
 pub struct Peer<'a> {
     /// The broker, `HOST:PORT`.

@@ -144,7 +144,7 @@ impl Settings {
 
     /// The user, for messages.
     fn user(&self) -> &str {
-        self.username.as_deref().unwrap_or("(anonymous)")
+        self.username.as_deref().unwrap_or(failure::ANONYMOUS)
     }
 
     /// Options for one connection: who the rig is, its last will, its keep-alive.
