@@ -599,3 +599,56 @@ fn ctrl_c_prints_the_summary_so_far_with_the_seed_and_ends_with_130() {
         "{rest}"
     );
 }
+
+#[test]
+fn verify_and_the_test_it_writes_never_write_the_rigs_records_file() {
+    // rig.toml names a records file (and a broker no one listens on): virtual-time runs must
+    // leave both alone, whatever the script records.
+    let (dir, s) = script(
+        "verify-records",
+        "weakens.rhai",
+        "let io = device(\"io\");\nio.safe_value = 0xF0;\nevery(\"1s\", || record(\"tick\", 1));\n",
+    );
+    let records = dir.join("production.jsonl");
+    let toml = dir.join("rig.toml");
+    std::fs::write(
+        &toml,
+        format!(
+            "records = \"{}\"\n\n[mqtt]\nurl = \"mqtt://127.0.0.1:9\"\noutbox = \"{}\"\n\n\
+             [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n",
+            records.display(),
+            dir.join("outbox").display()
+        ),
+    )
+    .unwrap();
+    let config = toml.to_string_lossy().into_owned();
+    let (status, doc) = verify_json(
+        &[
+            &s,
+            "--config",
+            &config,
+            "--runs",
+            "2",
+            "--for",
+            "3s",
+            "--seed",
+            "1",
+            "--no-faults",
+        ],
+        &dir.join("out"),
+    );
+    assert_eq!(status, 1, "{doc:#}");
+    let test = doc["counterexample"]["test_file"].as_str().unwrap();
+    assert!(
+        std::fs::read_to_string(test).unwrap().contains("rig.toml"),
+        "the written test runs on rig.toml's rig"
+    );
+    let o = run(&["test", test]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stdout));
+    assert!(
+        !records.exists(),
+        "a virtual-time run wrote the rig's records file: {}",
+        std::fs::read_to_string(&records).unwrap_or_default()
+    );
+    assert!(!dir.join("outbox").exists(), "nor may it open the outbox");
+}

@@ -8,6 +8,7 @@
 use super::output::say;
 use crate::config::mqtt::{check_prefix, parse_url, Transport};
 use crate::runtime::exit;
+use crate::runtime::log::visible;
 use crate::service::mqtt::{failure, tls, MAX_INBOUND_PACKET};
 use clap::Args;
 use rumqttc::v5::mqttbytes::v5::Packet;
@@ -225,11 +226,19 @@ fn take(rigs: &mut BTreeMap<String, Rig>, root: &str, topic: &str, payload: &[u8
 }
 
 /// One rig a line: name, status, when last heard from, each device in brief, the last record.
+/// Whatever came from the broker is written out visibly (`log::visible`): any user who may
+/// publish under the root could otherwise move the cursor, clear the screen or set the
+/// terminal's title on the operator's terminal.
 fn write_table(out: &mut impl Write, rigs: &BTreeMap<String, Rig>) -> std::io::Result<()> {
     if rigs.is_empty() {
         return writeln!(out, "no rigs on this broker");
     }
-    let width = rigs.keys().map(String::len).max().unwrap_or(3).max(3);
+    let width = rigs
+        .keys()
+        .map(|n| visible(n).chars().count())
+        .max()
+        .unwrap_or(3)
+        .max(3);
     writeln!(
         out,
         "{:width$}  {:7}  {:29}  DEVICES",
@@ -239,13 +248,19 @@ fn write_table(out: &mut impl Write, rigs: &BTreeMap<String, Rig>) -> std::io::R
         let devices: Vec<String> = r.devices.iter().map(|(n, d)| brief(n, d)).collect();
         writeln!(
             out,
-            "{name:width$}  {:7}  {:29}  {}",
-            r.status.as_deref().unwrap_or("?"),
-            r.last_heard().unwrap_or_else(|| "-".into()),
-            devices.join("; ")
+            "{:width$}  {:7}  {:29}  {}",
+            visible(name),
+            visible(r.status.as_deref().unwrap_or("?")),
+            visible(&r.last_heard().unwrap_or_else(|| "-".into())),
+            visible(&devices.join("; "))
         )?;
         if let Some(rec) = &r.last_record {
-            writeln!(out, "{:width$}  last record: {rec}", "")?;
+            writeln!(
+                out,
+                "{:width$}  last record: {}",
+                "",
+                visible(&rec.to_string())
+            )?;
         }
     }
     Ok(())
@@ -275,4 +290,51 @@ fn brief(name: &str, d: &Value) -> String {
         parts.push("SAFE MODE".into());
     }
     parts.join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_writes_out_every_control_character_a_rig_user_published() {
+        let mut rigs = BTreeMap::new();
+        let nasty = "offline\x1b[2J\x1b]0;pwned\x07\u{9b}31m\u{202e}";
+        take(
+            &mut rigs,
+            "rigscript",
+            "rigscript/a\x1bb/status",
+            nasty.as_bytes(),
+        );
+        take(
+            &mut rigs,
+            "rigscript",
+            "rigscript/a\x1bb/state/io\x07",
+            br#"{"online":false,"outputs":2,"at":"\u001b[1A"}"#,
+        );
+        take(
+            &mut rigs,
+            "rigscript",
+            "rigscript/a\x1bb/last_record",
+            "{\"v\":\"\u{9b}0m\"}".as_bytes(),
+        );
+        let mut out = Vec::new();
+        write_table(&mut out, &rigs).unwrap();
+        let text = String::from_utf8(out).unwrap();
+        assert!(
+            !text
+                .chars()
+                .any(|c| c.is_control() && c != '\n' || c == '\u{202e}'),
+            "{text:?}"
+        );
+        for shown in [
+            "a\\x1bb",
+            "offline\\x1b[2J\\x1b]0;pwned\\x07\\u{9b}31m\\u{202e}",
+            "io\\x07 OFFLINE",
+            "\\x1b[1A",
+            "\\u{9b}0m",
+        ] {
+            assert!(text.contains(shown), "{shown} in {text}");
+        }
+    }
 }

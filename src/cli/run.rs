@@ -363,9 +363,8 @@ fn run_started(
     let run_name = claim
         .as_ref()
         .map_or(control.rig.clone(), |c| c.hello().rig.clone());
-    let records = setup.records.clone().or(setup.config.records.clone());
-    let mqtt = match setup.config.mqtt.as_ref().map(|m| {
-        mqtt::Settings::resolve(m, &run_name, records.as_deref()).and_then(mqtt::Prepared::new)
+    let mqtt = match setup.mqtt().map(|m| {
+        mqtt::Settings::resolve(m, &run_name, setup.records_file()).and_then(mqtt::Prepared::new)
     }) {
         None => None,
         Some(Ok(p)) => Some(p),

@@ -111,7 +111,7 @@ fn watch_signals(interrupt: &Arc<AtomicUsize>) -> std::io::Result<()> {
 
 /// Runs `rigscript verify`; returns the exit status.
 pub fn run(args: VerifyArgs) -> i32 {
-    let mut config = match &args.config {
+    let config = match &args.config {
         Some(path) => match RigConfig::load(path) {
             Ok(c) => c,
             Err(e) => {
@@ -121,8 +121,6 @@ pub fn run(args: VerifyArgs) -> i32 {
         },
         None => RigConfig::simulated_default(),
     };
-    // Runs are simulated: they never append to the rig's records file.
-    config.records = None;
     // On a stack that holds whatever the script can build within its memory limit (the
     // shrinking replays run here; each worker gets one too).
     let memory = config.limits.memory;

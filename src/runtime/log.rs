@@ -333,10 +333,11 @@ impl Drop for Logger {
 }
 
 /// `message` with every control character written out (`\n`, `\r`, `\t`, `\x1b`, `\u{9b}`),
-/// so no text (a script's `log`, an error it threw) can start a line that looks like the
-/// runner's, move the cursor or recolour the terminal.
-fn visible(message: &str) -> std::borrow::Cow<'_, str> {
-    if !message.chars().any(char::is_control) {
+/// and the invisible characters that reorder or hide text (bidirectional controls), so no
+/// text (a script's `log`, an error it threw, a retained MQTT message) can start a line that
+/// looks like the runner's, move the cursor, recolour the terminal or set its title.
+pub fn visible(message: &str) -> std::borrow::Cow<'_, str> {
+    if !message.chars().any(hidden) {
         return message.into();
     }
     let mut out = String::with_capacity(message.len() + 8);
@@ -348,11 +349,18 @@ fn visible(message: &str) -> std::borrow::Cow<'_, str> {
             c if c.is_control() && u32::from(c) < 0x80 => {
                 out.push_str(&format!("\\x{:02x}", u32::from(c)));
             }
-            c if c.is_control() => out.push_str(&format!("\\u{{{:x}}}", u32::from(c))),
+            c if hidden(c) => out.push_str(&format!("\\u{{{:x}}}", u32::from(c))),
             c => out.push(c),
         }
     }
     out.into()
+}
+
+/// A control character, or one of Unicode's bidirectional controls (which reorder what a
+/// terminal shows without showing themselves).
+fn hidden(c: char) -> bool {
+    c.is_control()
+        || matches!(c, '\u{061c}' | '\u{200e}' | '\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
 }
 
 /// `message` cut to `MAX_LINE` bytes (at a character boundary), saying how much was left out.

@@ -202,6 +202,18 @@ impl Records {
         self.failed
     }
 
+    /// Records the file has not taken so far: dropped by its queue or refused by the file
+    /// (a full disk), for `status`, `--json` and `/metrics` while the loss goes on. Records
+    /// still queued are not counted (`close` counts those it could not write).
+    pub fn lost_so_far(&self) -> u64 {
+        self.file.as_ref().map_or(0, |f| {
+            f.writer
+                .losses()
+                .count()
+                .saturating_add(refusals(&f.refusals).total)
+        })
+    }
+
     /// The records kept in memory, oldest first.
     pub fn kept(&self) -> &[Value] {
         &self.kept

@@ -43,7 +43,7 @@ pub struct RigSnapshot {
     /// The points forced now, by the operator (`runtime::forcing`).
     #[serde(default)]
     pub forces: Vec<ForceShown>,
-    /// Records the records file did not take (known at the end; the log says why).
+    /// Records the records file did not take so far (dropped or refused; the log says why).
     #[serde(default)]
     pub records_lost: u64,
     /// Events lost by every consumer the run has had, those gone since included.
@@ -96,11 +96,15 @@ pub struct MqttDropped {
     /// Publishes over the broker's Maximum Packet Size, not sent: records, states, log lines...
     #[serde(default)]
     pub too_large: u64,
+    /// Replies to commands not sent: the reply queue was full (an error reply could not be
+    /// sent either; the log says so).
+    #[serde(default)]
+    pub replies: u64,
 }
 
 impl MqttDropped {
     /// Every kind as `(kind, count)`, the kinds as `/metrics` labels them.
-    pub fn by_kind(&self) -> [(&'static str, u64); 8] {
+    pub fn by_kind(&self) -> [(&'static str, u64); 9] {
         [
             ("outbox_full", self.outbox_full),
             ("outbox_write", self.outbox_write),
@@ -110,6 +114,7 @@ impl MqttDropped {
             ("log", self.log),
             ("refused", self.refused),
             ("too_large", self.too_large),
+            ("replies", self.replies),
         ]
     }
 

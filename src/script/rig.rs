@@ -5,6 +5,7 @@
 use super::engine::sandboxed;
 use super::error::parse_error;
 use super::program::ScriptProgram;
+use crate::config::mqtt::MqttConfig;
 use crate::config::RigConfig;
 use crate::device::cancel::Cancel;
 use crate::runtime::devices::links::TransactionCounter;
@@ -20,7 +21,7 @@ use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::cell::RefCell;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -40,7 +41,7 @@ pub struct RigSetup {
     pub period: Option<Duration>,
     /// End normally after this long.
     pub end_after: Option<Duration>,
-    /// Records file, overriding the config's.
+    /// Records file, overriding the config's (in virtual time, the only one: `records_file`).
     pub records: Option<PathBuf>,
     /// Write the log to stderr.
     pub log_to_stderr: bool,
@@ -52,6 +53,29 @@ pub struct RigSetup {
     pub keep_log: bool,
     /// The number of the signal that asks the run to stop (0: none).
     pub stop_flag: Arc<AtomicUsize>,
+}
+
+impl RigSetup {
+    /// The records file the run appends to: the one asked for, else rig.toml's `records`,
+    /// but never rig.toml's in virtual time (`rigscript test`, `verify`: their records,
+    /// dated whenever the test says, would mix with the rig's real ones).
+    pub fn records_file(&self) -> Option<&Path> {
+        let production = self
+            .config
+            .records
+            .as_deref()
+            .filter(|_| !self.clock.is_virtual());
+        self.records.as_deref().or(production)
+    }
+
+    /// The broker the run reports to (rig.toml's `[mqtt]`), never in virtual time (the
+    /// broker and the outbox hold the rig's real records).
+    pub fn mqtt(&self) -> Option<&MqttConfig> {
+        self.config
+            .mqtt
+            .as_ref()
+            .filter(|_| !self.clock.is_virtual())
+    }
 }
 
 /// Why a run could not start, with the exit status it calls for.
@@ -174,7 +198,7 @@ pub fn start_observed(
     if setup.keep_log {
         log.keep_lines();
     }
-    let records = match setup.records.as_ref().or(setup.config.records.as_ref()) {
+    let records = match setup.records_file() {
         Some(path) => Records::to_file(path, log.events())?,
         None => Records::in_memory(),
     };

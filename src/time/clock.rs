@@ -23,6 +23,11 @@ pub trait Clock: Send + Sync {
         let _ = bell;
         self.sleep_until(deadline);
     }
+    /// Whether this is virtual time (scenario tests, `verify`): what a run on it says is
+    /// made up and must never reach a rig's production records file or broker.
+    fn is_virtual(&self) -> bool {
+        false
+    }
 }
 
 /// The monotonic clock in nanoseconds. Read about fifteen times a scan tick: `Instant`'s
@@ -288,6 +293,10 @@ impl VirtualClock {
 }
 
 impl Clock for VirtualClock {
+    fn is_virtual(&self) -> bool {
+        true
+    }
+
     fn now(&self) -> Duration {
         match self.shared.now_nanos.load(Ordering::Acquire) {
             u64::MAX => self.lock().now,

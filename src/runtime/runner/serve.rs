@@ -97,7 +97,8 @@ impl<P: Program> Runner<P> {
             log_dropped: rt.log.dropped(),
             forcing: rt.forces().allowed(),
             forces: rt.forces_shown(),
-            records_lost: self.trouble.records_lost,
+            // Counted as it happens; the end's count takes in what was queued too.
+            records_lost: self.trouble.records_lost.max(rt.records.lost_so_far()),
             dropped_in_all: self.events.dropped_in_all(),
             mqtt: self
                 .served

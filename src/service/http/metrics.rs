@@ -84,6 +84,12 @@ pub fn render(s: &RigSnapshot) -> String {
         "Log lines lost because the log was not read.",
         s.log_dropped,
     );
+    out.one(
+        "rigscript_records_lost_total",
+        "counter",
+        "Records the records file did not take (dropped or refused: a full disk).",
+        s.records_lost,
+    );
     out.family(
         "rigscript_events_dropped_total",
         "counter",
@@ -132,7 +138,7 @@ fn mqtt_metrics(out: &mut Metrics, m: &MqttState) {
         "rigscript_mqtt_dropped_total",
         "counter",
         "What the MQTT client lost, by kind (outbox_full, outbox_write, messages, commands, \
-         publishes, log, refused, too_large).",
+         publishes, log, refused, too_large, replies).",
     );
     for (kind, n) in m.dropped.by_kind() {
         out.sample("rigscript_mqtt_dropped_total", &[("kind", kind)], n);
@@ -323,7 +329,7 @@ mod tests {
             log_dropped: 0,
             forcing: false,
             forces: Vec::new(),
-            records_lost: 0,
+            records_lost: 3,
             dropped_in_all: 7,
             mqtt: Some(MqttState {
                 broker: "b:1883".into(),
@@ -363,6 +369,8 @@ mod tests {
             "rigscript_tick_work_seconds_count 5",
             "rigscript_jitter_seconds_count 0",
             "rigscript_forced_points 0",
+            "rigscript_records_lost_total 3",
+            "rigscript_mqtt_dropped_total{kind=\"replies\"} 0",
             "rigscript_mqtt_connected 1",
             "rigscript_mqtt_failed 0",
             "rigscript_mqtt_connect_failures_total 2",

@@ -44,6 +44,11 @@ pub fn describe(e: &ConnectionError, peer: &Peer) -> String {
         ConnectionError::ConnectionRefused(code) => {
             format!("broker {broker} refused the connection of user {user}: {code:?}")
         }
+        ConnectionError::Tls(t) if not_tls(t) => format!(
+            "TLS to broker {broker} failed: {t}: the peer did not speak TLS (is the port a plain \
+             MQTT port? mqtts:// needs the broker's TLS listener, 8883 by default; mqtt:// \
+             speaks to a plain one)"
+        ),
         ConnectionError::Tls(t) => format!(
             "TLS to broker {broker} failed: {t} (is ca_file the CA that signed the broker's \
              certificate, and does the certificate name {}?)",
@@ -74,5 +79,25 @@ pub fn describe(e: &ConnectionError, peer: &Peer) -> String {
             format!("broker {broker} stopped answering (no reply to the keep-alive ping)")
         }
         other => format!("broker {broker}: {other}"),
+    }
+}
+
+/// Whether a TLS handshake failed because the peer does not speak TLS: it hung up on the
+/// ClientHello (a plain MQTT listener takes it for a malformed packet) or answered with what
+/// is no TLS record. A certificate the client refuses is something else (`ca_file`).
+fn not_tls(e: &rumqttc::TlsError) -> bool {
+    use std::io::ErrorKind;
+    let rumqttc::TlsError::Io(io) = e else {
+        return false;
+    };
+    match io.kind() {
+        ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted | ErrorKind::UnexpectedEof => {
+            true
+        }
+        _ => matches!(
+            io.get_ref()
+                .and_then(|inner| inner.downcast_ref::<rustls::Error>()),
+            Some(rustls::Error::InvalidMessage(_))
+        ),
     }
 }

@@ -24,6 +24,8 @@ pub enum Loss {
     Refused,
     /// A publish over the broker's Maximum Packet Size, not sent (a record among them done).
     TooLarge,
+    /// A command's reply not sent: the reply queue was full.
+    Reply,
 }
 
 /// The shared counts: cheap to clone, one for the client's thread, one for the loop.
@@ -44,6 +46,7 @@ struct Counts {
     log: AtomicU64,
     refused: AtomicU64,
     too_large: AtomicU64,
+    replies: AtomicU64,
     /// Held only to swap the text, never across I/O: the loop's read waits on no network.
     last_error: Mutex<Option<String>>,
     /// Why the client stopped for good (its thread panicked), under the same rule.
@@ -71,6 +74,7 @@ impl Health {
             Loss::Log => &c.log,
             Loss::Refused => &c.refused,
             Loss::TooLarge => &c.too_large,
+            Loss::Reply => &c.replies,
         };
         counter.fetch_add(1, Ordering::Relaxed);
     }
@@ -123,6 +127,7 @@ impl Health {
                 log: load(&c.log),
                 refused: load(&c.refused),
                 too_large: load(&c.too_large),
+                replies: load(&c.replies),
             },
         }
     }
@@ -145,6 +150,7 @@ mod tests {
         client.lost(Loss::Publish);
         client.lost(Loss::Refused);
         client.lost(Loss::TooLarge);
+        client.lost(Loss::Reply);
         client.connected();
         client.failed("cannot reach broker broker:1883: refused");
         client.waiting(12);
@@ -168,9 +174,10 @@ mod tests {
                 log: 0,
                 refused: 1,
                 too_large: 1,
+                replies: 1,
             }
         );
-        assert_eq!(s.dropped.total(), 9);
+        assert_eq!(s.dropped.total(), 10);
         client.connected();
         assert!(loop_side.shown().connected);
         assert_eq!(loop_side.shown().failed, None);

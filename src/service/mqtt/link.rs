@@ -9,7 +9,7 @@
 //! its own): the link ends, and the next one resends from the outbox, so the outbox alone
 //! says what the broker has.
 
-use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason, Publish};
+use rumqttc::v5::mqttbytes::v5::{Packet, PubAckReason, Publish, PublishProperties};
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::{Client, ConnectionError, Event, MqttOptions};
 use rumqttc::Outgoing;
@@ -64,12 +64,24 @@ pub enum NetEvent {
         topic: String,
         /// Its payload.
         payload: Vec<u8>,
+        /// Where its sender wants an answer, and the data to answer with (MQTT 5's Response
+        /// Topic and Correlation Data, if it gave them).
+        respond: Respond,
     },
     /// The connection failed or was refused: the link is over.
     Failed(ConnectionError),
     /// The network thread panicked (a fault in the MQTT library), saying this: the link is
     /// over.
     Panicked(String),
+}
+
+/// MQTT 5's request/response properties of a message (section 4.10 of the standard).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Respond {
+    /// The Response Topic the sender named.
+    pub topic: Option<String>,
+    /// The Correlation Data the answer must carry.
+    pub correlation: Option<Vec<u8>>,
 }
 
 /// Requests rumqttc's client may hold before `try_publish` says full.
@@ -104,6 +116,15 @@ pub enum Sent {
     Full,
 }
 
+/// The keep-alive to ping at once the broker's CONNACK said `server` (its Server Keep
+/// Alive), if not the one the client library takes from it: 0 turns keep-alive off (MQTT 5,
+/// section 3.2.2.3.14), which the library would take as a ping due at every turn (a second
+/// ping before the first's answer ends the connection). Off, the broker calls no silent client
+/// gone; the client still pings at its own `ours`, to notice a broker gone silent.
+pub fn keep_alive_after(server: Option<u16>, ours: Duration) -> Option<Duration> {
+    (server == Some(0)).then_some(ours)
+}
+
 /// The network thread's raw events (kept apart from `NetEvent` so tags are matched here).
 type Event2 = Result<Event, Over>;
 
@@ -118,6 +139,7 @@ enum Over {
 impl Link {
     /// Starts connecting with `options`.
     pub fn open(options: MqttOptions) -> Self {
+        let ours = options.keep_alive();
         let (client, mut connection) = Client::new(options, CLIENT_QUEUE);
         let (tx, net) = mpsc::sync_channel(1024);
         let thread = thread::Builder::new()
@@ -126,6 +148,15 @@ impl Link {
                 let ran = super::catching(|| loop {
                     match connection.recv() {
                         Ok(Ok(event)) => {
+                            // Before the next poll, whose first ping timer is already set:
+                            // it fires once, then at the keep-alive set here.
+                            if let Event::Incoming(Packet::ConnAck(ack)) = &event {
+                                let server =
+                                    ack.properties.as_ref().and_then(|p| p.server_keep_alive);
+                                if let Some(k) = keep_alive_after(server, ours) {
+                                    connection.eventloop.options.set_keep_alive(k);
+                                }
+                            }
                             if tx.send(Ok(event)).is_err() {
                                 return;
                             }
@@ -163,7 +194,7 @@ impl Link {
     }
 
     /// The keep-alive the broker asked for as it accepted the connection, if it did (rumqttc
-    /// pings at it instead of the one asked for).
+    /// pings at it instead of the one asked for; zero: off, `keep_alive_after`).
     pub fn server_keep_alive(&self) -> Option<Duration> {
         self.server_keep_alive
     }
@@ -231,10 +262,17 @@ impl Link {
                     }
                 }
                 Ok(Event::Incoming(Packet::Publish(p))) => {
+                    let properties = p.properties.as_ref();
                     return Some(NetEvent::Message {
                         topic: String::from_utf8_lossy(&p.topic).into_owned(),
                         payload: p.payload.to_vec(),
-                    })
+                        respond: Respond {
+                            topic: properties.and_then(|p| p.response_topic.clone()),
+                            correlation: properties
+                                .and_then(|p| p.correlation_data.as_ref())
+                                .map(|d| d.to_vec()),
+                        },
+                    });
                 }
                 Ok(_) => {}
             }
@@ -262,7 +300,7 @@ impl Link {
 
     /// Publishes a record (QoS 1, not retained), unless it is over the broker's limit.
     pub fn send_record(&mut self, topic: &str, seq: u64, payload: &str) -> Sent {
-        let publish = match self.fitting(topic, QoS::AtLeastOnce, payload.as_bytes()) {
+        let publish = match self.fitting(topic, QoS::AtLeastOnce, payload.as_bytes(), None) {
             Ok(p) => p,
             Err((size, max)) => {
                 // Sent as far as the order goes: done with, never waited on.
@@ -295,7 +333,24 @@ impl Link {
     /// Publishes anything else; false if the client's queue is full (one over the broker's
     /// limit is done with: not sent, `poll` tells a `TooLarge`).
     pub fn send(&mut self, topic: &str, qos: QoS, retain: bool, payload: &[u8]) -> bool {
-        let publish = match self.fitting(topic, qos, payload) {
+        self.send_with(topic, qos, retain, payload, None)
+    }
+
+    /// As `send`, with `correlation` as the publish's Correlation Data (a reply to an MQTT 5
+    /// request).
+    pub fn send_with(
+        &mut self,
+        topic: &str,
+        qos: QoS,
+        retain: bool,
+        payload: &[u8],
+        correlation: Option<&[u8]>,
+    ) -> bool {
+        let properties = correlation.map(|c| PublishProperties {
+            correlation_data: Some(c.to_vec().into()),
+            ..PublishProperties::default()
+        });
+        let publish = match self.fitting(topic, qos, payload, properties.clone()) {
             Ok(p) => p,
             Err((size, max)) => {
                 self.too_large.push_back(NetEvent::TooLarge {
@@ -307,10 +362,14 @@ impl Link {
                 return true;
             }
         };
-        let sent = self
-            .client
-            .try_publish(topic, qos, retain, publish.payload)
-            .is_ok();
+        let sent = match properties {
+            Some(p) => {
+                self.client
+                    .try_publish_with_properties(topic, qos, retain, publish.payload, p)
+            }
+            None => self.client.try_publish(topic, qos, retain, publish.payload),
+        }
+        .is_ok();
         if sent {
             self.tags.push_back(Tag {
                 record: None,
@@ -322,8 +381,14 @@ impl Link {
 
     /// The publish, if its packet (sized as rumqttc sizes it) is within the broker's limit;
     /// else its size and the limit.
-    fn fitting(&self, topic: &str, qos: QoS, payload: &[u8]) -> Result<Publish, (usize, u32)> {
-        let mut publish = Publish::new(topic, qos, payload.to_vec(), None);
+    fn fitting(
+        &self,
+        topic: &str,
+        qos: QoS,
+        payload: &[u8],
+        properties: Option<PublishProperties>,
+    ) -> Result<Publish, (usize, u32)> {
+        let mut publish = Publish::new(topic, qos, payload.to_vec(), properties);
         // Room for the packet id rumqttc gives a QoS 1 publish.
         publish.pkid = u16::from(qos != QoS::AtMostOnce);
         let size = publish.size();
@@ -360,5 +425,19 @@ impl Link {
                 let _ = t.join();
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_server_keep_alive_of_zero_is_off_and_the_client_pings_at_its_own() {
+        let ours = Duration::from_secs(10);
+        assert_eq!(keep_alive_after(Some(0), ours), Some(ours));
+        // The library heeds any other the broker gives, and its own when none.
+        assert_eq!(keep_alive_after(Some(3), ours), None);
+        assert_eq!(keep_alive_after(None, ours), None);
     }
 }

@@ -62,8 +62,20 @@ pub enum MqttError {
     #[error("mqtt: {0}")]
     Tls(#[from] tls::TlsError),
     /// The outbox cannot be opened.
-    #[error("mqtt: {0}")]
-    Outbox(#[from] outbox::OutboxError),
+    #[error("mqtt: {source}: {}", if *.chosen {
+        "rig.toml's [mqtt] outbox names it; give a directory the rig's user can write"
+    } else {
+        "the default outbox (beside the records file, else $STATE_DIRECTORY, \
+         $XDG_STATE_HOME or ~/.local/state); set [mqtt] outbox in rig.toml to a directory the \
+         rig's user can write"
+    })]
+    Outbox {
+        /// What the outbox said.
+        #[source]
+        source: outbox::OutboxError,
+        /// Whether rig.toml's `outbox` named the directory.
+        chosen: bool,
+    },
     /// The event stream has no room.
     #[error("mqtt: {0}")]
     Subscribe(#[from] TooManySubscribers),
@@ -89,6 +101,8 @@ pub struct Settings {
     keepalive: Duration,
     /// The outbox's directory.
     pub outbox_dir: PathBuf,
+    /// Whether rig.toml named it (`outbox`), for messages.
+    outbox_chosen: bool,
     outbox_max: u64,
     ha_discovery: bool,
 }
@@ -136,7 +150,8 @@ impl Settings {
             outbox_dir: config
                 .outbox
                 .clone()
-                .unwrap_or_else(|| default_outbox(records)),
+                .unwrap_or_else(|| default_outbox(records, &|name| std::env::var_os(name))),
+            outbox_chosen: config.outbox.is_some(),
             outbox_max: config.outbox_max,
             ha_discovery: config.ha_discovery,
         })
@@ -209,20 +224,39 @@ fn catching<T>(f: impl FnOnce() -> T) -> Result<T, String> {
         .map_err(|payload| crate::runtime::runner::panic_message(payload.as_ref()))
 }
 
-/// Beside the records file (`records.jsonl` → `records.outbox/`), else the user's state
-/// directory (`$XDG_STATE_HOME/rigscript/outbox`, `~/.local/state/rigscript/outbox`).
-fn default_outbox(records: Option<&Path>) -> PathBuf {
+/// Where the packaged unit keeps state when systemd gives no `$STATE_DIRECTORY`.
+const SYSTEM_STATE: &str = "/var/lib/rigscript";
+
+/// Beside the records file (`records.jsonl` → `records.outbox/`); else systemd's state
+/// directory (`$STATE_DIRECTORY/outbox`, its first if it gives several); else the user's
+/// (`$XDG_STATE_HOME/rigscript/outbox`, `~/.local/state/rigscript/outbox`); else, with no
+/// home (`DynamicUser`, `HOME=/`), `/var/lib/rigscript/outbox`. `env` reads a variable.
+fn default_outbox(
+    records: Option<&Path>,
+    env: &dyn Fn(&str) -> Option<std::ffi::OsString>,
+) -> PathBuf {
     if let Some(r) = records {
         let stem = r
             .file_stem()
             .map_or_else(|| "records".into(), |s| s.to_string_lossy().into_owned());
         return r.with_file_name(format!("{stem}.outbox"));
     }
-    let state = std::env::var_os("XDG_STATE_HOME")
+    let set = |name: &str| env(name).filter(|v| !v.is_empty());
+    if let Some(dirs) = set("STATE_DIRECTORY") {
+        let first = dirs.to_string_lossy().split(':').next().map(PathBuf::from);
+        if let Some(dir) = first.filter(|d| d.is_absolute()) {
+            return dir.join("outbox");
+        }
+    }
+    let home = set("HOME")
         .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/state")))
-        .unwrap_or_else(std::env::temp_dir);
-    state.join("rigscript").join("outbox")
+        .filter(|h| h.is_absolute() && h.parent().is_some());
+    set("XDG_STATE_HOME")
+        .map(PathBuf::from)
+        .filter(|d| d.is_absolute())
+        .or_else(|| home.map(|h| h.join(".local/state")))
+        .map_or_else(|| PathBuf::from(SYSTEM_STATE), |d| d.join("rigscript"))
+        .join("outbox")
 }
 
 /// The running client: `finish` ends it (flushing the outbox for up to `FLUSH_WAIT`).
@@ -242,8 +276,11 @@ impl Prepared {
     /// Opens the outbox of `settings` (before any device is touched: an outbox that cannot be
     /// opened stops the run from starting).
     pub fn new(settings: Settings) -> Result<Self, MqttError> {
-        let outbox =
-            outbox::Outbox::open(&settings.outbox_dir, &settings.rig, settings.outbox_max)?;
+        let outbox = outbox::Outbox::open(&settings.outbox_dir, &settings.rig, settings.outbox_max)
+            .map_err(|source| MqttError::Outbox {
+                source,
+                chosen: settings.outbox_chosen,
+            })?;
         Ok(Self { settings, outbox })
     }
 
@@ -331,6 +368,37 @@ impl Drop for MqttService {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_default_outbox_works_under_systemd_and_without_a_home() {
+        let at = |vars: &[(&str, &str)], records: Option<&str>| {
+            let vars: Vec<(String, String)> = vars
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect();
+            let env = move |name: &str| vars.iter().find(|(k, _)| k == name).map(|(_, v)| v.into());
+            default_outbox(records.map(Path::new), &env)
+                .display()
+                .to_string()
+        };
+        assert_eq!(at(&[], Some("out/r.jsonl")), "out/r.outbox");
+        let systemd = [
+            ("STATE_DIRECTORY", "/var/lib/rigscript/bench:/x"),
+            ("HOME", "/"),
+        ];
+        assert_eq!(at(&systemd, None), "/var/lib/rigscript/bench/outbox");
+        assert_eq!(
+            at(&[("HOME", "/home/ann"), ("XDG_STATE_HOME", "")], None),
+            "/home/ann/.local/state/rigscript/outbox"
+        );
+        assert_eq!(
+            at(&[("HOME", "/home/ann"), ("XDG_STATE_HOME", "/s")], None),
+            "/s/rigscript/outbox"
+        );
+        for no_home in [&[("HOME", "/")][..], &[("HOME", "")], &[]] {
+            assert_eq!(at(no_home, None), "/var/lib/rigscript/outbox");
+        }
+    }
 
     #[test]
     fn a_panic_is_caught_as_what_it_said_and_a_value_passes_through() {

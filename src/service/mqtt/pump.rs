@@ -4,7 +4,7 @@
 //! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
 
 use super::health::{Health, Loss};
-use super::link::{Link, NetEvent, Sent};
+use super::link::{Link, NetEvent, Respond, Sent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
 use super::{discovery, failure, Settings, FLUSH_WAIT};
@@ -16,7 +16,7 @@ use crate::runtime::snapshot::RigSnapshot;
 use rumqttc::v5::mqttbytes::v5::PubAckReason;
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::ConnectionError;
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 use std::sync::Arc;
@@ -27,6 +27,10 @@ pub const WINDOW: usize = 64;
 
 /// Commands waiting for the loop's answer at most; one more gets an error reply at once.
 const MAX_PENDING_COMMANDS: usize = 16;
+
+/// Replies waiting for room in the client's queue at most (a burst of refused commands
+/// makes many at once); one more is counted lost, and told.
+const MAX_REPLIES: usize = 1024;
 
 /// How long a command may wait for its handler's reply.
 const COMMAND_WAIT: Duration = Duration::from_secs(10);
@@ -67,10 +71,15 @@ pub struct Pump {
     state_due: bool,
     state_asked: Instant,
     state_sent: BTreeMap<String, String>,
+    /// Each device's state as last known: the loop's last snapshot, with the outputs written
+    /// since (the end's safe state comes after the last snapshot the loop answers).
+    state_known: BTreeMap<String, serde_json::Map<String, serde_json::Value>>,
     discovered: bool,
     watched: BTreeSet<String>,
     watched_asked: Instant,
-    commands: Vec<(String, Receiver<Reply>, Instant)>,
+    commands: Vec<(ReplyAddress, Receiver<Reply>, Instant)>,
+    /// Replies not yet taken by the client's queue, oldest first.
+    replies: VecDeque<(ReplyAddress, String)>,
     messages_this_second: (Instant, u32),
     committed: Instant,
     /// The last record sent, and whether it is still to be published as the last one.
@@ -108,10 +117,12 @@ impl Pump {
             state_due: true,
             state_asked: now - STATE_REFRESH,
             state_sent: BTreeMap::new(),
+            state_known: BTreeMap::new(),
             discovered: false,
             watched: BTreeSet::new(),
             watched_asked: now - STATE_REFRESH,
             commands: Vec::new(),
+            replies: VecDeque::new(),
             messages_this_second: (now, 0),
             committed: now,
             last_record: None,
@@ -157,6 +168,7 @@ impl Pump {
         self.refresh_state();
         self.refresh_watched();
         self.answer_commands();
+        self.send_replies();
         self.publish_last_record(false);
         if self.committed.elapsed() >= COMMIT_EVERY {
             self.commit();
@@ -213,8 +225,13 @@ impl Pump {
                     self.warn_counted("outbox-write", 1, &format!("mqtt: {e}"));
                 }
             },
+            RunEvent::Outputs { device, value, .. } => {
+                if let Some(fields) = self.state_known.get_mut(device) {
+                    written(fields, *value);
+                }
+                self.state_due = true;
+            }
             RunEvent::Inputs { .. }
-            | RunEvent::Outputs { .. }
             | RunEvent::DeviceLost { .. }
             | RunEvent::DeviceBack { .. }
             | RunEvent::ScriptStarted { .. } => self.state_due = true,
@@ -276,7 +293,11 @@ impl Pump {
                     max,
                     record,
                 } => self.on_too_large(&topic, size, max, record),
-                NetEvent::Message { topic, payload } => self.on_message(topic, payload),
+                NetEvent::Message {
+                    topic,
+                    payload,
+                    respond,
+                } => self.on_message(topic, payload, respond),
                 NetEvent::Failed(e) => {
                     self.on_failed(&e);
                     break;
@@ -293,7 +314,7 @@ impl Pump {
         self.health.connected();
         self.backoff = FIRST_RETRY;
         let waiting = self.outbox.waiting().len();
-        let again = if self.was_connected { "again" } else { "" };
+        let again = if self.was_connected { "again " } else { "" };
         self.info(&format!(
             "mqtt: connected {again}to broker {} as {} (user {}){}",
             self.s.broker,
@@ -307,7 +328,15 @@ impl Pump {
         ));
         self.was_connected = true;
         let asked = self.link.as_ref().and_then(Link::server_keep_alive);
-        if let Some(k) = asked.filter(|k| *k != self.s.keepalive) {
+        if asked == Some(Duration::ZERO) {
+            self.info(&format!(
+                "mqtt: broker {} turns keep-alive off (Server Keep Alive 0): it calls the rig \
+                 offline only when its connection closes, not when it goes silent; the rig \
+                 still pings every {} to notice a broker gone silent",
+                self.s.broker,
+                crate::time::duration::format_duration(self.s.keepalive)
+            ));
+        } else if let Some(k) = asked.filter(|k| *k != self.s.keepalive) {
             // rumqttc pings at the broker's keep-alive from now on: it says when a frozen rig
             // is called offline, not rig.toml.
             self.info(&format!(
@@ -494,15 +523,27 @@ impl Pump {
         if self.s.ha_discovery && !self.discovered {
             self.discover(&snapshot);
         }
-        let at = now_text();
         for (name, device) in &snapshot.devices {
-            let Ok(serde_json::Value::Object(mut fields)) = serde_json::to_value(device) else {
-                continue;
-            };
+            if let Ok(serde_json::Value::Object(fields)) = serde_json::to_value(device) {
+                self.state_known.insert(name.clone(), fields);
+            }
+        }
+        if !self.publish_state() {
+            self.state_due = true;
+        }
+    }
+
+    /// Publishes (retained) each device's known state that differs from the one published;
+    /// false if the client's queue had no room for one.
+    fn publish_state(&mut self) -> bool {
+        let at = now_text();
+        let mut all = true;
+        for (name, fields) in &self.state_known {
             let plain = serde_json::Value::Object(fields.clone()).to_string();
             if self.state_sent.get(name) == Some(&plain) {
                 continue;
             }
+            let mut fields = fields.clone();
             fields.insert("at".into(), at.clone().into());
             let payload = serde_json::Value::Object(fields).to_string();
             let topic = self.s.topics.state(name);
@@ -510,10 +551,11 @@ impl Pump {
                 if l.send(&topic, QoS::AtLeastOnce, true, payload.as_bytes()) {
                     self.state_sent.insert(name.clone(), plain);
                 } else {
-                    self.state_due = true;
+                    all = false;
                 }
             }
         }
+        all
     }
 
     /// Home Assistant's discovery configs, once a connection.
@@ -567,9 +609,10 @@ impl Pump {
     }
 
     /// An inbound message: a command for the loop, or a watched topic's.
-    fn on_message(&mut self, topic: String, payload: Vec<u8>) {
+    fn on_message(&mut self, topic: String, payload: Vec<u8>, respond: Respond) {
         if let Some(name) = self.s.topics.command_name(&topic).map(str::to_string) {
-            return self.on_command(name, payload);
+            let to = ReplyAddress::of(&self.s.topics, &name, respond);
+            return self.on_command(name, payload, to);
         }
         if topic.ends_with("/reply")
             && self
@@ -607,7 +650,7 @@ impl Pump {
         }
     }
 
-    fn on_command(&mut self, name: String, payload: Vec<u8>) {
+    fn on_command(&mut self, name: String, payload: Vec<u8>, to: ReplyAddress) {
         let refuse = |why: String| Err(why);
         let reply = if payload.len() > MAX_PAYLOAD {
             refuse(format!(
@@ -623,7 +666,7 @@ impl Pump {
         } else {
             let (tx, rx) = mpsc::sync_channel(1);
             let command = Command {
-                name: name.clone(),
+                name,
                 payload: String::from_utf8_lossy(&payload).into_owned(),
                 reply: ReplyTo(tx),
             };
@@ -632,8 +675,7 @@ impl Pump {
                 .ask(Request::Remote(Remote::Command(command)), Duration::ZERO)
             {
                 Ok(_) | Err(AskError::NoAnswer(_)) => {
-                    self.commands
-                        .push((name, rx, Instant::now() + COMMAND_WAIT));
+                    self.commands.push((to, rx, Instant::now() + COMMAND_WAIT));
                     return;
                 }
                 Err(e) => refuse(e.to_string()),
@@ -642,21 +684,21 @@ impl Pump {
         if reply.is_err() {
             self.health.lost(Loss::Command);
         }
-        self.reply(&name, reply);
+        self.reply(to, reply);
     }
 
     /// Publishes the replies the loop gave, and the error of those it did not give in time.
     fn answer_commands(&mut self) {
         let mut done = Vec::new();
-        for (n, (name, rx, until)) in self.commands.iter().enumerate() {
+        for (n, (to, rx, until)) in self.commands.iter().enumerate() {
             match rx.try_recv() {
-                Ok(reply) => done.push((n, name.clone(), reply)),
+                Ok(reply) => done.push((n, to.clone(), reply)),
                 Err(TryRecvError::Disconnected) => {
-                    done.push((n, name.clone(), Err("the run has ended".into())))
+                    done.push((n, to.clone(), Err("the run has ended".into())))
                 }
                 Err(TryRecvError::Empty) if Instant::now() >= *until => done.push((
                     n,
-                    name.clone(),
+                    to.clone(),
                     Err(format!(
                         "no reply within {}",
                         crate::time::duration::format_duration(COMMAND_WAIT)
@@ -665,20 +707,58 @@ impl Pump {
                 Err(TryRecvError::Empty) => {}
             }
         }
-        for (n, name, reply) in done.into_iter().rev() {
-            self.commands.remove(n);
-            self.reply(&name, reply);
+        for (n, _, _) in done.iter().rev() {
+            self.commands.remove(*n);
+        }
+        // In the order they were asked.
+        for (_, to, reply) in done {
+            self.reply(to, reply);
         }
     }
 
-    fn reply(&mut self, name: &str, reply: Reply) {
+    /// Queues `reply` for `to`; with the queue at its bound it is counted lost and told
+    /// (never silently none).
+    fn reply(&mut self, to: ReplyAddress, reply: Reply) {
         let value = reply.and_then(|text| {
             serde_json::from_str::<serde_json::Value>(&text).map_err(|e| e.to_string())
         });
-        let payload = reply_payload(&value);
-        let topic = self.s.topics.reply(name);
-        if let Some(l) = self.link.as_mut() {
-            l.send(&topic, QoS::AtLeastOnce, false, payload.as_bytes());
+        if self.replies.len() >= MAX_REPLIES {
+            self.health.lost(Loss::Reply);
+            let what = if value.is_ok() {
+                "a reply"
+            } else {
+                "an error reply"
+            };
+            self.warn_counted(
+                "replies",
+                1,
+                &format!(
+                    "mqtt: {what} on {} not sent: {MAX_REPLIES} replies wait for broker {}                      already (counted as replies)",
+                    to.topic, self.s.broker
+                ),
+            );
+            return;
+        }
+        self.replies.push_back((to, reply_payload(&value)));
+    }
+
+    /// Hands the waiting replies to the client, oldest first, as far as its queue takes them.
+    fn send_replies(&mut self) {
+        let Some(l) = self.link.as_mut().filter(|l| l.connected()) else {
+            return;
+        };
+        while let Some((to, payload)) = self.replies.front() {
+            let sent = l.send_with(
+                &to.topic,
+                QoS::AtLeastOnce,
+                false,
+                payload.as_bytes(),
+                to.correlation.as_deref(),
+            );
+            if !sent {
+                break;
+            }
+            self.replies.pop_front();
         }
     }
 
@@ -694,7 +774,9 @@ impl Pump {
     /// status `offline`; what is left waits in the outbox for the next start.
     fn flush(&mut self) {
         let until = Instant::now() + FLUSH_WAIT;
-        while Instant::now() < until && !self.outbox.waiting().is_empty() {
+        while Instant::now() < until
+            && !(self.outbox.waiting().is_empty() && self.replies.is_empty())
+        {
             // Records told as the run ended are still in the stream.
             self.take_events(Duration::ZERO);
             self.turn();
@@ -702,8 +784,20 @@ impl Pump {
         }
         self.take_events(Duration::ZERO);
         self.commit();
-        for (name, _, _) in std::mem::take(&mut self.commands) {
-            self.reply(&name, Err("the run has ended".into()));
+        for (to, _, _) in std::mem::take(&mut self.commands) {
+            self.reply(to, Err("the run has ended".into()));
+        }
+        self.send_replies();
+        let unsent = self.replies.len();
+        if unsent > 0 {
+            for _ in 0..unsent {
+                self.health.lost(Loss::Reply);
+            }
+            self.replies.clear();
+            self.warn(&format!(
+                "mqtt: {unsent} command replies not sent: broker {} did not take them before                  the end",
+                self.s.broker
+            ));
         }
         let left = self.outbox.waiting().len();
         if left > 0 {
@@ -720,6 +814,7 @@ impl Pump {
             (dropped.messages, "watched-topic messages dropped"),
             (dropped.commands, "commands refused"),
             (dropped.publishes, "mqtt_publish messages dropped"),
+            (dropped.replies, "command replies not sent"),
             (dropped.refused, "publishes the broker refused"),
             (
                 dropped.too_large,
@@ -737,6 +832,14 @@ impl Pump {
             }
         }
         self.publish_last_record(true);
+        // The outputs the end left (its safe state) before `offline`: a dashboard must not
+        // show the outputs the run last drove as the rig's state once it is gone.
+        if self.link.as_ref().is_some_and(Link::connected) && !self.publish_state() {
+            self.warn(&format!(
+                "mqtt: the end's state not published to broker {}: the client's queue was full                  (its retained state may show the outputs before the end)",
+                self.s.broker
+            ));
+        }
         if let Some(mut l) = self.link.take() {
             if l.connected() {
                 let status = self.s.topics.status();
@@ -786,6 +889,37 @@ impl Pump {
     }
 }
 
+/// Where a command's reply goes: the Response Topic its sender named (MQTT 5), with its
+/// Correlation Data, else the rig's fixed reply topic (`{prefix}/cmd/NAME/reply`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct ReplyAddress {
+    topic: String,
+    correlation: Option<Vec<u8>>,
+}
+
+impl ReplyAddress {
+    /// The address for command `name` asked with `respond`. A Response Topic one could not
+    /// publish to, or one under the rig's own prefix (a sender must not have the rig speak on
+    /// its status, state or records topics), gives the fixed topic; the data goes along.
+    fn of(topics: &topics::Topics, name: &str, respond: Respond) -> Self {
+        let fixed = topics.reply(name);
+        let own = |t: &str| {
+            t.strip_prefix(topics.prefix())
+                .is_some_and(|rest| rest.is_empty() || rest.starts_with('/'))
+        };
+        let topic = respond
+            .topic
+            .filter(|t| {
+                topics::check_topic(t).is_ok() && !t.starts_with('$') && (*t == fixed || !own(t))
+            })
+            .unwrap_or(fixed);
+        Self {
+            topic,
+            correlation: respond.correlation,
+        }
+    }
+}
+
 /// Tells `message` at `level` through the loop's log (`Remote::Log`) if `loop_runs`, else (or
 /// when the loop is gone or its queue full) to standard error; false once the loop is gone.
 pub(super) fn tell(ask: &Requester, loop_runs: bool, level: Level, message: &str) -> bool {
@@ -808,6 +942,19 @@ pub(super) fn tell(ask: &Requester, loop_runs: bool, level: Level, message: &str
     };
     let _ = std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("{prefix}{message}\n"));
     !gone
+}
+
+/// A device's state (`DeviceState` as JSON) after its outputs were written `value`: the DO
+/// byte of a TRP-C29U, the relay of a TRC1000.
+fn written(fields: &mut serde_json::Map<String, serde_json::Value>, value: u8) {
+    let keys = match fields.get("kind").and_then(serde_json::Value::as_str) {
+        Some("trp-c29u") => ["outputs", "outputs_written"],
+        Some("trc1000") => ["relay", "relay_written"],
+        _ => return,
+    };
+    for key in keys {
+        fields.insert(key.into(), value.into());
+    }
 }
 
 /// Wall time now, local, RFC 3339 with milliseconds.
