@@ -691,6 +691,18 @@ fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
     let _good = run_rig(&dir, "good", &tls("good", "good"), script);
     broker.retained_until("rigscript/good/status", |m| m == "online");
     let _wrong = run_rig(&dir, "wrong", &tls("wrong", "wrong"), script);
+    // mqtts:// to the plain listener: the peer does not speak TLS, whatever the CA.
+    let plain = tls("plain", "good").replace(
+        &format!(":{}\"", broker.tls_port),
+        &format!(":{}\"", broker.port),
+    );
+    let _plain = run_rig(&dir, "plain", &plain, script);
+    let log = log_with(&dir, "plain", "TLS to broker");
+    assert!(
+        log.contains("the peer did not speak TLS (is the port a plain MQTT port?")
+            && !log.contains("ca_file"),
+        "{log}"
+    );
     let log = log_with(&dir, "wrong", "TLS to broker");
     assert!(
         log.contains(&format!(
@@ -1313,5 +1325,361 @@ fn a_broker_asking_for_a_shorter_keep_alive_is_heeded_and_told_and_calls_a_froze
         log.matches("as rigscript-maxka ").count(),
         1,
         "one connection until it froze: {log}"
+    );
+}
+
+/// The reply payloads on `topic` in a `mosquitto_sub -v` file, as JSON.
+fn replies_on(file: &Path, topic: &str) -> Vec<Value> {
+    let prefix = format!("{topic} ");
+    lines(file)
+        .iter()
+        .filter_map(|l| l.strip_prefix(&prefix))
+        .filter_map(|p| serde_json::from_str(p).ok())
+        .collect()
+}
+
+#[test]
+fn every_command_of_a_flood_gets_a_reply_and_an_mqtt5_request_gets_it_where_it_asked_with_its_data()
+{
+    require_tool("mosquitto_rr", "mosquitto-clients");
+    let broker = Broker::start("mqtt-replies");
+    let dir = TempDir::new("mqtt-replies-run");
+    let script = "let calls = 0;\n\
+                  on_command(\"arm\", |p| { calls += 1; #{ calls: calls, n: p.n } });\n";
+    let _rig = run_rig(&dir, "rr", &broker.mqtt_table("rr", "10s"), script);
+    broker.retained_until("rigscript/rr/status", |m| m == "online");
+    let fixed = "rigscript/rr/cmd/arm/reply";
+    let replies = dir.path("replies.sub");
+    let _sub = broker.subscribe("viewer", fixed, &replies, Some("replies-sub"));
+    broker.wait_subscribed("replies-sub");
+    // What arrives on the requester's own topic, with its Correlation Data (%D).
+    let theirs = dir.path("theirs.sub");
+    let _theirs = Proc(
+        Command::new("mosquitto_sub")
+            .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
+            .args([
+                "-u",
+                "viewer",
+                "-P",
+                "viewer-pw",
+                "-i",
+                "theirs-sub",
+                "-V",
+                "5",
+            ])
+            .args(["-t", "rigscript/lab-ops/#", "-q", "1", "-F", "%t %D %p"])
+            .stdout(File::create(&theirs).unwrap())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start mosquitto_sub"),
+    );
+    broker.wait_subscribed("theirs-sub");
+
+    // MQTT 5's request/response: mosquitto_rr names a Response Topic and waits there.
+    let rr = Command::new("mosquitto_rr")
+        .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
+        .args(["-u", "ops", "-P", "ops-pw", "-t", "rigscript/rr/cmd/arm"])
+        .args([
+            "-e",
+            "rigscript/lab-ops/replies",
+            "-m",
+            "{\"n\":7}",
+            "-W",
+            "10",
+        ])
+        .args(["-D", "publish", "correlation-data", "req-42"])
+        .output()
+        .expect("run mosquitto_rr");
+    let answer = String::from_utf8_lossy(&rr.stdout);
+    assert!(rr.status.success(), "mosquitto_rr: {answer} {rr:?}");
+    let answer: Value = serde_json::from_str(answer.trim()).unwrap();
+    assert_eq!(
+        answer,
+        serde_json::json!({"ok": true, "value": {"calls": 1, "n": 7}})
+    );
+    let seen = until(Duration::from_secs(10), || lines(&theirs).first().cloned())
+        .expect("the reply on the response topic");
+    assert!(
+        seen.starts_with("rigscript/lab-ops/replies req-42 {"),
+        "the reply carries the request's Correlation Data: {seen}"
+    );
+    // A Response Topic under the rig's own topics is not spoken on: the fixed topic, as for
+    // an MQTT 3 client.
+    run_ok(
+        Command::new("mosquitto_pub")
+            .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
+            .args(["-u", "ops", "-P", "ops-pw", "-t", "rigscript/rr/cmd/arm"])
+            .args(["-m", "{\"n\":8}", "-q", "1"])
+            .args(["-D", "publish", "response-topic", "rigscript/rr/status"])
+            .args(["-D", "publish", "correlation-data", "c-8"]),
+    );
+    until(Duration::from_secs(10), || {
+        replies_on(&replies, fixed)
+            .iter()
+            .any(|r| r["value"]["n"] == 8)
+            .then_some(())
+    })
+    .unwrap_or_else(|| panic!("no reply on {fixed}: {:?}", lines(&replies)));
+    assert_eq!(
+        broker.retained("rigscript/rr/status").as_deref(),
+        Some("online")
+    );
+
+    // A flood: 600 commands at once, far more than the rig takes (16 wait at most) and more
+    // than the client's queue holds. Each gets a reply: its handler's, or an error.
+    let flood: String = (0..600)
+        .map(|n| format!("{{\"n\":{}}}\n", 100 + n))
+        .collect();
+    let mut publisher = Command::new("mosquitto_pub")
+        .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
+        .args(["-u", "ops", "-P", "ops-pw", "-t", "rigscript/rr/cmd/arm"])
+        .args(["-q", "1", "-l"])
+        .stdin(Stdio::piped())
+        .spawn()
+        .expect("start mosquitto_pub");
+    std::io::Write::write_all(&mut publisher.stdin.take().unwrap(), flood.as_bytes()).unwrap();
+    assert!(publisher.wait().unwrap().success());
+    let flooded = |all: &[Value]| {
+        all.iter()
+            .filter(|r| r["value"]["n"].as_u64().is_some_and(|n| n >= 100) || r["ok"] == false)
+            .count()
+    };
+    until(Duration::from_secs(60), || {
+        (flooded(&replies_on(&replies, fixed)) >= 600).then_some(())
+    })
+    .unwrap_or_else(|| {
+        panic!(
+            "{} replies of 600: {:?}",
+            flooded(&replies_on(&replies, fixed)),
+            mqtt_status(&dir, "rr")
+        )
+    });
+    std::thread::sleep(Duration::from_millis(500));
+    let all = replies_on(&replies, fixed);
+    assert_eq!(flooded(&all), 600, "one reply a command, none twice");
+    // Every command the handler ran (its count) has its reply: 1 (mosquitto_rr's), 2, and
+    // the flood's from 3 on, none missing.
+    let mut ran: Vec<u64> = all
+        .iter()
+        .filter_map(|r| r["value"]["calls"].as_u64())
+        .collect();
+    ran.sort_unstable();
+    let expected: Vec<u64> = (2..=ran.last().copied().unwrap_or(0)).collect();
+    assert_eq!(ran, expected, "a reply for each command the rig ran");
+    assert!(ran.len() > 2, "some of the flood ran: {ran:?}");
+    for r in all.iter().filter(|r| r["ok"] == false) {
+        assert!(
+            r["error"]
+                .as_str()
+                .unwrap()
+                .contains("commands wait for the rig already"),
+            "{r}"
+        );
+    }
+    let m = mqtt_status(&dir, "rr").unwrap();
+    assert_eq!(m["dropped"]["replies"], 0, "{m}");
+    assert_eq!(
+        m["dropped"]["commands"].as_u64().unwrap() as usize,
+        all.iter().filter(|r| r["ok"] == false).count(),
+        "{m}"
+    );
+}
+
+#[test]
+fn the_ends_safe_outputs_are_the_retained_state_before_the_status_goes_offline() {
+    let broker = Broker::start("mqtt-end");
+    let dir = TempDir::new("mqtt-end-run");
+    let script = "io.outputs = 0x02;\nevery(\"100ms\", || {});\n";
+    let mut rig = run_rig(&dir, "end", &broker.mqtt_table("end", "10s"), script);
+    let state = |m: &str| serde_json::from_str::<Value>(m).unwrap_or(Value::Null);
+    broker.retained_until("rigscript/end/state/io", |m| state(m)["outputs"] == 2);
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    broker.retained_until("rigscript/end/status", |m| m == "offline");
+    let io = state(&broker.retained("rigscript/end/state/io").unwrap());
+    assert_eq!(io["outputs"], 0, "the end wrote the safe value 0x00: {io}");
+    assert_eq!(io["outputs_written"], 0, "{io}");
+    let lab = broker.lab();
+    let end = lab_rig(&lab, "end");
+    assert_eq!(end["status"], "offline", "{lab}");
+    assert_eq!(end["devices"]["io"]["outputs"], 0, "{lab}");
+}
+
+#[test]
+fn an_mqtt_rig_without_a_home_keeps_its_outbox_in_the_state_directory_or_names_the_key() {
+    let broker = Broker::start("mqtt-home");
+    let dir = TempDir::new("mqtt-home-run");
+    // systemd's DynamicUser: no home to write in (here a file, so nothing can be made under
+    // it), the unit's StateDirectory= given as $STATE_DIRECTORY.
+    let not_a_home = dir.file("not-a-home", "");
+    let state = dir.path("state");
+    std::fs::create_dir(&state).unwrap();
+    let config = |outbox: &str| {
+        dir.file(
+            "home.toml",
+            &format!(
+                "name = \"home\"\n[mqtt]\nurl = \"mqtt://127.0.0.1:{}\"\nrig = \"home\"\n\
+                 username = \"rig\"\npassword_env = \"TEST_MQTT_PW\"\n{outbox}\n\
+                 [devices.io]\nkind = \"trp-c29u\"\nsim = true\n",
+                broker.port
+            ),
+        )
+    };
+    let script = dir.file("home.rhai", "every(\"100ms\", || record(\"n\", 1));\n");
+    let start = |config: &str, state: &Path| {
+        Command::new(rigscript())
+            .args(["run", "--config", config, &script])
+            .env("XDG_RUNTIME_DIR", &dir.0)
+            .env_remove("RUNTIME_DIRECTORY")
+            .env_remove("XDG_STATE_HOME")
+            .env("HOME", &not_a_home)
+            .env("STATE_DIRECTORY", state)
+            .env("TEST_MQTT_PW", "rig-pw")
+            .stdout(Stdio::null())
+            .stderr(File::create(dir.path("home.log")).unwrap())
+            .spawn()
+            .expect("start rigscript run")
+    };
+    let mut rig = Proc(start(&config(""), &state));
+    broker.retained_until("rigscript/home/status", |m| m == "online");
+    assert!(
+        state.join("outbox/home.records").exists(),
+        "the outbox in $STATE_DIRECTORY: {}",
+        std::fs::read_to_string(dir.path("home.log")).unwrap_or_default()
+    );
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+    // Nowhere to write: a clear error naming the key that sets the place.
+    let nowhere = Path::new(&not_a_home).join("state");
+    for (outbox, says) in [
+        ("", "set [mqtt] outbox in rig.toml"),
+        (
+            "outbox = \"/dev/null/outbox\"",
+            "rig.toml's [mqtt] outbox names it",
+        ),
+    ] {
+        let mut rig = Proc(start(&config(outbox), &nowhere));
+        assert_eq!(rig.wait_end(), Some(2));
+        let log = std::fs::read_to_string(dir.path("home.log")).unwrap();
+        assert!(log.contains("mqtt: outbox ") && log.contains(says), "{log}");
+    }
+}
+
+/// A broker of the test's own that accepts every connection with a CONNACK saying Server
+/// Keep Alive 0 and answers pings; the connections and pings it saw.
+fn keep_alive_off_broker() -> (u16, std::sync::Arc<[std::sync::atomic::AtomicU64; 2]>) {
+    use std::io::{Read, Write};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let seen = std::sync::Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+    let counts = std::sync::Arc::clone(&seen);
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(mut s) = stream else { return };
+            counts[0].fetch_add(1, Ordering::SeqCst);
+            let counts = std::sync::Arc::clone(&counts);
+            std::thread::spawn(move || loop {
+                let mut header = [0u8; 1];
+                if s.read_exact(&mut header).is_err() {
+                    return;
+                }
+                let (mut length, mut shift) = (0usize, 0);
+                loop {
+                    let mut b = [0u8; 1];
+                    if s.read_exact(&mut b).is_err() {
+                        return;
+                    }
+                    length |= usize::from(b[0] & 0x7f) << shift;
+                    shift += 7;
+                    if b[0] & 0x80 == 0 {
+                        break;
+                    }
+                }
+                let mut body = vec![0u8; length];
+                if s.read_exact(&mut body).is_err() {
+                    return;
+                }
+                let answer: &[u8] = match header[0] >> 4 {
+                    // CONNACK: session not present, success, properties: Server Keep Alive 0.
+                    1 => &[0x20, 0x06, 0x00, 0x00, 0x03, 0x13, 0x00, 0x00],
+                    12 => {
+                        counts[1].fetch_add(1, Ordering::SeqCst);
+                        &[0xd0, 0x00]
+                    }
+                    _ => &[],
+                };
+                if s.write_all(answer).is_err() {
+                    return;
+                }
+            });
+        }
+    });
+    (port, seen)
+}
+
+#[test]
+fn a_server_keep_alive_of_zero_is_taken_as_off_not_as_a_ping_at_every_turn() {
+    use std::sync::atomic::Ordering;
+    let (port, seen) = keep_alive_off_broker();
+    let dir = TempDir::new("mqtt-ka0-run");
+    let mqtt = format!(
+        "[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\nrig = \"ka0\"\nkeepalive = \"5s\"\n\
+         outbox = \"{}\"\n",
+        dir.path("outbox").display()
+    );
+    let mut rig = run_rig(&dir, "ka0", &mqtt, "every(\"100ms\", || {});\n");
+    let log = log_with(&dir, "ka0", "turns keep-alive off");
+    assert!(
+        log.contains(&format!(
+            "mqtt: broker 127.0.0.1:{port} turns keep-alive off (Server Keep Alive 0)"
+        )),
+        "{log}"
+    );
+    std::thread::sleep(Duration::from_secs(5));
+    let log = std::fs::read_to_string(dir.path("ka0.log")).unwrap();
+    assert_eq!(
+        seen[0].load(Ordering::SeqCst),
+        1,
+        "one connection, kept: {log}"
+    );
+    // Its own keep-alive, 2 s: a ping or two in 5 s (one more as it connects), not one a turn.
+    let pings = seen[1].load(Ordering::SeqCst);
+    assert!((1..=5).contains(&pings), "{pings} pings: {log}");
+    rig.signal(libc::SIGTERM);
+    assert_eq!(rig.wait_end(), Some(143));
+}
+
+#[test]
+fn lab_writes_out_the_control_characters_of_a_retained_status() {
+    let broker = Broker::start("mqtt-lab-esc");
+    let payload = broker.dir.path("evil");
+    // Clear the screen, set the terminal's title, ring the bell, a C1 CSI.
+    std::fs::write(&payload, "online\x1b[2J\x1b]0;pwned\x07\u{9b}31m").unwrap();
+    broker.publish_file(
+        "rig",
+        "rigscript/evil/status",
+        payload.to_str().unwrap(),
+        true,
+    );
+    let out = Command::new(rigscript())
+        .args([
+            "lab",
+            "--broker",
+            &format!("mqtt://127.0.0.1:{}", broker.port),
+        ])
+        .args(["--username", "viewer", "--password-env", "TEST_MQTT_PW"])
+        .env("TEST_MQTT_PW", "viewer-pw")
+        .output()
+        .expect("run rigscript lab");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        !text.chars().any(|c| c.is_control() && c != '\n'),
+        "{text:?}"
+    );
+    assert!(
+        text.contains("online\\x1b[2J\\x1b]0;pwned\\x07\\u{9b}31m"),
+        "{text}"
     );
 }

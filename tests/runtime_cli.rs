@@ -661,6 +661,40 @@ fn a_full_disk_for_the_records_is_told_once_with_the_count_and_the_run_ends_5() 
 }
 
 #[test]
+fn records_the_disk_refuses_are_counted_in_status_while_the_run_goes_on() {
+    // /dev/full refuses every write with ENOSPC, as a full disk does.
+    let d = Dir::new("records-full-live");
+    let s = d.file("lossy.rhai", "every(\"50ms\", || record(\"n\", 1));\n");
+    let mut rig = Command::new(rigscript())
+        .args(["run", "--sim", "--records", "/dev/full", &s])
+        .env("XDG_RUNTIME_DIR", &d.0)
+        .env_remove("RUNTIME_DIRECTORY")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let lost = |at_least: u64| {
+        common::until(std::time::Duration::from_secs(10), || {
+            let o = Command::new(rigscript())
+                .args(["status", "lossy", "--json"])
+                .env("XDG_RUNTIME_DIR", &d.0)
+                .env_remove("RUNTIME_DIRECTORY")
+                .output()
+                .ok()?;
+            let v: serde_json::Value = serde_json::from_slice(&o.stdout).ok()?;
+            let n = v["records_lost"].as_u64()?;
+            (n >= at_least).then_some(n)
+        })
+    };
+    let first = lost(3).expect("records_lost counted while the run goes on");
+    let later = lost(first + 3).expect("and it goes on counting");
+    assert!(later > first);
+    // SAFETY: a plain kill(2) on our own child.
+    unsafe { libc::kill(rig.id() as i32, libc::SIGTERM) };
+    let _ = rig.wait();
+}
+
+#[test]
 fn quiet_leaves_the_script_s_messages_warnings_errors_and_the_safe_state_only() {
     let d = Dir::new("quiet");
     let s = d.file(

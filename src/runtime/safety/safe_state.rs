@@ -6,6 +6,7 @@
 use super::confirm::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed};
 use crate::device::cancel::Cancel;
 use crate::runtime::devices::Device;
+use crate::runtime::observe::RunEvent;
 use crate::runtime::state::Runtime;
 use crate::time::duration::format_duration;
 use std::time::Duration;
@@ -112,6 +113,17 @@ impl<H: Clone> Runtime<H> {
                     if let Some(d) = self.devices.get_mut(idx) {
                         d.health_mut().back();
                     }
+                    // Told as any write is: the run's last word on its outputs (the MQTT
+                    // client's retained state, the web page) is the safe state, not what the
+                    // script drove last.
+                    let value = match *reading {
+                        SafeReading::Outputs(v) | SafeReading::Relay(v) => v,
+                    };
+                    self.events.publish(|| RunEvent::Outputs {
+                        device: name.clone(),
+                        value,
+                        cause: format!("safe state ({why})"),
+                    });
                     if release {
                         watchdog_released = self.release_watchdog(idx);
                     }
