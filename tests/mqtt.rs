@@ -10,7 +10,12 @@
 //! connection after a second, a wrong password; a cancelled handler's filter is unsubscribed.
 //! A panic in the client's thread (made real: no file left to open) is an error in the log and
 //! in `status`, and the rig runs on; a record over the broker's packet size is counted and the
-//! rest arrive; a broker's shorter keep-alive is heeded and told.
+//! rest arrive; a broker's shorter keep-alive is heeded and told, and a broker of the test's
+//! own saying Server Keep Alive 0 keeps one connection. Every command of a flood gets a reply
+//! and `mosquitto_rr` gets its reply on its Response Topic with its Correlation Data; the
+//! end's safe outputs are the retained state before `offline`; the outbox goes to
+//! `$STATE_DIRECTORY` without a home, and where it cannot be written the error names the key;
+//! `lab` writes a retained ESC out; TLS to the plain port says the peer did not speak TLS.
 
 mod common;
 
@@ -1087,6 +1092,13 @@ fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order
     cutting.store(false, Ordering::SeqCst);
     let records = dir.path("cut.jsonl");
     stop_and_check_delivery(&mut rig, &records, &got, Duration::from_secs(30));
+    let log = std::fs::read_to_string(dir.path("cut.log")).unwrap();
+    assert!(
+        log.contains(&format!(
+            "mqtt: connected again to broker 127.0.0.1:{port} as cut"
+        )),
+        "{log}"
+    );
 }
 
 #[test]
