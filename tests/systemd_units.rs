@@ -140,6 +140,10 @@ fn the_interlock_unit_restarts_only_where_a_restart_can_help() {
         .collect();
     assert_eq!(success, [130, 143]);
     assert!(value(&u, "Service", "WatchdogSec").ends_with('s'));
+    // DynamicUser has no home: the MQTT outbox's default is $STATE_DIRECTORY, which
+    // StateDirectory= gives (else a rig with [mqtt] and no records file could not start).
+    assert_eq!(value(&u, "Service", "DynamicUser"), "yes");
+    assert_eq!(value(&u, "Service", "StateDirectory"), "rigscript/%i");
     let check = parse_unit("rigscript-check@.service");
     assert_eq!(value(&check, "Service", "Type"), "oneshot");
     assert!(
