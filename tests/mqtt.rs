@@ -1437,15 +1437,16 @@ fn every_command_of_a_flood_gets_a_reply_and_an_mqtt5_request_gets_it_where_it_a
         Some("online")
     );
 
-    // A flood: 600 commands at once, far more than the rig takes (16 wait at most) and more
-    // than the client's queue holds. Each gets a reply: its handler's, or an error.
+    // A flood: 600 commands at once (QoS 0: no acknowledgement paces them), far more than the
+    // rig takes (16 wait at most) and more than the client's queue holds. Each gets a reply:
+    // its handler's, or an error.
     let flood: String = (0..600)
         .map(|n| format!("{{\"n\":{}}}\n", 100 + n))
         .collect();
     let mut publisher = Command::new("mosquitto_pub")
         .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
         .args(["-u", "ops", "-P", "ops-pw", "-t", "rigscript/rr/cmd/arm"])
-        .args(["-q", "1", "-l"])
+        .args(["-q", "0", "-l"])
         .stdin(Stdio::piped())
         .spawn()
         .expect("start mosquitto_pub");
