@@ -1,8 +1,13 @@
 //! Connections served off the scan loop, the one way the control socket and the web page both
 //! serve theirs: an accept thread that looks whether serving is over every `ACCEPT_SLICE`, a
-//! thread per client up to a bound (the next one is told so by the service and let go), each
-//! connection's reads ended when serving stops, and a bounded wait for the clients at the end:
-//! the end of a run never waits on a client.
+//! thread per client up to a bound, each connection's reads ended when serving stops, and a
+//! bounded wait for the clients at the end: the end of a run never waits on a client.
+//!
+//! A place is never held against a newcomer by a client that only waits: a client says when
+//! it waits for its peer's request (`Place::waiting`); when every place is taken, the one
+//! that has waited longest is let go for the newcomer, so a client trickling its request, or
+//! a crowd of them, cannot keep the rig's owner out. Only when every place is busy answering
+//! or streaming is the newcomer told so by the service and let go.
 
 use crate::sync::lock;
 use std::collections::HashMap;
@@ -94,11 +99,37 @@ impl Closing {
     }
 }
 
+/// A client's place, as its thread sees it.
+pub struct Place {
+    closing: Arc<Closing>,
+    waiting: Arc<AtomicBool>,
+}
+
+impl Place {
+    /// Whether serving is over.
+    pub fn closing(&self) -> &Closing {
+        &self.closing
+    }
+
+    /// Says whether the client is waiting for its peer (a request not read whole yet, an idle
+    /// connection): a waiting client may be let go for a newcomer when every place is taken.
+    pub fn waiting(&self, waiting: bool) {
+        self.waiting.store(waiting, Ordering::SeqCst);
+    }
+}
+
+/// A connection being served, as the accept thread keeps it.
+struct Open<S> {
+    stream: S,
+    waiting: Arc<AtomicBool>,
+}
+
 struct State<S> {
     closing: Arc<Closing>,
     clients: AtomicUsize,
-    /// The clients' connections by number, to end their reads when serving stops.
-    open: Mutex<HashMap<u64, S>>,
+    /// The clients' connections by number (the order they came in), to let the longest
+    /// waiting go for a newcomer and to end their reads when serving stops.
+    open: Mutex<HashMap<u64, Open<S>>>,
 }
 
 /// Connections being served; dropping it stops serving (see the module doc).
@@ -109,14 +140,16 @@ pub struct Serving {
 }
 
 /// Serves `listener` from now on: each client on a thread of its own, given to `client` with
-/// `closing`, the flag that says serving is over (set when `Serving` is dropped); one past
-/// `bounds.clients` is given to `refuse` (a short answer that says so) and let go.
+/// its `Place` (waiting until it says otherwise; `closing`, the flag that says serving is
+/// over, set when `Serving` is dropped). One past `bounds.clients` takes the place of the
+/// client that has waited longest, or, when none waits, is given to `refuse` (a short answer
+/// that says so) and let go.
 pub fn serve<L: Listening>(
     listener: L,
     bounds: Bounds,
     closing: Arc<Closing>,
     refuse: impl Fn(&mut L::Stream) + Send + 'static,
-    client: impl Fn(L::Stream, &Closing) + Send + Sync + 'static,
+    client: impl Fn(L::Stream, &Place) + Send + Sync + 'static,
 ) -> Serving {
     let state = Arc::new(State {
         closing: Arc::clone(&closing),
@@ -132,8 +165,8 @@ pub fn serve<L: Listening>(
     let ending = Arc::clone(&state);
     // Ends the clients' reads; true while some are still being served.
     let end = Box::new(move || {
-        for s in lock(&ending.open).values() {
-            s.end_reads();
+        for o in lock(&ending.open).values() {
+            o.stream.end_reads();
         }
         ending.clients.load(Ordering::SeqCst) > 0
     });
@@ -175,12 +208,29 @@ fn connection_waiting(fd: RawFd) -> bool {
     ready > 0 && poll.revents & libc::POLLIN != 0
 }
 
+/// Lets the client that has waited longest go (its reads end): true if one was waiting.
+fn let_go_longest<S: Connection>(state: &State<S>) -> bool {
+    let mut open = lock(&state.open);
+    let longest = open
+        .iter()
+        .filter(|(_, o)| o.waiting.load(Ordering::SeqCst))
+        .map(|(n, _)| *n)
+        .min();
+    match longest.and_then(|n| open.remove(&n)) {
+        Some(o) => {
+            o.stream.end_reads();
+            true
+        }
+        None => false,
+    }
+}
+
 fn accept_loop<L: Listening>(
     listener: &L,
     bounds: Bounds,
     state: &Arc<State<L::Stream>>,
     refuse: &impl Fn(&mut L::Stream),
-    client: &Arc<impl Fn(L::Stream, &Closing) + Send + Sync + 'static>,
+    client: &Arc<impl Fn(L::Stream, &Place) + Send + Sync + 'static>,
 ) {
     let mut number = 0u64;
     while !state.closing.now() {
@@ -194,20 +244,32 @@ fn accept_loop<L: Listening>(
             continue;
         };
         stream.set_write_wait(bounds.write_wait);
-        if state.clients.load(Ordering::SeqCst) >= bounds.clients {
+        let clients = state.clients.load(Ordering::SeqCst);
+        // A client let go ends its thread at once (its read ends); until it has, the count
+        // stays over the bound by it: twice the bound is never passed.
+        if clients >= bounds.clients && (clients >= 2 * bounds.clients || !let_go_longest(state)) {
             stream.set_write_wait(Duration::from_millis(100));
             refuse(&mut stream);
             continue;
         }
         state.clients.fetch_add(1, Ordering::SeqCst);
+        let waiting = Arc::new(AtomicBool::new(true));
         if let Ok(copy) = stream.another() {
-            lock(&state.open).insert(number, copy);
+            let open = Open {
+                stream: copy,
+                waiting: Arc::clone(&waiting),
+            };
+            lock(&state.open).insert(number, open);
         }
+        let place = Place {
+            closing: Arc::clone(&state.closing),
+            waiting,
+        };
         let (theirs, serve) = (Arc::clone(state), Arc::clone(client));
         let spawned = std::thread::Builder::new()
             .name(format!("{} client", bounds.name))
             .spawn(move || {
-                serve(stream, &theirs.closing);
+                serve(stream, &place);
                 lock(&theirs.open).remove(&number);
                 theirs.clients.fetch_sub(1, Ordering::SeqCst);
             });
