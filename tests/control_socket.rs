@@ -601,3 +601,60 @@ fn stop_believes_only_the_process_its_hello_names() {
     assert!(err.contains("is not the rig it names (pid 1"), "{err}");
     assert!(list.is_empty(), "{list:?}");
 }
+
+#[test]
+fn a_socket_opened_to_others_still_serves_only_its_user_and_root() {
+    require_root();
+    let rigs = Rigs::new("ctl-others");
+    let script = rigs.dir.file("steady.rhai", "every(\"200ms\", || {});\n");
+    let mut run = rigs.run(&["--sim", "--period", "200ms", &script]);
+    rigs.status("steady");
+    // Someone loosened the modes: the kernel lets another user connect; the run does not
+    // serve it.
+    let dir = rigs.dir.path("rigscript");
+    for (path, mode) in [
+        (&rigs.dir.0, 0o711),
+        (&dir, 0o711),
+        (&rigs.socket("steady"), 0o666),
+    ] {
+        std::fs::set_permissions(path, std::os::unix::fs::PermissionsExt::from_mode(mode)).unwrap();
+    }
+    // Reading only: the run answers before any request.
+    let out = Command::new("setpriv")
+        .args([
+            "--reuid=65534",
+            "--regid=65534",
+            "--clear-groups",
+            "socat",
+            "-u",
+        ])
+        .arg(format!("UNIX-CONNECT:{}", rigs.socket("steady").display()))
+        .arg("-")
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        said.contains("only the rig's user (and root) may use its control socket"),
+        "{said} {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Nor does its owner's client believe a socket others may write.
+    let stop = rigs.output(&["stop", "steady"]);
+    let said = String::from_utf8_lossy(&stop.stderr).to_string();
+    assert!(!stop.status.success(), "{said}");
+    assert!(
+        said.contains("steady.sock is writable by others (mode 0666"),
+        "{said}"
+    );
+    std::fs::set_permissions(
+        rigs.socket("steady"),
+        std::os::unix::fs::PermissionsExt::from_mode(0o600),
+    )
+    .unwrap();
+    let stop = rigs.output(&["stop", "steady"]);
+    assert!(
+        stop.status.success(),
+        "the run went on, its owner stops it: {stop:?}"
+    );
+    assert_eq!(wait_exit(&mut run), 143);
+}

@@ -37,7 +37,7 @@ pub enum Untrusted {
     /// Others may write it (put a socket of theirs there, replace ours).
     #[error(
         "{} is writable by others (mode {mode:04o}, owner uid {owner}): refused; a rig's \
-         directory is its owner's alone (chmod 700)",
+         directory and socket are its owner's alone (chmod 700 the directory, 600 the socket)",
         path.display()
     )]
     Open {

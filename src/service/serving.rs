@@ -126,8 +126,9 @@ struct Open<S> {
 
 struct State<S> {
     closing: Arc<Closing>,
+    /// Client threads alive (a client let go is counted until its thread ends).
     clients: AtomicUsize,
-    /// The clients' connections by number (the order they came in), to let the longest
+    /// The clients holding a place, by number (the order they came in), to let the longest
     /// waiting go for a newcomer and to end their reads when serving stops.
     open: Mutex<HashMap<u64, Open<S>>>,
 }
@@ -208,9 +209,9 @@ fn connection_waiting(fd: RawFd) -> bool {
     ready > 0 && poll.revents & libc::POLLIN != 0
 }
 
-/// Lets the client that has waited longest go (its reads end): true if one was waiting.
-fn let_go_longest<S: Connection>(state: &State<S>) -> bool {
-    let mut open = lock(&state.open);
+/// Lets the client that has waited longest go (its reads end, and its place is free at once):
+/// true if one was waiting.
+fn let_go_longest<S: Connection>(open: &mut HashMap<u64, Open<S>>) -> bool {
     let longest = open
         .iter()
         .filter(|(_, o)| o.waiting.load(Ordering::SeqCst))
@@ -224,6 +225,10 @@ fn let_go_longest<S: Connection>(state: &State<S>) -> bool {
         None => false,
     }
 }
+
+/// Client threads alive at most, as a multiple of the places: a client let go ends its
+/// thread at once (its read ends), but until it has, its thread is still counted.
+const THREADS_PER_PLACE: usize = 3;
 
 fn accept_loop<L: Listening>(
     listener: &L,
@@ -244,22 +249,29 @@ fn accept_loop<L: Listening>(
             continue;
         };
         stream.set_write_wait(bounds.write_wait);
-        let clients = state.clients.load(Ordering::SeqCst);
-        // A client let go ends its thread at once (its read ends); until it has, the count
-        // stays over the bound by it: twice the bound is never passed.
-        if clients >= bounds.clients && (clients >= 2 * bounds.clients || !let_go_longest(state)) {
+        let waiting = Arc::new(AtomicBool::new(true));
+        let admitted = match stream.another() {
+            Ok(copy) => {
+                let mut open = lock(&state.open);
+                let threads = state.clients.load(Ordering::SeqCst);
+                let place = threads < THREADS_PER_PLACE * bounds.clients
+                    && (open.len() < bounds.clients || let_go_longest(&mut open));
+                if place {
+                    let o = Open {
+                        stream: copy,
+                        waiting: Arc::clone(&waiting),
+                    };
+                    open.insert(number, o);
+                    state.clients.fetch_add(1, Ordering::SeqCst);
+                }
+                place
+            }
+            Err(_) => false,
+        };
+        if !admitted {
             stream.set_write_wait(Duration::from_millis(100));
             refuse(&mut stream);
             continue;
-        }
-        state.clients.fetch_add(1, Ordering::SeqCst);
-        let waiting = Arc::new(AtomicBool::new(true));
-        if let Ok(copy) = stream.another() {
-            let open = Open {
-                stream: copy,
-                waiting: Arc::clone(&waiting),
-            };
-            lock(&state.open).insert(number, open);
         }
         let place = Place {
             closing: Arc::clone(&state.closing),
