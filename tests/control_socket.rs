@@ -1,7 +1,11 @@
 //! The control socket against real `rigscript run` processes: `status --json` follows the
 //! module on a real pty while its inputs change, `list` shows the rigs that run and none that
 //! ended (one killed with -9), `stop` ends a run with the safe state and exit status 143, a
-//! second run of a live rig is refused, and hostile clients cost the loop no tick.
+//! second run of a live rig is refused, and hostile clients cost the loop no tick. Only the
+//! rig's owner speaks for it: a rig directory another uid made (in a private mount namespace)
+//! or a socket others may write is refused, an impostor whose pid is not its hello's is not
+//! believed, another uid is not served; a trickling client is cut off, a crowd of them does
+//! not block `stop`, and a full house is told as such.
 
 mod common;
 

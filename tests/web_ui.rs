@@ -4,6 +4,9 @@
 //! ticks, errors have their status, and hostile clients cost the loop no tick; forcing
 //! (`force = true`: set, expired, removed, refused, cancelled by the safe state; from the page,
 //! the API and `rigscript force`), tokens on a non-loopback bind, and a headless Chromium.
+//! Only the owner changes the rig (the run's key, which another uid cannot read; the
+//! environment's token checked as rig.toml's), and trickling clients are cut off at the
+//! deadline and never keep the owner out.
 
 mod common;
 
