@@ -4,7 +4,8 @@
 # period; at most 20 MB resident.
 #
 # Run from the crate root: sh benches/process.sh [SCRIPT] [PERIOD] [DURATION]
-# (defaults: scripts/interlock.rhai, which polls its inputs every tick, 50ms, 20s).
+# (defaults: scripts/interlock.rhai, which polls its inputs every tick, 50ms, 20s);
+# RIGSCRIPT=path measures that binary instead of building the release one.
 set -eu
 script=${1:-scripts/interlock.rhai}
 period=${2:-50ms}
@@ -13,10 +14,13 @@ if [ ! -x /usr/bin/time ]; then
     echo "process.sh: needs GNU time at /usr/bin/time (apt-get install time)" >&2
     exit 2
 fi
-cargo build --release --quiet
+if [ -z "${RIGSCRIPT:-}" ]; then
+    cargo build --release --quiet
+fi
+bin=${RIGSCRIPT:-target/release/rigscript}
 out=$(mktemp)
 trap 'rm -f "$out"' EXIT
-/usr/bin/time -v -o "$out" target/release/rigscript run "$script" --sim --quiet \
+/usr/bin/time -v -o "$out" "$bin" run "$script" --sim --quiet \
     --period "$period" --for "$duration" >/dev/null 2>&1 || true
 awk -v script="$script" -v period="$period" '
     /User time/ { user = $NF }

@@ -14,7 +14,7 @@ if [ -z "${RIGSCRIPT:-}" ]; then
 fi
 bin=${RIGSCRIPT:-target/release/rigscript}
 dir=$(mktemp -d)
-trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$dir"' EXIT
+trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$dir"' EXIT
 
 XDG_RUNTIME_DIR=$dir "$bin" run scripts/interlock.rhai --sim --quiet --ui 127.0.0.1:0 \
     >"$dir/log" 2>&1 &

@@ -16,7 +16,7 @@ if [ -z "${RIGSCRIPT:-}" ]; then
 fi
 bin=${RIGSCRIPT:-target/release/rigscript}
 dir=$(mktemp -d)
-trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$dir"' EXIT
+trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$dir"' EXIT
 
 # One run with `n` viewers; prints its --stats lines for tick work and jitter.
 run() {

@@ -997,9 +997,9 @@ fn watchdog_fired(run: &harness::Run) -> Vec<std::time::Duration> {
 /// case 2375), reported as `spurious-watchdog`: an answer fault takes the next answer, and a
 /// Modbus feed gets none, so in an idle loop it bites at the next output check, seconds after
 /// its start; the module is then lost, tried once a second, and left to its own watchdog,
-/// which fires while the lost answers go on. That is the design (DESIGN.md, "The fault
-/// search": a lost module is not fed), so the oracle counts an answer fault up to the last
-/// answer it took. Each case's watchdog does fire; the oracle must not call it spurious.
+/// which fires while the lost answers go on. That is the design (docs/design/verify.md,
+/// "The fault search": a lost module is not fed), so the oracle counts an answer fault up to
+/// the last answer it took. Each case's watchdog does fire; the oracle must not call it spurious.
 #[test]
 fn a_watchdog_that_fires_while_an_answer_fault_keeps_its_module_lost_is_explained() {
     let cases = [

@@ -1,9 +1,9 @@
-//! A late answer is never taken as the answer to the next request (DESIGN.md, "Line timing"): after
+//! A late answer is never taken for the next request's answer (docs/design/line-timing.md): after
 //! a timeout the driver lets the line fall silent for one more timeout, dropping what comes,
 //! before the retry. A DO read and a DI read have answers of the same shape, ASCII counter
 //! answers carry no channel, and a name and a firmware answer are both text, so matching
 //! answers to requests alone cannot tell them apart. Answers that come twice or torn end right
-//! or in a clear error, and the line's silence holds after each of them (DESIGN.md, "Line timing").
+//! or in a clear error, and the line's silence holds after each (docs/design/line-timing.md).
 
 mod common;
 

@@ -424,23 +424,23 @@ fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
     rig.signal(libc::SIGKILL);
     broker.retained_until("rigscript/killed/status", |m| m == "offline");
 
-    // The shortest keep-alive MQTT has, 1 s: the broker holds the rig to it (1.5 s without a
-    // packet ends the connection; Mosquitto checks on a cadence of its own, seen up to 6 s),
-    // and the rig's pings keep a live connection up meanwhile.
-    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "1s"), script);
+    // The shortest keep-alive the rig may ask for, 5 s: the broker holds the rig to it (7.5 s
+    // without a packet ends the connection; Mosquitto checks on a cadence of its own, seen up
+    // to 6 s late), and the rig's pings keep a live connection up meanwhile.
+    let frozen = run_rig(&dir, "frozen", &broker.mqtt_table("frozen", "5s"), script);
     broker.retained_until("rigscript/frozen/status", |m| m == "online");
-    std::thread::sleep(Duration::from_secs(4));
+    std::thread::sleep(Duration::from_secs(9));
     let log = broker.log();
     assert!(
-        log.contains("as rigscript-frozen (p5, c1, k1, u'rig')"),
-        "the rig asked for a 1 s keep-alive: {log}"
+        log.contains("as rigscript-frozen (p5, c1, k5, u'rig')"),
+        "the rig asked for a 5 s keep-alive: {log}"
     );
     assert!(
         !log.contains("Client rigscript-frozen has exceeded timeout"),
         "a live rig pings within its keep-alive: {log}"
     );
     frozen.signal(libc::SIGSTOP);
-    until(Duration::from_secs(20), || {
+    until(Duration::from_secs(30), || {
         (broker.retained("rigscript/frozen/status").as_deref() == Some("offline")).then_some(())
     })
     .unwrap_or_else(|| panic!("the frozen runner never offline: {}", broker.log()));

@@ -97,7 +97,7 @@ pub struct RunArgs {
     /// test case with its value and limits, plus one for the run itself.
     #[arg(long, value_name = "FILE")]
     pub junit: Option<PathBuf>,
-    /// Run without the guardian process (see DESIGN.md "The guardian"): a runner that dies
+    /// Run without the guardian process (docs/design/safety.md, "The guardian"): a runner that dies
     /// (kill -9, an abort, the OOM killer) then leaves the outputs as they were, but for each
     /// module's own host watchdog.
     #[arg(long)]

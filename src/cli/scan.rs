@@ -614,10 +614,7 @@ fn probe_port(
             if protocol == Protocol::Ascii {
                 // Bytes of other probes may sit unfinished in an ASCII module's line buffer and
                 // spoil the first command; a bare CR ends them.
-                let sent = link
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .write_all(b"\r");
+                let sent = crate::sync::lock(&link).write_all(b"\r");
                 if let Err(e) = sent {
                     outcome.errors.push((port.to_string(), e.to_string()));
                     return Ok(());

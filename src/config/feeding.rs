@@ -18,6 +18,7 @@
 use super::device::{C29uConfig, DeviceConfig, Port};
 use super::error::ProblemKind;
 use super::reader::{shown, Reader, TableRef};
+use crate::link::line::wire_time;
 use crate::protocol::c29u_modbus::silence_gap;
 use crate::time::duration::format_duration;
 use std::collections::BTreeMap;
@@ -146,12 +147,6 @@ impl FeedTiming {
             tenths % 10
         )
     }
-}
-
-/// Time `bytes` take on the wire at `baud` (10 bits a character).
-fn wire_time(bytes: usize, baud: u32) -> Duration {
-    let bits = u64::try_from(bytes).unwrap_or(u64::MAX).saturating_mul(10);
-    Duration::from_nanos(bits.saturating_mul(1_000_000_000) / u64::from(baud.max(1)))
 }
 
 /// The silence kept before a request to `c`: after a timeout on its line, that line's

@@ -14,8 +14,10 @@ pub const DEFAULT_KEEPALIVE: Duration = Duration::from_secs(10);
 /// The outbox's bound when rig.toml gives none.
 pub const DEFAULT_OUTBOX_MAX: u64 = 64 << 20;
 
-/// The shortest keep-alive MQTT can say (it counts whole seconds; 0 would turn it off).
-pub const MIN_KEEPALIVE: Duration = Duration::from_secs(1);
+/// The shortest keep-alive the rig asks for: rumqttc, its MQTT client, refuses less than 5 s
+/// for MQTT 5 (MQTT itself counts from 1 s), and a frozen rig is called offline within 1.5
+/// times this plus the broker's own sweep anyway (measured: 8.5 s at 5 s with Mosquitto).
+pub const MIN_KEEPALIVE: Duration = Duration::from_secs(5);
 
 /// The longest keep-alive MQTT can say (a 16-bit count of seconds).
 const MAX_KEEPALIVE: Duration = Duration::from_secs(65_535);
@@ -192,9 +194,15 @@ pub(super) fn read_mqtt(r: &mut Reader<'_>, table: &TableRef<'_, '_>) -> Option<
     });
     let keepalive = r
         .read(table, "keepalive", |v| match duration(v)? {
-            d if d < MIN_KEEPALIVE || d > MAX_KEEPALIVE || d.subsec_nanos() != 0 => Err(bad(
+            d if d < MIN_KEEPALIVE => Err(bad(
                 v,
-                "is not a keep-alive: use whole seconds from \"1s\" to \"65535s\" (MQTT counts \
+                "is shorter than the MQTT client allows: use \"5s\" or more (the broker calls \
+                 a frozen rig offline within 1.5 times the keep-alive plus its own check: about \
+                 8 to 14 s at \"5s\")",
+            )),
+            d if d > MAX_KEEPALIVE || d.subsec_nanos() != 0 => Err(bad(
+                v,
+                "is not a keep-alive: use whole seconds from \"5s\" to \"65535s\" (MQTT counts \
                  it in seconds)",
             )),
             d => Ok(d),
@@ -301,16 +309,26 @@ mod tests {
     }
 
     #[test]
+    fn a_keep_alive_under_the_clients_floor_is_refused_with_the_reason() {
+        let problems = parse("[mqtt]\nurl = \"mqtt://broker\"\nkeepalive = \"1s\"\n").unwrap_err();
+        let all = problems.join("\n");
+        assert!(
+            all.contains("rig.toml:3: mqtt.keepalive: \"1s\" is shorter than the MQTT client allows: use \"5s\""),
+            "{all}"
+        );
+    }
+
+    #[test]
     fn bad_values_are_told_with_their_line_and_key_all_at_once() {
         let problems = parse(
-            "[mqtt]\nurl = \"http://broker\"\nkeepalive = \"1500ms\"\nprefix = \"a/#\"\n\
+            "[mqtt]\nurl = \"http://broker\"\nkeepalive = \"5500ms\"\nprefix = \"a/#\"\n\
              outbox_max = \"1KiB\"\npassword_file = \"pw\"\npassword_env = \"PW\"\nport = 1\n",
         )
         .unwrap_err();
         let all = problems.join("\n");
         for expected in [
             "rig.toml:2: mqtt.url: \"http://broker\" is not a broker URL",
-            "rig.toml:3: mqtt.keepalive: \"1500ms\" is not a keep-alive",
+            "rig.toml:3: mqtt.keepalive: \"5500ms\" is not a keep-alive",
             "rig.toml:4: mqtt.prefix: \"a/#\" is not a topic prefix",
             "rig.toml:5: mqtt.outbox_max: \"1KiB\" is too small an outbox",
             "rig.toml:7: mqtt.password_env",

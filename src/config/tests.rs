@@ -521,7 +521,7 @@ fn bad_c29u_values() {
         ("safe_value = 256", "rig.toml:4: devices.io.safe_value: 256 is not a DO byte; use 0-255 (0x00-0xFF, 0b00000000-0b11111111)"),
         ("power_on_value = -1", "rig.toml:4: devices.io.power_on_value: -1 is not a DO byte"),
         // ASCII stores only the current outputs: a power-on value apart from the safe one
-        // would have the runner drive the outputs to it (DESIGN.md, "Safety").
+        // would have the runner drive the outputs to it (docs/design/safety.md).
         (
             "protocol = \"ascii\"\npower_on_value = 0x0F",
             "rig.toml:5: devices.io.power_on_value: 0x0F differs from safe_value 0x00: an ASCII module stores only its current outputs as its power-on value (manual 8-24), so the runner would have to drive the outputs to it; store it once by hand, when the outputs may take that value (`rigscript c29 --port /dev/ttyUSB0 --protocol ascii --id 1 power-on-value 0x0f --drive-outputs`)",

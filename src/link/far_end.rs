@@ -22,20 +22,16 @@ pub trait PacketDevice: Send {
 
 impl<T: ByteDevice> ByteDevice for Arc<Mutex<T>> {
     fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
-        self.lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .receive(bytes)
+        crate::sync::lock(self).receive(bytes)
     }
 
     fn line_idle(&mut self) -> Vec<u8> {
-        self.lock().unwrap_or_else(|e| e.into_inner()).line_idle()
+        crate::sync::lock(self).line_idle()
     }
 }
 
 impl<T: PacketDevice> PacketDevice for Arc<Mutex<T>> {
     fn receive(&mut self, packet: &[u8; 8]) -> Option<[u8; 8]> {
-        self.lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .receive(packet)
+        crate::sync::lock(self).receive(packet)
     }
 }

@@ -107,7 +107,7 @@ pub type SharedRefusals = Arc<Mutex<Refusals>>;
 /// Reads the shared count.
 pub fn refusals(shared: &SharedRefusals) -> MutexGuard<'_, Refusals> {
     // A panic on the writer thread leaves the counts usable.
-    shared.lock().unwrap_or_else(|e| e.into_inner())
+    crate::sync::lock(shared)
 }
 
 /// The records file as the writer thread writes it.

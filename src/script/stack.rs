@@ -6,7 +6,7 @@
 //! process (SIGABRT, no safe state). The depth of such a chain is bounded only by the heap it
 //! takes, which the run's memory limit bounds, so the stack is sized from that limit.
 
-use std::sync::{Mutex, PoisonError};
+use std::sync::Mutex;
 
 /// Stack for everything but a script's deep values: the runner, Rhai's own nesting within its
 /// limits, the drivers.
@@ -35,7 +35,7 @@ pub fn on_script_stack<T: Send>(memory_limit: u64, work: impl FnOnce() -> T + Se
     // Where the work waits for the thread that takes it (a refused spawn leaves it here).
     let slot = Mutex::new(Some(work));
     let take_and_run = || {
-        let work = slot.lock().unwrap_or_else(PoisonError::into_inner).take();
+        let work = crate::sync::lock(&slot).take();
         work.map(|w| w())
     };
     let mut size = wanted;

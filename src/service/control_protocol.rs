@@ -1,5 +1,5 @@
 //! The control socket's protocol: JSON lines, one request a line from the client, one answer
-//! a line from the run (DESIGN.md "Control socket"). A `subscribe` turns the connection into
+//! a line from the run (docs/design/seams.md). A `subscribe` turns the connection into
 //! the run's event stream, one event a line, until either side closes it.
 
 use crate::runtime::forcing::ForceOrder;

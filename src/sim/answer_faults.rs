@@ -46,7 +46,7 @@ struct Queued {
 
 impl AnswerFaults {
     fn queue(&self) -> std::sync::MutexGuard<'_, Queued> {
-        self.0.lock().unwrap_or_else(|e| e.into_inner())
+        crate::sync::lock(&self.0)
     }
 
     /// How the answer the device just gave is to be delivered (late, twice), taken once: the

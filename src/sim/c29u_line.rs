@@ -12,7 +12,7 @@ pub type SharedModel = Arc<Mutex<C29uModel>>;
 
 /// Locks a shared model; a poisoned lock only means a panicking test thread, the state is whole.
 pub fn lock(model: &SharedModel) -> MutexGuard<'_, C29uModel> {
-    model.lock().unwrap_or_else(|e| e.into_inner())
+    crate::sync::lock(model)
 }
 
 enum FrontEnd {

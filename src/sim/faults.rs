@@ -143,7 +143,7 @@ impl FaultPlan {
 
     fn lock(&self) -> MutexGuard<'_, PlanState> {
         // A poisoned plan only means a panicking caller (an injected panic); the state is whole.
-        self.0.lock().unwrap_or_else(|e| e.into_inner())
+        crate::sync::lock(&self.0)
     }
 
     /// Adds `fault` at virtual time `at` (after any fault already planned for the same time).
@@ -434,7 +434,7 @@ impl EventClock {
 
     /// Runs `action` when time reaches `at` (after any action already set for that time).
     pub fn at(&self, at: Duration, action: impl FnOnce(&VirtualClock) + Send + 'static) {
-        let mut e = self.events.lock().unwrap_or_else(|e| e.into_inner());
+        let mut e = crate::sync::lock(&self.events);
         let pos = e.due.partition_point(|(t, _)| *t <= at);
         e.due.insert(pos, (at, Box::new(action)));
     }
@@ -443,19 +443,15 @@ impl EventClock {
     /// can bound what a run may do (memory, work) even inside a tick that never sleeps. The
     /// watcher may panic to end the run; it is not called again while it runs.
     pub fn watch(&self, watcher: impl FnMut(Duration) + Send + 'static) {
-        *self.watcher.lock().unwrap_or_else(|e| e.into_inner()) = Some(Box::new(watcher));
+        *crate::sync::lock(&self.watcher) = Some(Box::new(watcher));
     }
 
     /// Runs the watcher, if there is one and it is not running already.
     fn run_watcher(&self, now: Duration) {
-        let watcher = self
-            .watcher
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take();
+        let watcher = crate::sync::lock(&self.watcher).take();
         if let Some(mut w) = watcher {
             w(now);
-            let mut slot = self.watcher.lock().unwrap_or_else(|e| e.into_inner());
+            let mut slot = crate::sync::lock(&self.watcher);
             if slot.is_none() {
                 *slot = Some(w);
             }
@@ -464,16 +460,12 @@ impl EventClock {
 
     /// Drops the actions not yet run (a test ending its run, before it looks at the aftermath).
     pub fn clear(&self) {
-        self.events
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .due
-            .clear();
+        crate::sync::lock(&self.events).due.clear();
     }
 
     /// The next action due by `until`, taken off the list.
     fn next_due(&self, until: Duration) -> Option<(Duration, Action)> {
-        let mut e = self.events.lock().unwrap_or_else(|e| e.into_inner());
+        let mut e = crate::sync::lock(&self.events);
         if e.due.front().is_some_and(|(t, _)| *t <= until) {
             e.due.pop_front()
         } else {

@@ -17,7 +17,7 @@ use serialport::{SerialPort, TTYPort};
 use std::collections::VecDeque;
 use std::os::fd::{AsRawFd, RawFd};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -42,7 +42,7 @@ struct Record {
 
 impl Record {
     fn push(&self, frame: Frame) {
-        let mut frames = self.frames.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut frames = crate::sync::lock(&self.frames);
         if frames.len() < MAX_FRAMES {
             frames.push(frame);
         } else {
@@ -130,11 +130,7 @@ impl LineRelay {
 
     /// The frames that have ended so far, oldest first.
     pub fn frames(&self) -> Vec<Frame> {
-        self.record
-            .frames
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone()
+        crate::sync::lock(&self.record.frames).clone()
     }
 
     /// Frames that ended after `MAX_FRAMES` were kept.

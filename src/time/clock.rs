@@ -276,7 +276,7 @@ impl VirtualClock {
 
     fn lock(&self) -> std::sync::MutexGuard<'_, VirtualState> {
         // A poisoned lock only means another test thread panicked; the time value is still valid.
-        self.shared.state.lock().unwrap_or_else(|e| e.into_inner())
+        crate::sync::lock(&self.shared.state)
     }
 
     /// Makes `now` (just moved to, under the lock) what `now()` reads. After the move's alarms:

@@ -223,7 +223,7 @@ fn play_batch(
                 }
             }
         }
-        let mut all = result.lock().unwrap_or_else(|e| e.into_inner());
+        let mut all = crate::sync::lock(&result);
         all.coverage.merge(&mine.coverage);
         all.observed.merge(&mine.observed);
         all.done += mine.done;

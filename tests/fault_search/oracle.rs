@@ -408,7 +408,7 @@ impl Facts<'_> {
     /// on the next exchange that is answered (a Modbus feed gets no answer, so in an idle loop
     /// that is the output check every 5 s), and each answer it takes from a module already lost
     /// costs a retry a second. Until the module answers again it is left to its own watchdog
-    /// (DESIGN.md, "The fault search").
+    /// (docs/design/verify.md, "The fault search").
     fn explains(&self, t: Duration, watchdog: Duration) -> Option<(u64, InjectedFault)> {
         let slow = self.slowest_exchange();
         let tail = ms(1000) + watchdog + ms(2 * self.case.rig.period_ms) + slow * 4;

@@ -107,7 +107,7 @@ impl Transport {
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Box<dyn ByteLink>> {
         // A poisoned line only means a panicking test thread; the link itself is intact.
-        self.link.lock().unwrap_or_else(|e| e.into_inner())
+        crate::sync::lock(&self.link)
     }
 
     /// Changes the line speed (after the module was told to change its own).
@@ -139,7 +139,7 @@ impl Transport {
             max_answer,
             answer_len,
         };
-        let mut link = self.link.lock().unwrap_or_else(|e| e.into_inner());
+        let mut link = crate::sync::lock(&self.link);
         exchange(
             link.as_mut(),
             self.clock.as_ref(),

@@ -175,7 +175,7 @@ impl C29uDevice {
     /// Opens the line again, if this module has a real one.
     pub fn reopen(&mut self) -> Result<(), DeviceError> {
         if let Some(open) = &mut self.reopener {
-            let mut line = self.line.lock().unwrap_or_else(|e| e.into_inner());
+            let mut line = crate::sync::lock(&self.line);
             // Release the old port first: serial ports are opened exclusively.
             let what = line.describe();
             *line = Box::new(super::links::ClosedLink(what));

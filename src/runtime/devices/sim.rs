@@ -101,7 +101,7 @@ pub struct SimRig {
 }
 
 fn board(b: &Arc<Mutex<Trc1000Sim>>) -> MutexGuard<'_, Trc1000Sim> {
-    b.lock().unwrap_or_else(|e| e.into_inner())
+    crate::sync::lock(b)
 }
 
 impl SimRig {

@@ -154,8 +154,7 @@ impl Settings {
             self.host.clone(),
             self.port,
         );
-        // rig.toml allows no shorter one; rumqttc's client would panic on it (below 1 s, and
-        // the vendored copy's only change is that bound: vendor/README.md).
+        // rig.toml allows no shorter one; rumqttc's MQTT 5 client panics below 5 s.
         o.set_keep_alive(self.keepalive.max(crate::config::mqtt::MIN_KEEPALIVE));
         o.set_clean_start(true);
         o.set_last_will(LastWill::new(
