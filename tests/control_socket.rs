@@ -548,8 +548,12 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
          set +e\n\
          env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} stop interlock; echo \"stop=$?\"\n\
          env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} list; echo \"list=$?\"\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} run --sim --for 300ms {script} 2>&1; \
+           echo \"run=$?\"\n\
+         echo \"left: $(ls /tmp/rigscript-0)\"\n\
          kill $fake\n",
         bin = rigscript(),
+        script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/interlock.rhai"),
     );
     let out = Command::new("unshare")
         .args(["--mount", "--propagation", "private", "sh", "-c", &script])
@@ -570,6 +574,14 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
         !said.contains("fake.rhai"),
         "list showed the impostor: {said}"
     );
+    // Root's own run does not put its socket there: it runs, and says it cannot be seen.
+    assert!(said.contains("run=0"), "{said}");
+    assert!(
+        said.contains("warning: cannot make the control socket")
+            && said.contains("/tmp/rigscript-0 belongs to uid 65534"),
+        "{said}"
+    );
+    assert!(said.contains("left: interlock.sock\n"), "{said}");
 }
 
 #[test]
