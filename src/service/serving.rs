@@ -291,3 +291,66 @@ fn accept_loop<L: Listening>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Read, Write};
+
+    /// Reads what `s` says until it closes or a newline.
+    fn said(s: &mut UnixStream) -> String {
+        let mut text = Vec::new();
+        let mut b = [0u8; 1];
+        while let Ok(1) = s.read(&mut b) {
+            text.push(b[0]);
+            if b[0] == b'\n' {
+                break;
+            }
+        }
+        String::from_utf8_lossy(&text).into_owned()
+    }
+
+    #[test]
+    fn a_newcomer_takes_the_place_of_the_longest_waiting_and_a_busy_house_is_refused() {
+        let dir = std::env::temp_dir().join(format!("rigscript-places-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.sock");
+        let _ = std::fs::remove_file(&path);
+        let listener = UnixListener::bind(&path).unwrap();
+        let bounds = Bounds {
+            clients: 2,
+            write_wait: Duration::from_secs(1),
+            name: "places test",
+        };
+        let refuse = |s: &mut UnixStream| {
+            let _ = s.write_all(b"full\n");
+        };
+        // A client waits until it sends a byte; then it is busy until it goes.
+        let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
+            let mut b = [0u8; 1];
+            if matches!(s.read(&mut b), Ok(1)) {
+                place.waiting(false);
+                let _ = s.write_all(b"busy\n");
+                let _ = s.read(&mut b);
+            }
+        });
+        let connect = || {
+            let s = UnixStream::connect(&path).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            s
+        };
+        let (mut first, mut second) = (connect(), connect());
+        let mut busy = connect();
+        busy.write_all(b"x").unwrap();
+        assert_eq!(said(&mut busy), "busy\n");
+        assert_eq!(said(&mut first), "", "the longest waiting was let go");
+        let mut busy_too = connect();
+        busy_too.write_all(b"x").unwrap();
+        assert_eq!(said(&mut busy_too), "busy\n");
+        assert_eq!(said(&mut second), "", "then the next");
+        assert_eq!(said(&mut connect()), "full\n", "every place busy: refused");
+        drop(serving);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
