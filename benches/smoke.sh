@@ -36,6 +36,7 @@ bench() {
 
 bench process sh benches/process.sh scripts/interlock.rhai 50ms 2s
 bench web_viewers sh benches/web_viewers.sh scripts/interlock.rhai 2 2s
+bench web_tricklers bash benches/web_tricklers.sh 4 3
 bench mqtt_tick sh benches/mqtt_tick.sh scripts/interlock.rhai 2s 1
 bench mqtt_lab env RIGS=2 SAMPLES=3 BASELINE=1 sh benches/mqtt_lab.sh
 bench verify_seeds env SEEDS=1 PAR=1 SCRIPTS=tests/verify/counter_ack_keeps_waiting.rhai \

@@ -1,7 +1,11 @@
 //! The control socket against real `rigscript run` processes: `status --json` follows the
 //! module on a real pty while its inputs change, `list` shows the rigs that run and none that
 //! ended (one killed with -9), `stop` ends a run with the safe state and exit status 143, a
-//! second run of a live rig is refused, and hostile clients cost the loop no tick.
+//! second run of a live rig is refused, and hostile clients cost the loop no tick. Only the
+//! rig's owner speaks for it: a rig directory another uid made (in a private mount namespace)
+//! or a socket others may write is refused, an impostor whose pid is not its hello's is not
+//! believed, another uid is not served; a trickling client is cut off, a crowd of them does
+//! not block `stop`, and a full house is told as such.
 
 mod common;
 
@@ -290,18 +294,16 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
         sent += chunk.len();
     }
     assert!(sent < 1 << 30, "the run stopped reading the long line");
-    // Hundreds of connections that send nothing: 16 are served, the others told so.
+    // Hundreds of connections that send nothing hold no place against a request: each
+    // newcomer takes the place of the client that has waited longest.
     let idle: Vec<UnixStream> = (0..300).map(|_| connect(&rigs, "steady")).collect();
-    let refused = idle
-        .iter()
-        .skip(20)
-        .take(5)
-        .map(read_line)
-        .filter(|l| l.contains("clients are connected to this rig already"))
-        .count();
-    assert_eq!(refused, 5, "connections past the limit are told so");
-    // A run that cannot answer for its clients keeps its socket: `list` leaves it, and another
-    // run of the script takes the next name instead of this one.
+    let out = rigs.output(&["status", "steady"]);
+    assert!(
+        out.status.success(),
+        "answered past 300 idle clients: {out:?}"
+    );
+    // A run with a crowd at its socket keeps it: `list` leaves it, and another run of the
+    // script takes the next name instead of this one.
     rigs.output(&["list"]);
     assert!(
         rigs.socket("steady").exists(),
@@ -331,8 +333,7 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
         "no tick overran during the attack: {after}"
     );
     // A subscriber that never reads costs the loop nothing either (its events are dropped,
-    // counted). It connects once the flood is gone: while every client slot was taken it was
-    // refused and closed, and its request could meet a closed socket.
+    // counted).
     let mut stalled = connect(&rigs, "steady");
     stalled.write_all(b"{\"request\":\"subscribe\"}\n").unwrap();
     let ticks = after["ticks"]["count"].as_u64().unwrap_or(0);
@@ -349,6 +350,86 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
     assert!(stop.status.success(), "{stop:?}");
     assert_eq!(wait_exit(&mut run), 143);
     drop(stalled);
+}
+
+/// Clients that trickle a request into `path` a byte every 300 ms, never ending it; one let
+/// go connects again. They stop when the returned flag is set.
+fn tricklers(path: std::path::PathBuf, n: usize) -> std::sync::Arc<std::sync::atomic::AtomicBool> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    for _ in 0..n {
+        let (stop, path) = (std::sync::Arc::clone(&stop), path.clone());
+        std::thread::spawn(move || {
+            while !stop.load(Ordering::SeqCst) {
+                let Ok(mut s) = UnixStream::connect(&path) else {
+                    std::thread::sleep(Duration::from_millis(100));
+                    continue;
+                };
+                while !stop.load(Ordering::SeqCst) && s.write_all(b" ").is_ok() {
+                    std::thread::sleep(Duration::from_millis(300));
+                }
+            }
+        });
+    }
+    stop
+}
+
+#[test]
+fn a_trickling_client_is_cut_off_a_crowd_of_them_does_not_block_stop_and_a_full_house_is_told() {
+    let rigs = Rigs::new("ctl-trickle");
+    let script = rigs.dir.file("steady.rhai", "every(\"200ms\", || {});\n");
+    let mut run = rigs.run(&["--sim", "--period", "200ms", &script]);
+    rigs.status("steady");
+    // One trickler alone: told, and closed, once its request is 5 s old, whatever it sends.
+    let mut slow = connect(&rigs, "steady");
+    let started = std::time::Instant::now();
+    let mut said = Vec::new();
+    slow.set_nonblocking(true).unwrap();
+    let closed = loop {
+        let mut chunk = [0u8; 256];
+        match slow.read(&mut chunk) {
+            Ok(0) => break true,
+            Ok(n) => said.extend_from_slice(&chunk[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            Err(_) => break true,
+        }
+        if started.elapsed() > Duration::from_secs(20) {
+            break false;
+        }
+        if slow.write_all(b" ").is_err() {
+            break true;
+        }
+        std::thread::sleep(Duration::from_millis(300));
+    };
+    let said = String::from_utf8_lossy(&said).to_string();
+    assert!(closed, "a trickler was still served after 20 s: {said}");
+    assert!(said.contains("within 5s of its first byte"), "{said:?}");
+    // Sixteen subscribers, every place busy: the next is told the socket is full.
+    let subscribers: Vec<UnixStream> = (0..16)
+        .map(|_| {
+            let mut s = connect(&rigs, "steady");
+            s.write_all(b"{\"request\":\"subscribe\"}\n").unwrap();
+            assert!(read_line(&s).contains("\"ok\":true"));
+            s
+        })
+        .collect();
+    let out = rigs.output(&["status", "steady"]);
+    let said = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!out.status.success(), "{out:?}");
+    assert!(
+        said.contains("the rig's control socket is full (16 clients"),
+        "a full house is told as such: {said}"
+    );
+    drop(subscribers);
+    // Forty trickling clients, every place taken and taken again: `stop` gets through.
+    let stop = tricklers(rigs.socket("steady"), 40);
+    std::thread::sleep(Duration::from_secs(1));
+    let out = rigs.output(&["stop", "steady"]);
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "stop past 40 tricklers: {out:?}");
+    assert!(said.contains("rig steady stopped"), "{said}");
+    assert_eq!(wait_exit(&mut run), 143);
 }
 
 #[test]
@@ -416,5 +497,180 @@ fn drive_acts_on_the_simulated_field_between_ticks_and_refuses_a_real_device() {
     );
     assert_eq!(sim.state()["di"], 0, "the module's inputs were not touched");
     assert_eq!(rigs.output(&["stop", "real"]).status.code(), Some(0));
+    assert_eq!(wait_exit(&mut run), 143);
+}
+
+/// A shell script that answers the control protocol as a rig called `rig` whose process id
+/// is `pid` would, and says, when asked to stop, that it stopped safe: an impostor.
+fn impostor(rig: &str, pid: u32) -> String {
+    format!(
+        "#!/bin/sh\nwhile read -r line; do case \"$line\" in\n\
+         *hello*) echo '{{\"ok\":true,\"hello\":{{\"protocol\":1,\"rig\":\"{rig}\",\"pid\":{pid},\
+         \"script\":\"fake.rhai\",\"config\":null,\"started\":\"2026-01-01T00:00:00Z\"}}}}';;\n\
+         *subscribe*) echo '{{\"ok\":true}}'; sleep 1; echo '{{\"event\":\"ended\",\"status\":143,\
+         \"safe\":[\"io\"],\"unconfirmed\":[]}}';;\n\
+         *) echo '{{\"ok\":true}}';;\n\
+         esac; done\n"
+    )
+}
+
+/// Fails loudly unless the tests run as root (CI does): a second uid needs it.
+fn require_root() {
+    let out = Command::new("id").arg("-u").output().unwrap();
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).trim(),
+        "0",
+        "this test needs root (a second uid through setpriv, a private mount namespace through \
+         unshare); run it as root, as CI does"
+    );
+    common::require_tool("setpriv", "util-linux");
+    common::require_tool("unshare", "util-linux");
+    common::require_tool("socat", "socat");
+}
+
+#[test]
+fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket() {
+    require_root();
+    let rigs = Rigs::new("ctl-foreign");
+    let responder = rigs.dir.file("impostor.sh", &impostor("interlock", 1));
+    // In a private mount namespace with a /tmp of its own: the machine's is never touched.
+    let script = format!(
+        "set -e\n\
+         impostor=\"$(cat {responder})\"\n\
+         mount -t tmpfs tmpfs /tmp\n\
+         printf '%s\\n' \"$impostor\" >/tmp/impostor.sh\n\
+         chmod 755 /tmp/impostor.sh\n\
+         setpriv --reuid=65534 --regid=65534 --clear-groups sh -c \
+           'mkdir -m 700 /tmp/rigscript-0 && exec socat UNIX-LISTEN:/tmp/rigscript-0/interlock.sock,fork EXEC:/tmp/impostor.sh' \
+           </dev/null >/dev/null 2>&1 &\n\
+         fake=$!\n\
+         for i in $(seq 50); do [ -S /tmp/rigscript-0/interlock.sock ] && break; sleep 0.1; done\n\
+         set +e\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} stop interlock; echo \"stop=$?\"\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} list; echo \"list=$?\"\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} run --sim --for 300ms {script} 2>&1; \
+           echo \"run=$?\"\n\
+         echo \"left: $(ls /tmp/rigscript-0)\"\n\
+         kill $fake\n",
+        bin = rigscript(),
+        script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/interlock.rhai"),
+    );
+    let out = Command::new("unshare")
+        .args(["--mount", "--propagation", "private", "sh", "-c", &script])
+        .output()
+        .unwrap();
+    let (said, err) = (
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    );
+    assert!(said.contains("stop=3"), "root's stop: {said}\n{err}");
+    assert!(!said.contains("safe state confirmed"), "{said}");
+    assert!(
+        err.contains("/tmp/rigscript-0 belongs to uid 65534 (mode 0700)"),
+        "the refusal names the directory, its owner and mode: {err}"
+    );
+    assert!(said.contains("list=0"), "{said}\n{err}");
+    assert!(
+        !said.contains("fake.rhai"),
+        "list showed the impostor: {said}"
+    );
+    // Root's own run does not put its socket there: it runs, and says it cannot be seen.
+    assert!(said.contains("run=0"), "{said}");
+    assert!(
+        said.contains("warning: cannot make the control socket")
+            && said.contains("/tmp/rigscript-0 belongs to uid 65534"),
+        "{said}"
+    );
+    assert!(said.contains("left: interlock.sock\n"), "{said}");
+}
+
+#[test]
+fn stop_believes_only_the_process_its_hello_names() {
+    common::require_tool("socat", "socat");
+    let rigs = Rigs::new("ctl-impostor");
+    let responder = rigs.dir.file("impostor.sh", &impostor("interlock", 1));
+    std::fs::set_permissions(
+        &responder,
+        std::os::unix::fs::PermissionsExt::from_mode(0o755),
+    )
+    .unwrap();
+    let dir = rigs.dir.path("rigscript");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
+    let socket = rigs.socket("interlock");
+    let mut fake = Command::new("socat")
+        .arg(format!("UNIX-LISTEN:{},fork", socket.display()))
+        .arg(format!("EXEC:{responder}"))
+        .spawn()
+        .unwrap();
+    until(Duration::from_secs(5), || socket.exists().then_some(())).expect("the impostor listens");
+    let out = rigs.output(&["stop", "interlock"]);
+    let list = rigs.list();
+    let _ = fake.kill();
+    let _ = fake.wait();
+    let (said, err) = (
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    );
+    assert!(!out.status.success(), "{said}");
+    assert!(!said.contains("safe state confirmed"), "{said}");
+    assert!(err.contains("is not the rig it names (pid 1"), "{err}");
+    assert!(list.is_empty(), "{list:?}");
+}
+
+#[test]
+fn a_socket_opened_to_others_still_serves_only_its_user_and_root() {
+    require_root();
+    let rigs = Rigs::new("ctl-others");
+    let script = rigs.dir.file("steady.rhai", "every(\"200ms\", || {});\n");
+    let mut run = rigs.run(&["--sim", "--period", "200ms", &script]);
+    rigs.status("steady");
+    // Someone loosened the modes: the kernel lets another user connect; the run does not
+    // serve it.
+    let dir = rigs.dir.path("rigscript");
+    for (path, mode) in [
+        (&rigs.dir.0, 0o711),
+        (&dir, 0o711),
+        (&rigs.socket("steady"), 0o666),
+    ] {
+        std::fs::set_permissions(path, std::os::unix::fs::PermissionsExt::from_mode(mode)).unwrap();
+    }
+    // Reading only: the run answers before any request.
+    let out = Command::new("setpriv")
+        .args([
+            "--reuid=65534",
+            "--regid=65534",
+            "--clear-groups",
+            "socat",
+            "-u",
+        ])
+        .arg(format!("UNIX-CONNECT:{}", rigs.socket("steady").display()))
+        .arg("-")
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        said.contains("only the rig's user (and root) may use its control socket"),
+        "{said} {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Nor does its owner's client believe a socket others may write.
+    let stop = rigs.output(&["stop", "steady"]);
+    let said = String::from_utf8_lossy(&stop.stderr).to_string();
+    assert!(!stop.status.success(), "{said}");
+    assert!(
+        said.contains("steady.sock is writable by others (mode 0666"),
+        "{said}"
+    );
+    std::fs::set_permissions(
+        rigs.socket("steady"),
+        std::os::unix::fs::PermissionsExt::from_mode(0o600),
+    )
+    .unwrap();
+    let stop = rigs.output(&["stop", "steady"]);
+    assert!(
+        stop.status.success(),
+        "the run went on, its owner stops it: {stop:?}"
+    );
     assert_eq!(wait_exit(&mut run), 143);
 }

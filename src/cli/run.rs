@@ -19,6 +19,7 @@ use crate::runtime::requests::{self, Requester, Requests};
 use crate::runtime::{exit, signals};
 use crate::script::rig::{start_observed, RigSetup};
 use crate::script::stack;
+use crate::service::authority;
 use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
 use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::http::{self, BindError};
@@ -298,6 +299,25 @@ impl ControlSetup {
     }
 }
 
+/// The page's link for the log: with the run's key in its fragment (which a browser never
+/// sends, so no server log or proxy sees it); under systemd, whose journal others may read,
+/// the key stays in its file (`key_file`), which the link names instead.
+fn page_link(
+    addr: SocketAddr,
+    key: Option<&authority::RunKey>,
+    key_file: &Option<PathBuf>,
+) -> String {
+    let systemd = std::env::var_os("INVOCATION_ID").is_some();
+    match (key, key_file) {
+        (Some(_), Some(file)) if systemd => format!(
+            "http://{addr}/ (changes need the run's key: http://{addr}/#key=KEY, KEY from {})",
+            file.display()
+        ),
+        (Some(k), _) => format!("http://{addr}/#key={}", k.expose()),
+        (None, _) => format!("http://{addr}/"),
+    }
+}
+
 /// The run itself, from taking control of the devices to the last log line.
 fn run_started(
     source: &str,
@@ -336,10 +356,43 @@ fn run_started(
         }
     };
     // Before any device is touched, like the socket: an address in use costs nothing.
-    let tokens = http::auth::Tokens::from(
+    let key = match authority::RunKey::generate() {
+        Ok(k) => Some(k),
+        Err(e) => {
+            say(&format!(
+                "rigscript run: warning: no key for this run ({e}): the web page changes \
+                 nothing without the ui_token"
+            ));
+            None
+        }
+    };
+    let mut claim = claim;
+    let key_file = match (claim.as_mut(), key.as_ref()) {
+        (Some(c), Some(k)) => c
+            .keep_key(k)
+            .map_err(|e| {
+                say(&format!(
+                    "rigscript run: warning: cannot keep the run's key beside {}: {e}",
+                    c.path().display()
+                ));
+            })
+            .ok(),
+        _ => None,
+    };
+    let tokens = match http::auth::Tokens::from(
         setup.config.ui_token.as_ref(),
         setup.config.ui_read_token.as_ref(),
-    );
+        key.clone(),
+    ) {
+        Ok(t) => t,
+        Err(e) => {
+            say(&format!("rigscript run: {e}"));
+            if let Some(g) = guardian {
+                g.confirm();
+            }
+            return outputs.not_started(exit::USAGE, &e.to_string());
+        }
+    };
     let web = match setup
         .config
         .ui
@@ -409,7 +462,10 @@ fn run_started(
         rig.runner.watch_mqtt(c.health());
     }
     let page = web.map(|w| {
-        say(&format!("rigscript run: ui: http://{}/", w.addr()));
+        say(&format!(
+            "rigscript run: ui: {}",
+            page_link(w.addr(), key.as_ref(), &key_file)
+        ));
         w.serve(requester.clone(), rig.runner.events())
     });
     let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));

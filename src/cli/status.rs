@@ -115,31 +115,34 @@ pub(super) fn find(rig: Option<&str>, config: Option<&Path>) -> Result<Connectio
             }
         }
     };
-    let not_running = || Unreached {
-        message: format!("no rig called {name} is running; {}", running_list()),
-        status: exit::UNAVAILABLE,
+    let not_running = |refused: &[String]| {
+        let mut message = format!("no rig called {name} is running; {}", running_list());
+        for why in refused {
+            message.push_str(&format!("; not searched: {why}"));
+        }
+        Unreached {
+            message,
+            status: exit::UNAVAILABLE,
+        }
     };
-    let Some(path) = rig_dir::find_socket(&name) else {
-        return Err(not_running());
-    };
-    match rig_dir::knock(&path) {
-        Knock::Answered(_) => {}
-        Knock::Stale => {
+    let (path, owner) = rig_dir::find_socket(&name).map_err(|refused| not_running(&refused))?;
+    match rig_dir::open(&path, owner, ANSWER_WAIT) {
+        Ok((c, _)) => Ok(c),
+        Err(Knock::Stale) => {
             let _ = std::fs::remove_file(&path);
-            return Err(not_running());
+            Err(not_running(&[]))
         }
-        Knock::Absent => return Err(not_running()),
-        Knock::Unanswered(why) => {
-            return Err(Unreached {
-                message: format!("rig {name} did not answer: {why}"),
-                status: exit::ERROR,
-            })
-        }
+        Err(Knock::Absent) => Err(not_running(&[])),
+        Err(Knock::Refused(why)) => Err(Unreached {
+            message: format!("rig {name}: {why}"),
+            status: exit::ERROR,
+        }),
+        Err(Knock::Unanswered(why)) => Err(Unreached {
+            message: format!("rig {name} did not answer: {why}"),
+            status: exit::ERROR,
+        }),
+        Err(Knock::Answered(_)) => Err(not_running(&[])),
     }
-    Connection::open(&path, ANSWER_WAIT).map_err(|e| Unreached {
-        message: format!("rig {name} did not answer: {e}"),
-        status: exit::ERROR,
-    })
 }
 
 /// Runs `rigscript status`.
@@ -219,13 +222,17 @@ fn say_failed(command: &str, e: &std::io::Error) -> i32 {
 
 /// Runs `rigscript list`.
 pub fn list(args: &ListArgs) -> i32 {
-    let rigs: Vec<(Hello, Option<RigSnapshot>)> = rig_dir::running_anywhere()
+    let (found, refused) = rig_dir::survey();
+    for why in &refused {
+        say(&format!("rigscript list: not searched: {why}"));
+    }
+    let rigs: Vec<(Hello, Option<RigSnapshot>)> = found
         .into_iter()
-        .map(|h| {
-            let snapshot = rig_dir::find_socket(&h.rig)
-                .and_then(|p| Connection::open(&p, ANSWER_WAIT).ok())
-                .and_then(|mut c| c.status().ok());
-            (h, snapshot)
+        .map(|f| {
+            let snapshot = rig_dir::open(&f.socket, f.owner, ANSWER_WAIT)
+                .ok()
+                .and_then(|(mut c, _)| c.status().ok());
+            (f.hello, snapshot)
         })
         .collect();
     let text = if args.json {

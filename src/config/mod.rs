@@ -286,14 +286,16 @@ impl RigConfig {
             })
         });
         let force = r.read(&root, "force", boolean).unwrap_or(false);
-        let token = |v: &DeValue<'_>| match string(v)? {
-            // The value is not shown: a token stays out of messages too.
-            s if s.trim().len() < 8 || s.trim() != s => Err(ProblemKind::BadValue {
-                value: "(the token)".into(),
-                reason: "is not a token: give at least 8 characters, no spaces at either end"
-                    .into(),
-            }),
-            s => Ok(Secret::new(s)),
+        let token = |v: &DeValue<'_>| {
+            let s = string(v)?;
+            match crate::service::authority::check_token(&s) {
+                // The value is not shown: a token stays out of messages too.
+                Err(why) => Err(ProblemKind::BadValue {
+                    value: "(the token)".into(),
+                    reason: why.to_string(),
+                }),
+                Ok(()) => Ok(Secret::new(s)),
+            }
         };
         let ui_token = r.read(&root, "ui_token", token);
         let ui_read_token = r.read(&root, "ui_read_token", token);

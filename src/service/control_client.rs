@@ -1,6 +1,7 @@
 //! The client end of a rig's control socket (`control_protocol`), for `rigscript status`,
 //! `list` and `stop`.
 
+use super::authority::{self, Peer};
 use super::control_protocol::{ClientRequest, Hello, Reply};
 use crate::runtime::snapshot::RigSnapshot;
 use std::io::{self, BufRead, BufReader, Read, Write};
@@ -31,8 +32,13 @@ impl Connection {
     pub fn ask(&mut self, request: &ClientRequest) -> io::Result<Reply> {
         let mut line = serde_json::to_string(request).map_err(io::Error::other)?;
         line.push('\n');
-        self.out.write_all(line.as_bytes())?;
-        let text = self.read_line()?;
+        let sent = self.out.write_all(line.as_bytes());
+        // A run that turned this client away (all its places taken) said why before it
+        // closed: its words, not the broken pipe.
+        let text = match (sent, self.read_line()) {
+            (_, Ok(text)) => text,
+            (Err(e), Err(_)) | (Ok(()), Err(e)) => return Err(e),
+        };
         let reply: Reply = serde_json::from_str(&text).map_err(|e| {
             io::Error::new(
                 io::ErrorKind::InvalidData,
@@ -46,6 +52,11 @@ impl Connection {
                 reply.error.unwrap_or_else(|| "refused".into()),
             ))
         }
+    }
+
+    /// Who is at the other end, as the kernel tells it.
+    pub fn peer(&self) -> Option<Peer> {
+        authority::peer(&self.out)
     }
 
     /// Who the run is.

@@ -5,21 +5,25 @@
 //! (`runtime::observe`), never by touching the runtime.
 //!
 //! Hostile clients cost the loop nothing: reads are bounded (`MAX_REQUEST`), a client that
-//! sends nothing is let go (`FIRST_REQUEST`, `IDLE`), one that does not read is let go
-//! (`WRITE_WAIT`), and at most `MAX_CLIENTS` are served at once (the next is told so).
+//! sends nothing is let go (`FIRST_REQUEST`, `IDLE`), a request must come whole within
+//! `REQUEST_WAIT` of its first byte however it trickles, one that does not read is let go
+//! (`WRITE_WAIT`), and at most `MAX_CLIENTS` are served at once: a newcomer takes the place
+//! of the client that has waited longest (`serving`), so `stop` always gets through; only
+//! when all are busy is it told the socket is full. Only the run's user and root are served
+//! (`authority::may_act`).
 
+use super::authority::{self, RunKey};
 use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_REQUEST};
 use super::rig_dir::{self, Knock};
-use super::serving::{self, Bounds, Closing, Serving};
+use super::serving::{self, Bounds, Closing, Place, Serving};
 use crate::runtime::observe::{Events, Next, DEFAULT_QUEUE};
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
-use std::os::unix::io::AsRawFd;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Clients served at once; the next one is told so and let go.
 pub const MAX_CLIENTS: usize = 16;
@@ -29,6 +33,9 @@ pub const FIRST_REQUEST: Duration = Duration::from_secs(5);
 
 /// How long a client may wait between requests (a subscriber is not waiting: it reads).
 pub const IDLE: Duration = Duration::from_secs(60);
+
+/// How long a request may take from its first byte to its newline.
+pub const REQUEST_WAIT: Duration = Duration::from_secs(5);
 
 /// How long an answer may wait for a client that does not read it.
 pub const WRITE_WAIT: Duration = Duration::from_secs(2);
@@ -84,6 +91,8 @@ pub struct Claim {
     path: PathBuf,
     inode: (u64, u64),
     hello: Hello,
+    /// The run's key beside the socket, once kept.
+    key: Option<PathBuf>,
 }
 
 /// Names a run may take when the one it was given is in use, besides that one: `NAME-2` to
@@ -139,7 +148,7 @@ fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
         pid: other.pid,
         script: other.script,
     };
-    match rig_dir::knock(&path) {
+    match rig_dir::knock(&path, authority::me()) {
         Knock::Answered(other) => return Err(running(other)),
         // Left by a run that died (kill -9, a power cut): nobody listens.
         Knock::Stale => match std::fs::remove_file(&path) {
@@ -148,8 +157,8 @@ fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
             Err(e) => return Err(io(e)),
         },
         Knock::Absent => {}
-        // A live run, most likely: never take its name from under it.
-        Knock::Unanswered(why) => {
+        // A live run, most likely, or a file not ours: never take its name from under it.
+        Knock::Unanswered(why) | Knock::Refused(why) => {
             return Err(ClaimError::Unanswered {
                 rig: hello.rig.clone(),
                 path,
@@ -161,7 +170,7 @@ fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
         Ok(l) => l,
         // Another run bound it between the knock and here: knock again for who.
         Err(e) if e.kind() == std::io::ErrorKind::AddrInUse => {
-            return Err(match rig_dir::knock(&path) {
+            return Err(match rig_dir::knock(&path, authority::me()) {
                 Knock::Answered(other) => running(other),
                 _ => io(e),
             })
@@ -175,6 +184,7 @@ fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
         path,
         inode: (meta.dev(), meta.ino()),
         hello: hello.clone(),
+        key: None,
     })
 }
 
@@ -187,6 +197,15 @@ impl Claim {
     /// Who the run is, under the name it took.
     pub fn hello(&self) -> &Hello {
         &self.hello
+    }
+
+    /// Keeps the run's key beside the socket (`NAME.key`, mode 0600): whoever may open the
+    /// socket may read it, and with it change the rig over HTTP too. Removed with the socket.
+    pub fn keep_key(&mut self, key: &RunKey) -> std::io::Result<PathBuf> {
+        let path = authority::key_path(&self.path);
+        key.keep(&path)?;
+        self.key = Some(path.clone());
+        Ok(path)
     }
 
     /// Serves the socket from now on: requests through `ask`, subscriptions from `events`.
@@ -202,13 +221,15 @@ impl Claim {
             name: "control socket",
         };
         let refuse = |stream: &mut UnixStream| {
-            let why = format!("{MAX_CLIENTS} clients are connected to this rig already; try again");
+            let why = format!(
+                "the rig's control socket is full ({MAX_CLIENTS} clients, all busy); try again"
+            );
             let _ = stream.write_all(Reply::refused(why).line().as_bytes());
         };
         let serving = self.listener.try_clone().ok().map(|listener| {
             let closing = Arc::new(Closing::default());
-            serving::serve(listener, bounds, closing, refuse, move |stream, closing| {
-                serve_client(stream, &shared, closing);
+            serving::serve(listener, bounds, closing, refuse, move |stream, place| {
+                serve_client(stream, &shared, place);
             })
         });
         Server {
@@ -226,6 +247,9 @@ impl Drop for Claim {
             .unwrap_or(false);
         if ours {
             let _ = std::fs::remove_file(&self.path);
+            if let Some(key) = &self.key {
+                let _ = std::fs::remove_file(key);
+            }
         }
     }
 }
@@ -256,34 +280,69 @@ enum Line {
     Request(String),
     TooLong,
     NotText,
+    TooSlow,
     Closed,
 }
 
-fn read_request(reader: &mut BufReader<UnixStream>) -> Line {
+/// Reads one request line: its first byte within `wait`, the rest within `REQUEST_WAIT` of
+/// it, however the client trickles it.
+fn read_request(reader: &mut BufReader<UnixStream>, wait: Duration) -> Line {
     let mut buf = Vec::new();
-    match reader
-        .by_ref()
-        .take(MAX_REQUEST as u64 + 1)
-        .read_until(b'\n', &mut buf)
-    {
-        Ok(0) | Err(_) => Line::Closed,
-        Ok(_) if buf.len() > MAX_REQUEST => Line::TooLong,
-        Ok(_) => match String::from_utf8(buf) {
-            Ok(s) => Line::Request(s),
-            Err(_) => Line::NotText,
-        },
+    let mut deadline = Instant::now() + wait;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() || reader.get_ref().set_read_timeout(Some(left)).is_err() {
+            return if buf.is_empty() {
+                Line::Closed
+            } else {
+                Line::TooSlow
+            };
+        }
+        let available = match reader.fill_buf() {
+            Ok([]) => return Line::Closed,
+            Ok(bytes) => bytes,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(_) if !buf.is_empty() => return Line::TooSlow,
+            Err(_) => return Line::Closed,
+        };
+        if buf.is_empty() {
+            deadline = deadline.min(Instant::now() + REQUEST_WAIT);
+        }
+        let (take, whole) = match available.iter().position(|b| *b == b'\n') {
+            Some(i) => (i + 1, true),
+            None => (available.len(), false),
+        };
+        buf.extend_from_slice(&available[..take]);
+        reader.consume(take);
+        if buf.len() > MAX_REQUEST {
+            return Line::TooLong;
+        }
+        if whole {
+            return match String::from_utf8(buf) {
+                Ok(s) => Line::Request(s),
+                Err(_) => Line::NotText,
+            };
+        }
     }
 }
 
-fn serve_client(stream: UnixStream, shared: &Shared, closing: &Closing) {
+fn serve_client(stream: UnixStream, shared: &Shared, place: &Place) {
     let Ok(reading) = stream.try_clone() else {
         return;
     };
     let mut out = stream;
+    if !authority::may_act(authority::peer(&out)) {
+        let why = "only the rig's user (and root) may use its control socket";
+        let _ = out.write_all(Reply::refused(why).line().as_bytes());
+        return;
+    }
     let mut reader = BufReader::new(reading);
-    let _ = reader.get_ref().set_read_timeout(Some(FIRST_REQUEST));
+    let mut wait = FIRST_REQUEST;
     loop {
-        let reply = match read_request(&mut reader) {
+        place.waiting(true);
+        let line = read_request(&mut reader, wait);
+        place.waiting(false);
+        let reply = match line {
             Line::Closed => return,
             Line::TooLong => {
                 let why = format!("a request is one line of at most {MAX_REQUEST} bytes");
@@ -295,11 +354,19 @@ fn serve_client(stream: UnixStream, shared: &Shared, closing: &Closing) {
                 let _ = out.write_all(Reply::refused(why).line().as_bytes());
                 return;
             }
+            Line::TooSlow => {
+                let why = format!(
+                    "a request comes whole within {}s of its first byte",
+                    REQUEST_WAIT.as_secs()
+                );
+                let _ = out.write_all(Reply::refused(why).line().as_bytes());
+                return;
+            }
             Line::Request(text) if text.trim().is_empty() => continue,
             Line::Request(text) => match parse_request(&text) {
                 Err(why) => Reply::refused(why),
                 Ok(ClientRequest::Subscribe) => {
-                    stream_events(&mut out, shared, closing);
+                    stream_events(&mut out, shared, place.closing());
                     return;
                 }
                 Ok(request) => answer(request, shared, &out),
@@ -308,7 +375,7 @@ fn serve_client(stream: UnixStream, shared: &Shared, closing: &Closing) {
         if out.write_all(reply.line().as_bytes()).is_err() {
             return;
         }
-        let _ = reader.get_ref().set_read_timeout(Some(IDLE));
+        wait = IDLE;
     }
 }
 
@@ -356,8 +423,8 @@ fn done(answer: Result<Answer, AskError>) -> Reply {
 
 /// Who sent a request over the socket, for the log: `rigscript force (pid 7, uid 1000)`.
 fn asker(client: &UnixStream, command: &str) -> String {
-    match peer_of(client) {
-        Some((pid, uid)) => format!("rigscript {command} (pid {pid}, uid {uid})"),
+    match authority::peer(client) {
+        Some(p) => format!("rigscript {command} (pid {}, uid {})", p.pid, p.uid),
         None => "a client of the control socket".to_string(),
     }
 }
@@ -365,8 +432,8 @@ fn asker(client: &UnixStream, command: &str) -> String {
 /// Sends the run's events, one JSON line each, until the client goes, the run ends, or the
 /// socket closes; lost events are told as `{"event":"dropped","events":N}`.
 fn stream_events(out: &mut UnixStream, shared: &Shared, closing: &Closing) {
-    let who = peer_of(out).map_or("socket client".to_string(), |(pid, _)| {
-        format!("socket client pid {pid}")
+    let who = authority::peer(out).map_or("socket client".to_string(), |p| {
+        format!("socket client pid {}", p.pid)
     });
     let mut events = match shared.events.subscribe(&who, DEFAULT_QUEUE) {
         Ok(s) => s,
@@ -390,26 +457,4 @@ fn stream_events(out: &mut UnixStream, shared: &Shared, closing: &Closing) {
             out.write_all(line.as_bytes()).is_ok()
         },
     );
-}
-
-/// The pid and uid of the process at the other end of `stream`.
-fn peer_of(stream: &UnixStream) -> Option<(i32, u32)> {
-    let mut cred = libc::ucred {
-        pid: 0,
-        uid: 0,
-        gid: 0,
-    };
-    let mut len = libc::socklen_t::try_from(std::mem::size_of::<libc::ucred>()).ok()?;
-    // SAFETY: `cred` and `len` are valid for writes of the size passed; the descriptor is
-    // the stream's own.
-    let got = unsafe {
-        libc::getsockopt(
-            stream.as_raw_fd(),
-            libc::SOL_SOCKET,
-            libc::SO_PEERCRED,
-            std::ptr::addr_of_mut!(cred).cast(),
-            &mut len,
-        )
-    };
-    (got == 0 && cred.pid != 0).then_some((cred.pid, cred.uid))
 }

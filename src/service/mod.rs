@@ -4,6 +4,7 @@
 //! HTTP API (`run --ui`) that do the same from a browser, and the MQTT client (`[mqtt]`) that
 //! tells a broker and takes commands from it.
 
+pub mod authority;
 pub mod control_client;
 pub mod control_protocol;
 pub mod control_socket;

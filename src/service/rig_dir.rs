@@ -1,7 +1,10 @@
 //! Where the running rigs of this machine are found: one control socket per rig, named after
 //! it, in the rig directory (`$RUNTIME_DIRECTORY` under systemd's `RuntimeDirectory=`, else
-//! `$XDG_RUNTIME_DIR/rigscript`, else `/tmp/rigscript-UID`), private to its owner.
+//! `$XDG_RUNTIME_DIR/rigscript`, else `/tmp/rigscript-UID`), private to its owner. Systemd's
+//! units' directories (`SYSTEM_RIGS`) are searched first, then this user's; a directory or
+//! socket `authority` does not trust is refused, and told, never searched.
 
+use super::authority::{self, Untrusted};
 use super::control_client::Connection;
 use super::control_protocol::Hello;
 use std::io;
@@ -12,7 +15,8 @@ use std::time::Duration;
 /// How long a knock waits for a run's `hello`.
 pub const KNOCK_WAIT: Duration = Duration::from_secs(1);
 
-/// The rig directory, made (mode 0700) if it is not there; refused if someone else owns it.
+/// The rig directory, made (mode 0700) if it is not there; refused (`authority::own_dir`) if
+/// someone else owns it or is a link, by root too.
 pub fn rig_dir() -> io::Result<PathBuf> {
     let dir = match (
         std::env::var_os("RUNTIME_DIRECTORY"),
@@ -24,8 +28,7 @@ pub fn rig_dir() -> io::Result<PathBuf> {
             PathBuf::from(text.split(':').next().unwrap_or_default())
         }
         (_, Some(d)) if !d.is_empty() => PathBuf::from(d).join("rigscript"),
-        // SAFETY: getuid has no preconditions and cannot fail.
-        _ => PathBuf::from(format!("/tmp/rigscript-{}", unsafe { libc::getuid() })),
+        _ => PathBuf::from(format!("/tmp/rigscript-{}", authority::me())),
     };
     match std::fs::DirBuilder::new()
         .recursive(true)
@@ -36,58 +39,117 @@ pub fn rig_dir() -> io::Result<PathBuf> {
         Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {}
         Err(e) => return Err(e),
     }
-    let meta = std::fs::metadata(&dir)?;
-    // SAFETY: as above.
-    let me = unsafe { libc::getuid() };
-    if meta.uid() != me && me != 0 {
-        return Err(io::Error::new(
-            io::ErrorKind::PermissionDenied,
-            format!(
-                "{} belongs to uid {}, not to this user (uid {me})",
-                dir.display(),
-                meta.uid()
-            ),
-        ));
-    }
-    if meta.permissions().mode() & 0o077 != 0 {
+    let meta = std::fs::symlink_metadata(&dir)?;
+    // Our own directory left open (an old umask): closed again; anyone else's is refused.
+    if meta.is_dir() && meta.uid() == authority::me() && meta.mode() & 0o077 != 0 {
         std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700))?;
     }
+    authority::own_dir(&dir)?;
     Ok(dir)
 }
 
 /// Where systemd's units keep their rigs' directories (`RuntimeDirectory=rigscript/%i`).
 pub const SYSTEM_RIGS: &str = "/run/rigscript";
 
-/// Every rig directory this user can look into: its own (`rig_dir`), then each unit's under
-/// `SYSTEM_RIGS` it may read (root may read them all).
-pub fn search_dirs() -> Vec<PathBuf> {
-    let mut dirs: Vec<PathBuf> = rig_dir().into_iter().collect();
-    if let Ok(entries) = std::fs::read_dir(SYSTEM_RIGS) {
+/// A directory searched for rigs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Searched {
+    /// The directory.
+    pub dir: PathBuf,
+    /// Its owner: whom its rigs must answer as.
+    pub owner: u32,
+}
+
+/// The directories searched, and the ones refused, in words.
+#[derive(Debug, Default)]
+pub struct Search {
+    /// Trusted directories, in the order searched.
+    pub dirs: Vec<Searched>,
+    /// Why each refused one was.
+    pub refused: Vec<String>,
+}
+
+/// Every rig directory this user can look into: each unit's under `SYSTEM_RIGS` it may read
+/// (root may read them all), then its own (`rig_dir`).
+pub fn search() -> Search {
+    let mut search = Search::default();
+    let system = Path::new(SYSTEM_RIGS);
+    if let Ok(entries) = std::fs::read_dir(system) {
         let mut units: Vec<PathBuf> = entries
             .flatten()
             .map(|e| e.path())
-            .filter(|p| p.is_dir() && std::fs::read_dir(p).is_ok())
+            .filter(|p| std::fs::read_dir(p).is_ok())
             .collect();
         units.sort();
-        dirs.extend(units);
+        for dir in units {
+            match authority::unit_dir(system, &dir) {
+                Ok(owner) => search.dirs.push(Searched { dir, owner }),
+                Err(e) => search.refused.push(e.to_string()),
+            }
+        }
     }
-    dirs.dedup();
-    dirs
+    match rig_dir() {
+        Ok(dir) => search.dirs.push(Searched {
+            dir,
+            owner: authority::me(),
+        }),
+        Err(e) if e.kind() == io::ErrorKind::PermissionDenied => search.refused.push(e.to_string()),
+        Err(_) => {}
+    }
+    search.dirs.dedup_by(|a, b| a.dir == b.dir);
+    search
 }
 
-/// The socket of rig `name`: in the first searched directory that has one.
-pub fn find_socket(name: &str) -> Option<PathBuf> {
-    search_dirs()
+/// Every rig directory searched (`search`), the refused ones left out.
+pub fn search_dirs() -> Vec<Searched> {
+    search().dirs
+}
+
+/// The socket of rig `name`: in the first searched directory that has one, with the user its
+/// rig must answer as. None: why, with the directories refused on the way.
+pub fn find_socket(name: &str) -> Result<(PathBuf, u32), Vec<String>> {
+    let search = search();
+    search
+        .dirs
         .iter()
-        .map(|d| socket_path(d, name))
-        .find(|p| std::fs::symlink_metadata(p).is_ok())
+        .map(|d| (socket_path(&d.dir, name), d.owner))
+        .find(|(p, _)| std::fs::symlink_metadata(p).is_ok())
+        .ok_or(search.refused)
 }
 
-/// The rigs running in every searched directory (`search_dirs`), by name.
+/// A rig found running.
+#[derive(Debug, Clone)]
+pub struct Found {
+    /// Who it said it is.
+    pub hello: Hello,
+    /// Its socket.
+    pub socket: PathBuf,
+    /// The user it answered as.
+    pub owner: u32,
+}
+
+/// The rigs running in every searched directory, each name once (the first found, as
+/// `find_socket` finds it), by name; and the directories and sockets refused, in words.
+pub fn survey() -> (Vec<Found>, Vec<String>) {
+    let search = search();
+    let mut refused = search.refused;
+    let mut rigs: Vec<Found> = Vec::new();
+    for d in &search.dirs {
+        let (found, why) = running(d);
+        refused.extend(why);
+        for f in found {
+            if !rigs.iter().any(|r| r.hello.rig == f.hello.rig) {
+                rigs.push(f);
+            }
+        }
+    }
+    rigs.sort_by(|a, b| a.hello.rig.cmp(&b.hello.rig));
+    (rigs, refused)
+}
+
+/// The rigs running in every searched directory, by name (`survey` without what it refused).
 pub fn running_anywhere() -> Vec<Hello> {
-    let mut rigs: Vec<Hello> = search_dirs().iter().flat_map(|d| running(d)).collect();
-    rigs.sort_by(|a, b| a.rig.cmp(&b.rig));
-    rigs
+    survey().0.into_iter().map(|f| f.hello).collect()
 }
 
 /// The socket of rig `name` in `dir`.
@@ -126,54 +188,81 @@ pub fn rig_name(configured: Option<&str>, config: Option<&Path>, script: &Path) 
 /// What is behind a rig's socket path.
 #[derive(Debug)]
 pub enum Knock {
-    /// A live run, which said who it is.
+    /// A live run, which said who it is and is who it says.
     Answered(Hello),
     /// Something listens but did not say who it is (a run whose clients are all taken, one
     /// too busy to answer in time): not to be removed; why, in words.
     Unanswered(String),
+    /// A socket or an answer `authority` does not trust (someone else's file, a process that
+    /// is not the rig it names): not to be believed, nor removed; why, in words.
+    Refused(String),
     /// A socket nobody listens on: its run died.
     Stale,
     /// Nothing.
     Absent,
 }
 
-/// Knocks at `path`: who answers there, if anyone.
-pub fn knock(path: &Path) -> Knock {
-    if std::fs::symlink_metadata(path).is_err() {
-        return Knock::Absent;
-    }
-    match Connection::open(path, KNOCK_WAIT) {
-        Ok(mut c) => match c.hello() {
-            Ok(hello) => Knock::Answered(hello),
-            Err(e) => Knock::Unanswered(e.to_string()),
-        },
-        Err(e) if e.kind() == io::ErrorKind::NotFound => Knock::Absent,
-        // Refused: the file is there and nobody listens (ECONNREFUSED).
-        Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => Knock::Stale,
-        Err(e) => Knock::Unanswered(e.to_string()),
+/// Knocks at `path`, a socket of a directory `owner` owns: who answers there, if anyone.
+pub fn knock(path: &Path, owner: u32) -> Knock {
+    match open(path, owner, KNOCK_WAIT) {
+        Ok((_, hello)) => Knock::Answered(hello),
+        Err(knock) => knock,
     }
 }
 
-/// The rigs running in `dir`, by name; stale sockets found on the way are removed.
-pub fn running(dir: &Path) -> Vec<Hello> {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return Vec::new();
+/// Connects to the rig at `path`, a socket of a directory `owner` owns, and asks who it is;
+/// every read and write waits at most `wait`. The connection only when the socket is `owner`'s
+/// and the process answering is `owner`'s and the one its hello names
+/// (`authority::check_answerer`); else what is there instead.
+pub fn open(path: &Path, owner: u32, wait: Duration) -> Result<(Connection, Hello), Knock> {
+    match authority::trusted_socket(path, owner) {
+        Ok(()) => {}
+        Err(Untrusted::Io { source, .. }) if source.kind() == io::ErrorKind::NotFound => {
+            return Err(Knock::Absent)
+        }
+        Err(e) => return Err(Knock::Refused(e.to_string())),
+    }
+    let mut c = match Connection::open(path, wait) {
+        Ok(c) => c,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(Knock::Absent),
+        // Refused: the file is there and nobody listens (ECONNREFUSED).
+        Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => return Err(Knock::Stale),
+        Err(e) => return Err(Knock::Unanswered(e.to_string())),
     };
-    let mut rigs: Vec<Hello> = entries
+    let hello = c.hello().map_err(|e| Knock::Unanswered(e.to_string()))?;
+    authority::check_answerer(c.peer(), owner, hello.pid)
+        .map_err(|why| Knock::Refused(format!("{}: {why}", path.display())))?;
+    Ok((c, hello))
+}
+
+/// The rigs running in `searched`, by name, and the sockets refused there, in words; stale
+/// sockets found on the way are removed.
+pub fn running(searched: &Searched) -> (Vec<Found>, Vec<String>) {
+    let Ok(entries) = std::fs::read_dir(&searched.dir) else {
+        return (Vec::new(), Vec::new());
+    };
+    let (mut rigs, mut refused) = (Vec::new(), Vec::new());
+    for socket in entries
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|x| x == "sock"))
-        .filter_map(|p| match knock(&p) {
-            Knock::Answered(hello) => Some(hello),
+    {
+        match knock(&socket, searched.owner) {
+            Knock::Answered(hello) => rigs.push(Found {
+                hello,
+                socket,
+                owner: searched.owner,
+            }),
             Knock::Stale => {
-                let _ = std::fs::remove_file(&p);
-                None
+                let _ = std::fs::remove_file(&socket);
+                let _ = std::fs::remove_file(authority::key_path(&socket));
             }
-            Knock::Unanswered(_) | Knock::Absent => None,
-        })
-        .collect();
-    rigs.sort_by(|a, b| a.rig.cmp(&b.rig));
-    rigs
+            Knock::Refused(why) => refused.push(why),
+            Knock::Unanswered(_) | Knock::Absent => {}
+        }
+    }
+    rigs.sort_by(|a: &Found, b| a.hello.rig.cmp(&b.hello.rig));
+    (rigs, refused)
 }
 
 #[cfg(test)]
@@ -202,14 +291,19 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = socket_path(&dir, "gone");
         let _ = std::fs::remove_file(&path);
-        assert!(matches!(knock(&path), Knock::Absent));
+        let me = authority::me();
+        assert!(matches!(knock(&path, me), Knock::Absent));
         drop(std::os::unix::net::UnixListener::bind(&path).unwrap());
         assert!(
             path.exists(),
             "a dropped listener leaves its file, as a killed run does"
         );
-        assert!(matches!(knock(&path), Knock::Stale));
-        assert!(running(&dir).is_empty());
+        assert!(matches!(knock(&path, me), Knock::Stale));
+        let searched = Searched {
+            dir: dir.clone(),
+            owner: me,
+        };
+        assert!(running(&searched).0.is_empty());
         assert!(!path.exists(), "listing removed the stale socket");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -1,8 +1,13 @@
 //! Connections served off the scan loop, the one way the control socket and the web page both
 //! serve theirs: an accept thread that looks whether serving is over every `ACCEPT_SLICE`, a
-//! thread per client up to a bound (the next one is told so by the service and let go), each
-//! connection's reads ended when serving stops, and a bounded wait for the clients at the end:
-//! the end of a run never waits on a client.
+//! thread per client up to a bound, each connection's reads ended when serving stops, and a
+//! bounded wait for the clients at the end: the end of a run never waits on a client.
+//!
+//! A place is never held against a newcomer by a client that only waits: a client says when
+//! it waits for its peer's request (`Place::waiting`); when every place is taken, the one
+//! that has waited longest is let go for the newcomer, so a client trickling its request, or
+//! a crowd of them, cannot keep the rig's owner out. Only when every place is busy answering
+//! or streaming is the newcomer told so by the service and let go.
 
 use crate::sync::lock;
 use std::collections::HashMap;
@@ -94,11 +99,38 @@ impl Closing {
     }
 }
 
+/// A client's place, as its thread sees it.
+pub struct Place {
+    closing: Arc<Closing>,
+    waiting: Arc<AtomicBool>,
+}
+
+impl Place {
+    /// Whether serving is over.
+    pub fn closing(&self) -> &Closing {
+        &self.closing
+    }
+
+    /// Says whether the client is waiting for its peer (a request not read whole yet, an idle
+    /// connection): a waiting client may be let go for a newcomer when every place is taken.
+    pub fn waiting(&self, waiting: bool) {
+        self.waiting.store(waiting, Ordering::SeqCst);
+    }
+}
+
+/// A connection being served, as the accept thread keeps it.
+struct Open<S> {
+    stream: S,
+    waiting: Arc<AtomicBool>,
+}
+
 struct State<S> {
     closing: Arc<Closing>,
+    /// Client threads alive (a client let go is counted until its thread ends).
     clients: AtomicUsize,
-    /// The clients' connections by number, to end their reads when serving stops.
-    open: Mutex<HashMap<u64, S>>,
+    /// The clients holding a place, by number (the order they came in), to let the longest
+    /// waiting go for a newcomer and to end their reads when serving stops.
+    open: Mutex<HashMap<u64, Open<S>>>,
 }
 
 /// Connections being served; dropping it stops serving (see the module doc).
@@ -109,14 +141,16 @@ pub struct Serving {
 }
 
 /// Serves `listener` from now on: each client on a thread of its own, given to `client` with
-/// `closing`, the flag that says serving is over (set when `Serving` is dropped); one past
-/// `bounds.clients` is given to `refuse` (a short answer that says so) and let go.
+/// its `Place` (waiting until it says otherwise; `closing`, the flag that says serving is
+/// over, set when `Serving` is dropped). One past `bounds.clients` takes the place of the
+/// client that has waited longest, or, when none waits, is given to `refuse` (a short answer
+/// that says so) and let go.
 pub fn serve<L: Listening>(
     listener: L,
     bounds: Bounds,
     closing: Arc<Closing>,
     refuse: impl Fn(&mut L::Stream) + Send + 'static,
-    client: impl Fn(L::Stream, &Closing) + Send + Sync + 'static,
+    client: impl Fn(L::Stream, &Place) + Send + Sync + 'static,
 ) -> Serving {
     let state = Arc::new(State {
         closing: Arc::clone(&closing),
@@ -132,8 +166,8 @@ pub fn serve<L: Listening>(
     let ending = Arc::clone(&state);
     // Ends the clients' reads; true while some are still being served.
     let end = Box::new(move || {
-        for s in lock(&ending.open).values() {
-            s.end_reads();
+        for o in lock(&ending.open).values() {
+            o.stream.end_reads();
         }
         ending.clients.load(Ordering::SeqCst) > 0
     });
@@ -175,12 +209,33 @@ fn connection_waiting(fd: RawFd) -> bool {
     ready > 0 && poll.revents & libc::POLLIN != 0
 }
 
+/// Lets the client that has waited longest go (its reads end, and its place is free at once):
+/// true if one was waiting.
+fn let_go_longest<S: Connection>(open: &mut HashMap<u64, Open<S>>) -> bool {
+    let longest = open
+        .iter()
+        .filter(|(_, o)| o.waiting.load(Ordering::SeqCst))
+        .map(|(n, _)| *n)
+        .min();
+    match longest.and_then(|n| open.remove(&n)) {
+        Some(o) => {
+            o.stream.end_reads();
+            true
+        }
+        None => false,
+    }
+}
+
+/// Client threads alive at most, as a multiple of the places: a client let go ends its
+/// thread at once (its read ends), but until it has, its thread is still counted.
+const THREADS_PER_PLACE: usize = 3;
+
 fn accept_loop<L: Listening>(
     listener: &L,
     bounds: Bounds,
     state: &Arc<State<L::Stream>>,
     refuse: &impl Fn(&mut L::Stream),
-    client: &Arc<impl Fn(L::Stream, &Closing) + Send + Sync + 'static>,
+    client: &Arc<impl Fn(L::Stream, &Place) + Send + Sync + 'static>,
 ) {
     let mut number = 0u64;
     while !state.closing.now() {
@@ -194,20 +249,39 @@ fn accept_loop<L: Listening>(
             continue;
         };
         stream.set_write_wait(bounds.write_wait);
-        if state.clients.load(Ordering::SeqCst) >= bounds.clients {
+        let waiting = Arc::new(AtomicBool::new(true));
+        let admitted = match stream.another() {
+            Ok(copy) => {
+                let mut open = lock(&state.open);
+                let threads = state.clients.load(Ordering::SeqCst);
+                let place = threads < THREADS_PER_PLACE * bounds.clients
+                    && (open.len() < bounds.clients || let_go_longest(&mut open));
+                if place {
+                    let o = Open {
+                        stream: copy,
+                        waiting: Arc::clone(&waiting),
+                    };
+                    open.insert(number, o);
+                    state.clients.fetch_add(1, Ordering::SeqCst);
+                }
+                place
+            }
+            Err(_) => false,
+        };
+        if !admitted {
             stream.set_write_wait(Duration::from_millis(100));
             refuse(&mut stream);
             continue;
         }
-        state.clients.fetch_add(1, Ordering::SeqCst);
-        if let Ok(copy) = stream.another() {
-            lock(&state.open).insert(number, copy);
-        }
+        let place = Place {
+            closing: Arc::clone(&state.closing),
+            waiting,
+        };
         let (theirs, serve) = (Arc::clone(state), Arc::clone(client));
         let spawned = std::thread::Builder::new()
             .name(format!("{} client", bounds.name))
             .spawn(move || {
-                serve(stream, &theirs.closing);
+                serve(stream, &place);
                 lock(&theirs.open).remove(&number);
                 theirs.clients.fetch_sub(1, Ordering::SeqCst);
             });
@@ -215,5 +289,68 @@ fn accept_loop<L: Listening>(
             lock(&state.open).remove(&number);
             state.clients.fetch_sub(1, Ordering::SeqCst);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Read, Write};
+
+    /// Reads what `s` says until it closes or a newline.
+    fn said(s: &mut UnixStream) -> String {
+        let mut text = Vec::new();
+        let mut b = [0u8; 1];
+        while let Ok(1) = s.read(&mut b) {
+            text.push(b[0]);
+            if b[0] == b'\n' {
+                break;
+            }
+        }
+        String::from_utf8_lossy(&text).into_owned()
+    }
+
+    #[test]
+    fn a_newcomer_takes_the_place_of_the_longest_waiting_and_a_busy_house_is_refused() {
+        let dir = std::env::temp_dir().join(format!("rigscript-places-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.sock");
+        let _ = std::fs::remove_file(&path);
+        let listener = UnixListener::bind(&path).unwrap();
+        let bounds = Bounds {
+            clients: 2,
+            write_wait: Duration::from_secs(1),
+            name: "places test",
+        };
+        let refuse = |s: &mut UnixStream| {
+            let _ = s.write_all(b"full\n");
+        };
+        // A client waits until it sends a byte; then it is busy until it goes.
+        let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
+            let mut b = [0u8; 1];
+            if matches!(s.read(&mut b), Ok(1)) {
+                place.waiting(false);
+                let _ = s.write_all(b"busy\n");
+                let _ = s.read(&mut b);
+            }
+        });
+        let connect = || {
+            let s = UnixStream::connect(&path).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            s
+        };
+        let (mut first, mut second) = (connect(), connect());
+        let mut busy = connect();
+        busy.write_all(b"x").unwrap();
+        assert_eq!(said(&mut busy), "busy\n");
+        assert_eq!(said(&mut first), "", "the longest waiting was let go");
+        let mut busy_too = connect();
+        busy_too.write_all(b"x").unwrap();
+        assert_eq!(said(&mut busy_too), "busy\n");
+        assert_eq!(said(&mut second), "", "then the next");
+        assert_eq!(said(&mut connect()), "full\n", "every place busy: refused");
+        drop(serving);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

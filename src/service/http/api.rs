@@ -11,9 +11,11 @@ use super::{force, metrics, sse, Shared, ANSWER_WAIT, REQUEST_WAIT};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::requests::{Answer, AskError, Drive, Request};
 use crate::runtime::snapshot::{DeviceState, RigSnapshot};
+use crate::service::serving::Place;
+use std::io::Read;
 use std::net::TcpStream;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// The page, compiled in (no CDN: rigs are often offline).
 const PAGE: &str = include_str!("page/index.html");
@@ -24,11 +26,18 @@ const UPLOT_JS: &str = include_str!("page/vendor/uPlot.iife.min.js");
 /// uPlot's style sheet.
 const UPLOT_CSS: &str = include_str!("page/vendor/uPlot.min.css");
 
-/// Reads one request from `stream` and answers it.
-pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared) {
-    let deadline = Instant::now() + REQUEST_WAIT;
+/// Reads one request from `stream` and answers it: its first byte within `REQUEST_WAIT`, the
+/// whole of it within `REQUEST_WAIT` of that, however it trickles.
+pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared, place: &Place) {
     let _ = stream.set_read_timeout(Some(REQUEST_WAIT));
-    let request = match read_request(&mut stream, deadline) {
+    match stream.peek(&mut [0u8; 1]) {
+        Ok(1..) => {}
+        _ => return,
+    }
+    let deadline = Instant::now() + REQUEST_WAIT;
+    let read = read_request(&mut Timed(&stream, deadline), deadline);
+    place.waiting(false);
+    let request = match read {
         Ok(r) => r,
         Err(ReadError::Closed) => return,
         Err(e) => {
@@ -37,10 +46,13 @@ pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared) {
             return;
         }
     };
-    if let Err(why) = shared.tokens.check(&request) {
-        let _ = why.write_to(&mut stream);
-        return;
-    }
+    let right = match shared.tokens.check(&request) {
+        Ok(right) => right,
+        Err(why) => {
+            let _ = why.write_to(&mut stream);
+            return;
+        }
+    };
     // A token is what a rebinding page cannot send; without one, the Host must be ours.
     if !shared.tokens.required() {
         if let Err(why) = check_host(&request, shared) {
@@ -52,20 +64,38 @@ pub(super) fn serve_client(mut stream: TcpStream, shared: &Shared) {
         sse::stream_events(stream, shared);
         return;
     }
-    let by = match stream.peer_addr() {
-        Ok(peer) => format!("the web page ({peer})"),
-        Err(_) => "the web page".to_string(),
-    };
+    let by = right.by(stream.peer_addr().ok());
     let _ = route(&request, shared, &by).write_to(&mut stream);
 }
 
-/// After an error answer: reads (a bounded amount, a bounded time) what the client still
-/// sends, so closing does not reset the connection before it has read the answer.
+/// A connection whose every read ends by the request's deadline.
+struct Timed<'a>(&'a TcpStream, Instant);
+
+impl Read for Timed<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = self.1.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::ErrorKind::TimedOut.into());
+        }
+        self.0.set_read_timeout(Some(left))?;
+        (&mut &*self.0).read(buf)
+    }
+}
+
+/// How long, at most, what a client still sends after an error answer is read.
+const LINGER: Duration = Duration::from_millis(200);
+
+/// The most read of it.
+const LINGER_BYTES: u64 = 64 * 1024;
+
+/// After an error answer: reads what the client still sends, for a short bounded time and
+/// amount (`LINGER`, `LINGER_BYTES`, however it trickles), so closing does not reset the
+/// connection before it has read the answer.
 fn linger(stream: &mut TcpStream) {
     let _ = stream.shutdown(std::net::Shutdown::Write);
-    let _ = stream.set_read_timeout(Some(std::time::Duration::from_millis(500)));
+    let until = Instant::now() + LINGER;
     let _ = std::io::copy(
-        &mut std::io::Read::take(&mut *stream, 1 << 20),
+        &mut Read::take(Timed(stream, until), LINGER_BYTES),
         &mut std::io::sink(),
     );
 }

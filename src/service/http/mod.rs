@@ -8,12 +8,16 @@
 //! of note brings an async runtime or a thread pool this process has no other use for.
 //!
 //! Hostile clients cost the loop nothing: the head and body are bounded (`request`), a
-//! request must come whole within `REQUEST_WAIT` (slow clients are cut off), a client that
-//! does not read is let go (`WRITE_WAIT`), at most `MAX_CLIENTS` are served at once (the
-//! next is answered 503) and at most `MAX_STREAMS` of them follow the event stream. Without
-//! a token only a loopback address is served, and only requests naming it as their `Host` (a
-//! page of another site that rebinds its name to 127.0.0.1 is refused); any other address
-//! needs a token (`auth`), which every request then carries.
+//! request must come whole within `REQUEST_WAIT` of its first byte (slow clients are cut
+//! off, then closed after a short bounded linger), a client that does not read is let go
+//! (`WRITE_WAIT`), at most `MAX_CLIENTS` are served at once, a newcomer taking the place of
+//! the client that has waited longest for its request (`serving`: tricklers never keep the
+//! owner out; the next is answered 503 only when all are busy answering or streaming), and at
+//! most `MAX_STREAMS` of them follow the event stream. Without a token only a loopback
+//! address is served, and only requests naming it as their `Host` (a page of another site
+//! that rebinds its name to 127.0.0.1 is refused); any other address needs a token (`auth`),
+//! which every request then carries. Whatever the address, changing the rig needs the run's
+//! key or the control token (`auth`).
 
 mod api;
 pub mod auth;
@@ -120,13 +124,19 @@ impl Binding {
             name: "web",
         };
         let refuse = |stream: &mut TcpStream| {
-            let why = format!("{MAX_CLIENTS} clients are connected already; try again");
+            let why = format!("{MAX_CLIENTS} clients are being served already; try again");
             let _ = Response::error(503, why).write_to(stream);
         };
         let theirs = Arc::clone(&shared);
-        let serving = serving::serve(self.listener, bounds, closing, refuse, move |stream, _| {
-            api::serve_client(stream, &theirs);
-        });
+        let serving = serving::serve(
+            self.listener,
+            bounds,
+            closing,
+            refuse,
+            move |stream, place| {
+                api::serve_client(stream, &theirs, place);
+            },
+        );
         Server {
             shared,
             serving: Some(serving),
