@@ -153,7 +153,7 @@ impl<P: Program> Runner<P> {
     }
 
     fn start_program(&mut self) {
-        self.rt.borrow_mut().cause = "top level".into();
+        self.rt.borrow_mut().set_cause("top level");
         self.last_start = self.clock.now();
         match self.program.start() {
             Ok(()) => self.tell_started(),
