@@ -196,6 +196,8 @@ pub struct StallWatch {
     beats: u64,
     since: Option<Instant>,
     allowance: Duration,
+    /// When it last looked.
+    looked: Option<Instant>,
 }
 
 impl StallWatch {
@@ -206,6 +208,7 @@ impl StallWatch {
             beats: 0,
             since: None,
             allowance: Duration::ZERO,
+            looked: None,
         }
     }
 
@@ -222,6 +225,16 @@ impl StallWatch {
     /// Looks at `pulse` at `now`: how long the loop has been silent when that is past the
     /// limit (it is stuck), else `None`.
     pub fn check(&mut self, pulse: &Pulse, now: Instant) -> Option<Duration> {
+        // A watcher that could not look for half the limit was not running (the whole process
+        // stopped and continued, as Ctrl-Z and `fg` do to a run without a guardian): what it
+        // missed is not the loop's silence, so the count starts again.
+        let absent = self
+            .looked
+            .replace(now)
+            .is_some_and(|t| now.saturating_duration_since(t) > self.limit / 2);
+        if absent {
+            self.since = self.since.map(|_| now);
+        }
         let beats = pulse.beats();
         if beats == 0 || pulse.phase() == Phase::Ended {
             self.since = None;
@@ -342,7 +355,8 @@ mod tests {
         );
         pulse.beat();
         assert_eq!(watch.check(&pulse, at(5000)), None);
-        assert_eq!(watch.check(&pulse, at(5999)), None);
+        assert_eq!(watch.check(&pulse, at(5400)), None);
+        assert_eq!(watch.check(&pulse, at(5800)), None);
         assert_eq!(watch.check(&pulse, at(6000)), Some(Duration::from_secs(1)));
         // A step that may block longer says so: the limit grows by that much, once.
         {
@@ -350,8 +364,24 @@ mod tests {
             allow(Duration::from_millis(500));
         }
         assert_eq!(watch.check(&pulse, at(6000)), None);
-        assert_eq!(watch.check(&pulse, at(7400)), None);
+        for ms in [6400, 6800, 7200, 7400] {
+            assert_eq!(watch.check(&pulse, at(ms)), None, "{ms}");
+        }
         assert!(watch.check(&pulse, at(7500)).is_some());
+        // A watcher that was itself stopped for longer than the limit counts afresh.
+        {
+            let _on = attach(&pulse);
+            allow(Duration::ZERO);
+        }
+        assert_eq!(watch.check(&pulse, at(8000)), None);
+        assert_eq!(
+            watch.check(&pulse, at(20_000)),
+            None,
+            "the watcher was away"
+        );
+        assert!(watch.check(&pulse, at(20_400)).is_none());
+        assert!(watch.check(&pulse, at(20_800)).is_none());
+        assert!(watch.check(&pulse, at(21_000)).is_some());
         pulse.set_phase(Phase::Ended);
         assert_eq!(
             watch.check(&pulse, at(60_000)),
