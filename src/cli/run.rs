@@ -11,7 +11,7 @@ use super::check::fit_to_run;
 use super::output::say;
 use super::run_outputs::RunOutputs;
 use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency, DEFAULT_UI};
-use crate::guardian::lone::LoneWatch;
+use crate::guardian::lone::{Ending, LoneWatch};
 use crate::guardian::pulse::{self, Phase};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
 use crate::runtime::devices::open_devices;
@@ -256,7 +256,12 @@ pub fn run(args: RunArgs) -> i32 {
     // guardian, a thread of this process watches the loop instead.
     let lone = match &guardian {
         Some(_) => None,
-        None => match LoneWatch::start(log, setup.config.has_real_devices()) {
+        None => match LoneWatch::start(
+            log,
+            Ending::Run {
+                real_devices: setup.config.has_real_devices(),
+            },
+        ) {
             Ok(w) => Some(w),
             Err(e) => {
                 say(&format!("rigscript run: {e}"));

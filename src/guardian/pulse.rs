@@ -328,6 +328,16 @@ pub fn handler(label: &str) {
     });
 }
 
+/// Marks the loop ended when dropped (`Phase::Ended`): what this thread does after a run
+/// (an in-process one: `verify`'s bookkeeping between runs) is not watched as its loop.
+pub struct EndsLoop;
+
+impl Drop for EndsLoop {
+    fn drop(&mut self) {
+        with(|p| p.set_phase(Phase::Ended));
+    }
+}
+
 /// The step that follows may block for up to `extra` beyond the stall limit (a connection
 /// with its own timeout); cleared by `allow(Duration::ZERO)` after it.
 pub fn allow(extra: Duration) {
