@@ -595,11 +595,11 @@ fn a_rig_name_names_a_socket_file_or_is_refused() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
+        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, stall, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
+        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, stall, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
     );
 }
 
