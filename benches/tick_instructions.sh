@@ -17,12 +17,15 @@
 # durations are had with SHORT=2s LONG=6s, for a like-for-like pair.
 #
 # Besides all threads' count it prints the scan loop's thread alone (callgrind
-# --separate-threads; the thread that runs `Runner::run`: the ticks and the requests served
+# --separate-threads; the thread that runs `Runner::run`, kept out of line (#[inline(never)])
+# so that its symbol survives a build of one codegen unit: the ticks and the requests served
 # between them) a tick, and the other threads' instructions a second of the measured run.
 #
 # Run from the crate root: sh benches/tick_instructions.sh [BINARY]
-# (default target/profiling/rigscript, `cargo build --profile profiling`: the release code with
-# debug info, so a kept callgrind output shows source lines; give another build to compare).
+# (default target/profiling/rigscript, built first with `cargo build --profile profiling`: the
+# release code with debug info, so a kept callgrind output shows source lines; give another
+# build to compare: it is then run as it is, simulator included). `.ci/run` runs it once as a
+# smoke check on the debug build with SHORT=10ms LONG=1s.
 # Needs valgrind (apt-get install valgrind).
 set -eu
 binary=${1:-target/profiling/rigscript}
@@ -30,11 +33,13 @@ if ! command -v valgrind >/dev/null; then
     echo "tick_instructions.sh: needs valgrind (apt-get install valgrind)" >&2
     exit 2
 fi
-cargo build --profile profiling --quiet
+if [ $# -eq 0 ]; then
+    cargo build --profile profiling --quiet
+fi
 dir=$(mktemp -d)
 broker=
 trap 'kill "$sim" $broker 2>/dev/null; rm -rf "$dir"' EXIT
-target/profiling/rigscript sim c29u --baud 115200 --link "$dir/pty" >/dev/null 2>&1 &
+"$binary" sim c29u --baud 115200 --link "$dir/pty" >/dev/null 2>&1 &
 sim=$!
 for _ in 1 2 3 4 5 6 7 8 9 10; do [ -e "$dir/pty" ] && break; sleep 0.2; done
 printf '[devices.io]\nkind = "trp-c29u"\nport = "%s"\nbaud = 115200\n' "$dir/pty" >"$dir/rig.toml"
@@ -70,9 +75,15 @@ count() {
         $no_guardian 2>&1 |
         awk '/^ticks:/ { t = $2 } /Collected :/ { gsub(",", "", $NF); i = $NF } END { printf "%s %s ", t, i }'
     # The loop's thread: its file names Runner::run.
+    loop=
     for f in "$dir"/cg.*-*; do
-        if grep -q 'Runner<P>::run$' "$f"; then awk '/^totals:/ { print $2 }' "$f"; fi
+        if grep -q 'Runner<P>::run$' "$f"; then loop=$(awk '/^totals:/ { print $2 }' "$f"); fi
     done
+    if [ -z "$loop" ]; then
+        echo "tick_instructions.sh: no thread ran Runner::run (is it still #[inline(never)]?)" >&2
+        exit 1
+    fi
+    echo "$loop"
 }
 # Attaches the watchers once the run's socket is there; they end with the run.
 watch_rig() {

@@ -10,19 +10,28 @@ use std::io::Read;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// The script most tests run: it drives the outputs and goes on ticking.
+const WORK: &str = "io.outputs = 0x0F;\nevery(\"100ms\", || {});\n";
+
+/// A handler that works for seconds within its (raised) limits, saying so first.
+const BUSY: &str =
+    "after(500, || {\n  log(\"busy\");\n  let x = 0;\n  for i in 0..1000000000 { x += 1; }\n});\n";
+
 /// A module without a host watchdog: only the runner, or its guardian, can make it safe.
 fn rig(sim: &SimProcess, dir: &TempDir) -> (String, String) {
+    rig_with(sim, dir, "", WORK)
+}
+
+/// `rig` with more top-level keys in rig.toml and another script.
+fn rig_with(sim: &SimProcess, dir: &TempDir, keys: &str, script: &str) -> (String, String) {
     let config = dir.file(
         "rig.toml",
         &format!(
-            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nsafe_value = 0x00\n",
+            "period = \"20ms\"\n{keys}[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nsafe_value = 0x00\n",
             sim.path
         ),
     );
-    let script = dir.file(
-        "work.rhai",
-        "io.outputs = 0x0F;\nevery(\"100ms\", || {});\n",
-    );
+    let script = dir.file("work.rhai", script);
     (config, script)
 }
 
@@ -86,9 +95,20 @@ fn kill(pid: impl ToString, signal: &str) {
     assert!(ok, "kill {signal}");
 }
 
-/// Waits for the guardian to exit; its status and what it wrote on stderr.
+/// Waits for the guardian to exit (killing it after a minute: a test must not hang); its
+/// status and what it wrote on stderr.
 fn finish(mut run: Child) -> (Option<i32>, String) {
-    let status = run.wait().unwrap();
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = run.try_wait().unwrap() {
+            break status;
+        }
+        if started.elapsed() > Duration::from_secs(60) {
+            let _ = run.kill();
+            break run.wait().unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
     let mut err = String::new();
     run.stderr.take().unwrap().read_to_string(&mut err).unwrap();
     (status.code(), err)
@@ -146,7 +166,131 @@ fn a_stuck_runner_is_killed_and_made_safe_on_sigabrt() {
     kill(runner, "-STOP");
     kill(run.id(), "-ABRT");
     let (status, err) = finish(run);
-    assert_eq!(status, Some(137), "the stuck runner was killed: {err}");
+    assert_eq!(status, Some(6), "told as a stall: {err}");
+    assert_eq!(sim.state()["do"], 0x00, "{err}");
+    assert!(
+        err.contains("the scan loop stalled for")
+            && err.contains("systemd's watchdog ended it (SIGABRT)")
+            && !err.contains("SIGKILL"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_runner_aborted_by_sigabrt_while_its_loop_was_silent_is_told_as_the_watchdog() {
+    // systemd's watchdog may reach the runner itself (a unit whose KillMode signals the whole
+    // group): its loop had been silent since it was stopped.
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = TempDir::new("guardian-abrt-runner");
+    let (config, script) = rig_with(&sim, &dir, "stall = \"30s\"\n", WORK);
+    let run = start_run(&config, &script);
+    let s = wait_for(&mut sim, |s| s["do"] == 0x0F);
+    assert_eq!(s["do"], 0x0F, "the script drives the module: {s}");
+    let runner = runner_of(&run);
+    kill(runner, "-STOP");
+    std::thread::sleep(Duration::from_millis(1500));
+    kill(runner, "-ABRT");
+    kill(runner, "-CONT");
+    let (status, err) = finish(run);
+    assert_eq!(status, Some(6), "told as a stall: {err}");
+    assert_eq!(sim.state()["do"], 0x00, "{err}");
+    assert!(
+        err.contains("the scan loop stalled for 1.")
+            && err.contains("systemd's watchdog ended it (SIGABRT)"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_loop_stuck_in_a_handler_is_ended_by_the_guardian_within_its_stall_limit() {
+    // The runner is frozen in the middle of a long handler: its loop stops as it would inside
+    // one script operation that never returns (no tick, no exchange, no operation counted).
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = TempDir::new("guardian-stall");
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "period = \"20ms\"\nstall = \"1s\"\n[limits]\noperations = 1000000000\n\
+             handler_time = \"60s\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n\
+             safe_value = 0x00\n",
+            sim.path
+        ),
+    );
+    let script = dir.file("work.rhai", &format!("io.outputs = 0x0F;\n{BUSY}"));
+    let mut run = start_run(&config, &script);
+    let mut err = std::io::BufReader::new(run.stderr.take().unwrap());
+    let mut log = String::new();
+    while !log.contains("script: busy") {
+        let mut line = String::new();
+        if std::io::BufRead::read_line(&mut err, &mut line).unwrap_or(0) == 0 {
+            break;
+        }
+        log.push_str(&line);
+    }
+    assert_eq!(
+        sim.state()["do"],
+        0x0F,
+        "the script drives the module: {log}"
+    );
+    kill(runner_of(&run), "-STOP");
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = run.try_wait().unwrap() {
+            break status.code();
+        }
+        if started.elapsed() > Duration::from_secs(60) {
+            let _ = run.kill();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    err.read_to_string(&mut log).unwrap();
+    assert_eq!(status, Some(6), "{log}");
+    assert_eq!(sim.state()["do"], 0x00, "{log}");
+    assert!(
+        log.contains("the scan loop stalled for 1.0 s (in handler `after 500ms`)")
+            && log.contains("safe state (the runner died): io outputs 0x00 (read back)"),
+        "{log}"
+    );
+}
+
+#[test]
+fn sigxfsz_to_the_pid_that_was_started_is_passed_on_as_an_orderly_stop() {
+    let (mut sim, _dir, run) = driven("guardian-xfsz");
+    kill(run.id(), "-XFSZ");
+    let (status, err) = finish(run);
+    assert_eq!(status, Some(153), "128 + SIGXFSZ: {err}");
+    assert_eq!(sim.state()["do"], 0x00, "{err}");
+    assert!(err.contains("stopping: SIGXFSZ received"), "{err}");
+}
+
+#[test]
+fn a_healthy_loop_slower_than_its_stall_limit_is_never_ended() {
+    // A period three times the limit, at 9600 baud, every exchange retried once: the loop
+    // waits and exchanges for longer than `stall` at a time, and shows it is alive meanwhile.
+    let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1", "--baud", "9600"]);
+    let dir = TempDir::new("guardian-slow");
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "period = \"3s\"\nstall = \"1s\"\n[devices.io]\nkind = \"trp-c29u\"\n\
+             port = \"{}\"\nbaud = 9600\ntimeout = \"1s\"\nretries = 1\nsafe_value = 0x00\n",
+            sim.path
+        ),
+    );
+    let script = dir.file(
+        "slow.rhai",
+        "io.outputs = 0x0F;\nevery(\"3s\", || { for i in 0..20 { let x = io.inputs; } });\n",
+    );
+    let run = Command::new(rigscript())
+        .args(["run", "--config", &config, &script, "--for", "7s"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (status, err) = finish(run);
+    assert_eq!(status, Some(0), "{err}");
+    assert!(!err.contains("stalled"), "{err}");
     assert_eq!(sim.state()["do"], 0x00, "{err}");
 }
 

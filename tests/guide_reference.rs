@@ -238,6 +238,7 @@ fn the_exit_status_table_shows_every_status_of_the_code() {
         exit::MEASUREMENT_FAILED,
         exit::TROUBLE,
         exit::INTERNAL,
+        exit::STALLED,
         exit::signal(2),
         exit::signal(15),
     ];

@@ -2,7 +2,8 @@
 //! an orderly stop (on_stop, the safe state, 128 + the signal, the signal and its likely cause
 //! named); a signal during the start is honoured at once, even with a silent module; a closed
 //! stdout or stderr never kills the run; a script nested deep enough to overflow the stack is a
-//! script error, not an abort.
+//! script error, not an abort; a loop thread that stops (frozen alone with ptrace) ends a run
+//! without a guardian, and `rigscript test`, by their own watch instead of a hang.
 
 mod common;
 
@@ -507,6 +508,138 @@ fn a_records_file_past_the_file_size_limit_ends_the_run_in_order_naming_sigxfsz(
     );
     assert!(
         log.contains("safe state (signal): io outputs 0x00"),
+        "{log}"
+    );
+}
+
+/// The thread of process `pid` named `name` (as /proc shows it, cut to 15 bytes).
+fn thread_named(pid: u32, name: &str) -> i32 {
+    let started = Instant::now();
+    loop {
+        for task in std::fs::read_dir(format!("/proc/{pid}/task")).unwrap() {
+            let task = task.unwrap().path();
+            let comm = std::fs::read_to_string(task.join("comm")).unwrap_or_default();
+            if comm.trim() == name {
+                return task.file_name().unwrap().to_str().unwrap().parse().unwrap();
+            }
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "no thread {name}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Stops thread `tid` alone, as a loop stuck in one operation stops, while the rest of its
+/// process goes on (ptrace: this test process is its tracer until the process ends).
+fn freeze_thread(tid: i32) {
+    // SAFETY: plain ptrace requests on a thread of a child of this process; nothing is read
+    // or written in it.
+    unsafe {
+        assert_eq!(
+            libc::ptrace(libc::PTRACE_SEIZE, tid, 0usize, 0usize),
+            0,
+            "PTRACE_SEIZE: {}",
+            std::io::Error::last_os_error()
+        );
+        assert_eq!(
+            libc::ptrace(libc::PTRACE_INTERRUPT, tid, 0usize, 0usize),
+            0,
+            "PTRACE_INTERRUPT: {}",
+            std::io::Error::last_os_error()
+        );
+    }
+}
+
+/// Waits for `child`, one of whose threads (`tid`) this process traces (`freeze_thread`): the
+/// traced thread's end must be collected too (`__WALL`) before the process can be.
+fn wait_traced(child: &mut Child, tid: i32, limit: Duration) -> Option<std::process::ExitStatus> {
+    let started = Instant::now();
+    while started.elapsed() < limit {
+        let mut status = 0;
+        // SAFETY: collects a state change of a thread this process traces, into a local.
+        unsafe { libc::waitpid(tid, &mut status, libc::WNOHANG | libc::__WALL) };
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    // SAFETY: as above, waiting this time.
+    unsafe { libc::waitpid(tid, std::ptr::null_mut(), libc::__WALL) };
+    let _ = child.wait();
+    None
+}
+
+/// A handler that works for seconds within its (raised) limits, saying so first.
+const BUSY: &str =
+    "after(500, || {\n  log(\"busy\");\n  let x = 0;\n  for i in 0..1000000000 { x += 1; }\n});\n";
+
+#[test]
+fn a_run_without_a_guardian_whose_loop_stops_is_ended_by_its_own_watch_naming_the_handler() {
+    // Only simulated devices: no guardian process; a thread of the run watches its loop.
+    let dir = TempDir::new("lone-stall");
+    let config = dir.file(
+        "rig.toml",
+        "stall = \"1s\"\n[limits]\noperations = 1000000000\nhandler_time = \"60s\"\n\
+         [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/null\"\nsim = true\n",
+    );
+    let script = dir.file("busy.rhai", BUSY);
+    let mut child = Command::new(rigscript())
+        .args(["run", "--config", &config, &script])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut log = read_until(&mut err, "script: busy");
+    let tid = thread_named(child.id(), "rigscript-scrip");
+    freeze_thread(tid);
+    let ended = wait_traced(&mut child, tid, Duration::from_secs(60));
+    err.read_to_string(&mut log).unwrap();
+    assert_eq!(ended.and_then(|s| s.code()), Some(6), "{log}");
+    assert!(
+        log.contains("the scan loop stalled for 1.0 s (in handler `after 500ms`)")
+            && log.contains("the simulated devices end with it"),
+        "{log}"
+    );
+}
+
+#[test]
+fn a_scenario_test_whose_loop_stops_ends_with_an_error_instead_of_hanging() {
+    let dir = TempDir::new("test-stall");
+    dir.file(
+        "busy.rhai",
+        "every(\"500ms\", || { let x = 0; for i in 0..200000 { x += 1; } });\n",
+    );
+    let tests = dir.file(
+        "busy.test.rhai",
+        "fn test_busy() {\n  let r = rig(\"busy.rhai\");\n  for i in 0..100000 { r.advance(\"1s\"); }\n}\n",
+    );
+    let mut child = Command::new(rigscript())
+        .args(["test", &tests])
+        .current_dir(dir.path(""))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let tid = thread_named(child.id(), "rigscript-scrip");
+    freeze_thread(tid);
+    let ended = wait_traced(&mut child, tid, Duration::from_secs(60));
+    let mut log = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
+    assert_eq!(ended.and_then(|s| s.code()), Some(1), "{log}");
+    assert!(
+        log.contains("rigscript test: the scan loop stalled for")
+            && log.contains("(in ")
+            && log.contains("ended, as `run` would be"),
         "{log}"
     );
 }

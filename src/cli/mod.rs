@@ -141,7 +141,7 @@ pub fn main() -> i32 {
         // Each test's rig has the default limits; its scripts get the stack those call for.
         Command::Test(args) => crate::script::stack::on_script_stack(
             crate::config::ScriptLimits::default().memory,
-            || test::run(args),
+            || crate::guardian::lone::watched("rigscript test", || test::run(args)),
         ),
         Command::Verify(args) => verify::run(args),
         Command::Scan(args) => scan::run(args),

@@ -11,6 +11,8 @@ use super::check::fit_to_run;
 use super::output::say;
 use super::run_outputs::RunOutputs;
 use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency, DEFAULT_UI};
+use crate::guardian::lone::{Ending, LoneWatch};
+use crate::guardian::pulse::{self, Phase};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
 use crate::runtime::devices::open_devices;
 use crate::runtime::log::LogFormat;
@@ -230,13 +232,16 @@ pub fn run(args: RunArgs) -> i32 {
         keep_log: outputs.keeps_log(),
         stop_flag,
     };
+    let log = GuardianLog {
+        format: args.log_format,
+        zone: Zone::Local,
+        stall: setup
+            .config
+            .stall_limit(args.period.unwrap_or(setup.config.period)),
+    };
     let guardian = if args.no_guardian || args.sim || !setup.config.has_real_devices() {
         None
     } else {
-        let log = GuardianLog {
-            format: args.log_format,
-            zone: Zone::Local,
-        };
         match guard(&setup.config, log) {
             Ok(Guarded::Runner(confirmation)) => Some(confirmation),
             Ok(Guarded::Guardian(status)) => return status,
@@ -248,11 +253,32 @@ pub fn run(args: RunArgs) -> i32 {
             }
         }
     };
-    // After the guardian's fork (which needs this process to have one thread): the run on a
-    // stack that holds whatever the script can build within its memory limit.
+    // After the guardian's fork (which needs this process to have one thread): without a
+    // guardian, a thread of this process watches the loop instead.
+    let lone = match &guardian {
+        Some(_) => None,
+        None => match LoneWatch::start(
+            log,
+            Ending::Run {
+                real_devices: setup.config.has_real_devices(),
+            },
+        ) {
+            Ok(w) => Some(w),
+            Err(e) => {
+                say(&format!("rigscript run: {e}"));
+                return exit::ERROR;
+            }
+        },
+    };
+    // The run on a stack that holds whatever the script can build within its memory limit.
     let memory = setup.config.limits.memory;
     let stats = args.stats;
     stack::on_script_stack(memory, move || {
+        let pulse = guardian
+            .as_ref()
+            .map(Confirmation::pulse)
+            .or_else(|| lone.as_ref().map(LoneWatch::pulse));
+        let _beating = pulse.map(pulse::attach);
         run_started(
             &source,
             &file,
@@ -470,6 +496,8 @@ fn run_started(
     });
     let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));
     let status = rig.runner.run();
+    // What follows (the last events, the broker's goodbye, the log) is not the loop's.
+    pulse::enter(Phase::Ended);
     // The last events to the subscribers (`rigscript stop` waits for the end's), then the
     // socket and the page go.
     drop(server);

@@ -124,7 +124,9 @@ pub fn run(args: VerifyArgs) -> i32 {
     // On a stack that holds whatever the script can build within its memory limit (the
     // shrinking replays run here; each worker gets one too).
     let memory = config.limits.memory;
-    crate::script::stack::on_script_stack(memory, move || verify_configured(args, config))
+    crate::script::stack::on_script_stack(memory, move || {
+        crate::guardian::lone::watched("rigscript verify", || verify_configured(args, config))
+    })
 }
 
 /// `verify` itself, once its rig is known.

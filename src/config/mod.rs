@@ -58,6 +58,41 @@ pub fn check_period(period: Duration) -> Result<Duration, &'static str> {
     Ok(period)
 }
 
+/// The shortest `stall` accepted: the loop beats at least every tenth of a second when it is
+/// well (its waits and a device exchange's come in slices of 20 and 100 ms).
+pub const MIN_STALL: Duration = Duration::from_millis(500);
+
+/// The longest `stall` accepted, and the longest default.
+pub const MAX_STALL: Duration = Duration::from_secs(60);
+
+/// Whether `stall` can be a stall limit (`MIN_STALL` to `MAX_STALL`).
+pub fn check_stall(stall: Duration) -> Result<Duration, &'static str> {
+    if stall < MIN_STALL || stall > MAX_STALL {
+        return Err(
+            "is not a stall limit: use 500ms to 60s (how long the scan loop may show \
+                    no sign of life before it is ended as stuck and the outputs made safe)",
+        );
+    }
+    Ok(stall)
+}
+
+/// The stall limit when rig.toml sets none: the larger of 1 s and ten periods, at most
+/// `MAX_STALL`. Long enough that nothing healthy comes near it (the loop beats every 20 ms
+/// while it waits, every 100 ms in an exchange, every few dozen script operations), short
+/// enough that a stuck handler leaves the outputs on for about a second.
+pub fn default_stall(period: Duration) -> Duration {
+    period
+        .saturating_mul(10)
+        .clamp(Duration::from_secs(1), MAX_STALL)
+}
+
+impl RigConfig {
+    /// The run's stall limit at `period` (rig.toml's `stall`, else `default_stall`).
+    pub fn stall_limit(&self, period: Duration) -> Duration {
+        self.stall.unwrap_or_else(|| default_stall(period))
+    }
+}
+
 /// The longest rig name.
 pub const MAX_RIG_NAME: usize = 64;
 
@@ -89,6 +124,7 @@ const TOP_KEYS: &[&str] = &[
     "on_error",
     "records",
     "grace",
+    "stall",
     "wake_latency",
     "ui",
     "force",
@@ -162,6 +198,9 @@ pub struct RigConfig {
     /// How long a device may be lost before its outputs' safe state is enforced
     /// (default `DEFAULT_GRACE`).
     pub grace: Duration,
+    /// How long the scan loop may show no sign of life before its watcher ends it as stuck
+    /// (`stall`; default: `default_stall` of the run's period).
+    pub stall: Option<Duration>,
     /// What the run asks of the CPUs' idle states (default auto).
     pub wake_latency: WakeLatency,
     /// Where the run serves its web page and HTTP API (`ui = "ADDR"`; default none: `run
@@ -195,6 +234,7 @@ impl Default for RigConfig {
             on_error: ErrorPolicy::Stop,
             records: None,
             grace: DEFAULT_GRACE,
+            stall: None,
             wake_latency: WakeLatency::Auto,
             ui: None,
             force: false,
@@ -264,6 +304,9 @@ impl RigConfig {
             s => Ok(PathBuf::from(s)),
         });
         let grace = r.read(&root, "grace", duration).unwrap_or(defaults.grace);
+        let stall = r.read(&root, "stall", |v| {
+            check_stall(duration(v)?).map_err(|why| reader::bad(v, why))
+        });
         let wake_latency = r
             .read(&root, "wake_latency", |v| {
                 let read = match v {
@@ -384,6 +427,7 @@ impl RigConfig {
             on_error,
             records,
             grace,
+            stall,
             wake_latency,
             ui,
             force,

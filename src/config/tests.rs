@@ -118,6 +118,7 @@ fn the_example_reads_as_written() {
             on_error: ErrorPolicy::Stop,
             records: Some("records.jsonl".into()),
             grace: Duration::from_secs(2),
+            stall: None,
             wake_latency: WakeLatency::Limit(Duration::from_micros(50)),
             ui: None,
             force: false,
@@ -594,11 +595,11 @@ fn a_rig_name_names_a_socket_file_or_is_refused() {
 fn unknown_top_level_keys() {
     assert_eq!(
         problems("period = \"20ms\"\nperoid = 30\n"),
-        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
+        vec!["rig.toml:2: peroid: unknown key (did you mean `period`?); known keys here: name, period, on_error, records, grace, stall, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
     );
     assert_eq!(
         problems("[device.io]\nkind = \"trc1000\"\n"),
-        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
+        vec!["rig.toml:1: device: unknown key (did you mean `devices`?); known keys here: name, period, on_error, records, grace, stall, wake_latency, ui, force, ui_token, ui_read_token, limits, mqtt, devices"]
     );
 }
 
@@ -1032,4 +1033,33 @@ fn ui_tokens_are_read_kept_out_of_debug_and_a_short_one_is_refused_unshown() {
     let why = problems("ui_token = \"abc\"\n").join("\n");
     assert!(why.contains("at least 8 characters"), "{why}");
     assert!(!why.contains("\"abc\""), "the token is not shown: {why}");
+}
+
+#[test]
+fn the_stall_limit_defaults_to_ten_periods_within_bounds_and_is_checked() {
+    let config = parse("").unwrap();
+    assert_eq!(config.stall, None);
+    assert_eq!(
+        config.stall_limit(Duration::from_millis(10)),
+        Duration::from_secs(1)
+    );
+    assert_eq!(
+        config.stall_limit(Duration::from_secs(3)),
+        Duration::from_secs(30)
+    );
+    assert_eq!(
+        config.stall_limit(Duration::from_secs(10)),
+        Duration::from_secs(60)
+    );
+    let set = parse("stall = \"2s\"").unwrap();
+    assert_eq!(
+        set.stall_limit(Duration::from_secs(3)),
+        Duration::from_secs(2)
+    );
+    for bad in ["\"100ms\"", "\"2m\"", "3"] {
+        let got = problems(&format!("stall = {bad}"));
+        assert_eq!(got.len(), 1, "{bad}: {got:?}");
+        assert!(got[0].contains("stall"), "{got:?}");
+    }
+    assert!(problems("stall = \"100ms\"")[0].contains("500ms to 60s"));
 }

@@ -196,6 +196,7 @@ fn send_and_collect(
             Some(gap) if !received.is_empty() => gap.min(left),
             _ => cancel.slice(left),
         };
+        crate::guardian::pulse::beat();
         let n = link.read(&mut chunk, wait)?;
         // On a wire the answer has ended when its last byte is in: stamped before parsing.
         let read_at = clock.now();
@@ -282,6 +283,8 @@ fn keep_silence(
             // hears nothing has shown the line silent, so no look is needed after it (one
             // system call for the silence and the check for stale input).
             let wait = cancel.slice(quiet_at.saturating_sub(now));
+            // Each slice of a wait is a sign of life of the loop (`guardian::pulse`).
+            crate::guardian::pulse::beat();
             let n = link.read(&mut scratch, wait)?;
             let after = clock.now();
             if n > 0 {

@@ -5,11 +5,15 @@
 //! It runs no script and no Rhai: it waits in `waitpid` and allocates nothing until it acts.
 //! What it cannot cover: the guardian and the runner killed at once (`kill -9` of both, a
 //! power cut); there each TRP-C29U's own host watchdog, where rig.toml turns it on, is what is
-//! left. `safe` holds what it does to the devices, shared with `rigscript safe`.
+//! left. `pulse` is how the runner's loop shows it still turns (the guardian ends a stuck
+//! one). `safe` holds what it does to the devices, shared with `rigscript safe`.
 
+pub mod lone;
+pub mod pulse;
 pub mod safe;
 mod watch;
 
 pub use watch::{
-    describe, exit_status, guard, Confirmation, GuardError, Guarded, GuardianLog, RunnerEnd,
+    describe, describe_stall, exit_status, guard, Confirmation, GuardError, Guarded, GuardianLog,
+    RunnerEnd,
 };

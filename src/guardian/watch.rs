@@ -8,31 +8,33 @@
 //! guardian alone and is forwarded once; it dies with the guardian (`PR_SET_PDEATHSIG`:
 //! SIGTERM, an orderly stop), so `kill -9` of the pid that was started ends the rig safe too.
 
+use super::pulse::{stalled, Pulse, StallWatch};
 use super::safe::{make_safe, DeviceOutcome};
 use crate::config::RigConfig;
+use crate::runtime::exit;
 use crate::runtime::log::{LogFormat, Logger};
+use crate::runtime::signals;
 use crate::time::clock::SystemClock;
 use crate::time::zone::Zone;
 use std::io;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
-use std::sync::atomic::{AtomicI32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+use std::time::{Duration, Instant};
 
 /// The byte the runner sends when its end confirmed the safe state (or it drove nothing).
 const CONFIRMED: u8 = b'C';
 
-/// The signals that end a run in order; the guardian passes each on to the runner.
-const FORWARDED: [libc::c_int; 7] = [
-    libc::SIGINT,
-    libc::SIGTERM,
-    libc::SIGHUP,
-    libc::SIGQUIT,
-    libc::SIGUSR1,
-    libc::SIGUSR2,
-    libc::SIGALRM,
-];
-
 /// The runner's pid, for the signal handlers (0: none yet).
 static RUNNER: AtomicI32 = AtomicI32::new(0);
+
+/// Set when SIGABRT reached the guardian (systemd's watchdog): the runner's end is told as a
+/// stall.
+static ABORTED: AtomicBool = AtomicBool::new(false);
+
+/// A SIGABRT that killed the runner is told as systemd's watchdog when the loop had been
+/// silent this long (it feeds the watchdog every half of its timeout while it turns); sooner,
+/// it was an abort of the runner's own (a stack overflow).
+const WATCHDOG_SILENCE: Duration = Duration::from_secs(1);
 
 /// Which side of the fork this process is on.
 pub enum Guarded {
@@ -42,12 +44,18 @@ pub enum Guarded {
     Guardian(i32),
 }
 
-/// The runner's end of the pipe to its guardian.
+/// The runner's end of the pipe to its guardian, and the pulse its loop beats.
 pub struct Confirmation {
     pipe: OwnedFd,
+    pulse: &'static Pulse,
 }
 
 impl Confirmation {
+    /// The pulse the guardian watches: the loop thread beats it (`pulse::attach`).
+    pub fn pulse(&self) -> &'static Pulse {
+        self.pulse
+    }
+
     /// Tells the guardian that the run's end confirmed the safe state of every device (or that
     /// it drove none): it then exits with the runner's status and does nothing else.
     pub fn confirm(self) {
@@ -64,6 +72,9 @@ impl Confirmation {
 /// Why the guardian could not be started.
 #[derive(Debug, thiserror::Error)]
 pub enum GuardError {
+    /// No memory to share with it.
+    #[error("cannot start the guardian process: no memory to share with it: {0}")]
+    Pulse(#[source] io::Error),
     /// No pipe or no fork (the system is out of processes or descriptors).
     #[error("cannot start the guardian process: {0}")]
     Start(#[source] io::Error),
@@ -83,13 +94,16 @@ fn threads() -> Option<usize> {
         .and_then(|n| n.trim().parse().ok())
 }
 
-/// How the guardian speaks: the run's log format, and the zone of its times.
+/// How the guardian speaks: the run's log format, and the zone of its times; and how long
+/// the loop may be silent.
 #[derive(Debug, Clone, Copy)]
 pub struct GuardianLog {
     /// Text or JSON lines, as the run's own log.
     pub format: LogFormat,
     /// The zone of the times.
     pub zone: Zone,
+    /// The rig's stall limit (`RigConfig::stall_limit`).
+    pub stall: Duration,
 }
 
 /// Splits this process into the guardian and the runner. Must be called while the process has
@@ -99,6 +113,7 @@ pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError
     if let Some(n) = threads().filter(|&n| n > 1) {
         return Err(GuardError::Threads(n));
     }
+    let pulse = Pulse::shared().map_err(GuardError::Pulse)?;
     let (read, write) = pipe()?;
     let guardian = std::process::id();
     // SAFETY: the process has one thread (the caller's contract), so the child starts as a
@@ -108,7 +123,7 @@ pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError
         0 => {
             drop(read);
             become_runner(guardian);
-            Ok(Guarded::Runner(Confirmation { pipe: write }))
+            Ok(Guarded::Runner(Confirmation { pipe: write, pulse }))
         }
         child => {
             drop(write);
@@ -120,10 +135,10 @@ pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError
                 libc::setpgid(child, child);
             }
             forward_signals();
-            let end = wait_for(child);
+            let end = watch(child, pulse, log.stall);
             let confirmed = read_confirmation(&read);
             Ok(Guarded::Guardian(finish(
-                end, confirmed, child, config, log,
+                end, confirmed, child, config, log, pulse,
             )))
         }
     }
@@ -170,6 +185,7 @@ fn forward_signals() {
         }
     }
     extern "C" fn stuck(_: libc::c_int) {
+        ABORTED.store(true, Ordering::SeqCst);
         let runner = RUNNER.load(Ordering::SeqCst);
         if runner > 0 {
             // SAFETY: kill is async-signal-safe.
@@ -178,17 +194,12 @@ fn forward_signals() {
             }
         }
     }
-    for signal in FORWARDED {
+    // The runner's own list: what ends a run in order ends it whichever process it reached.
+    for signal in signals::ENDING {
         set_handler(signal, forward as *const () as libc::sighandler_t);
     }
     set_handler(libc::SIGABRT, stuck as *const () as libc::sighandler_t);
-    for signal in [
-        libc::SIGTSTP,
-        libc::SIGTTIN,
-        libc::SIGTTOU,
-        libc::SIGXFSZ,
-        libc::SIGPIPE,
-    ] {
+    for signal in signals::IGNORED.into_iter().chain([libc::SIGTSTP]) {
         set_handler(signal, libc::SIG_IGN);
     }
 }
@@ -207,6 +218,13 @@ fn set_handler(signal: libc::c_int, handler: libc::sighandler_t) {
 /// How the runner ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RunnerEnd {
+    /// Its loop stopped turning: the guardian (or systemd's watchdog) killed it.
+    Stalled {
+        /// How long the loop had been silent.
+        silent: Duration,
+        /// systemd's watchdog ended it (SIGABRT), not the guardian's own limit.
+        by_watchdog: bool,
+    },
     /// It exited with this status.
     Exited(i32),
     /// A signal killed it.
@@ -218,30 +236,76 @@ pub enum RunnerEnd {
     },
 }
 
+/// Waits for the runner to end, watching its loop meanwhile (see the module's doc).
+fn watch(child: libc::pid_t, pulse: &Pulse, stall: Duration) -> RunnerEnd {
+    let mut watch = StallWatch::new(stall);
+    let every = watch.every();
+    loop {
+        if let Some(end) = reap(child, libc::WNOHANG) {
+            let silent = watch.silent(Instant::now());
+            return match end {
+                RunnerEnd::Killed { signal, .. }
+                    if (signal == libc::SIGKILL && ABORTED.load(Ordering::SeqCst))
+                        || (signal == libc::SIGABRT && silent >= WATCHDOG_SILENCE) =>
+                {
+                    RunnerEnd::Stalled {
+                        silent,
+                        by_watchdog: true,
+                    }
+                }
+                end => end,
+            };
+        }
+        if let Some(silent) = watch.check(pulse, Instant::now()) {
+            // SAFETY: a plain system call on our own child, not yet reaped.
+            unsafe {
+                libc::kill(child, libc::SIGKILL);
+            }
+            wait_for(child);
+            return RunnerEnd::Stalled {
+                silent,
+                by_watchdog: false,
+            };
+        }
+        // Interrupted by a signal: looked at again sooner, which is harmless.
+        std::thread::sleep(every);
+    }
+}
+
 fn wait_for(child: libc::pid_t) -> RunnerEnd {
     loop {
+        if let Some(end) = reap(child, 0) {
+            return end;
+        }
+    }
+}
+
+/// The runner's end if it has ended (`options`: `WNOHANG` not to wait), else `None`.
+fn reap(child: libc::pid_t, options: libc::c_int) -> Option<RunnerEnd> {
+    {
         let mut status = 0;
         // SAFETY: waits for our own child, writing into a local.
-        let got = unsafe { libc::waitpid(child, &mut status, 0) };
+        let got = unsafe { libc::waitpid(child, &mut status, options) };
         if got == child {
             if libc::WIFEXITED(status) {
-                return RunnerEnd::Exited(libc::WEXITSTATUS(status));
+                return Some(RunnerEnd::Exited(libc::WEXITSTATUS(status)));
             }
             if libc::WIFSIGNALED(status) {
-                return RunnerEnd::Killed {
+                return Some(RunnerEnd::Killed {
                     signal: libc::WTERMSIG(status),
                     core: libc::WCOREDUMP(status),
-                };
+                });
             }
-            continue;
+            return None;
         }
         if got == -1 && io::Error::last_os_error().kind() != io::ErrorKind::Interrupted {
             // The child cannot be waited for (it never can be lost to us otherwise): act.
-            return RunnerEnd::Killed {
+            return Some(RunnerEnd::Killed {
                 signal: 0,
                 core: false,
-            };
+            });
         }
+        None
     }
 }
 
@@ -272,6 +336,7 @@ fn finish(
     runner: libc::pid_t,
     config: &RigConfig,
     settings: GuardianLog,
+    pulse: &Pulse,
 ) -> i32 {
     let status = exit_status(end);
     if confirmed && matches!(end, RunnerEnd::Exited(_)) {
@@ -280,11 +345,17 @@ fn finish(
     let mut log = Logger::new(SystemClock::shared(), settings.zone, true);
     log.set_format(settings.format);
     log.set_devices(config.devices.keys().cloned());
-    log.warn(&format!(
-        "guardian: the runner (pid {runner}) {} before it confirmed the safe state; writing it \
-         now",
-        describe(end)
-    ));
+    match end {
+        RunnerEnd::Stalled { .. } => log.error(&format!(
+            "guardian: {}; the runner (pid {runner}) was killed; writing the safe state now",
+            describe_stall(end, &pulse.doing())
+        )),
+        _ => log.warn(&format!(
+            "guardian: the runner (pid {runner}) {} before it confirmed the safe state; \
+             writing it now",
+            describe(end)
+        )),
+    }
     let outcomes = make_safe(config, &SystemClock::shared());
     report(&mut log, &outcomes);
     log.close();
@@ -295,14 +366,35 @@ fn finish(
 /// reports a process killed by a signal.
 pub fn exit_status(end: RunnerEnd) -> i32 {
     match end {
+        RunnerEnd::Stalled { .. } => exit::STALLED,
         RunnerEnd::Exited(code) => code,
         RunnerEnd::Killed { signal, .. } => 128 + signal,
+    }
+}
+
+/// A stalled runner's end in words, with what its loop was doing (`Pulse::doing`): "the scan
+/// loop stalled for 1.0 s (in handler `after 500ms`)", and who ended it.
+pub fn describe_stall(end: RunnerEnd, doing: &str) -> String {
+    match end {
+        RunnerEnd::Stalled {
+            silent,
+            by_watchdog,
+        } => {
+            let by = if by_watchdog {
+                "systemd's watchdog ended it (SIGABRT)"
+            } else {
+                "the guardian ended it (rig.toml's `stall`)"
+            };
+            format!("{}: {by}", stalled(silent, doing))
+        }
+        other => describe(other),
     }
 }
 
 /// How the runner ended, in words.
 pub fn describe(end: RunnerEnd) -> String {
     match end {
+        RunnerEnd::Stalled { silent, .. } => stalled(silent, "doing something"),
         RunnerEnd::Exited(code) => format!("ended with status {code}"),
         RunnerEnd::Killed { signal: 0, .. } => "could not be waited for".into(),
         RunnerEnd::Killed { signal, core } => {

@@ -58,6 +58,14 @@ impl TcpLink {
     /// Connects to `address` (`host:port`, or `tcp://host:port`), giving up after `timeout`
     /// (name resolution and connection together).
     pub fn connect(address: &str, timeout: Duration) -> Result<Self, LinkError> {
+        // A connection blocks the loop for up to its timeout: its watcher allows for that.
+        crate::guardian::pulse::allow(timeout);
+        let connected = Self::connect_within(address, timeout);
+        crate::guardian::pulse::allow(Duration::ZERO);
+        connected
+    }
+
+    fn connect_within(address: &str, timeout: Duration) -> Result<Self, LinkError> {
         let address = address.strip_prefix(SCHEME).unwrap_or(address).to_string();
         let what = format!("serial device server {address}");
         let deadline = Instant::now() + timeout;

@@ -5,6 +5,8 @@
 //! 129, SIGQUIT 131, SIGUSR1 138, SIGUSR2 140, SIGALRM 142, SIGXFSZ 153), as shells report it (a unit lists them in systemd's
 //! `SuccessExitStatus=` to count `systemctl stop` as success). `stop(code)` ends with its code.
 //!
+//! A stalled loop (`STALLED`, 6) is ended from outside it, by the guardian, which says so.
+//!
 //! Where several apply, the first of: 70, 1, `stop(code)` (not 0), 5, 4, 128 + signal, 0. A
 //! signal stop is not a failure in itself, so what went wrong before it still shows.
 
@@ -24,6 +26,10 @@ pub const MEASUREMENT_FAILED: i32 = 4;
 /// refused, a device whose safe state the end did not confirm (read back), an `on_stop`
 /// handler that failed, records the records file did not take.
 pub const TROUBLE: i32 = 5;
+/// The scan loop stalled: no sign of life for rig.toml's `stall` (a handler stuck in one
+/// operation), or systemd's watchdog ended the runner; its watcher ended it and wrote the safe
+/// state.
+pub const STALLED: i32 = 6;
 /// A bug in rigscript (a panic); the safe state was written to every device that answered
 /// and the host watchdogs left on.
 pub const INTERNAL: i32 = 70;
@@ -37,6 +43,10 @@ pub fn signal(signal: i32) -> i32 {
 pub const TABLE: &str = "\
 Exit status (the first that applies):
    70  a bug in rigscript (a panic): safe state written, host watchdogs left on
+    6  the scan loop stalled (no sign of life for rig.toml's `stall`: a handler
+       stuck in one operation), or systemd's watchdog ended the runner: the
+       guardian killed it and wrote and read back the safe state (the log says
+       in which handler)
     1  a script or runtime error ended the run (on_error = \"stop\", the top level
        failed, a handler over one of its limits, an invariant found false)
     N  the script called stop(N) with N from 1 to 255

@@ -214,6 +214,8 @@ impl<H: Clone> Runtime<H> {
     pub(super) fn set_cause(&mut self, label: &str) {
         self.cause.clear();
         self.cause.push_str(label);
+        // What a watcher names if the loop stalls in it.
+        crate::guardian::pulse::handler(label);
     }
 
     /// The invariants the script stated, in that order.

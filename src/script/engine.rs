@@ -326,6 +326,8 @@ impl Guard {
         }
         let tx = self.transactions.load(Ordering::Relaxed);
         if ops % CLOCK_EVERY == 0 || tx != self.seen_transactions.get() {
+            // The script makes progress: the loop is alive (its time is bounded here).
+            crate::guardian::pulse::beat();
             self.seen_transactions.set(tx);
             let now = self.clock.now();
             let ran = now.saturating_sub(self.started.get());

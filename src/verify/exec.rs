@@ -226,6 +226,7 @@ impl Player<'_> {
 
 /// Plays `plan` on a fresh rig for `target.run_for`; stops at the first finding.
 pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, ExecError> {
+    let _ends = crate::guardian::pulse::EndsLoop;
     let zone = zone_of(&plan.start.zone)?;
     let clock = VirtualClock::new(plan.start.wall.with_timezone(&Utc));
     let setup = RigBuilder::from_config(target.config.clone())

@@ -242,7 +242,8 @@ fn play_batch(
     std::thread::scope(|s| {
         for _ in 0..opts.jobs.max(1) {
             let worker = std::thread::Builder::new().stack_size(stack);
-            if worker.spawn_scoped(s, work).is_err() {
+            let watched = || crate::guardian::lone::watched("rigscript verify", work);
+            if worker.spawn_scoped(s, watched).is_err() {
                 work();
             }
         }

@@ -25,6 +25,7 @@ pub fn failure_text(check: &Property) -> String {
 
 /// Whether `results` (one written test's) fail naming `check`.
 pub fn judge(results: &[TestResult], check: &Property) -> Result<(), NotReproduced> {
+    let _ends = crate::guardian::pulse::EndsLoop;
     let want = failure_text(check);
     match results {
         [r] => match &r.failure {

@@ -153,7 +153,7 @@ impl<P: Program> Runner<P> {
     }
 
     fn start_program(&mut self) {
-        self.rt.borrow_mut().cause = "top level".into();
+        self.rt.borrow_mut().set_cause("top level");
         self.last_start = self.clock.now();
         match self.program.start() {
             Ok(()) => self.tell_started(),
@@ -185,7 +185,9 @@ impl<P: Program> Runner<P> {
         });
     }
 
-    /// Runs until the run ends, sleeping between ticks; returns the exit status.
+    /// Runs until the run ends, sleeping between ticks; returns the exit status. Kept out of
+    /// line: benches/tick_instructions.sh finds the loop's thread by this function's symbol.
+    #[inline(never)]
     pub fn run(&mut self) -> i32 {
         self.note_prompt_wakeups(crate::time::clock::prefer_prompt_wakeups());
         self.stats.wake_latency = Some(wake_latency::describe(&None));

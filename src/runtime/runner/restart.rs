@@ -82,7 +82,7 @@ impl<P: Program> Runner<P> {
         {
             let mut rt = self.rt.borrow_mut();
             rt.reset_program();
-            rt.cause = "top level".into();
+            rt.set_cause("top level");
             rt.log.notice("starting the script again");
         }
         match self.program.start() {

@@ -2,6 +2,7 @@
 
 use super::contract::{describe, EndReason, Program};
 use super::{Runner, State};
+use crate::guardian::pulse::{self, Phase};
 use crate::runtime::invariants::Violation;
 use crate::runtime::observe::{EventKind, RunEvent};
 use crate::runtime::snapshot::micros;
@@ -23,6 +24,7 @@ impl<P: Program> Runner<P> {
         if self.status().is_some() {
             return;
         }
+        pulse::enter(Phase::Tick);
         let start = self.clock.now();
         let transactions_before = self.rt.borrow().transaction_count();
         self.stats.ticks = self.stats.ticks.saturating_add(1);
@@ -146,7 +148,11 @@ impl<P: Program> Runner<P> {
     /// the next one (a tick with thousands of timers due must not delay SIGTERM).
     fn run_handlers(&mut self) {
         let mut calls = self.rt.borrow_mut().collect_calls();
+        let any = !calls.is_empty();
         self.run_calls(&mut calls);
+        if any {
+            pulse::enter(Phase::Tick);
+        }
         self.rt.borrow_mut().reuse_calls(calls);
     }
 

@@ -4,6 +4,7 @@
 
 use super::contract::Program;
 use super::Runner;
+use crate::guardian::pulse::{self, Phase};
 use crate::runtime::wake_latency;
 use std::time::Duration;
 
@@ -132,6 +133,7 @@ impl<P: Program> Runner<P> {
             for due in [feed, retry, grace, end, expiry].into_iter().flatten() {
                 until = until.min(due.max(now));
             }
+            pulse::enter(Phase::Waiting);
             match &self.served {
                 Some(s) => {
                     let bell = s.requests.bell().clone();
