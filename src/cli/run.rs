@@ -197,7 +197,14 @@ pub fn run(args: RunArgs) -> i32 {
             return exit::USAGE;
         }
     };
-    if !fit_to_run("run", &file, &source, &config, args.config.as_deref()) {
+    let period = args.period.unwrap_or(config.period);
+    if !fit_to_run(
+        "run",
+        &file,
+        &source,
+        (&config, period),
+        args.config.as_deref(),
+    ) {
         return outputs.not_started(
             exit::USAGE,
             &format!("{file} does not pass rigscript check"),

@@ -73,6 +73,8 @@ impl<H: Clone> Runtime<H> {
             match (input.read)(d, tick) {
                 Err(e) => self.note_failure(idx, &e),
                 Ok(_) => {
+                    // The tick's boundary stands for now: no clock read on the read's path.
+                    self.heard(idx, self.tick_boundary.unwrap_or(self.started));
                     self.force_readings(idx);
                     self.tell_change(idx, input);
                 }

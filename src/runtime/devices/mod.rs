@@ -100,6 +100,8 @@ pub struct Health {
     pub cause: String,
     /// The link itself failed: reopen it before trying again.
     pub link_failed: bool,
+    /// When it last answered (as far as the runner noted: reads, commands, feeds, probes).
+    pub heard_at: Duration,
 }
 
 impl Health {

@@ -1,0 +1,167 @@
+//! Noticing a loss between exchanges, whatever the script reads: the links the OS can tell
+//! the end of (a serial port's hang-up or error, a TCP connection's close or reset) are asked
+//! every `LINK_WATCH_INTERVAL` without reading anything, and a device not heard from for half
+//! the grace time (one the script does not read, a module without a host watchdog to feed) is
+//! asked once, so that a loss starts its grace time when it happens, not at the next device
+//! check.
+
+use crate::device::c29u::C29uError;
+use crate::device::trc1000::Trc1000Error;
+use crate::link::{fd, LinkError, Watch};
+use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::log::Level;
+use crate::runtime::state::Runtime;
+use std::time::Duration;
+
+/// How often the links the OS can tell the end of are asked: one `ppoll` for them all, only
+/// when the loop is awake anyway or this is due; a loss is noticed within this time.
+pub const LINK_WATCH_INTERVAL: Duration = Duration::from_millis(100);
+
+/// The shortest time between two probes of one device, whatever the grace time (a grace of
+/// zero would otherwise ask an idle device at every turn of the loop).
+pub const LEAST_PROBE_INTERVAL: Duration = Duration::from_millis(50);
+
+impl<H: Clone> Runtime<H> {
+    /// How long a device may go without an answer before it is asked one: half the grace
+    /// time, so a device lost while idle is noticed within half of it.
+    pub fn probe_interval(&self) -> Duration {
+        (self.grace / 2).max(LEAST_PROBE_INTERVAL)
+    }
+
+    /// Notes that the device at `idx` answered at `at` (it needs no probe for a while).
+    pub fn heard(&mut self, idx: usize, at: Duration) {
+        if let Some(d) = self.devices.get_mut(idx) {
+            let h = d.health_mut();
+            h.heard_at = h.heard_at.max(at);
+        }
+    }
+
+    /// When the loop next has to look at the links or probe a device (`None`: no device has
+    /// a link to watch and none answers).
+    pub fn next_liveness(&self) -> Option<Duration> {
+        let probe = self.probe_interval();
+        let probes = self
+            .devices
+            .iter()
+            .filter(|d| d.health().online())
+            .map(|d| d.health().heard_at.saturating_add(probe))
+            .min();
+        let watch = self.has_link_watch.then_some(self.next_link_watch);
+        match (probes, watch) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Asks the OS which links have ended, if that is due, and probes each device not heard
+    /// from for `probe_interval`; a device found lost is marked lost at once (its grace time
+    /// runs from now), with the OS's reason.
+    pub fn watch_liveness(&mut self, now: Duration) {
+        if now >= self.next_link_watch {
+            self.next_link_watch = now.saturating_add(LINK_WATCH_INTERVAL);
+            self.watch_links();
+        }
+        let probe = self.probe_interval();
+        for idx in 0..self.devices.len() {
+            let due = self.devices.get(idx).is_some_and(|d| {
+                d.health().online() && now >= d.health().heard_at.saturating_add(probe)
+            });
+            if due && !self.cancel.is_cancelled() {
+                self.probe_idle(idx);
+            }
+        }
+    }
+
+    /// One `ppoll` over the links that have a descriptor; a link that ended marks every
+    /// device on it lost.
+    fn watch_links(&mut self) {
+        let watched: Vec<(usize, Watch)> = self
+            .devices
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| d.health().online())
+            .filter_map(|(idx, d)| link_watch(d).map(|w| (idx, w)))
+            .collect();
+        self.has_link_watch = !watched.is_empty() || self.devices.iter().any(has_watch);
+        if watched.is_empty() {
+            return;
+        }
+        let watches: Vec<Watch> = watched.iter().map(|(_, w)| *w).collect();
+        let ended = match fd::ended(&watches) {
+            Ok(ended) => ended,
+            Err(e) => {
+                self.log.repeating(
+                    "links/watch",
+                    Level::Warn,
+                    &format!(
+                        "could not ask the OS whether the links are up ({e}): a loss is \
+                         noticed at the next exchange"
+                    ),
+                );
+                return;
+            }
+        };
+        for ((idx, _), why) in watched.into_iter().zip(ended) {
+            let Some(why) = why else { continue };
+            let Some(d) = self.devices.get(idx) else {
+                continue;
+            };
+            let link = LinkError::Disconnected {
+                what: link_name(d),
+                detail: format!("{why} (the OS says so between exchanges)"),
+            };
+            let error = match d {
+                Device::C29u(_) => DeviceError::C29u(C29uError::Link(link)),
+                Device::Trc(_) => DeviceError::Trc(Trc1000Error::Link(link)),
+            };
+            self.note_failure(idx, &error);
+        }
+    }
+
+    /// Asks the device at `idx` one question (its outputs, its switches), as a script's read
+    /// would: an answer is heard, a communication failure marks it lost.
+    fn probe_idle(&mut self, idx: usize) {
+        if !self.ready_for_exchange(idx) {
+            return;
+        }
+        let result = match self.devices.get_mut(idx) {
+            Some(Device::C29u(d)) => d.driver.read_outputs().map(drop).map_err(DeviceError::from),
+            Some(Device::Trc(d)) => d.probe(),
+            None => return,
+        };
+        let now = self.now();
+        match result {
+            Ok(()) => self.heard(idx, now),
+            Err(e) => {
+                self.note_failure(idx, &e);
+                // An answer that was a refusal is an answer all the same.
+                if !e.is_comm_failure() {
+                    self.heard(idx, now);
+                }
+            }
+        }
+    }
+}
+
+/// The watched descriptor of a device's link, if it has one.
+fn link_watch(d: &Device) -> Option<Watch> {
+    match d {
+        Device::C29u(c) => c.link_watch(),
+        // USB transfers are made only when asked (interrupt transfers, no polling thread):
+        // a board unplugged fails its next one at once, which `probe_idle` makes.
+        Device::Trc(_) => None,
+    }
+}
+
+/// Whether a device's link has a descriptor to watch (lost or not).
+fn has_watch(d: &Device) -> bool {
+    link_watch(d).is_some()
+}
+
+/// The link of a device in words, for the loss's log line.
+fn link_name(d: &Device) -> String {
+    match d {
+        Device::C29u(c) => c.driver.describe(),
+        Device::Trc(t) => t.driver.describe(),
+    }
+}
