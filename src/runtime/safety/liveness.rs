@@ -165,3 +165,59 @@ fn link_name(d: &Device) -> String {
         Device::Trc(t) => t.driver.describe(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::runtime::testing::{TestRig, IO, PANEL};
+    use std::time::Duration;
+
+    #[test]
+    fn an_idle_device_is_asked_every_half_grace_and_one_gone_silent_is_lost_then() {
+        let mut r = TestRig::started();
+        assert_eq!(
+            r.rt.probe_interval(),
+            Duration::from_millis(500),
+            "grace 1 s"
+        );
+        // Nobody reads the panel; the module is heard at each feed of its watchdog.
+        let due = r.rt.devices[PANEL].health().heard_at + r.rt.probe_interval();
+        assert!(r.rt.next_liveness().is_some_and(|at| at <= due));
+        r.clock.advance(due - r.rt.now() - Duration::from_millis(1));
+        let before = r.requests();
+        let now = r.rt.now();
+        r.rt.watch_liveness(now);
+        assert_eq!(r.requests(), before, "not yet");
+        r.clock.advance(Duration::from_millis(1));
+        r.rt.feed_watchdogs();
+        let before = r.requests();
+        let now = r.rt.now();
+        r.rt.watch_liveness(now);
+        assert_eq!(r.requests(), before + 1, "one question to the panel");
+        assert_eq!(r.rt.devices[PANEL].health().heard_at, now);
+        // It goes silent: asked again half a grace time on, and lost then, not at the next
+        // device check.
+        r.sim.set_gone("panel", true).unwrap();
+        r.clock.advance(r.rt.probe_interval());
+        let now = r.rt.now();
+        r.rt.watch_liveness(now);
+        assert!(!r.rt.online(PANEL));
+        assert!(r.log().contains("panel: lost: "), "{}", r.log());
+        assert!(r.rt.online(IO));
+    }
+
+    #[test]
+    fn a_device_the_script_reads_is_not_asked_besides() {
+        let mut r = TestRig::started();
+        for _ in 0..100 {
+            r.next_tick(Duration::from_millis(20));
+            r.rt.tick_boundary = Some(r.rt.now());
+            let before = r.requests();
+            r.rt.switches(PANEL);
+            let now = r.rt.now();
+            r.rt.watch_liveness(now);
+            // The read, and the module's feed when it falls due: never a probe of the panel.
+            assert!(r.requests() - before <= 2);
+            assert!(r.rt.devices[PANEL].health().heard_at == now);
+        }
+    }
+}

@@ -109,7 +109,6 @@ impl<H: Clone> Runtime<H> {
                         if let Some(d) = self.devices.get_mut(idx) {
                             d.health_mut().back();
                         }
-                        self.heard(idx, self.now());
                         self.log.notice(&format!(
                             "{name}: back after {}; watchdog, safe value and outputs applied \
                              again",
