@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{lose_a_module, rigscript, SimProcess};
+use common::{lose_a_module, rigscript, Cut, SimProcess};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -247,7 +247,12 @@ fn assert_told_at_once(log: &str, reason: &str) {
 
 #[test]
 fn a_module_whose_line_hangs_up_is_lost_at_once_and_the_rest_goes_safe_after_the_grace_time() {
-    let loss = lose_a_module("hangup", str::to_string, Duration::from_secs(10));
+    let loss = lose_a_module(
+        "hangup",
+        str::to_string,
+        (Cut::Kill, Duration::ZERO),
+        Duration::from_secs(10),
+    );
     let to_safe = loss
         .to_safe
         .unwrap_or_else(|| panic!("never safe: {}", loss.log));

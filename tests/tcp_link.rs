@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{lose_a_module, rigscript, start_relay, SimProcess};
+use common::{lose_a_module, rigscript, start_relay, Cut, SimProcess};
 use serde_json::Value;
 use std::net::TcpListener;
 use std::process::{Command, Output};
@@ -85,7 +85,8 @@ fn a_module_whose_server_closes_the_connection_is_lost_at_once_and_the_rest_goes
     // The relay closes the connection when its serial line hangs up, as a device server does
     // whose module went away.
     let relayed = |pty: &str| format!("tcp://127.0.0.1:{}", start_relay(pty));
-    let loss = lose_a_module("tcp-closed", relayed, Duration::from_secs(10));
+    let cut = (Cut::Kill, Duration::ZERO);
+    let loss = lose_a_module("tcp-closed", relayed, cut, Duration::from_secs(10));
     let to_safe = loss
         .to_safe
         .unwrap_or_else(|| panic!("never safe: {}", loss.log));

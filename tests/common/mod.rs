@@ -315,12 +315,26 @@ pub struct Loss {
     pub log: String,
 }
 
+/// How `lose_a_module` loses the module.
+pub enum Cut {
+    /// Kills its simulator: its pty closes, as an unplugged adapter's does.
+    Kill,
+    /// Sets the flag a `start_switchable_relay` silences its line with: the connection stays
+    /// up, nothing answers.
+    Silence(Arc<AtomicBool>),
+}
+
 /// Two simulated modules without host watchdogs, `kept` on its pty and `lost` at the port
 /// `port` makes of its pty (the pty itself, or a TCP relay to it), driven by a run at
 /// `grace = "1s"` whose script has only a 30 s timer: nothing polls. Once both drive the
-/// script's outputs, kills `lost`'s simulator (its pty closes, as an unplugged adapter's does)
-/// and times until `kept` reads back its safe value, within `limit`.
-pub fn lose_a_module(tag: &str, port: impl FnOnce(&str) -> String, limit: Duration) -> Loss {
+/// script's outputs, waits `settle`, loses `lost` as `cut` says, and times until `kept` reads
+/// back its safe value, within `limit`.
+pub fn lose_a_module(
+    tag: &str,
+    port: impl FnOnce(&str) -> String,
+    (cut, settle): (Cut, Duration),
+    limit: Duration,
+) -> Loss {
     let mut lost = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let mut kept = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let dir = TempDir::new(tag);
@@ -349,7 +363,11 @@ pub fn lose_a_module(tag: &str, port: impl FnOnce(&str) -> String, limit: Durati
         (kept.state()["do"] == 0xF0 && lost.state()["do"] == 0xF0).then_some(())
     });
     let to_safe = driven.and_then(|()| {
-        lost.kill();
+        std::thread::sleep(settle);
+        match &cut {
+            Cut::Kill => lost.kill(),
+            Cut::Silence(flag) => flag.store(true, Ordering::SeqCst),
+        }
         let killed = Instant::now();
         loop {
             if kept.state()["do"] == 0x05 {
