@@ -4,7 +4,7 @@
 //! back its safe value. Target: within grace + 1 s (2 s). Three ways to lose it: its pty hangs
 //! up (the simulator killed, as an unplugged USB-serial adapter), its TCP serial server closes
 //! the connection, and its line goes silent behind a server that stays up (only a question
-//! tells: the runner asks a device nobody reads every half grace time).
+//! tells: the runner asks a device nobody reads every quarter of the grace time).
 //!
 //! Run: `cargo bench --bench loss` (20 losses of each; `LOSS_BENCH_RUNS=N`). `cargo test`
 //! runs it with 2 of each, so it never silently drops out.
