@@ -1,7 +1,7 @@
 //! The waits between ticks: in slices that look at the stop flag and the control queue, doing
 //! what falls due meanwhile (feeds, retries, a look at the links and idle devices, a grace
-//! time's end, the end of `--for`); and the CPU
-//! wake-up latency asked for while the loop ticks fast.
+//! time's end, the end of `--for`); and the CPU wake-up latency asked for while the loop ticks
+//! fast.
 
 use super::contract::Program;
 use super::Runner;
