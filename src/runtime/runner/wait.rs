@@ -123,7 +123,7 @@ impl<P: Program> Runner<P> {
                     rt.grace_ends(),
                     rt.held_safe,
                     rt.next_force_expiry(),
-                    rt.next_liveness(),
+                    rt.next_liveness(self.next_deadline),
                 )
             };
             let end = self.end_at();
@@ -157,7 +157,8 @@ impl<P: Program> Runner<P> {
             if looked {
                 self.guarded(|r| {
                     let now = r.clock.now();
-                    r.rt.borrow_mut().watch_liveness(now);
+                    let next_tick = r.next_deadline;
+                    r.rt.borrow_mut().watch_liveness(now, next_tick);
                 });
             }
             // The end of a grace time holds the outputs safe at once, not at the next tick

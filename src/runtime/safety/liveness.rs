@@ -38,15 +38,27 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
+    /// When the device at `idx` is due a probe, if it is: not heard from for `probe_interval`.
+    /// One the script read in the current tick, with the next tick (`next_tick`) within half
+    /// the grace time of that read, is left to that tick: a slow period (longer than the
+    /// probe interval) must not add a probe between every two reads.
+    fn probe_due(&self, idx: usize, next_tick: Duration) -> Option<Duration> {
+        let h = self.devices.get(idx)?.health();
+        if !h.online() {
+            return None;
+        }
+        let read_now = h.read_tick == self.tick && self.tick > 0;
+        if read_now && next_tick <= h.heard_at.saturating_add(self.grace / 2) {
+            return None;
+        }
+        Some(h.heard_at.saturating_add(self.probe_interval()))
+    }
+
     /// When the loop next has to look at the links or probe a device (`None`: no device has
-    /// a link to watch and none answers).
-    pub fn next_liveness(&self) -> Option<Duration> {
-        let probe = self.probe_interval();
-        let probes = self
-            .devices
-            .iter()
-            .filter(|d| d.health().online())
-            .map(|d| d.health().heard_at.saturating_add(probe))
+    /// a link to watch and none is due a probe before `next_tick`, the next tick's deadline).
+    pub fn next_liveness(&self, next_tick: Duration) -> Option<Duration> {
+        let probes = (0..self.devices.len())
+            .filter_map(|idx| self.probe_due(idx, next_tick))
             .min();
         let watch = self.has_link_watch.then_some(self.next_link_watch);
         match (probes, watch) {
@@ -55,19 +67,16 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
-    /// Asks the OS which links have ended, if that is due, and probes each device not heard
-    /// from for `probe_interval`; a device found lost is marked lost at once (its grace time
-    /// runs from now), with the OS's reason.
-    pub fn watch_liveness(&mut self, now: Duration) {
+    /// Asks the OS which links have ended, if that is due, and probes each device due a probe
+    /// (`probe_due`, with the next tick at `next_tick`); a device found lost is marked lost at
+    /// once (its grace time runs from now), with the OS's reason.
+    pub fn watch_liveness(&mut self, now: Duration, next_tick: Duration) {
         if now >= self.next_link_watch {
             self.next_link_watch = now.saturating_add(LINK_WATCH_INTERVAL);
             self.watch_links();
         }
-        let probe = self.probe_interval();
         for idx in 0..self.devices.len() {
-            let due = self.devices.get(idx).is_some_and(|d| {
-                d.health().online() && now >= d.health().heard_at.saturating_add(probe)
-            });
+            let due = self.probe_due(idx, next_tick).is_some_and(|at| now >= at);
             if due && !self.cancel.is_cancelled() {
                 self.probe_idle(idx);
             }
@@ -183,17 +192,20 @@ mod tests {
         );
         // Nobody reads the panel; the module is heard at each feed of its watchdog.
         let due = r.rt.devices[PANEL].health().heard_at + r.rt.probe_interval();
-        assert!(r.rt.next_liveness().is_some_and(|at| at <= due));
+        assert!(r
+            .rt
+            .next_liveness(Duration::MAX)
+            .is_some_and(|at| at <= due));
         r.clock.advance(due - r.rt.now() - Duration::from_millis(1));
         let before = r.requests();
         let now = r.rt.now();
-        r.rt.watch_liveness(now);
+        r.rt.watch_liveness(now, Duration::MAX);
         assert_eq!(r.requests(), before, "not yet");
         r.clock.advance(Duration::from_millis(1));
         r.rt.feed_watchdogs();
         let before = r.requests();
         let now = r.rt.now();
-        r.rt.watch_liveness(now);
+        r.rt.watch_liveness(now, Duration::MAX);
         assert_eq!(r.requests(), before + 1, "one question to the panel");
         assert_eq!(r.rt.devices[PANEL].health().heard_at, now);
         // It goes silent: asked again a quarter of the grace time on, and lost then, not at the next
@@ -201,7 +213,7 @@ mod tests {
         r.sim.set_gone("panel", true).unwrap();
         r.clock.advance(r.rt.probe_interval());
         let now = r.rt.now();
-        r.rt.watch_liveness(now);
+        r.rt.watch_liveness(now, Duration::MAX);
         assert!(!r.rt.online(PANEL));
         assert!(r.log().contains("panel: lost: "), "{}", r.log());
         assert!(r.rt.online(IO));
@@ -216,10 +228,29 @@ mod tests {
             let before = r.requests();
             r.rt.switches(PANEL);
             let now = r.rt.now();
-            r.rt.watch_liveness(now);
+            r.rt.watch_liveness(now, Duration::MAX);
             // The read, and the module's feed when it falls due: never a probe of the panel.
             assert!(r.requests() - before <= 2);
             assert!(r.rt.devices[PANEL].health().heard_at == now);
         }
+    }
+
+    #[test]
+    fn a_device_read_every_slow_tick_is_left_to_the_next_tick() {
+        let mut r = TestRig::started();
+        r.next_tick(Duration::from_millis(20));
+        let read_at = r.rt.now();
+        r.rt.tick_boundary = Some(read_at);
+        r.rt.switches(PANEL);
+        r.clock.advance(Duration::from_millis(300));
+        r.rt.feed_watchdogs();
+        let now = r.rt.now();
+        let before = r.requests();
+        // A 500 ms period: the next tick reads it within half the grace time.
+        r.rt.watch_liveness(now, read_at + Duration::from_millis(500));
+        assert_eq!(r.requests(), before, "no probe between two reads");
+        // A period longer than half the grace time: asked between the reads.
+        r.rt.watch_liveness(now, read_at + Duration::from_millis(600));
+        assert_eq!(r.requests(), before + 1);
     }
 }
