@@ -265,11 +265,19 @@ fn check_and_run_name_a_timer_shorter_than_the_period_with_the_period() {
         "{}",
         stdout(&o)
     );
-    // `run` names the period it runs at, `--period` included.
+    // `run` names the period it runs at, `--period` included, in its log.
+    let logged = format!(
+        "warning: {s}:2:3: every(\"100ms\") is shorter than the rig's period 5s: it fires at \
+         most once a period"
+    );
     let o = run(&["run", "--sim", "--period", "5s", "--for", "10ms", &s]);
-    assert!(stderr(&o).contains(&warning), "{}", stderr(&o));
+    assert!(stderr(&o).contains(&logged), "{}", stderr(&o));
     let o = run(&["run", "--sim", "--period", "50ms", "--for", "10ms", &s]);
-    assert!(!stderr(&o).contains("warning: every"), "{}", stderr(&o));
+    assert!(
+        !stderr(&o).contains("every(\"100ms\") is shorter"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]

@@ -70,17 +70,18 @@ pub fn run(args: CheckArgs) -> i32 {
 /// with `source`. If it does, its problems go to stderr as `check` prints them, then why
 /// `command` does not run the script: a script `check` rejects would fail where it is wrong,
 /// maybe in the handler that makes the rig safe, so fixing it is the only way on. If not,
-/// its warnings at the scan `period` the run uses go to stderr, and it runs.
+/// its warnings at the scan `period` the run uses go to stderr (`None`: the caller tells
+/// them itself, as `run` does in its log's format), and it runs.
 pub fn fit_to_run(
     command: &str,
     file: &str,
     source: &str,
-    (config, period): (&RigConfig, Duration),
+    (config, period): (&RigConfig, Option<Duration>),
     config_path: Option<&Path>,
 ) -> bool {
     let problems = check(source, config);
     if problems.is_empty() {
-        for w in warnings(source, period) {
+        for w in period.map(|p| warnings(source, p)).unwrap_or_default() {
             eprintln!("{}", w.for_file(file));
         }
         return true;

@@ -139,7 +139,7 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
             return 2;
         }
     };
-    let checked = (&config, config.period);
+    let checked = (&config, Some(config.period));
     if !fit_to_run("verify", &file, &source, checked, args.config.as_deref()) {
         return 2;
     }

@@ -27,6 +27,14 @@ impl Warning {
             None => format!("{file}: warning: {}", self.message),
         }
     }
+
+    /// The warning for a log, whose line says it is a warning: `file:3:1: ...`.
+    pub fn in_file(&self, file: &str) -> String {
+        match self.at {
+            Some((line, column)) => format!("{file}:{line}:{column}: {}", self.message),
+            None => format!("{file}: {}", self.message),
+        }
+    }
 }
 
 /// The warnings of `source` at the scan `period`, in order (none for a script that does not
