@@ -117,6 +117,9 @@ fn a_handler_over_its_time_is_stopped_on_the_runs_clock() {
     config
         .devices
         .insert("io".into(), rigscript::config::DeviceConfig::C29u(io));
+    // A long grace time: the idle module is asked only every 15 s, so the handler, not a
+    // probe between ticks, is the first to find it silent.
+    config.grace = Duration::from_secs(60);
     let mut rig = RigBuilder::from_config(config)
         .simulated()
         .virtual_time_from("2026-03-28T00:00:30Z".parse().unwrap())

@@ -241,6 +241,68 @@ fn a_failed_measurement_is_exit_4_and_records_are_json_lines() {
 }
 
 #[test]
+fn check_and_run_name_a_timer_shorter_than_the_period_with_the_period() {
+    let d = Dir::new("short-timer");
+    let s = d.file("fast.rhai", "let n = 0;\n  every(\"100ms\", || n += 1);\n");
+    let cfg = d.file(
+        "rig.toml",
+        "period = \"5s\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
+    );
+    let warning = format!(
+        "{s}:2:3: warning: every(\"100ms\") is shorter than the rig's period 5s: it fires at \
+         most once a period"
+    );
+    let o = run(&["check", "--config", &cfg, &s]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "a warning is no problem: {}",
+        stdout(&o)
+    );
+    assert!(stdout(&o).contains(&warning), "{}", stdout(&o));
+    assert!(
+        stdout(&o).contains(&format!("{s}: ok, with 1 warning(s)")),
+        "{}",
+        stdout(&o)
+    );
+    // `run` names the period it runs at, `--period` included, in its log.
+    let logged = format!(
+        "warning: {s}:2:3: every(\"100ms\") is shorter than the rig's period 5s: it fires at \
+         most once a period"
+    );
+    let o = run(&["run", "--sim", "--period", "5s", "--for", "10ms", &s]);
+    assert!(stderr(&o).contains(&logged), "{}", stderr(&o));
+    let o = run(&["run", "--sim", "--period", "50ms", "--for", "10ms", &s]);
+    assert!(
+        !stderr(&o).contains("every(\"100ms\") is shorter"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn an_empty_script_or_one_with_nothing_to_run_is_a_warning_in_check_and_verify() {
+    let d = Dir::new("nothing-to-run");
+    let empty = d.file("empty.rhai", "// to do\n");
+    let once = d.file("once.rhai", "io.outputs = 0x01;\n");
+    for (s, why) in [
+        (&empty, "the script is empty: there is nothing to run"),
+        (
+            &once,
+            "nothing to run: the script sets up no handler, timer or invariant, so a run does \
+             its top level once and ends",
+        ),
+    ] {
+        let warning = format!("{s}: warning: {why}");
+        let o = run(&["check", s]);
+        assert_eq!(o.status.code(), Some(0), "{}", stdout(&o));
+        assert!(stdout(&o).contains(&warning), "{}", stdout(&o));
+        let o = run(&["verify", s, "--runs", "1"]);
+        assert!(stderr(&o).contains(&warning), "{}", stderr(&o));
+    }
+}
+
+#[test]
 fn check_reports_problems_with_line_and_column() {
     let d = Dir::new("check");
     let good = d.file("good.rhai", "io.on_rise(3, |ch| io.outputs = 1 << ch);\n");

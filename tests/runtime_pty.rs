@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{rigscript, SimProcess};
+use common::{lose_a_module, rigscript, Cut, SimProcess};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -224,4 +224,47 @@ fn a_rig_mixes_a_real_module_and_a_panel_marked_sim_in_rig_toml() {
 #[test]
 fn a_rig_mixes_a_real_module_and_a_panel_simulated_by_sim_device() {
     mixed_rig_runs("", &["--sim-device", "panel"], "mixed-flag");
+}
+
+/// The lost module's line and the rest of the rig, in the log's order: the loss with the OS's
+/// reason, then everything held safe.
+fn assert_told_at_once(log: &str, reason: &str) {
+    let lost = log
+        .find("lost: lost: ")
+        .unwrap_or_else(|| panic!("the loss is told: {log}"));
+    let line = log[lost..].lines().next().unwrap_or_default();
+    assert!(
+        line.contains(reason) && line.contains("(the OS says so between exchanges)"),
+        "the loss names what the OS said: {line}"
+    );
+    let held = log
+        .find(
+            "lost lost for longer than the grace time (1s): every output is held at its safe state",
+        )
+        .unwrap_or_else(|| panic!("held safe: {log}"));
+    assert!(lost < held, "{log}");
+}
+
+#[test]
+fn a_module_whose_line_hangs_up_is_lost_at_once_and_the_rest_goes_safe_after_the_grace_time() {
+    let loss = lose_a_module(
+        "hangup",
+        str::to_string,
+        (Cut::Kill, Duration::ZERO),
+        Duration::from_secs(10),
+    );
+    let to_safe = loss
+        .to_safe
+        .unwrap_or_else(|| panic!("never safe: {}", loss.log));
+    // Not a timing target (benches/loss.rs measures that): the identity check every 5 s would
+    // notice the loss up to 5 s late, the hang-up tells it at once, and grace is 1 s.
+    assert!(
+        to_safe < Duration::from_secs(4),
+        "{to_safe:?}: {}",
+        loss.log
+    );
+    assert_told_at_once(
+        &loss.log,
+        "disconnected: hang-up: the other end of the line closed it",
+    );
 }

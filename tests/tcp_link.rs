@@ -3,10 +3,11 @@
 
 mod common;
 
-use common::{rigscript, start_relay, SimProcess};
+use common::{lose_a_module, rigscript, start_relay, Cut, SimProcess};
 use serde_json::Value;
 use std::net::TcpListener;
 use std::process::{Command, Output};
+use std::time::Duration;
 
 fn rigscript_run(args: &[&str]) -> Output {
     Command::new(rigscript()).args(args).output().unwrap()
@@ -77,4 +78,31 @@ fn a_server_that_is_not_there_exits_3_with_a_hint() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains(&format!("127.0.0.1:{port}")), "{stderr}");
     assert!(stderr.contains("server is running"), "{stderr}");
+}
+
+#[test]
+fn a_module_whose_server_closes_the_connection_is_lost_at_once_and_the_rest_goes_safe() {
+    // The relay closes the connection when its serial line hangs up, as a device server does
+    // whose module went away.
+    let relayed = |pty: &str| format!("tcp://127.0.0.1:{}", start_relay(pty));
+    let cut = (Cut::Kill, Duration::ZERO);
+    let loss = lose_a_module("tcp-closed", relayed, cut, Duration::from_secs(10));
+    let to_safe = loss
+        .to_safe
+        .unwrap_or_else(|| panic!("never safe: {}", loss.log));
+    // Not a timing target: at the next identity check (every 5 s) would be up to 5 s late.
+    assert!(
+        to_safe < Duration::from_secs(4),
+        "{to_safe:?}: {}",
+        loss.log
+    );
+    let lost = loss
+        .log
+        .lines()
+        .find(|l| l.contains("lost: lost: "))
+        .unwrap_or_else(|| panic!("the loss is told: {}", loss.log));
+    assert!(
+        lost.contains("disconnected: the server closed the connection (end of stream) (the OS says so between exchanges)"),
+        "{lost}"
+    );
 }

@@ -2,15 +2,19 @@
 //! running it (unknown functions, methods and properties and wrong argument counts, at the top
 //! level and in every handler and function; device names against the rig, switch and rotary
 //! names, channels, durations, cron expressions, handler parameters); each problem as
-//! `file:line:column: message`.
-//! Exit status 0 when there is none, 1 otherwise (2 for an unreadable file or config).
+//! `file:line:column: message`. Then what runs but may not be meant (`script::lint`: a timer
+//! shorter than the period, nothing to run), each as `file:line:column: warning: message`.
+//! Exit status 0 when there is no problem (warnings or not), 1 otherwise (2 for an unreadable
+//! file or config).
 
 use crate::config::RigConfig;
 use crate::script::check::check;
+use crate::script::lint::warnings;
 use crate::text_file::{read_text, TextKind};
 use clap::Args;
 use std::path::Path;
 use std::path::PathBuf;
+use std::time::Duration;
 
 /// Options of `rigscript check`.
 #[derive(Debug, Args)]
@@ -47,7 +51,14 @@ pub fn run(args: CheckArgs) -> i32 {
         println!("{file}:{p}");
     }
     if problems.is_empty() {
-        println!("{file}: ok");
+        let warned = warnings(&source, config.period);
+        for w in &warned {
+            println!("{}", w.for_file(&file));
+        }
+        match warned.len() {
+            0 => println!("{file}: ok"),
+            n => println!("{file}: ok, with {n} warning(s)"),
+        }
         0
     } else {
         eprintln!("{file}: {} problem(s)", problems.len());
@@ -58,16 +69,21 @@ pub fn run(args: CheckArgs) -> i32 {
 /// For the commands that run a script (`run`, `verify`): whether `check` finds nothing wrong
 /// with `source`. If it does, its problems go to stderr as `check` prints them, then why
 /// `command` does not run the script: a script `check` rejects would fail where it is wrong,
-/// maybe in the handler that makes the rig safe, so fixing it is the only way on.
+/// maybe in the handler that makes the rig safe, so fixing it is the only way on. If not,
+/// its warnings at the scan `period` the run uses go to stderr (`None`: the caller tells
+/// them itself, as `run` does in its log's format), and it runs.
 pub fn fit_to_run(
     command: &str,
     file: &str,
     source: &str,
-    config: &RigConfig,
+    (config, period): (&RigConfig, Option<Duration>),
     config_path: Option<&Path>,
 ) -> bool {
     let problems = check(source, config);
     if problems.is_empty() {
+        for w in period.map(|p| warnings(source, p)).unwrap_or_default() {
+            eprintln!("{}", w.for_file(file));
+        }
         return true;
     }
     for p in &problems {

@@ -19,6 +19,7 @@ use crate::runtime::log::LogFormat;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{self, Requester, Requests};
 use crate::runtime::{exit, signals};
+use crate::script::lint::warnings;
 use crate::script::rig::{start_observed, RigSetup};
 use crate::script::stack;
 use crate::service::authority;
@@ -200,7 +201,13 @@ pub fn run(args: RunArgs) -> i32 {
             return exit::USAGE;
         }
     };
-    if !fit_to_run("run", &file, &source, &config, args.config.as_deref()) {
+    if !fit_to_run(
+        "run",
+        &file,
+        &source,
+        (&config, None),
+        args.config.as_deref(),
+    ) {
         return outputs.not_started(
             exit::USAGE,
             &format!("{file} does not pass rigscript check"),
@@ -460,6 +467,8 @@ fn run_started(
     let observe = |events: &Events| {
         client = mqtt.map(|p| p.start(events, requester.clone()));
     };
+    // `check`'s warnings go to the run's log, in its format, once it has started.
+    let warned = warnings(source, setup.period.unwrap_or(setup.config.period));
     let mut rig = match start_observed(source, file, setup, open_devices, |_| {}, observe) {
         Ok(r) => r,
         Err(e) => {
@@ -472,6 +481,13 @@ fn run_started(
         }
     };
     outputs.started(&mut rig);
+    for w in &warned {
+        rig.runner
+            .runtime()
+            .borrow_mut()
+            .log_mut()
+            .warn(&w.in_file(file));
+    }
     let client = match client {
         Some(Err(e)) => {
             say(&format!(

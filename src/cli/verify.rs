@@ -139,7 +139,8 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
             return 2;
         }
     };
-    if !fit_to_run("verify", &file, &source, &config, args.config.as_deref()) {
+    let checked = (&config, Some(config.period));
+    if !fit_to_run("verify", &file, &source, checked, args.config.as_deref()) {
         return 2;
     }
     let seed = args.seed.unwrap_or_else(|| fastrand::u64(..));

@@ -2,6 +2,7 @@
 //! once whether anything is there, a read that waits (one `poll`, then `read`), and a write whose
 //! wait for room is bounded. Serial ports and TCP sockets both go through here.
 
+use super::Watch;
 use std::io;
 use std::os::fd::RawFd;
 use std::time::{Duration, Instant};
@@ -163,6 +164,92 @@ pub fn wait_readable(fds: &[RawFd], timeout: Duration) -> io::Result<Vec<bool>> 
     }
 }
 
+/// Asks the OS, without waiting or reading, which of `watches` have ended: a terminal hung
+/// up or in error (a pty's other side closed, a USB-serial adapter unplugged), a socket closed
+/// or reset by its peer. One `ppoll` for them all; each entry is `None` (still up) or the OS's
+/// reason in words.
+pub fn ended(watches: &[Watch]) -> io::Result<Vec<Option<String>>> {
+    let mut pfds: Vec<libc::pollfd> = watches
+        .iter()
+        .map(|w| libc::pollfd {
+            fd: w.fd,
+            // Bytes waiting are no news: only the end is asked for (hang-up and error are
+            // always reported; a socket's orderly close needs POLLRDHUP).
+            events: if w.socket { libc::POLLRDHUP } else { 0 },
+            revents: 0,
+        })
+        .collect();
+    let ts = timespec(Duration::ZERO);
+    loop {
+        // SAFETY: `pfds` is a valid array of `pfds.len()` pollfds; a valid timespec.
+        let n = unsafe {
+            libc::ppoll(
+                pfds.as_mut_ptr(),
+                pfds.len() as libc::nfds_t,
+                &ts,
+                std::ptr::null(),
+            )
+        };
+        if n >= 0 {
+            break;
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+    Ok(pfds
+        .iter()
+        .zip(watches)
+        .map(|(p, w)| end_reason(p.revents, *w))
+        .collect())
+}
+
+/// What `revents` says of a watched link's end, in words; `None` while it is up.
+fn end_reason(revents: libc::c_short, w: Watch) -> Option<String> {
+    let hup = revents & libc::POLLHUP != 0;
+    let err = revents & libc::POLLERR != 0;
+    if revents & libc::POLLNVAL != 0 {
+        return Some("its descriptor is no longer open".into());
+    }
+    if w.socket {
+        if err {
+            return Some(match socket_error(w.fd) {
+                Some(e) => format!("the connection failed: {e}"),
+                None => "the connection failed".into(),
+            });
+        }
+        if hup || revents & libc::POLLRDHUP != 0 {
+            return Some("the server closed the connection (end of stream)".into());
+        }
+        return None;
+    }
+    match (hup, err) {
+        (true, _) => Some(
+            "hang-up: the other end of the line closed it, or the adapter was unplugged".into(),
+        ),
+        (false, true) => Some("an error on the line (the adapter failed or went away)".into()),
+        (false, false) => None,
+    }
+}
+
+/// The pending error of socket `fd` (`SO_ERROR`: a reset, an unreachable host), if any.
+fn socket_error(fd: RawFd) -> Option<io::Error> {
+    let mut code: libc::c_int = 0;
+    let mut len = std::mem::size_of::<libc::c_int>() as libc::socklen_t;
+    // SAFETY: `code` and `len` are valid for writes of their sizes.
+    let r = unsafe {
+        libc::getsockopt(
+            fd,
+            libc::SOL_SOCKET,
+            libc::SO_ERROR,
+            (&mut code as *mut libc::c_int).cast(),
+            &mut len,
+        )
+    };
+    (r == 0 && code != 0).then(|| io::Error::from_raw_os_error(code))
+}
+
 fn timespec(timeout: Duration) -> libc::timespec {
     libc::timespec {
         tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
@@ -233,6 +320,31 @@ mod tests {
             read_within(a.as_raw_fd(), &mut buf, Duration::from_secs(1)).unwrap(),
             Read::Closed
         );
+    }
+
+    #[test]
+    fn the_end_of_a_socket_or_a_terminal_is_told_and_bytes_waiting_are_not() {
+        let (a, b) = UnixStream::pair().unwrap();
+        let sock = Watch {
+            fd: a.as_raw_fd(),
+            socket: true,
+        };
+        assert_eq!(ended(&[sock]).unwrap(), vec![None]);
+        write_all_within(b.as_raw_fd(), b"hi", Duration::from_secs(1)).unwrap();
+        assert_eq!(ended(&[sock]).unwrap(), vec![None], "bytes waiting");
+        drop(b);
+        let why = ended(&[sock]).unwrap().remove(0).expect("told");
+        assert!(why.contains("closed the connection"), "{why}");
+
+        let (master, slave) = serialport::TTYPort::pair().unwrap();
+        let tty = Watch {
+            fd: slave.as_raw_fd(),
+            socket: false,
+        };
+        assert_eq!(ended(&[tty]).unwrap(), vec![None]);
+        drop(master);
+        let why = ended(&[tty]).unwrap().remove(0).expect("told");
+        assert!(why.starts_with("hang-up"), "{why}");
     }
 
     #[test]

@@ -4,7 +4,18 @@
 //! memory to a simulator); a `PacketLink` carries the TRC1000's fixed 8-byte interrupt packets.
 
 use line::LineState;
+use std::os::fd::RawFd;
 use std::time::Duration;
+
+/// A descriptor on which the OS tells that a link has ended (a hang-up, an error, the peer's
+/// close), looked at between exchanges without reading anything (`fd::ended`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Watch {
+    /// The link's descriptor.
+    pub fd: RawFd,
+    /// A socket (its end is the peer's close or reset), else a terminal (a hang-up).
+    pub socket: bool,
+}
 
 /// Why a link failed, with what to try next in the message.
 #[derive(Debug, thiserror::Error)]
@@ -103,6 +114,11 @@ pub trait ByteLink: Send {
     fn line(&mut self) -> Option<&mut LineState> {
         None
     }
+    /// The descriptor the OS reports the link's end on, if it has one (`None`: a link in
+    /// memory, or one whose end only a failing exchange tells).
+    fn watch(&self) -> Option<Watch> {
+        None
+    }
 }
 
 /// A link that carries fixed 8-byte packets (the TRC1000's interrupt endpoints).
@@ -143,6 +159,10 @@ impl<T: ByteLink + ?Sized> ByteLink for Box<T> {
 
     fn line(&mut self) -> Option<&mut LineState> {
         (**self).line()
+    }
+
+    fn watch(&self) -> Option<Watch> {
+        (**self).watch()
     }
 }
 

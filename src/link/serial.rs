@@ -4,7 +4,7 @@
 
 use super::fd::{self, Read};
 use super::line::LineState;
-use super::{ByteLink, LinkError};
+use super::{ByteLink, LinkError, Watch};
 use serialport::{DataBits, FlowControl, Parity, SerialPort, StopBits, TTYPort};
 use std::io;
 use std::os::fd::AsRawFd;
@@ -171,6 +171,13 @@ impl ByteLink for SerialLink {
 
     fn line(&mut self) -> Option<&mut LineState> {
         Some(&mut self.line)
+    }
+
+    fn watch(&self) -> Option<Watch> {
+        Some(Watch {
+            fd: self.port.as_raw_fd(),
+            socket: false,
+        })
     }
 }
 

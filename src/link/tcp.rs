@@ -3,7 +3,7 @@
 
 use super::fd::{self, Read};
 use super::line::LineState;
-use super::{ByteLink, LinkError};
+use super::{ByteLink, LinkError, Watch};
 use std::io;
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::os::fd::AsRawFd;
@@ -151,6 +151,13 @@ impl ByteLink for TcpLink {
 
     fn line(&mut self) -> Option<&mut LineState> {
         Some(&mut self.line)
+    }
+
+    fn watch(&self) -> Option<Watch> {
+        Some(Watch {
+            fd: self.stream.as_raw_fd(),
+            socket: true,
+        })
     }
 }
 

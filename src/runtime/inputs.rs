@@ -73,6 +73,11 @@ impl<H: Clone> Runtime<H> {
             match (input.read)(d, tick) {
                 Err(e) => self.note_failure(idx, &e),
                 Ok(_) => {
+                    // The tick's boundary stands for now: no clock read on the read's path.
+                    self.heard(idx, self.tick_boundary.unwrap_or(self.started));
+                    if let Some(d) = self.devices.get_mut(idx) {
+                        d.health_mut().read_tick = tick;
+                    }
                     self.force_readings(idx);
                     self.tell_change(idx, input);
                 }

@@ -90,8 +90,9 @@ impl<H: Clone> Runtime<H> {
             return Err(d.health().offline_error(d.name(), now));
         }
         let result = op(d);
-        if let Err(e) = &result {
-            self.note_failure(idx, e);
+        match &result {
+            Ok(_) => self.heard(idx, now),
+            Err(e) => self.note_failure(idx, e),
         }
         result
     }

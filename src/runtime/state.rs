@@ -74,6 +74,11 @@ pub struct Runtime<H> {
     /// allocating the lists.
     pub(super) needs: Vec<Needs>,
     pub(super) call_buffer: Vec<Call<H>>,
+    /// When the links are next asked whether they ended (`safety::liveness`).
+    pub(super) next_link_watch: Duration,
+    /// Whether a device's link has a descriptor the OS tells its end on (until the first
+    /// look, assumed so).
+    pub(super) has_link_watch: bool,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -113,6 +118,8 @@ impl<H: Clone> Runtime<H> {
             forces: Forces::default(),
             needs: Vec::new(),
             call_buffer: Vec::new(),
+            next_link_watch: started,
+            has_link_watch: true,
         }
     }
 

@@ -99,7 +99,7 @@ impl Kind {
 }
 
 /// Handler-taking calls: (name, index of the handler argument, the parameters it gets).
-const HANDLERS: &[(&str, usize, &[&str])] = &[
+pub(super) const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("on_press", 1, &["switch name"]),
     ("on_release", 1, &["switch name"]),
     ("on_turn", 1, &["delta", "value"]),
@@ -512,7 +512,7 @@ impl<'a> Checker<'a> {
 }
 
 /// The function `name` with `params` parameters of `ast`, alone, to walk by itself.
-fn only_function(ast: &AST, name: &str, params: usize) -> AST {
+pub(super) fn only_function(ast: &AST, name: &str, params: usize) -> AST {
     // Not `clone_functions_only_filtered`: into an AST without functions it copies them all.
     let mut part = ast.clone_functions_only();
     part.retain_functions(|_, _, n, p| n == name && p == params);

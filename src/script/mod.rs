@@ -9,6 +9,7 @@ pub mod engine;
 pub mod error;
 #[cfg(test)]
 mod invariant_tests;
+pub mod lint;
 pub mod program;
 pub mod reads;
 pub mod rig;

@@ -305,3 +305,87 @@ pub fn served(
     rig.runner.serve(requests, file, field);
     (rig, ask, flag)
 }
+
+/// What became of a rig of two modules when one was lost (`lose_a_module`).
+pub struct Loss {
+    /// From the kill of the lost module's simulator until the other read back its safe value
+    /// (`None`: not within the limit).
+    pub to_safe: Option<Duration>,
+    /// The run's log (its stderr), once it was stopped.
+    pub log: String,
+}
+
+/// How `lose_a_module` loses the module.
+pub enum Cut {
+    /// Kills its simulator: its pty closes, as an unplugged adapter's does.
+    Kill,
+    /// Sets the flag a `start_switchable_relay` silences its line with: the connection stays
+    /// up, nothing answers.
+    Silence(Arc<AtomicBool>),
+}
+
+/// Two simulated modules without host watchdogs, `kept` on its pty and `lost` at the port
+/// `port` makes of its pty (the pty itself, or a TCP relay to it), driven by a run at
+/// `grace = "1s"` whose script has only a 30 s timer: nothing polls. Once both drive the
+/// script's outputs, waits `settle`, loses `lost` as `cut` says, and times until `kept` reads
+/// back its safe value, within `limit`.
+pub fn lose_a_module(
+    tag: &str,
+    port: impl FnOnce(&str) -> String,
+    (cut, settle): (Cut, Duration),
+    limit: Duration,
+) -> Loss {
+    let mut lost = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let mut kept = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
+    let dir = TempDir::new(tag);
+    let module = |name: &str, port: &str| {
+        format!("[devices.{name}]\nkind = \"trp-c29u\"\nport = \"{port}\"\nsafe_value = 0x05\n")
+    };
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "grace = \"1s\"\n{}{}",
+            module("kept", &kept.path),
+            module("lost", &port(&lost.path))
+        ),
+    );
+    let script = dir.file(
+        "slow.rhai",
+        "kept.outputs = 0xF0;\nlost.outputs = 0xF0;\nevery(\"30s\", || {});\n",
+    );
+    let mut run = Command::new(rigscript())
+        .args(["run", "--config", &config, &script])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start rigscript run");
+    let driven = until(Duration::from_secs(10), || {
+        (kept.state()["do"] == 0xF0 && lost.state()["do"] == 0xF0).then_some(())
+    });
+    let to_safe = driven.and_then(|()| {
+        std::thread::sleep(settle);
+        match &cut {
+            Cut::Kill => lost.kill(),
+            Cut::Silence(flag) => flag.store(true, Ordering::SeqCst),
+        }
+        let killed = Instant::now();
+        loop {
+            if kept.state()["do"] == 0x05 {
+                return Some(killed.elapsed());
+            }
+            if killed.elapsed() > limit {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    });
+    let _ = Command::new("kill")
+        .args(["-TERM", &run.id().to_string()])
+        .status();
+    let _ = run.wait();
+    let mut log = String::new();
+    if let Some(err) = run.stderr.as_mut() {
+        let _ = err.read_to_string(&mut log);
+    }
+    Loss { to_safe, log }
+}

@@ -172,6 +172,12 @@ impl C29uDevice {
         Ok(())
     }
 
+    /// The descriptor the OS reports the end of this module's link on (`link::fd::ended`),
+    /// if it has one.
+    pub fn link_watch(&self) -> Option<crate::link::Watch> {
+        self.line.lock().unwrap_or_else(|e| e.into_inner()).watch()
+    }
+
     /// Opens the line again, if this module has a real one.
     pub fn reopen(&mut self) -> Result<(), DeviceError> {
         if let Some(open) = &mut self.reopener {

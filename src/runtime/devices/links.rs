@@ -4,7 +4,7 @@
 
 use crate::link::far_end::{ByteDevice, PacketDevice};
 use crate::link::line::LineState;
-use crate::link::{ByteLink, LinkError, PacketLink};
+use crate::link::{ByteLink, LinkError, PacketLink, Watch};
 use crate::time::clock::SharedClock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -50,6 +50,10 @@ impl<L: ByteLink> ByteLink for Counted<L> {
 
     fn line(&mut self) -> Option<&mut LineState> {
         self.inner.line()
+    }
+
+    fn watch(&self) -> Option<Watch> {
+        self.inner.watch()
     }
 }
 

@@ -100,6 +100,11 @@ pub struct Health {
     pub cause: String,
     /// The link itself failed: reopen it before trying again.
     pub link_failed: bool,
+    /// When it last answered (as far as the runner noted: reads, commands, feeds, probes).
+    pub heard_at: Duration,
+    /// The tick the script last read it in (0: none): a device read every tick is left to
+    /// the next tick's read rather than asked between ticks.
+    pub read_tick: u64,
 }
 
 impl Health {

@@ -1,6 +1,7 @@
 //! The waits between ticks: in slices that look at the stop flag and the control queue, doing
-//! what falls due meanwhile (feeds, retries, a grace time's end, the end of `--for`); and the CPU
-//! wake-up latency asked for while the loop ticks fast.
+//! what falls due meanwhile (feeds, retries, a look at the links and idle devices, a grace
+//! time's end, the end of `--for`); and the CPU wake-up latency asked for while the loop ticks
+//! fast.
 
 use super::contract::Program;
 use super::Runner;
@@ -114,7 +115,7 @@ impl<P: Program> Runner<P> {
             {
                 return;
             }
-            let (feed, retry, grace, held, expiry) = {
+            let (feed, retry, grace, held, expiry, liveness) = {
                 let rt = self.rt.borrow();
                 // A retry already overdue waits for the tick (or was skipped while stopping).
                 (
@@ -123,6 +124,7 @@ impl<P: Program> Runner<P> {
                     rt.grace_ends(),
                     rt.held_safe,
                     rt.next_force_expiry(),
+                    rt.next_liveness(self.next_deadline),
                 )
             };
             let end = self.end_at();
@@ -130,7 +132,10 @@ impl<P: Program> Runner<P> {
             if watch_stop {
                 until = until.min(now.saturating_add(SLEEP_SLICE));
             }
-            for due in [feed, retry, grace, end, expiry].into_iter().flatten() {
+            for due in [feed, retry, grace, end, expiry, liveness]
+                .into_iter()
+                .flatten()
+            {
                 until = until.min(due.max(now));
             }
             pulse::enter(Phase::Waiting);
@@ -148,9 +153,19 @@ impl<P: Program> Runner<P> {
             if retried {
                 self.guarded(|r| r.rt.borrow_mut().supervise());
             }
+            // A link the OS says has ended, or an idle device that no longer answers, is lost
+            // now, not at the next device check (`safety::liveness`).
+            let looked = liveness.is_some_and(|due| self.clock.now() >= due);
+            if looked {
+                self.guarded(|r| {
+                    let now = r.clock.now();
+                    let next_tick = r.next_deadline;
+                    r.rt.borrow_mut().watch_liveness(now, next_tick);
+                });
+            }
             // The end of a grace time holds the outputs safe at once, not at the next tick
             // (with only a slow timer, that was the next output check, 5 s on).
-            if retried || grace.is_some_and(|due| self.clock.now() >= due) {
+            if retried || looked || grace.is_some_and(|due| self.clock.now() >= due) {
                 self.guarded(|r| r.rt.borrow_mut().hold_safe_between_ticks(held));
             }
             if feed.is_some_and(|due| self.clock.now() >= due) {

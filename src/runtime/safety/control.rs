@@ -98,6 +98,7 @@ impl<H: Clone> Runtime<H> {
         let before = self.c29u(idx).and_then(|d| d.expected());
         match self.try_take_control(idx) {
             Ok(found) => {
+                self.heard(idx, self.now());
                 for line in found {
                     self.log.notice(&line);
                 }

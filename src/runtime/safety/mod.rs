@@ -1,15 +1,17 @@
 //! Fail-safe supervision, all in one place: taking control of every device (at start, when it
 //! comes back, when a module went safe), keeping it (host watchdogs fed, outputs read back),
-//! losing devices and trying them again, holding every output safe while one has been lost
+//! noticing a loss between exchanges, losing devices and trying them again, holding every output safe while one has been lost
 //! for longer than its grace time, and the safe state at the end.
 
 mod confirm;
 mod control;
+mod liveness;
 mod loss;
 mod safe_state;
 mod upkeep;
 
 pub use confirm::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed};
 pub use control::Unavailable;
+pub use liveness::{LEAST_PROBE_INTERVAL, LINK_WATCH_INTERVAL};
 pub use loss::RETRY_INTERVAL;
 pub use safe_state::{DeviceEnd, EndOutcome, END_TRIES};

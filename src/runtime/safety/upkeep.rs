@@ -27,8 +27,10 @@ impl<H: Clone> Runtime<H> {
                 self.after_stall(idx, stall);
                 continue;
             }
-            if let Err(e) = d.feed(now) {
-                self.note_failure(idx, &e);
+            match d.feed(now) {
+                Ok(true) => self.heard(idx, now),
+                Ok(false) => {}
+                Err(e) => self.note_failure(idx, &e),
             }
         }
     }
