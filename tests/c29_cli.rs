@@ -3,9 +3,7 @@
 //! line shared by two modules; then the faults: silence, garbled answers, the wrong ID, a
 //! simulator that dies under `monitor`, and a port that does not exist.
 
-mod common;
-
-use common::{rigscript, SimProcess};
+use crate::common::{rigscript, SimProcess};
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Output, Stdio};

@@ -2,9 +2,7 @@
 //! usage errors, a rig.toml without devices, shell completions that a shell accepts, and
 //! manual pages that `man` renders.
 
-mod common;
-
-use common::{require_tool, rigscript, TempDir};
+use crate::common::{require_tool, rigscript, TempDir};
 use std::path::PathBuf;
 use std::process::{Command, Output, Stdio};
 

@@ -7,9 +7,9 @@
 //! believed, another uid is not served; a trickling client is cut off, a crowd of them does
 //! not block `stop`, and a full house is told as such.
 
-mod common;
+use crate::common;
 
-use common::{rigscript, until, SimProcess, TempDir};
+use crate::common::{rigscript, until, SimProcess, TempDir};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;

@@ -4,9 +4,7 @@
 //! plugdev), the installed binary's `--version`, `systemd-analyze verify` on the installed
 //! units, remove (the operator's config stays), purge (nothing is left).
 
-mod common;
-
-use common::{require_tool, rigscript, TempDir};
+use crate::common::{require_tool, rigscript, TempDir};
 use std::collections::BTreeSet;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};

@@ -15,17 +15,12 @@
 //! first case to run, default 0: the cases before it are made, as the seed makes them, but not
 //! run, so a soak's case N is looked at again with `FAULT_SEARCH_FROM=N FAULT_SEARCH_CASES=N+1`).
 //! The soak (docs/benchmarks.md, "Fault search"):
-//! `FAULT_SEARCH_CASES=20000 FAULT_SEARCH_SEED=$RANDOM cargo test --release --test fault_search`.
+//! `FAULT_SEARCH_CASES=20000 FAULT_SEARCH_SEED=$RANDOM cargo test --release --test integration fault_search::`.
 
-#[path = "fault_search/case.rs"]
 mod case;
-#[path = "fault_search/harness.rs"]
 mod harness;
-#[path = "fault_search/oracle.rs"]
 mod oracle;
-#[path = "fault_search/probe.rs"]
 mod probe;
-#[path = "fault_search/render.rs"]
 mod render;
 
 use case::{Case, InjectedFault, Module, Policy, Proto, Rig, Stmt};

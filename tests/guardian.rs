@@ -3,9 +3,9 @@
 //! back; killing the pid that was started stops the runner in order; a clean end needs nothing
 //! of it. `rigscript safe` writes and confirms the safe state by hand.
 
-mod common;
+use crate::common;
 
-use common::{rigscript, SimProcess, TempDir};
+use crate::common::{rigscript, SimProcess, TempDir};
 use std::io::Read;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};

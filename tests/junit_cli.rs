@@ -2,9 +2,7 @@
 //! independent XML parser and checked for what Jenkins and GitLab read (suites, cases, their
 //! counts, failures and errors with messages, a measurement's value and limits).
 
-mod common;
-
-use common::{fresh_dir, rigscript};
+use crate::common::{fresh_dir, rigscript};
 use roxmltree::{Document, Node};
 use std::path::Path;
 use std::process::{Command, Output};

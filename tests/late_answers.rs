@@ -5,9 +5,7 @@
 //! answers to requests alone cannot tell them apart. Answers that come twice or torn end right
 //! or in a clear error, and the line's silence holds after each (docs/design/line-timing.md).
 
-mod common;
-
-use common::{rigscript, run, SimProcess};
+use crate::common::{rigscript, run, SimProcess};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions, Protocol};
 use rigscript::link::far_end::ByteDevice;
 use rigscript::link::memory::MemoryByteLink;

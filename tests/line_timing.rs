@@ -3,9 +3,7 @@
 //! which times the line at the module's baud and drops (and counts) every request that starts
 //! less than t3.5 after the frame before it ended, as a module on a shared RS-485 line would.
 
-mod common;
-
-use common::{rigscript, run, SimProcess};
+use crate::common::{rigscript, run, SimProcess};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions};
 use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;

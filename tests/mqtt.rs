@@ -17,9 +17,7 @@
 //! `$STATE_DIRECTORY` without a home, and where it cannot be written the error names the key;
 //! `lab` writes a retained ESC out; TLS to the plain port says the peer did not speak TLS.
 
-mod common;
-
-use common::{require_tool, rigscript, until, TempDir};
+use crate::common::{require_tool, rigscript, until, TempDir};
 use serde_json::Value;
 use std::fs::File;
 use std::net::TcpListener;

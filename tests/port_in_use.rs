@@ -2,9 +2,7 @@
 //! (`run`, `c29` and `scan` say it is busy and who holds it), a path that is not a serial port,
 //! and `sim --link` at a path that already exists.
 
-mod common;
-
-use common::{rigscript, SimProcess, TempDir};
+use crate::common::{rigscript, SimProcess, TempDir};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};

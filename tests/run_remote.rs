@@ -6,7 +6,7 @@
 //! `on_message`, and a command whose handler sets an output the invariant forbids: the output
 //! is never written, the safe state is.
 
-mod common;
+use crate::common;
 
 use rigscript::config::RigConfig;
 use rigscript::runtime::remote::{Command, Remote, Reply, ReplyTo};

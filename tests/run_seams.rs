@@ -2,7 +2,7 @@
 //! inputs that change, outputs written, log lines, the end), the snapshot answered through the
 //! control queue, a requested stop, and a consumer that falls behind losing events, counted.
 
-mod common;
+use crate::common;
 
 use rigscript::config::RigConfig;
 use rigscript::runtime::observe::{Reading, RunEvent};

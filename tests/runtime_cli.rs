@@ -1,9 +1,9 @@
 //! `rigscript run` and `rigscript check` as a user runs them: exit statuses, what the run
 //! shows on stderr, records files, `--stats`.
 
-mod common;
+use crate::common;
 
-use common::rigscript;
+use crate::common::rigscript;
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
@@ -11,10 +11,7 @@ struct Dir(PathBuf);
 
 impl Dir {
     fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!("rigscript-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
+        Self(common::fresh_dir(tag))
     }
 
     fn file(&self, name: &str, text: &str) -> String {

@@ -2,16 +2,12 @@
 //! the module at its safe value; after `kill -9` of a run without its guardian the module's own
 //! host watchdog, enabled and fed by the runner, drives it there (tests/guardian.rs: with it).
 
-mod common;
-
-use common::{lose_a_module, rigscript, Cut, SimProcess};
+use crate::common::{fresh_dir, lose_a_module, rigscript, Cut, SimProcess};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn setup(sim: &SimProcess, tag: &str) -> (std::path::PathBuf, String, String) {
-    let dir = std::env::temp_dir().join(format!("rigscript-pty-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir(&format!("pty-{tag}"));
     let config = dir.join("rig.toml");
     std::fs::write(
         &config,
@@ -170,9 +166,7 @@ fn a_module_swapped_behind_the_open_port_is_taken_control_of_and_goes_safe_after
 /// (`sim = true` in its table, or `--sim-device panel`); the script uses both.
 fn mixed_rig_runs(panel_table: &str, extra: &[&str], tag: &str) {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let dir = std::env::temp_dir().join(format!("rigscript-pty-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir(&format!("pty-{tag}"));
     let config = dir.join("rig.toml");
     std::fs::write(
         &config,

@@ -1,9 +1,7 @@
 //! Runs the runtime's own scenario tests (`tests/scenarios/*.test.rhai`) through
 //! `rigscript test`, and checks how `rigscript test` reports failures.
 
-mod common;
-
-use common::rigscript;
+use crate::common::{fresh_dir, rigscript};
 use std::process::Command;
 
 fn text(bytes: &[u8]) -> String {
@@ -31,8 +29,7 @@ fn the_runtime_scenarios_pass() {
 
 #[test]
 fn failures_name_the_test_the_message_and_where() {
-    let dir = std::env::temp_dir().join(format!("rigscript-scn-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("scn");
     std::fs::write(
         dir.join("s.rhai"),
         "io.outputs = 3;\nevery(\"1s\", || {});\n",
@@ -83,8 +80,7 @@ fn test_missing_script() {
 
 /// Runs `rigscript test` on a directory holding `files` (name, text); the status and stdout.
 fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, std::path::PathBuf) {
-    let dir = std::env::temp_dir().join(format!("rigscript-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir(name);
     for (file, body) in files {
         std::fs::write(dir.join(file), body).unwrap();
     }
@@ -235,8 +231,7 @@ fn rigs_built_in_a_loop_count_against_the_tests_memory() {
 
 #[test]
 fn no_test_files_is_a_usage_error() {
-    let dir = std::env::temp_dir().join(format!("rigscript-empty-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("empty");
     let out = Command::new(rigscript())
         .arg("test")
         .arg(&dir)

@@ -2,9 +2,7 @@
 //! several modules on one line, a checksum-only ASCII module, a pty given by symlink; and a
 //! machine without USB lists no boards without failing.
 
-mod common;
-
-use common::{rigscript, SimProcess};
+use crate::common::{rigscript, SimProcess};
 use serde_json::Value;
 use std::process::{Command, Output};
 

@@ -5,9 +5,9 @@
 //! script error, not an abort; a loop thread that stops (frozen alone with ptrace) ends a run
 //! without a guardian, and `rigscript test`, by their own watch instead of a hang.
 
-mod common;
+use crate::common;
 
-use common::{rigscript, SimProcess, TempDir};
+use crate::common::{rigscript, SimProcess, TempDir};
 use std::io::{BufRead, BufReader, Read};
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::process::{Child, Command, Stdio};

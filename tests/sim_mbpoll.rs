@@ -2,9 +2,7 @@
 //! over a real pty: reads DO and DI coils, counters as input and holding registers, and writes a
 //! coil and multiple coils.
 
-mod common;
-
-use common::{require_tool, run, SimProcess};
+use crate::common::{require_tool, run, SimProcess};
 
 /// Runs mbpoll once against `path` for slave 1 and returns the `[ref]: value` pairs it printed.
 fn mbpoll(path: &str, args: &[&str]) -> Vec<(u16, i64)> {

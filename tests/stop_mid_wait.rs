@@ -2,9 +2,7 @@
 //! working serial device server (the TCP connection stays up): the wait is cut short at once,
 //! the module gets its safe value as soon as it answers again, and the run ends with 143.
 
-mod common;
-
-use common::{rigscript, start_switchable_relay, SimProcess, TempDir};
+use crate::common::{rigscript, start_switchable_relay, SimProcess, TempDir};
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -3,9 +3,7 @@
 //! control, WATCHDOG=1 from the scan loop at half of `WATCHDOG_USEC` (so a loop that hangs
 //! stops them), STOPPING=1 at the end.
 
-mod common;
-
-use common::{fresh_dir, receive_notifications, rigscript, Notification, SimProcess};
+use crate::common::{fresh_dir, receive_notifications, rigscript, Notification, SimProcess};
 use std::os::linux::net::SocketAddrExt;
 use std::os::unix::net::{SocketAddr, UnixDatagram};
 use std::process::{Child, Command, Stdio};

@@ -4,9 +4,7 @@
 //! its `WatchdogSec=` needs, the timer's check leaves its records and JUnit report in its
 //! working directory.
 
-mod common;
-
-use common::{fresh_dir, receive_notifications, require_tool, rigscript};
+use crate::common::{fresh_dir, receive_notifications, require_tool, rigscript};
 use std::collections::BTreeMap;
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};

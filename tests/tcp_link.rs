@@ -1,9 +1,7 @@
 //! The TCP link end to end: `rigscript c29 --port tcp://...` through a local relay (what a
 //! serial device server or ser2net does) to `rigscript sim c29u` on a real pty.
 
-mod common;
-
-use common::{lose_a_module, rigscript, start_relay, Cut, SimProcess};
+use crate::common::{lose_a_module, rigscript, start_relay, Cut, SimProcess};
 use serde_json::Value;
 use std::net::TcpListener;
 use std::process::{Command, Output};

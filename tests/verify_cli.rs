@@ -6,9 +6,7 @@
 //! same result whatever the number of jobs; the built-in checks; coverage warnings; exit
 //! statuses, Ctrl-C's too. And invariants in `run`: a violation is a fault with exit 1.
 
-mod common;
-
-use common::{fresh_dir, rigscript};
+use crate::common::{fresh_dir, rigscript};
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};

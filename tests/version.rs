@@ -2,12 +2,10 @@
 //! build script's git questions (build/commit.rs) on scratch repositories: a commit, a changed
 //! source, no checkout at all, a crate inside someone else's repository.
 
-mod common;
-
 #[path = "../build/commit.rs"]
 mod commit;
 
-use common::{require_tool, rigscript, TempDir};
+use crate::common::{require_tool, rigscript, TempDir};
 use std::path::Path;
 use std::process::Command;
 

@@ -8,9 +8,9 @@
 //! environment's token checked as rig.toml's), and trickling clients are cut off at the
 //! deadline and never keep the owner out.
 
-mod common;
+use crate::common;
 
-use common::{rigscript, until, TempDir};
+use crate::common::{rigscript, until, TempDir};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
