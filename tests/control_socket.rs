@@ -533,11 +533,18 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
     require_root();
     let rigs = Rigs::new("ctl-foreign");
     let responder = rigs.dir.file("impostor.sh", &impostor("interlock", 1));
-    // In a private mount namespace with a /tmp of its own: the machine's is never touched.
+    // In a private mount namespace with a /tmp of its own: the machine's is never touched. The
+    // binary and the script are opened before that /tmp hides them (a checkout, and so the
+    // binary under test, may itself live under /tmp), then copied into it.
     let script = format!(
         "set -e\n\
          impostor=\"$(cat {responder})\"\n\
+         exec 3<{bin} 4<{script}\n\
          mount -t tmpfs tmpfs /tmp\n\
+         cat /proc/self/fd/3 >/tmp/rigscript-under-test\n\
+         chmod 755 /tmp/rigscript-under-test\n\
+         cat /proc/self/fd/4 >/tmp/interlock.rhai\n\
+         exec 3<&- 4<&-\n\
          printf '%s\\n' \"$impostor\" >/tmp/impostor.sh\n\
          chmod 755 /tmp/impostor.sh\n\
          setpriv --reuid=65534 --regid=65534 --clear-groups sh -c \
@@ -546,9 +553,10 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
          fake=$!\n\
          for i in $(seq 50); do [ -S /tmp/rigscript-0/interlock.sock ] && break; sleep 0.1; done\n\
          set +e\n\
-         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} stop interlock; echo \"stop=$?\"\n\
-         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} list; echo \"list=$?\"\n\
-         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY {bin} run --sim --for 300ms {script} 2>&1; \
+         bin=/tmp/rigscript-under-test\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY $bin stop interlock; echo \"stop=$?\"\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY $bin list; echo \"list=$?\"\n\
+         env -u XDG_RUNTIME_DIR -u RUNTIME_DIRECTORY $bin run --sim --for 300ms /tmp/interlock.rhai 2>&1; \
            echo \"run=$?\"\n\
          echo \"left: $(ls /tmp/rigscript-0)\"\n\
          kill $fake\n",
