@@ -143,6 +143,12 @@ pub fn wait_readable(fds: &[RawFd], timeout: Duration) -> io::Result<Vec<bool>> 
             revents: 0,
         })
         .collect();
+    poll_all(&mut pfds, timeout)?;
+    Ok(pfds.iter().map(|p| p.revents != 0).collect())
+}
+
+/// One `ppoll` of `pfds` for up to `timeout`, again after a signal interrupts it.
+fn poll_all(pfds: &mut [libc::pollfd], timeout: Duration) -> io::Result<()> {
     let ts = timespec(timeout);
     loop {
         // SAFETY: `pfds` is a valid array of `pfds.len()` pollfds; a valid timespec.
@@ -155,7 +161,7 @@ pub fn wait_readable(fds: &[RawFd], timeout: Duration) -> io::Result<Vec<bool>> 
             )
         };
         if n >= 0 {
-            return Ok(pfds.iter().map(|p| p.revents != 0).collect());
+            return Ok(());
         }
         let e = io::Error::last_os_error();
         if e.kind() != io::ErrorKind::Interrupted {
@@ -179,25 +185,7 @@ pub fn ended(watches: &[Watch]) -> io::Result<Vec<Option<String>>> {
             revents: 0,
         })
         .collect();
-    let ts = timespec(Duration::ZERO);
-    loop {
-        // SAFETY: `pfds` is a valid array of `pfds.len()` pollfds; a valid timespec.
-        let n = unsafe {
-            libc::ppoll(
-                pfds.as_mut_ptr(),
-                pfds.len() as libc::nfds_t,
-                &ts,
-                std::ptr::null(),
-            )
-        };
-        if n >= 0 {
-            break;
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() != io::ErrorKind::Interrupted {
-            return Err(e);
-        }
-    }
+    poll_all(&mut pfds, Duration::ZERO)?;
     Ok(pfds
         .iter()
         .zip(watches)
