@@ -315,6 +315,17 @@ pub struct Loss {
     pub log: String,
 }
 
+impl Loss {
+    /// Asserts the rest of the rig read back safe within `limit` of the loss (a bound on being
+    /// told at once, not a timing target: benches/loss.rs measures that).
+    pub fn assert_safe_within(&self, limit: Duration) {
+        let to_safe = self
+            .to_safe
+            .unwrap_or_else(|| panic!("never safe: {}", self.log));
+        assert!(to_safe < limit, "{to_safe:?}: {}", self.log);
+    }
+}
+
 /// How `lose_a_module` loses the module.
 pub enum Cut {
     /// Kills its simulator: its pty closes, as an unplugged adapter's does.
