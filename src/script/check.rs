@@ -320,6 +320,11 @@ pub fn check(source: &str, config: &RigConfig) -> Vec<Problem> {
     for (name, params) in functions {
         c.walk_part(&only_function(&ast, &name, params), Some(&name));
     }
+    let devices = c.devices.keys().cloned().collect();
+    c.problems
+        .extend(super::fn_scope::top_level_names_in_functions(
+            &ast, &devices,
+        ));
     c.problems.sort_by_key(|p| (p.line, p.column));
     c.problems.dedup();
     c.problems

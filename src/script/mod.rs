@@ -7,6 +7,7 @@ pub mod builder;
 pub mod check;
 pub mod engine;
 pub mod error;
+mod fn_scope;
 #[cfg(test)]
 mod invariant_tests;
 pub mod lint;
