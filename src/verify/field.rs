@@ -433,13 +433,17 @@ impl<'a> Gen<'a> {
 
     /// A counter event, in steps of every size: a few pulses, tens, hundreds or thousands;
     /// to just below, at or just above a value the script compares the counter with (carried
-    /// there from zero, or that many pulses from wherever it is: a count since a baseline); or
-    /// to just below the 16-bit wrap.
+    /// there from zero, or that many pulses from wherever it is: a count since a baseline);
+    /// across such a value in one tick (`step_over`); or to just below the 16-bit wrap.
     fn counter(&mut self, dev: usize, ch: u8) {
-        let dev = self.name(dev);
         let marks = self.profile.facts.counter_values(ch);
         let aim = if marks.is_empty() { 0.0 } else { 0.35 };
         let roll = self.rng.f64();
+        if roll < aim * 0.4 {
+            let mark = marks[self.rng.usize(0..marks.len())];
+            return self.step_over(dev, ch, mark);
+        }
+        let dev = self.name(dev);
         let action = if roll < aim {
             let mark = marks[self.rng.usize(0..marks.len())];
             let value = mark.saturating_add_signed(self.rng.i16(-5..=1));
@@ -462,6 +466,34 @@ impl<'a> Gen<'a> {
             Action::Pulse { dev, ch, n }
         };
         self.push(self.t, action);
+    }
+
+    /// A counter carried to one below `mark` (from zero, or as many pulses from wherever it
+    /// is), then, a tick or more later so the script reads it there, 2 to 4 pulses that one
+    /// scan sees at once: the count steps over `mark` without landing on it, as two strokes
+    /// between scans do. A script that waits for `count == mark` misses it.
+    fn step_over(&mut self, dev: usize, ch: u8, mark: u16) {
+        let dev = self.name(dev);
+        let below = mark.saturating_sub(1);
+        let approach = if self.rng.bool() {
+            Action::CounterTo {
+                dev: Arc::clone(&dev),
+                ch,
+                value: below,
+            }
+        } else {
+            Action::Pulse {
+                dev: Arc::clone(&dev),
+                ch,
+                n: u32::from(below.max(1)),
+            }
+        };
+        self.push(self.t, approach);
+        let period = self.profile.period;
+        let at = self.t + period.saturating_mul(self.rng.u32(1..4)) + self.up_to(period);
+        let n = self.rng.u32(2..=4);
+        self.push(at, Action::Pulse { dev, ch, n });
+        self.t = at;
     }
 
     fn field_event(&mut self) {
@@ -655,6 +687,37 @@ mod tests {
             (0..=4).collect(),
             "ones, tens, hundreds, thousands, ten thousands"
         );
+    }
+
+    #[test]
+    fn random_runs_step_counters_over_the_values_compared_with_in_one_scan() {
+        let p = counting("let io = device(\"io\"); every(\"20ms\", || io.counter(0) == 300);");
+        let stepped = (0..40)
+            .filter(|seed| {
+                // One below the mark (absolute, or as many pulses from zero), then 2 to 4
+                // pulses at least a period later, with nothing on that counter between.
+                generate(&p, *seed, false).events.windows(2).any(|w| {
+                    let below = matches!(
+                        w[0].action,
+                        Action::CounterTo {
+                            ch: 0,
+                            value: 299,
+                            ..
+                        } | Action::Pulse { ch: 0, n: 299, .. }
+                    );
+                    let over = matches!(
+                        w[1].action,
+                        Action::Pulse {
+                            ch: 0,
+                            n: 2..=4,
+                            ..
+                        }
+                    );
+                    below && over && w[1].at >= w[0].at + p.period
+                })
+            })
+            .count();
+        assert!(stepped >= 8, "{stepped} of 40 runs stepped over 300");
     }
 
     #[test]

@@ -1,8 +1,9 @@
 //! `rigscript verify`: looks hard for a sequence of events that makes a script break one of its
 //! invariants or a built-in check, before the script is trusted with a rig.
 //!
-//! Each run starts the script on the simulated rig in virtual time and plays a random but
-//! plausible field at it (`field`), with faults (`faults`), watching every tick (`checks`).
+//! Each run starts the script on the simulated rig in virtual time and plays a field at it:
+//! first the runs every seed plays (`systematic`), then random but plausible ones (`field`),
+//! with faults (`faults`), watching every tick (`checks`).
 //! Runs go in batches; after each batch the field leans further toward what the script was
 //! seen to read (`profile`). Runs are spread over worker threads, each with its own runtime,
 //! simulators and Rhai engine; run `i` always plays the plan made from the seed and `i`, and
@@ -22,6 +23,7 @@ pub mod profile;
 pub mod report;
 pub mod reproduce;
 pub mod shrink;
+pub mod systematic;
 pub mod testfile;
 
 use checks::Finding;
@@ -120,6 +122,8 @@ pub struct Summary {
     pub coverage: Coverage,
     /// The search stopped early (`Options::interrupt`); `runs` counts the runs played whole.
     pub interrupted: bool,
+    /// How many of the first runs were the systematic ones (`systematic::plans`).
+    pub systematic: u64,
 }
 
 /// Why a search could not be made.
@@ -183,7 +187,7 @@ struct Batch {
 
 fn play_batch(
     target: &Target,
-    profile: &Profile,
+    (profile, first): (&Profile, &[Plan]),
     opts: &Options,
     range: std::ops::Range<u64>,
 ) -> Batch {
@@ -197,7 +201,10 @@ fn play_batch(
             if i >= range.end || i > lowest_failure.load(Ordering::SeqCst) || opts.interrupted() {
                 break;
             }
-            let plan = field::generate(profile, run_seed(opts.seed, i), opts.faults);
+            let plan = usize::try_from(i)
+                .ok()
+                .and_then(|i| first.get(i).cloned())
+                .unwrap_or_else(|| field::generate(profile, run_seed(opts.seed, i), opts.faults));
             let keep = Keep {
                 coverage: true,
                 observe: true,
@@ -335,6 +342,20 @@ pub fn search(
     let began = Instant::now();
     let period = target.config.period;
     let mut profile = Profile::new(&target.config, &target.source, period, target.run_for);
+    // What the script reads, learned from a run with no events (its top level, its
+    // handlers' waits, its polling), so the systematic runs work what it reads.
+    let probe = Plan {
+        start: field::Gen::new(&profile, run_seed(opts.seed, 0)).start,
+        events: Vec::new(),
+    };
+    let quiet = Keep {
+        coverage: false,
+        observe: true,
+    };
+    if let Ok(seen) = execute(target, &probe, quiet) {
+        profile.learn(&seen.observed);
+    }
+    let first = systematic::plans(&profile, opts.seed, opts.faults);
     let mut summary = Summary {
         seed: opts.seed,
         runs: 0,
@@ -345,11 +366,12 @@ pub fn search(
         counterexample: None,
         coverage: Coverage::default(),
         interrupted: false,
+        systematic: (first.len() as u64).min(opts.runs),
     };
     let mut start = 0;
     while start < opts.runs {
         let end = batch_end(start, opts.runs);
-        let mut batch = play_batch(target, &profile, opts, start..end);
+        let mut batch = play_batch(target, (&profile, &first), opts, start..end);
         if let Some((run, source)) = batch.error.take() {
             let first_failure = batch.failures.iter().map(|f| f.0).min();
             if first_failure.map_or(true, |f| run < f) {

@@ -137,6 +137,19 @@ pub fn human(summary: &Summary, opts: &Options, test: Option<&Path>) -> Vec<Stri
                 summary.search_time.as_secs_f64(),
                 summary.seed
             ));
+            if summary.systematic > 0 {
+                out.push(format!(
+                    "the first {} run(s) were the same at every seed: each count the script \
+                     compares landed on, one above and stepped over in one scan, each input, \
+                     switch and rotary it reads worked each way{}",
+                    summary.systematic,
+                    if opts.faults {
+                        ", each device lost past its grace time and back"
+                    } else {
+                        ""
+                    }
+                ));
+            }
             if !opts.faults {
                 out.push("faults were off (--no-faults)".into());
             }
@@ -191,6 +204,7 @@ pub fn to_json(
         "run_for_stretched_for": horizon.stretched_for,
         "run_for_short_of": horizon.short_of,
         "faults": opts.faults,
+        "systematic_runs": summary.systematic,
         "search_s": summary.search_time.as_secs_f64(),
         "result": match (&counterexample, summary.interrupted) {
             (Some(_), _) => "counterexample",
