@@ -160,7 +160,8 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         shrink: SHRINK_BUDGET,
         interrupt: Some(Arc::clone(&interrupt)),
     };
-    let horizon = Horizon::of(&Facts::read(&source), args.run_for);
+    let facts = Facts::read(&source);
+    let horizon = Horizon::of(&facts, args.run_for);
     let target = Target {
         source,
         file: file.clone(),
@@ -169,6 +170,7 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         budget: args.budget.unwrap_or(config.limits.operations),
         config,
         run_for: horizon.run_for,
+        compared: facts.compared,
     };
     if !args.json {
         say(&format!(

@@ -357,6 +357,7 @@ every("20ms", || {});
             config: RigConfig::simulated_default(),
             budget: 100_000,
             run_for: Duration::from_secs(1),
+            compared: Default::default(),
         };
         let at = |ms, action| Event {
             at: Duration::from_millis(ms),

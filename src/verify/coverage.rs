@@ -86,6 +86,48 @@ fn moved(now: &DeviceView, before: &DeviceView) -> bool {
     }
 }
 
+/// The values `compared` holds for each counter and rotary of device `idx` that one tick's
+/// change from `before` to `now` stepped over without landing on (a change of more than one
+/// across it: two strokes between scans), into `stepped`. A change the long way round (a
+/// counter or rotary wrapping) crosses nothing the script compares with.
+fn note_steps(
+    stepped: &mut BTreeMap<(usize, Item), BTreeSet<i64>>,
+    compared: &BTreeMap<Item, BTreeSet<i64>>,
+    idx: usize,
+    (before, now): (&DeviceView, &DeviceView),
+) {
+    let mut step = |item: Item, (a, b): (i64, i64), wrap: i64| {
+        let Some(values) = compared.get(&item) else {
+            return;
+        };
+        if (b - a).abs() < 2 || (b - a).abs() > wrap / 2 {
+            return;
+        }
+        let (lo, hi) = (a.min(b), a.max(b));
+        for v in values.range(lo + 1..hi) {
+            stepped.entry((idx, item)).or_default().insert(*v);
+        }
+    };
+    match (before, now) {
+        (DeviceView::C29u(a), DeviceView::C29u(b)) => {
+            if let (Some(a), Some(b)) = (a.counters, b.counters) {
+                for ch in 0..8u8 {
+                    let (x, y) = (a[usize::from(ch)], b[usize::from(ch)]);
+                    step(Item::Counter(ch), (x.into(), y.into()), 1 << 16);
+                }
+            }
+        }
+        (DeviceView::Trc(a), DeviceView::Trc(b)) => {
+            if let (Some(a), Some(b)) = (a.rotaries, b.rotaries) {
+                for r in Rotary::ALL {
+                    step(Item::Rotary(r), (a.get(r).into(), b.get(r).into()), 1 << 8);
+                }
+            }
+        }
+        _ => {}
+    }
+}
+
 /// Takes `value` into the range of `key`.
 fn widen(ranges: &mut BTreeMap<(usize, Item), (i64, i64)>, key: (usize, Item), value: i64) {
     let r = ranges.entry(key).or_insert((value, value));
@@ -123,6 +165,8 @@ struct Reach {
     range: Option<(i64, i64)>,
     compared: Vec<i64>,
     missed: Vec<i64>,
+    /// The values compared with that one tick's change stepped over.
+    stepped: Vec<i64>,
 }
 
 /// What one run exercised (and, summed, what all runs did).
@@ -150,12 +194,15 @@ pub struct Coverage {
     pub ranges: BTreeMap<(usize, Item), (i64, i64)>,
     /// Counter or rotary → the values the script compares it with (from its text).
     pub compared: BTreeMap<Item, BTreeSet<i64>>,
+    /// (device, counter or rotary) → the values compared with that one tick's change stepped
+    /// over by more than one (reaching a value is not crossing it).
+    pub stepped_over: BTreeMap<(usize, Item), BTreeSet<i64>>,
     last: Vec<DeviceView>,
 }
 
 impl Coverage {
-    /// Starts following a rig.
-    pub fn start(rig: &Rig) -> Self {
+    /// Starts following a rig whose script compares counters and rotaries with `compared`.
+    pub fn start(rig: &Rig, compared: &BTreeMap<Item, BTreeSet<i64>>) -> Self {
         let rt = rig.runner.runtime().borrow();
         let last: Vec<DeviceView> = rt.devices().iter().map(DeviceView::of).collect();
         let mut ranges = BTreeMap::new();
@@ -167,6 +214,7 @@ impl Coverage {
             devices: rt.devices().iter().map(|d| d.name().to_string()).collect(),
             last,
             ranges,
+            compared: compared.clone(),
             ..Self::default()
         }
     }
@@ -185,6 +233,9 @@ impl Coverage {
             // cost a tenth of the search.
             let moved = moved(&now, before);
             let changed = changed(&now, before);
+            if moved {
+                note_steps(&mut self.stepped_over, &self.compared, idx, (before, &now));
+            }
             *before = now;
             if moved {
                 note_ranges(&mut self.ranges, idx, &now);
@@ -265,6 +316,12 @@ impl Coverage {
                 .or_default()
                 .extend(v.iter().copied());
         }
+        for (k, v) in &other.stepped_over {
+            self.stepped_over
+                .entry(*k)
+                .or_default()
+                .extend(v.iter().copied());
+        }
     }
 
     fn item_name(&self, dev: usize, item: Item) -> String {
@@ -312,11 +369,17 @@ impl Coverage {
                     .copied()
                     .filter(|v| !range.is_some_and(|(lo, hi)| (lo..=hi).contains(v)))
                     .collect();
+                let stepped = self
+                    .stepped_over
+                    .get(&(dev, item))
+                    .map(|s| s.iter().copied().collect())
+                    .unwrap_or_default();
                 Reach {
                     name: self.item_name(dev, item),
                     range,
                     compared,
                     missed,
+                    stepped,
                 }
             })
             .collect()
@@ -396,7 +459,12 @@ impl Coverage {
                     words(&r.missed)
                 )
             };
-            out.push(format!("  {}: {range}{compared}", r.name));
+            let stepped = match (r.compared.is_empty(), r.stepped.is_empty()) {
+                (true, _) => String::new(),
+                (false, true) => "; none stepped over in one scan".into(),
+                (false, false) => format!("; stepped over in one scan: {}", words(&r.stepped)),
+            };
+            out.push(format!("  {}: {range}{compared}{stepped}", r.name));
         }
         let unchanged = self.unchanged_inputs();
         if !unchanged.is_empty() {
@@ -444,6 +512,7 @@ impl Coverage {
                         "max": r.range.map(|x| x.1),
                         "compared": r.compared,
                         "not_reached": r.missed,
+                        "stepped_over": r.stepped,
                     }),
                 )
             })
@@ -475,6 +544,49 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_value_stepped_over_in_one_tick_is_told_apart_from_one_reached() {
+        let compared = BTreeMap::from([(Item::Counter(2), BTreeSet::from([20, 300]))]);
+        let module = |n: u16| {
+            let mut counters = [0; 8];
+            counters[2] = n;
+            DeviceView::C29u(ModuleView {
+                online: true,
+                inputs: Some(0),
+                outputs: 0,
+                counters: Some(counters),
+                latches: None,
+            })
+        };
+        let mut stepped = BTreeMap::new();
+        // 19 -> 20 -> 21 lands on 20; 299 -> 301 steps over 300; a wrap crosses nothing.
+        for (a, b) in [(19, 20), (20, 21), (299, 301), (65_530, 3)] {
+            note_steps(&mut stepped, &compared, 0, (&module(a), &module(b)));
+        }
+        assert_eq!(
+            stepped,
+            BTreeMap::from([((0, Item::Counter(2)), BTreeSet::from([300]))])
+        );
+        let mut c = Coverage {
+            devices: vec!["io".into()],
+            compared: compared.clone(),
+            stepped_over: stepped,
+            ..Coverage::default()
+        };
+        c.script_reads.add(0, Item::Counter(2));
+        widen(&mut c.ranges, (0, Item::Counter(2)), 0);
+        widen(&mut c.ranges, (0, Item::Counter(2)), 400);
+        let lines = c.lines();
+        assert!(
+            lines.contains(
+                &"  io counter DI2: read 0-400, compared with 20 and 300: all reached; stepped \
+                  over in one scan: 300"
+                    .into()
+            ),
+            "{lines:#?}"
+        );
+    }
+
+    #[test]
     fn counters_and_rotaries_report_their_range_against_the_values_compared_with() {
         let mut c = Coverage {
             devices: vec!["io".into(), "panel".into()],
@@ -493,12 +605,18 @@ mod tests {
         let lines = c.lines();
         assert!(
             lines.contains(
-                &"  io counter DI0: read 0-45, compared with 12 and 300: 300 not reached".into()
+                &"  io counter DI0: read 0-45, compared with 12 and 300: 300 not reached; none \
+                  stepped over in one scan"
+                    .into()
             ),
             "{lines:#?}"
         );
         assert!(
-            lines.contains(&"  panel S41A: read 3-250, compared with 4: all reached".into()),
+            lines.contains(
+                &"  panel S41A: read 3-250, compared with 4: all reached; none stepped over in \
+                  one scan"
+                    .into()
+            ),
             "{lines:#?}"
         );
         assert_eq!(

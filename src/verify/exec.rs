@@ -10,11 +10,13 @@ use crate::config::RigConfig;
 use crate::runtime::devices::{open_devices, FieldError};
 use crate::runtime::runner::EndReason;
 use crate::script::builder::RigBuilder;
+use crate::script::reads::Item;
 use crate::script::rig::{start_with, Rig, RigError};
 use crate::sim::answer_faults::AnswerFault;
 use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
 use chrono::{TimeDelta, Utc};
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -36,6 +38,8 @@ pub struct Target {
     pub budget: u64,
     /// How long each run lasts.
     pub run_for: Duration,
+    /// Counter or rotary → the values the script's text compares it with (`Facts`).
+    pub compared: BTreeMap<Item, BTreeSet<i64>>,
 }
 
 /// One step of a run as the test file writes it.
@@ -242,7 +246,9 @@ pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, Exec
     })
     .map_err(|e| ExecError::Start(Box::new(e)))?;
     let mut player = Player {
-        coverage: keep.coverage.then(|| Coverage::start(&rig)),
+        coverage: keep
+            .coverage
+            .then(|| Coverage::start(&rig, &target.compared)),
         rig,
         clock,
         watch: Watch::new(&target.config),
@@ -317,6 +323,7 @@ invariant("power only with DI3 closed", || io.outputs == 0 || io.input(3));
             config: RigConfig::simulated_default(),
             budget: 100_000,
             run_for: Duration::from_secs(2),
+            compared: BTreeMap::new(),
         }
     }
 
