@@ -48,8 +48,10 @@ const SMOKE: Sizes = Sizes {
 
 fn target(file: &str, run_for: Duration) -> Target {
     let path = format!("{}/{file}", env!("CARGO_MANIFEST_DIR"));
+    let source = std::fs::read_to_string(&path).expect("the script");
     Target {
-        source: std::fs::read_to_string(&path).expect("the script"),
+        compared: rigscript::verify::facts::Facts::read(&source).compared,
+        source,
         file: file.to_string(),
         script: path.clone().into(),
         config_file: None,
