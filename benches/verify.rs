@@ -156,6 +156,7 @@ fn main() {
         if args.full {
             search_planted(sizes, "tests/verify/cure_cycle_end_leaves_heater_on.rhai");
             search_planted(sizes, "tests/verify/tool_life_misses_the_last_stroke.rhai");
+            search_planted(sizes, "tests/verify/tool_life_steps_over_the_limit.rhai");
         }
     }
 }

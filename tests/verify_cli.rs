@@ -110,6 +110,11 @@ const PLANTED: &[(&str, &str, usize)] = &[
         "the pump rests 30 s between runs",
         1,
     ),
+    (
+        "tests/verify/tool_life_steps_over_the_limit.rhai",
+        "the press is enabled only while the tool has strokes left",
+        1,
+    ),
 ];
 
 /// The seeds each planted bug is searched with here (`cargo bench --bench verify search` and
