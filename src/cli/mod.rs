@@ -108,6 +108,7 @@ fn reports_only(command: &Command) -> bool {
 /// status 141 in the shell) instead of a panic in the middle of printing: Rust ignores SIGPIPE
 /// by default.
 fn die_quietly_when_stdout_closes() {
+    // libc's, as `runtime::signals::watch`'s "ignore".
     // SAFETY: setting a signal's disposition to its default touches no Rust state.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);

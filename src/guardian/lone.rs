@@ -107,6 +107,7 @@ fn watch(pulse: &Pulse, done: &AtomicBool, settings: GuardianLog, ending: Ending
         };
         // The loop's thread is stuck and holds what the run has: nothing of it can be unwound
         // or flushed from here.
+        // libc's: rustix has `_exit` only for a process without a C library.
         // SAFETY: ends the process at once; nothing is touched after it.
         unsafe { libc::_exit(status) };
     }

@@ -86,22 +86,14 @@ impl Pulse {
     /// A pulse in memory shared with the processes this one forks from now on (an anonymous
     /// `MAP_SHARED` mapping); it lives as long as the process.
     pub fn shared() -> std::io::Result<&'static Pulse> {
-        let size = std::mem::size_of::<Pulse>();
+        use rustix::mm::{mmap_anonymous, MapFlags, ProtFlags};
+        let (size, rw) = (
+            std::mem::size_of::<Pulse>(),
+            ProtFlags::READ | ProtFlags::WRITE,
+        );
         // SAFETY: a new anonymous mapping, not aliased by anything; zeroed by the kernel, which
         // is a valid `Pulse` (every field an atomic integer, zero its initial value).
-        let at = unsafe {
-            libc::mmap(
-                std::ptr::null_mut(),
-                size,
-                libc::PROT_READ | libc::PROT_WRITE,
-                libc::MAP_SHARED | libc::MAP_ANONYMOUS,
-                -1,
-                0,
-            )
-        };
-        if at == libc::MAP_FAILED {
-            return Err(std::io::Error::last_os_error());
-        }
+        let at = unsafe { mmap_anonymous(std::ptr::null_mut(), size, rw, MapFlags::SHARED)? };
         // SAFETY: the mapping is page-aligned, at least `size` bytes, never unmapped, and holds
         // zeroed atomics (a valid value of every field).
         Ok(unsafe { &*at.cast::<Pulse>() })
@@ -447,9 +439,8 @@ mod tests {
             // SAFETY: ends the child at once, running nothing of the parent's.
             unsafe { libc::_exit(0) };
         }
-        let mut status = 0;
-        // SAFETY: waits for our own child.
-        unsafe { libc::waitpid(child, &mut status, 0) };
+        let child = rustix::process::Pid::from_raw(child);
+        rustix::process::waitpid(child, rustix::process::WaitOptions::empty()).unwrap();
         assert_eq!(pulse.beats(), 1);
         assert_eq!(pulse.label().as_deref(), Some("after 500ms"));
     }

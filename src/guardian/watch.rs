@@ -16,8 +16,10 @@ use crate::runtime::log::{LogFormat, Logger};
 use crate::runtime::signals;
 use crate::time::clock::SystemClock;
 use crate::time::zone::Zone;
+use rustix::io::Errno;
+use rustix::process::{kill_process, waitpid, Pid, Signal, WaitOptions};
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::OwnedFd;
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::time::{Duration, Instant};
 
@@ -59,13 +61,9 @@ impl Confirmation {
     /// Tells the guardian that the run's end confirmed the safe state of every device (or that
     /// it drove none): it then exits with the runner's status and does nothing else.
     pub fn confirm(self) {
-        let byte = [CONFIRMED];
-        // SAFETY: a one-byte write from a live buffer to a descriptor this value owns. A pipe
-        // with room for 64 KiB never blocks on it; a failure leaves the guardian to act, which
-        // is safe.
-        unsafe {
-            libc::write(self.pipe.as_raw_fd(), byte.as_ptr().cast(), 1);
-        }
+        // A pipe with room for 64 KiB never blocks on one byte; a failure leaves the guardian
+        // to act, which is safe.
+        let _ = rustix::io::write(&self.pipe, &[CONFIRMED]);
     }
 }
 
@@ -114,26 +112,29 @@ pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError
         return Err(GuardError::Threads(n));
     }
     let pulse = Pulse::shared().map_err(GuardError::Pulse)?;
-    let (read, write) = pipe()?;
-    let guardian = std::process::id();
+    let (read, write) = rustix::pipe::pipe_with(rustix::pipe::PipeFlags::CLOEXEC)
+        .map_err(|e| GuardError::Start(e.into()))?;
+    let guardian = rustix::process::getpid();
+    // rustix forks only for a process without a C library (its `runtime` module): libc's
+    // fork runs the C library's own fork handlers.
     // SAFETY: the process has one thread (the caller's contract), so the child starts as a
     // full copy with no lock held by a thread that does not exist there.
-    match unsafe { libc::fork() } {
-        -1 => Err(GuardError::Start(io::Error::last_os_error())),
-        0 => {
+    let child = unsafe { libc::fork() };
+    if child == -1 {
+        return Err(GuardError::Start(io::Error::last_os_error()));
+    }
+    match Pid::from_raw(child) {
+        None => {
             drop(read);
             become_runner(guardian);
             Ok(Guarded::Runner(Confirmation { pipe: write, pulse }))
         }
-        child => {
+        Some(child) => {
             drop(write);
-            RUNNER.store(child, Ordering::SeqCst);
+            RUNNER.store(child.as_raw_nonzero().get(), Ordering::SeqCst);
             // Also here, so that a signal before the child has done it cannot find it in our
             // group (the usual race of setpgid, done on both sides).
-            // SAFETY: plain system calls on our own child.
-            unsafe {
-                libc::setpgid(child, child);
-            }
+            let _ = rustix::process::setpgid(Some(child), Some(child));
             forward_signals();
             let end = watch(child, pulse, log.stall);
             let confirmed = read_confirmation(&read);
@@ -146,53 +147,36 @@ pub fn guard(config: &RigConfig, log: GuardianLog) -> Result<Guarded, GuardError
 
 /// The child's set-up: its own process group, SIGTERM when the guardian dies, and systemd's
 /// service watchdog (`$WATCHDOG_PID` names the pid systemd started, the guardian) passed on.
-fn become_runner(guardian: u32) {
-    // SAFETY: plain system calls on this process; prctl's argument is a signal number.
-    unsafe {
-        libc::setpgid(0, 0);
-        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-        // The guardian may have died before the prctl took effect: then nobody will send it.
-        if libc::getppid() as u32 != guardian {
-            libc::raise(libc::SIGTERM);
-        }
+fn become_runner(guardian: Pid) {
+    let _ = rustix::process::setpgid(None, None);
+    let _ = rustix::process::set_parent_process_death_signal(Some(Signal::TERM));
+    // The guardian may have died before the prctl took effect: then nobody will send it.
+    if rustix::process::getppid() != Some(guardian) {
+        let _ = kill_process(rustix::process::getpid(), Signal::TERM);
     }
     if std::env::var("WATCHDOG_PID").ok() == Some(guardian.to_string()) {
         std::env::set_var("WATCHDOG_PID", std::process::id().to_string());
     }
 }
 
-fn pipe() -> Result<(OwnedFd, OwnedFd), GuardError> {
-    let mut fds = [0; 2];
-    // SAFETY: pipe2 fills the two-element array it is given.
-    if unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) } != 0 {
-        return Err(GuardError::Start(io::Error::last_os_error()));
-    }
-    // SAFETY: both descriptors are new and owned by nothing else.
-    Ok(unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) })
-}
-
 /// Passes each ending signal on to the runner; SIGABRT (what systemd's service watchdog sends
 /// when the loop stopped turning) kills the runner, which is stuck, so the guardian can act.
 /// Job-control signals are ignored: a rig does not pause because a terminal asks it to.
 fn forward_signals() {
-    extern "C" fn forward(signal: libc::c_int) {
-        let runner = RUNNER.load(Ordering::SeqCst);
-        if runner > 0 {
-            // SAFETY: kill is async-signal-safe.
-            unsafe {
-                libc::kill(runner, signal);
-            }
+    // rustix's kill is one system call, which a signal handler may make (and it leaves errno
+    // alone).
+    fn kill_runner(signal: Option<Signal>) {
+        if let (Some(runner), Some(signal)) = (Pid::from_raw(RUNNER.load(Ordering::SeqCst)), signal)
+        {
+            let _ = kill_process(runner, signal);
         }
+    }
+    extern "C" fn forward(signal: libc::c_int) {
+        kill_runner(Signal::from_named_raw(signal));
     }
     extern "C" fn stuck(_: libc::c_int) {
         ABORTED.store(true, Ordering::SeqCst);
-        let runner = RUNNER.load(Ordering::SeqCst);
-        if runner > 0 {
-            // SAFETY: kill is async-signal-safe.
-            unsafe {
-                libc::kill(runner, libc::SIGKILL);
-            }
-        }
+        kill_runner(Some(Signal::KILL));
     }
     // The runner's own list: what ends a run in order ends it whichever process it reached.
     for signal in signals::ENDING {
@@ -204,6 +188,7 @@ fn forward_signals() {
     }
 }
 
+/// With libc's sigaction: rustix sets handlers only for a process without a C library.
 fn set_handler(signal: libc::c_int, handler: libc::sighandler_t) {
     // SAFETY: a zeroed sigaction is valid; the handlers above only call kill.
     unsafe {
@@ -237,11 +222,11 @@ pub enum RunnerEnd {
 }
 
 /// Waits for the runner to end, watching its loop meanwhile (see the module's doc).
-fn watch(child: libc::pid_t, pulse: &Pulse, stall: Duration) -> RunnerEnd {
+fn watch(child: Pid, pulse: &Pulse, stall: Duration) -> RunnerEnd {
     let mut watch = StallWatch::new(stall);
     let every = watch.every();
     loop {
-        if let Some(end) = reap(child, libc::WNOHANG) {
+        if let Some(end) = reap(child, WaitOptions::NOHANG) {
             let silent = watch.silent(Instant::now());
             return match end {
                 RunnerEnd::Killed { signal, .. }
@@ -257,10 +242,7 @@ fn watch(child: libc::pid_t, pulse: &Pulse, stall: Duration) -> RunnerEnd {
             };
         }
         if let Some(silent) = watch.check(pulse, Instant::now()) {
-            // SAFETY: a plain system call on our own child, not yet reaped.
-            unsafe {
-                libc::kill(child, libc::SIGKILL);
-            }
+            let _ = kill_process(child, Signal::KILL);
             wait_for(child);
             return RunnerEnd::Stalled {
                 silent,
@@ -272,40 +254,32 @@ fn watch(child: libc::pid_t, pulse: &Pulse, stall: Duration) -> RunnerEnd {
     }
 }
 
-fn wait_for(child: libc::pid_t) -> RunnerEnd {
+fn wait_for(child: Pid) -> RunnerEnd {
     loop {
-        if let Some(end) = reap(child, 0) {
+        if let Some(end) = reap(child, WaitOptions::empty()) {
             return end;
         }
     }
 }
 
-/// The runner's end if it has ended (`options`: `WNOHANG` not to wait), else `None`.
-fn reap(child: libc::pid_t, options: libc::c_int) -> Option<RunnerEnd> {
-    {
-        let mut status = 0;
-        // SAFETY: waits for our own child, writing into a local.
-        let got = unsafe { libc::waitpid(child, &mut status, options) };
-        if got == child {
-            if libc::WIFEXITED(status) {
-                return Some(RunnerEnd::Exited(libc::WEXITSTATUS(status)));
+/// The runner's end if it has ended (`options`: `NOHANG` not to wait), else `None`.
+fn reap(child: Pid, options: WaitOptions) -> Option<RunnerEnd> {
+    match waitpid(Some(child), options) {
+        Ok(Some((_, status))) => {
+            if let Some(code) = status.exit_status() {
+                return Some(RunnerEnd::Exited(code));
             }
-            if libc::WIFSIGNALED(status) {
-                return Some(RunnerEnd::Killed {
-                    signal: libc::WTERMSIG(status),
-                    core: libc::WCOREDUMP(status),
-                });
-            }
-            return None;
+            status.terminating_signal().map(|signal| RunnerEnd::Killed {
+                signal,
+                core: libc::WCOREDUMP(status.as_raw()),
+            })
         }
-        if got == -1 && io::Error::last_os_error().kind() != io::ErrorKind::Interrupted {
-            // The child cannot be waited for (it never can be lost to us otherwise): act.
-            return Some(RunnerEnd::Killed {
-                signal: 0,
-                core: false,
-            });
-        }
-        None
+        Ok(None) | Err(Errno::INTR) => None,
+        // The child cannot be waited for (it never can be lost to us otherwise): act.
+        Err(_) => Some(RunnerEnd::Killed {
+            signal: 0,
+            core: false,
+        }),
     }
 }
 
@@ -314,17 +288,11 @@ fn reap(child: libc::pid_t, options: libc::c_int) -> Option<RunnerEnd> {
 fn read_confirmation(read: &OwnedFd) -> bool {
     let mut buf = [0u8; 16];
     loop {
-        // SAFETY: reads into a local buffer of the size given.
-        let n = unsafe { libc::read(read.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len()) };
-        match n {
-            n if n > 0 => {
-                let n = usize::try_from(n).unwrap_or(0).min(buf.len());
-                if buf[..n].contains(&CONFIRMED) {
-                    return true;
-                }
-            }
-            -1 if io::Error::last_os_error().kind() == io::ErrorKind::Interrupted => {}
-            _ => return false,
+        match rustix::io::read(read, &mut buf) {
+            Ok(0) => return false,
+            Ok(n) if buf[..n].contains(&CONFIRMED) => return true,
+            Ok(_) | Err(Errno::INTR) => {}
+            Err(_) => return false,
         }
     }
 }
@@ -333,7 +301,7 @@ fn read_confirmation(read: &OwnedFd) -> bool {
 fn finish(
     end: RunnerEnd,
     confirmed: bool,
-    runner: libc::pid_t,
+    runner: Pid,
     config: &RigConfig,
     settings: GuardianLog,
     pulse: &Pulse,

@@ -3,33 +3,35 @@
 //! wait for room is bounded. Serial ports and TCP sockets both go through here.
 
 use super::Watch;
+use rustix::event::{PollFd, PollFlags};
+use rustix::fs::OFlags;
+use rustix::io::Errno;
 use std::io;
-use std::os::fd::RawFd;
+use std::os::fd::{BorrowedFd, RawFd};
 use std::time::{Duration, Instant};
+
+/// The caller's descriptor, for the length of one call.
+fn borrow<'a>(fd: RawFd) -> BorrowedFd<'a> {
+    // SAFETY: every function here is handed a descriptor its caller holds open for the call
+    // (a closed one only makes the system call fail, as `ended` reports with POLLNVAL).
+    unsafe { BorrowedFd::borrow_raw(fd) }
+}
 
 /// Puts `fd` in non-blocking mode, so a read with nothing to read returns at once.
 pub fn set_nonblocking(fd: RawFd) -> io::Result<()> {
-    set_status_flag(fd, libc::O_NONBLOCK, true)
+    set_status_flag(fd, OFlags::NONBLOCK, true)
 }
 
 /// Puts `fd` back in blocking mode (a file opened non-blocking only so that opening it could
 /// not wait).
 pub fn set_blocking(fd: RawFd) -> io::Result<()> {
-    set_status_flag(fd, libc::O_NONBLOCK, false)
+    set_status_flag(fd, OFlags::NONBLOCK, false)
 }
 
-fn set_status_flag(fd: RawFd, flag: libc::c_int, on: bool) -> io::Result<()> {
-    // SAFETY: fcntl on a descriptor the caller owns; no pointers.
-    let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
-    if flags < 0 {
-        return Err(io::Error::last_os_error());
-    }
-    let flags = if on { flags | flag } else { flags & !flag };
-    // SAFETY: as above.
-    if unsafe { libc::fcntl(fd, libc::F_SETFL, flags) } < 0 {
-        return Err(io::Error::last_os_error());
-    }
-    Ok(())
+fn set_status_flag(fd: RawFd, flag: OFlags, on: bool) -> io::Result<()> {
+    let mut flags = rustix::fs::fcntl_getfl(borrow(fd))?;
+    flags.set(flag, on);
+    Ok(rustix::fs::fcntl_setfl(borrow(fd), flags)?)
 }
 
 /// What a read found.
@@ -49,19 +51,12 @@ pub fn read_now(fd: RawFd, buf: &mut [u8]) -> io::Result<Read> {
         return Ok(Read::Nothing);
     }
     loop {
-        // SAFETY: `buf` is valid for writes of `buf.len()` bytes.
-        let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
-        if n > 0 {
-            return Ok(Read::Bytes(n.unsigned_abs()));
-        }
-        if n == 0 {
-            return Ok(Read::Closed);
-        }
-        let e = io::Error::last_os_error();
-        match e.kind() {
-            io::ErrorKind::WouldBlock => return Ok(Read::Nothing),
-            io::ErrorKind::Interrupted => continue,
-            _ => return Err(e),
+        match rustix::io::read(borrow(fd), &mut *buf) {
+            Ok(0) => return Ok(Read::Closed),
+            Ok(n) => return Ok(Read::Bytes(n)),
+            Err(Errno::AGAIN) => return Ok(Read::Nothing),
+            Err(Errno::INTR) => {}
+            Err(e) => return Err(e.into()),
         }
     }
 }
@@ -78,7 +73,7 @@ pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<R
     let mut deadline = None;
     let mut left = timeout;
     loop {
-        match wait(fd, libc::POLLIN, left)? {
+        match wait(fd, PollFlags::IN, left)? {
             Ready::Yes => {}
             Ready::Hangup => {
                 return read_now(fd, buf).map(|r| match r {
@@ -108,26 +103,20 @@ pub fn read_within(fd: RawFd, buf: &mut [u8], timeout: Duration) -> io::Result<R
 pub fn write_all_within(fd: RawFd, mut bytes: &[u8], timeout: Duration) -> io::Result<()> {
     let deadline = Instant::now().checked_add(timeout);
     while !bytes.is_empty() {
-        // SAFETY: `bytes` is valid for reads of `bytes.len()` bytes.
-        let n = unsafe { libc::write(fd, bytes.as_ptr().cast(), bytes.len()) };
-        if n > 0 {
-            bytes = bytes.get(n.unsigned_abs()..).unwrap_or_default();
-            continue;
-        }
-        let e = io::Error::last_os_error();
-        match e.kind() {
-            io::ErrorKind::Interrupted => continue,
-            io::ErrorKind::WouldBlock => {
+        match rustix::io::write(borrow(fd), bytes) {
+            Ok(n) => bytes = bytes.get(n..).unwrap_or_default(),
+            Err(Errno::INTR) => continue,
+            Err(Errno::AGAIN) => {
                 let left =
                     deadline.map_or(timeout, |d| d.saturating_duration_since(Instant::now()));
-                if left.is_zero() || wait(fd, libc::POLLOUT, left)? == Ready::No {
+                if left.is_zero() || wait(fd, PollFlags::OUT, left)? == Ready::No {
                     return Err(io::Error::new(
                         io::ErrorKind::TimedOut,
                         format!("could not send for {timeout:?}: the other end takes no data"),
                     ));
                 }
             }
-            _ => return Err(e),
+            Err(e) => return Err(e.into()),
         }
     }
     Ok(())
@@ -135,37 +124,22 @@ pub fn write_all_within(fd: RawFd, mut bytes: &[u8], timeout: Duration) -> io::R
 
 /// Waits up to `timeout` until one of `fds` has bytes to read (or has hung up); tells which.
 pub fn wait_readable(fds: &[RawFd], timeout: Duration) -> io::Result<Vec<bool>> {
-    let mut pfds: Vec<libc::pollfd> = fds
+    let mut pfds: Vec<PollFd> = fds
         .iter()
-        .map(|&fd| libc::pollfd {
-            fd,
-            events: libc::POLLIN,
-            revents: 0,
-        })
+        .map(|&fd| PollFd::from_borrowed_fd(borrow(fd), PollFlags::IN))
         .collect();
     poll_all(&mut pfds, timeout)?;
-    Ok(pfds.iter().map(|p| p.revents != 0).collect())
+    Ok(pfds.iter().map(|p| !p.revents().is_empty()).collect())
 }
 
-/// One `ppoll` of `pfds` for up to `timeout`, again after a signal interrupts it.
-fn poll_all(pfds: &mut [libc::pollfd], timeout: Duration) -> io::Result<()> {
-    let ts = timespec(timeout);
+/// One `ppoll` of `pfds` for up to `timeout`, again after a signal interrupts it; how many
+/// have news. A timeout too long for a timespec (never a real one) waits for ever.
+fn poll_all(pfds: &mut [PollFd], timeout: Duration) -> io::Result<usize> {
+    let ts = rustix::time::Timespec::try_from(timeout).ok();
     loop {
-        // SAFETY: `pfds` is a valid array of `pfds.len()` pollfds; a valid timespec.
-        let n = unsafe {
-            libc::ppoll(
-                pfds.as_mut_ptr(),
-                pfds.len() as libc::nfds_t,
-                &ts,
-                std::ptr::null(),
-            )
-        };
-        if n >= 0 {
-            return Ok(());
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() != io::ErrorKind::Interrupted {
-            return Err(e);
+        match rustix::event::poll(pfds, ts.as_ref()) {
+            Err(Errno::INTR) => continue,
+            done => return Ok(done?),
         }
     }
 }
@@ -175,29 +149,32 @@ fn poll_all(pfds: &mut [libc::pollfd], timeout: Duration) -> io::Result<()> {
 /// or reset by its peer. One `ppoll` for them all; each entry is `None` (still up) or the OS's
 /// reason in words.
 pub fn ended(watches: &[Watch]) -> io::Result<Vec<Option<String>>> {
-    let mut pfds: Vec<libc::pollfd> = watches
+    let mut pfds: Vec<PollFd> = watches
         .iter()
-        .map(|w| libc::pollfd {
-            fd: w.fd,
+        .map(|w| {
             // Bytes waiting are no news: only the end is asked for (hang-up and error are
             // always reported; a socket's orderly close needs POLLRDHUP).
-            events: if w.socket { libc::POLLRDHUP } else { 0 },
-            revents: 0,
+            let events = if w.socket {
+                PollFlags::RDHUP
+            } else {
+                PollFlags::empty()
+            };
+            PollFd::from_borrowed_fd(borrow(w.fd), events)
         })
         .collect();
     poll_all(&mut pfds, Duration::ZERO)?;
     Ok(pfds
         .iter()
         .zip(watches)
-        .map(|(p, w)| end_reason(p.revents, *w))
+        .map(|(p, w)| end_reason(p.revents(), *w))
         .collect())
 }
 
 /// What `revents` says of a watched link's end, in words; `None` while it is up.
-fn end_reason(revents: libc::c_short, w: Watch) -> Option<String> {
-    let hup = revents & libc::POLLHUP != 0;
-    let err = revents & libc::POLLERR != 0;
-    if revents & libc::POLLNVAL != 0 {
+fn end_reason(revents: PollFlags, w: Watch) -> Option<String> {
+    let hup = revents.contains(PollFlags::HUP);
+    let err = revents.contains(PollFlags::ERR);
+    if revents.contains(PollFlags::NVAL) {
         return Some("its descriptor is no longer open".into());
     }
     if w.socket {
@@ -207,7 +184,7 @@ fn end_reason(revents: libc::c_short, w: Watch) -> Option<String> {
                 None => "the connection failed".into(),
             });
         }
-        if hup || revents & libc::POLLRDHUP != 0 {
+        if hup || revents.contains(PollFlags::RDHUP) {
             return Some("the server closed the connection (end of stream)".into());
         }
         return None;
@@ -223,25 +200,9 @@ fn end_reason(revents: libc::c_short, w: Watch) -> Option<String> {
 
 /// The pending error of socket `fd` (`SO_ERROR`: a reset, an unreachable host), if any.
 fn socket_error(fd: RawFd) -> Option<io::Error> {
-    let mut code: libc::c_int = 0;
-    let mut len = std::mem::size_of::<libc::c_int>() as libc::socklen_t;
-    // SAFETY: `code` and `len` are valid for writes of their sizes.
-    let r = unsafe {
-        libc::getsockopt(
-            fd,
-            libc::SOL_SOCKET,
-            libc::SO_ERROR,
-            (&mut code as *mut libc::c_int).cast(),
-            &mut len,
-        )
-    };
-    (r == 0 && code != 0).then(|| io::Error::from_raw_os_error(code))
-}
-
-fn timespec(timeout: Duration) -> libc::timespec {
-    libc::timespec {
-        tv_sec: libc::time_t::try_from(timeout.as_secs()).unwrap_or(libc::time_t::MAX),
-        tv_nsec: libc::c_long::from(timeout.subsec_nanos()),
+    match rustix::net::sockopt::socket_error(borrow(fd)) {
+        Ok(Err(e)) => Some(e.into()),
+        _ => None,
     }
 }
 
@@ -252,33 +213,19 @@ enum Ready {
     Hangup,
 }
 
-fn wait(fd: RawFd, events: libc::c_short, timeout: Duration) -> io::Result<Ready> {
-    let mut pfd = libc::pollfd {
-        fd,
-        events,
-        revents: 0,
-    };
-    let ts = timespec(timeout);
-    loop {
-        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
-        let n = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
-        if n > 0 {
-            if pfd.revents & events != 0 {
-                return Ok(Ready::Yes);
-            }
-            if pfd.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0 {
-                return Ok(Ready::Hangup);
-            }
-            return Ok(Ready::No);
-        }
-        if n == 0 {
-            return Ok(Ready::No);
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() != io::ErrorKind::Interrupted {
-            return Err(e);
-        }
+fn wait(fd: RawFd, events: PollFlags, timeout: Duration) -> io::Result<Ready> {
+    let mut pfd = [PollFd::from_borrowed_fd(borrow(fd), events)];
+    if poll_all(&mut pfd, timeout)? == 0 {
+        return Ok(Ready::No);
     }
+    let revents = pfd[0].revents();
+    Ok(if revents.intersects(events) {
+        Ready::Yes
+    } else if revents.intersects(PollFlags::HUP | PollFlags::ERR | PollFlags::NVAL) {
+        Ready::Hangup
+    } else {
+        Ready::No
+    })
 }
 
 #[cfg(test)]

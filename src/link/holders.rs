@@ -53,7 +53,7 @@ pub fn holders_of(path: &Path) -> Holders {
     };
     if let Ok(meta) = std::fs::metadata(&device) {
         let locks = std::fs::read_to_string("/proc/locks").unwrap_or_default();
-        let (major, minor) = (libc::major(meta.dev()), libc::minor(meta.dev()));
+        let (major, minor) = (rustix::fs::major(meta.dev()), rustix::fs::minor(meta.dev()));
         holders.locking = lock_pids(&locks, major, minor, meta.ino())
             .into_iter()
             .map(holder)
@@ -226,9 +226,7 @@ mod tests {
         // This process holds an exclusive flock on a file of its own.
         let path = std::env::temp_dir().join(format!("rigscript-holders-{}", std::process::id()));
         let file = std::fs::File::create(&path).unwrap();
-        use std::os::fd::AsRawFd;
-        // SAFETY: flock on a descriptor this test owns, released when it is closed.
-        assert_eq!(unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) }, 0);
+        rustix::fs::flock(&file, rustix::fs::FlockOperation::LockExclusive).unwrap();
         let found = holders_of(&path);
         drop(file);
         std::fs::remove_file(&path).unwrap();

@@ -62,6 +62,8 @@ pub fn watch(flag: &Arc<AtomicUsize>) -> std::io::Result<()> {
         signal_hook::flag::register_usize(signal, Arc::clone(flag), number)?;
     }
     for signal in IGNORED {
+        // libc's: neither signal-hook nor rustix (outside its runtime for a process without a C
+        // library) sets a disposition.
         // SAFETY: setting a signal's disposition to "ignore" touches no Rust state; a caught
         // SIGTTOU would restart the write that raised it, for ever, so it must be ignored.
         if unsafe { libc::signal(signal, libc::SIG_IGN) } == libc::SIG_ERR {

@@ -34,12 +34,8 @@ pub trait Clock: Send + Sync {
 /// `elapsed` costs twice the instructions (two checked timespec subtractions), measured with
 /// callgrind on a polling run.
 fn monotonic_nanos() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec to write; CLOCK_MONOTONIC always exists (vDSO call).
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    // A vDSO call, as `Instant::now`'s.
+    let ts = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
     u64::try_from(ts.tv_sec)
         .unwrap_or(0)
         .saturating_mul(1_000_000_000)
@@ -142,25 +138,15 @@ mod linux {
     }
 
     pub(super) fn prefer_prompt_wakeups() -> io::Result<()> {
-        // SAFETY: PR_SET_TIMERSLACK takes an integer and touches only the calling thread.
-        if unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) } != 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // SAFETY: queries of the calling thread's own scheduling, no pointers.
+        rustix::thread::set_current_timer_slack(std::num::NonZeroU64::new(1))?;
+        // rustix has no sched_getscheduler.
+        // SAFETY: a query of the calling thread's own scheduling, no pointers.
         let policy = unsafe { libc::sched_getscheduler(0) };
         if policy != libc::SCHED_OTHER {
             return Ok(());
         }
-        // getpriority can return -1 as a value: errno tells an error apart.
-        // SAFETY: errno is thread-local; PRIO_PROCESS with 0 means the calling thread on Linux.
-        let nice = unsafe {
-            *libc::__errno_location() = 0;
-            libc::getpriority(libc::PRIO_PROCESS, 0)
-        };
-        let errno = io::Error::last_os_error();
-        if nice == -1 && errno.raw_os_error().is_some_and(|e| e != 0) {
-            return Err(errno);
-        }
+        // `None` (0) is the calling thread: on Linux the nice value is a thread's own.
+        let nice = rustix::process::getpriority_process(None)?;
         let attr = SchedAttr {
             size: std::mem::size_of::<SchedAttr>() as u32,
             policy: libc::SCHED_OTHER as u32,
@@ -171,7 +157,8 @@ mod linux {
             deadline: 0,
             period: 0,
         };
-        // SAFETY: `attr` is a valid, initialised sched_attr for the calling thread (pid 0).
+        // SAFETY: `attr` is a valid, initialised sched_attr for the calling thread (pid 0); rustix
+        // has no sched_setattr.
         let r = unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr as *const SchedAttr, 0) };
         if r != 0 {
             return Err(io::Error::last_os_error());
@@ -366,14 +353,13 @@ mod tests {
     fn prompt_wakeups_set_the_timer_slack_and_keep_the_nice_value() {
         // In a thread of its own: the hints are per thread.
         std::thread::spawn(|| {
-            // SAFETY: plain queries and settings of the calling thread.
-            unsafe {
-                assert_eq!(libc::setpriority(libc::PRIO_PROCESS, 0, 5), 0);
-                prefer_prompt_wakeups().unwrap();
-                assert_eq!(libc::prctl(libc::PR_GET_TIMERSLACK, 0, 0, 0, 0), 1);
-                assert_eq!(libc::getpriority(libc::PRIO_PROCESS, 0), 5);
-                assert_eq!(libc::sched_getscheduler(0), libc::SCHED_OTHER);
-            }
+            use rustix::process::{getpriority_process, setpriority_process};
+            setpriority_process(None, 5).unwrap();
+            prefer_prompt_wakeups().unwrap();
+            assert_eq!(rustix::thread::current_timer_slack().unwrap(), 1);
+            assert_eq!(getpriority_process(None).unwrap(), 5);
+            // SAFETY: a query of the calling thread's own scheduling.
+            assert_eq!(unsafe { libc::sched_getscheduler(0) }, libc::SCHED_OTHER);
         })
         .join()
         .unwrap();

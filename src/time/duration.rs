@@ -7,6 +7,11 @@
 //! a *number* of milliseconds (`after(500, ..)`: `duration_from_millis_*`), which is the script
 //! API. Fractions are exact decimals, not floats (`"0.1s"` is exactly 100 ms); digits finer than
 //! a nanosecond are dropped.
+//!
+//! Not humantime: it also reads days, weeks, months (`"5M"`, next to `"5m"`) and years, refuses
+//! `".5s"` and digits below a nanosecond, has its own error texts, and writes `"3s 40ms"`
+//! where people here read `"3.04s"`: the grammar and both writers would stay, to save at most
+//! sixty lines of the parser.
 
 use std::time::Duration;
 
