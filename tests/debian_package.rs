@@ -81,8 +81,8 @@ fn expected_contents() -> BTreeSet<String> {
     let pages = TempDir::new("deb-pages");
     ok(Command::new(rigscript())
         .args(["man", "--out"])
-        .arg(&pages.0));
-    let mut expected: BTreeSet<String> = std::fs::read_dir(&pages.0)
+        .arg(pages.root()));
+    let mut expected: BTreeSet<String> = std::fs::read_dir(pages.root())
         .unwrap()
         .map(|e| {
             let name = e.unwrap().file_name().to_string_lossy().into_owned();
@@ -165,7 +165,7 @@ impl ScratchRoot {
     /// is installed to chroot into), and the base's packages are not in this root's database.
     fn dpkg(&self, args: &[&str]) -> String {
         ok(Command::new("dpkg")
-            .arg(format!("--root={}", self.dir.0.display()))
+            .arg(format!("--root={}", self.dir.root().display()))
             .args([
                 "--force-script-chrootless",
                 "--force-depends",
@@ -193,7 +193,7 @@ impl ScratchRoot {
             }
         }
         let mut out = BTreeSet::new();
-        walk(&self.dir.0, &self.dir.0, &mut out);
+        walk(self.dir.root(), self.dir.root(), &mut out);
         out
     }
 
@@ -233,7 +233,7 @@ fn verify_units(root: &ScratchRoot) {
         std::fs::write(dir.path(unit), text).unwrap();
     }
     let out = Command::new("systemd-analyze")
-        .current_dir(&dir.0)
+        .current_dir(dir.root())
         .args([
             "verify",
             "./rigscript@interlock.service",

@@ -35,9 +35,10 @@ fn rig_with(sim: &SimProcess, dir: &TempDir, keys: &str, script: &str) -> (Strin
     (config, script)
 }
 
+/// `rigscript run --config CONFIG SCRIPT`, leaving no core file when the test makes it crash.
 fn start_run(config: &str, script: &str) -> Child {
     use std::os::unix::process::CommandExt;
-    let mut command = Command::new(rigscript());
+    let mut command = common::run_command(&["--config", config, script]);
     // SAFETY: setrlimit is async-signal-safe; a crash the test causes leaves no core file.
     unsafe {
         command.pre_exec(|| {
@@ -49,12 +50,7 @@ fn start_run(config: &str, script: &str) -> Child {
             Ok(())
         });
     }
-    command
-        .args(["run", "--config", config, script])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
+    command.spawn().expect("start rigscript run")
 }
 
 /// Polls the simulator until `pred` holds of its state, or 10 s pass.
@@ -109,9 +105,7 @@ fn finish(mut run: Child) -> (Option<i32>, String) {
         }
         std::thread::sleep(Duration::from_millis(20));
     };
-    let mut err = String::new();
-    run.stderr.take().unwrap().read_to_string(&mut err).unwrap();
-    (status.code(), err)
+    (status.code(), common::read_stderr(&mut run))
 }
 
 /// Starts a run and waits until the script drives the module.
@@ -282,12 +276,7 @@ fn a_healthy_loop_slower_than_its_stall_limit_is_never_ended() {
         "slow.rhai",
         "io.outputs = 0x0F;\nevery(\"3s\", || { for i in 0..20 { let x = io.inputs; } });\n",
     );
-    let run = Command::new(rigscript())
-        .args(["run", "--config", &config, &script, "--for", "7s"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let run = common::start_run(&["--config", &config, &script, "--for", "7s"]);
     let (status, err) = finish(run);
     assert_eq!(status, Some(0), "{err}");
     assert!(!err.contains("stalled"), "{err}");

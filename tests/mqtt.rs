@@ -147,7 +147,7 @@ impl Broker {
         require_tool("mosquitto_sub", "mosquitto-clients");
         require_tool("openssl", "openssl");
         let dir = TempDir::new(tag);
-        let d = &dir.0;
+        let d = dir.root();
         let passwords = d.join("passwords");
         std::fs::write(&passwords, "").unwrap();
         for (user, pw) in USERS {
@@ -390,7 +390,7 @@ fn run_rig(dir: &TempDir, name: &str, mqtt: &str, script: &str) -> Proc {
     let log = File::create(dir.path(&format!("{name}.log"))).unwrap();
     let child = Command::new(rigscript())
         .args(["run", "--config", &config, &script])
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RUNTIME_DIRECTORY")
         .env("TEST_MQTT_PW", "rig-pw")
         .stdout(Stdio::null())
@@ -470,7 +470,7 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
         let ok = until(Duration::from_secs(10), || {
             Command::new(rigscript())
                 .args(["drive", "state", "set-inputs", "io", value])
-                .env("XDG_RUNTIME_DIR", &dir.0)
+                .env("XDG_RUNTIME_DIR", dir.root())
                 .env_remove("RUNTIME_DIRECTORY")
                 .output()
                 .ok()
@@ -737,7 +737,7 @@ fn status(dir: &TempDir, name: &str, json: bool) -> Option<String> {
         c.arg("--json");
     }
     let out = c
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RUNTIME_DIRECTORY")
         .output()
         .expect("run rigscript status");
@@ -1540,7 +1540,7 @@ fn an_mqtt_rig_without_a_home_keeps_its_outbox_in_the_state_directory_or_names_t
     let start = |config: &str, state: &Path| {
         Command::new(rigscript())
             .args(["run", "--config", config, &script])
-            .env("XDG_RUNTIME_DIR", &dir.0)
+            .env("XDG_RUNTIME_DIR", dir.root())
             .env_remove("RUNTIME_DIRECTORY")
             .env_remove("XDG_STATE_HOME")
             .env("HOME", &not_a_home)

@@ -1,7 +1,7 @@
 //! Runs the runtime's own scenario tests (`tests/scenarios/*.test.rhai`) through
 //! `rigscript test`, and checks how `rigscript test` reports failures.
 
-use crate::common::{fresh_dir, rigscript};
+use crate::common::{rigscript, TempDir};
 use std::process::Command;
 
 fn text(bytes: &[u8]) -> String {
@@ -29,7 +29,7 @@ fn the_runtime_scenarios_pass() {
 
 #[test]
 fn failures_name_the_test_the_message_and_where() {
-    let dir = fresh_dir("scn");
+    let dir = TempDir::new("scn");
     std::fs::write(
         dir.join("s.rhai"),
         "io.outputs = 3;\nevery(\"1s\", || {});\n",
@@ -75,12 +75,11 @@ fn test_missing_script() {
         "{stdout}"
     );
     assert_eq!(lines[3], "1 passed, 2 failed");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Runs `rigscript test` on a directory holding `files` (name, text); the status and stdout.
-fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, std::path::PathBuf) {
-    let dir = fresh_dir(name);
+fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, TempDir) {
+    let dir = TempDir::new(name);
     for (file, body) in files {
         std::fs::write(dir.join(file), body).unwrap();
     }
@@ -111,7 +110,6 @@ fn a_test_file_without_tests_fails() {
         )
     );
     assert!(stdout.ends_with("0 passed, 1 failed\n"), "{stdout}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -146,7 +144,6 @@ fn a_test_that_advances_a_billion_hours_fails_on_its_virtual_time_budget() {
         )),
         "{stdout}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -198,7 +195,6 @@ fn test_looks_too_early() {
         ],
         "{stdout}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -226,12 +222,11 @@ fn rigs_built_in_a_loop_count_against_the_tests_memory() {
         stdout.contains("over its limit of 256 MiB (rigs built in a loop?"),
         "{stdout}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn no_test_files_is_a_usage_error() {
-    let dir = fresh_dir("empty");
+    let dir = TempDir::new("empty");
     let out = Command::new(rigscript())
         .arg("test")
         .arg(&dir)
@@ -239,7 +234,6 @@ fn no_test_files_is_a_usage_error() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("no *.test.rhai files"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

@@ -3,41 +3,15 @@
 //! against the model, and OUT packets must match the script byte for byte (umockdev fails an OUT
 //! that matches no line with an I/O error).
 
+use crate::common::{require_tool, stderr, stdout, TempDir};
 use rigscript::link::far_end::PacketDevice;
 use rigscript::protocol::trc1000::{Command, Packet, Relay, Rotary};
 use rigscript::sim::trc1000::Trc1000Sim;
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Output;
 
 const BIN: &str = env!("CARGO_BIN_EXE_rigscript");
-
-/// A temporary directory for one test's umockdev files, removed when dropped.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!(
-            "rigscript-trc-umockdev-{}-{test}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-
-    fn write(&self, name: &str, text: &str) -> PathBuf {
-        let path = self.0.join(name);
-        std::fs::write(&path, text).unwrap();
-        path
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().fold(String::new(), |mut s, b| {
@@ -142,36 +116,16 @@ fn run_trc(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str])
 
 /// Runs `rigscript ARGS` with `devices` emulated and `script` on board 001:002.
 fn run_rigscript(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str]) -> Output {
-    let dev = dir.write("trc.umockdev", devices);
+    require_tool("umockdev-run", "umockdev");
+    let dev = dir.file("trc.umockdev", devices);
     let mut cmd = std::process::Command::new("umockdev-run");
     cmd.arg("-d").arg(&dev);
     if let Some(script) = script {
-        let ioctl = dir.write("trc.ioctl", &script.0);
-        cmd.arg("-i")
-            .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()));
+        let ioctl = dir.file("trc.ioctl", &script.0);
+        cmd.arg("-i").arg(format!("/dev/bus/usb/001/002={ioctl}"));
     }
     cmd.arg("--").arg(BIN).args(args);
-    output_of(cmd)
-}
-
-/// Runs `cmd` (an `umockdev-run`), failing the test with what to install when it is missing.
-fn output_of(mut cmd: std::process::Command) -> Output {
-    match cmd.output() {
-        Ok(out) => out,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => panic!(
-            "umockdev-run is not installed, so the TRC1000 USB tests cannot run: install umockdev \
-             (Debian/Ubuntu: `apt-get install umockdev`)"
-        ),
-        Err(e) => panic!("cannot start umockdev-run: {e}"),
-    }
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    cmd.output().expect("run umockdev-run")
 }
 
 fn json(o: &Output) -> serde_json::Value {
@@ -363,22 +317,23 @@ fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
         poll(&mut sim, &mut script);
     }
     let dir = TempDir::new("monitor");
-    let out = dir.0.join("monitor.out");
+    let out = dir.path("monitor.out");
     // Inside the emulation: start the monitor, wait for its first event, then Ctrl-C it.
     let shell = "\"$RIGSCRIPT\" trc monitor > \"$OUT\" & pid=$!; n=0; \
                  while ! grep -q pressed \"$OUT\" && [ $n -lt 500 ]; do sleep 0.02; n=$((n+1)); done; \
                  kill -INT $pid; wait $pid";
-    let dev = dir.write("trc.umockdev", &one_board());
-    let ioctl = dir.write("trc.ioctl", &script.0);
+    require_tool("umockdev-run", "umockdev");
+    let dev = dir.file("trc.umockdev", &one_board());
+    let ioctl = dir.file("trc.ioctl", &script.0);
     let mut cmd = std::process::Command::new("umockdev-run");
     cmd.arg("-d")
         .arg(&dev)
         .arg("-i")
-        .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()))
+        .arg(format!("/dev/bus/usb/001/002={ioctl}"))
         .args(["--", "sh", "-c", shell])
         .env("RIGSCRIPT", BIN)
         .env("OUT", &out);
-    let o = output_of(cmd);
+    let o = cmd.output().expect("run umockdev-run");
     let text = std::fs::read_to_string(&out).unwrap_or_default();
     assert_eq!(o.status.code(), Some(0), "{}\n{text}", stderr(&o));
     assert_eq!(text, "S3 pressed\nS41A +2 (now 2)\nS40 -3 (now 254)\n");
@@ -394,11 +349,10 @@ fn safe_selects_the_safe_relay_and_confirms_it_with_a_request_after_it() {
         .ask(&mut sim, Command::SelectRelay(Relay::new(3).unwrap()))
         .ask(&mut sim, Command::RequestInput);
     let dir = TempDir::new("safe");
-    let config = dir.write(
+    let config = dir.file(
         "rig.toml",
         "[devices.panel]\nkind = \"trc1000\"\nunit = 0\nsafe_relay = 3\n",
     );
-    let config = config.display().to_string();
     let o = run_rigscript(
         &dir,
         &one_board(),

@@ -6,7 +6,7 @@
 //! same result whatever the number of jobs; the built-in checks; coverage warnings; exit
 //! statuses, Ctrl-C's too. And invariants in `run`: a violation is a fault with exit 1.
 
-use crate::common::{fresh_dir, rigscript};
+use crate::common::{rigscript, TempDir};
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -41,8 +41,8 @@ fn verify_json(args: &[&str], out: &Path) -> (i32, Value) {
 }
 
 /// Writes `source` as `name` in a fresh directory tagged `tag`; the directory and the path.
-fn script(tag: &str, name: &str, source: &str) -> (std::path::PathBuf, String) {
-    let dir = fresh_dir(tag);
+fn script(tag: &str, name: &str, source: &str) -> (TempDir, String) {
+    let dir = TempDir::new(tag);
     let path = dir.join(name);
     std::fs::write(&path, source).unwrap();
     (dir, path.to_string_lossy().into_owned())
@@ -155,7 +155,7 @@ fn planted_bug_is_found(
     fewest: usize,
     seed: &str,
 ) -> Result<(), String> {
-    let out = fresh_dir("verify-planted");
+    let out = TempDir::new("verify-planted");
     let (status, doc) = verify_json(&[file, "--runs", "120", "--seed", seed], &out);
     let what = format!("{file} seed {seed}");
     let check = |ok: bool, msg: String| {
@@ -190,7 +190,6 @@ fn planted_bug_is_found(
         stdout.contains(&format!("invariant {invariant:?} is false")),
         stdout.clone(),
     )?;
-    let _ = std::fs::remove_dir_all(&out);
     Ok(())
 }
 
@@ -203,7 +202,7 @@ fn the_five_scripts_keep_their_invariants_under_a_bounded_search() {
         "safe_values",
         "cron_rig",
     ] {
-        let out = fresh_dir("verify-scripts");
+        let out = TempDir::new("verify-scripts");
         let path = format!("scripts/{script}.rhai");
         let (status, doc) = verify_json(
             &[&path, "--runs", "16", "--for", "20s", "--seed", "11"],
@@ -233,7 +232,7 @@ fn the_five_scripts_keep_their_invariants_under_a_bounded_search() {
 
 #[test]
 fn the_same_seed_gives_the_same_counterexample_whatever_the_jobs() {
-    let out = fresh_dir("verify-seed");
+    let out = TempDir::new("verify-seed");
     let file = "tests/verify/interlock_guard_mask.rhai";
     let (_, one) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "1"], &out);
     let (_, two) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "2"], &out);
@@ -523,7 +522,7 @@ fn a_bug_behind_a_long_timer_or_a_count_of_hundreds_is_found_at_the_defaults() {
         ),
     ];
     for (file, invariant, stretched, seed) in cases {
-        let out = fresh_dir("verify-defaults");
+        let out = TempDir::new("verify-defaults");
         let (status, doc) = verify_json(&[file, "--seed", seed], &out);
         assert_eq!(status, 1, "{file}: {doc:#}");
         assert_eq!(doc["run_for_stretched_for"].as_str(), stretched, "{doc:#}");
@@ -538,7 +537,6 @@ fn a_bug_behind_a_long_timer_or_a_count_of_hundreds_is_found_at_the_defaults() {
             stdout.contains(&format!("invariant {invariant:?} is false")),
             "{file}: {stdout}"
         );
-        let _ = std::fs::remove_dir_all(&out);
     }
 }
 
@@ -547,7 +545,7 @@ fn a_count_reached_through_bounced_edges_shrinks_to_the_count_alone() {
     // Seed 12 finds the tool-life bug with a count carried to 296 and four bounced edges of
     // DI0 at the same instant: no edge can go alone, so shrinking left 8 events until the
     // edges were folded into the count.
-    let out = fresh_dir("verify-fold");
+    let out = TempDir::new("verify-fold");
     let file = "tests/verify/tool_life_misses_the_last_stroke.rhai";
     let (status, doc) = verify_json(&[file, "--seed", "12"], &out);
     assert_eq!(status, 1, "{doc:#}");
@@ -555,7 +553,6 @@ fn a_count_reached_through_bounced_edges_shrinks_to_the_count_alone() {
     assert_eq!(c["reproduced"], true, "{c:#}");
     let events = c["events"].as_array().map_or(0, Vec::len);
     assert_eq!(events, 1, "{c:#}");
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]

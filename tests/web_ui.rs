@@ -56,7 +56,7 @@ fn serve_at(dir: TempDir, args: &[&str], ui: &str, env: &[(&str, &str)]) -> Serv
         .args(args)
         .arg("--ui")
         .args((!ui.is_empty()).then_some(ui))
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RUNTIME_DIRECTORY")
         .env_remove("RIGSCRIPT_UI_TOKEN")
         .env_remove("RIGSCRIPT_UI_READ_TOKEN")
@@ -280,7 +280,7 @@ fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
             "--ui",
             "0.0.0.0:0",
         ])
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RIGSCRIPT_UI_TOKEN")
         .output()
         .unwrap();
@@ -295,7 +295,7 @@ fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
     let addr = taken.local_addr().unwrap().to_string();
     let out = Command::new(rigscript())
         .args(["run", "scripts/interlock.rhai", "--sim", "--ui", &addr])
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(3), "{out:?}");
@@ -739,7 +739,7 @@ impl Served {
     fn cli(&self, args: &[&str]) -> (i32, String, String) {
         let out = Command::new(rigscript())
             .args(args)
-            .env("XDG_RUNTIME_DIR", &self.dir.0)
+            .env("XDG_RUNTIME_DIR", self.dir.root())
             .env_remove("RUNTIME_DIRECTORY")
             .output()
             .unwrap();
@@ -1192,33 +1192,6 @@ fn trickling_clients_are_cut_off_at_the_deadline_and_never_keep_the_owner_out() 
     stop.store(true, std::sync::atomic::Ordering::SeqCst);
 }
 
-/// Runs `script` (a bash script) as uid and gid 65534 (nobody) with no groups.
-fn as_nobody(script: &str) -> std::process::Output {
-    assert_eq!(
-        user_id(),
-        0,
-        "this test runs as root (it needs a second uid through setpriv); run it as root, as CI does"
-    );
-    common::require_tool("setpriv", "util-linux");
-    Command::new("setpriv")
-        .args([
-            "--reuid=65534",
-            "--regid=65534",
-            "--clear-groups",
-            "bash",
-            "-c",
-            script,
-        ])
-        .output()
-        .unwrap()
-}
-
-/// This process's user, as `id -u` says.
-fn user_id() -> u32 {
-    let out = Command::new("id").arg("-u").output().unwrap();
-    String::from_utf8_lossy(&out.stdout).trim().parse().unwrap()
-}
-
 #[test]
 fn another_user_changes_nothing_over_http_while_the_owner_does_with_the_run_s_key() {
     let run = forcing_rig("web-authority", true);
@@ -1236,7 +1209,9 @@ fn another_user_changes_nothing_over_http_while_the_owner_does_with_the_run_s_ke
         )
     };
     // Another user: cannot read the key, looks, and is refused every change.
-    let theirs = as_nobody(&format!(
+    let theirs = common::as_nobody(
+        "bash",
+        &["-c", &format!(
         "cat {key}; exec 3<>/dev/tcp/{ip}/{port}; printf '{req}' >&3; cat <&3; \
          exec 4<>/dev/tcp/{ip}/{port}; printf 'GET /api/state HTTP/1.1\\r\\nHost: {a}\\r\\n\\r\\n' >&4; \
          head -c 12 <&4",
@@ -1244,7 +1219,8 @@ fn another_user_changes_nothing_over_http_while_the_owner_does_with_the_run_s_ke
         ip = a.ip(),
         port = a.port(),
         req = request("").replace("\r\n", "\\r\\n"),
-    ));
+    )],
+    );
     let (out, err) = (
         String::from_utf8_lossy(&theirs.stdout).to_string(),
         String::from_utf8_lossy(&theirs.stderr).to_string(),
@@ -1289,7 +1265,7 @@ fn the_environment_s_token_is_checked_as_rig_toml_s_is() {
             ])
             .env("RIGSCRIPT_UI_TOKEN", token)
             .env_remove("RIGSCRIPT_UI_READ_TOKEN")
-            .env("XDG_RUNTIME_DIR", &dir.0)
+            .env("XDG_RUNTIME_DIR", dir.root())
             .output()
             .unwrap();
         let said = String::from_utf8_lossy(&out.stderr).to_string();

@@ -7,10 +7,11 @@ use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
+use std::os::unix::fs::PermissionsExt;
 use std::os::unix::net::UnixDatagram;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Output, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -137,30 +138,30 @@ pub fn run(program: &str, args: &[&str]) -> Output {
         .unwrap_or_else(|e| panic!("cannot run {program}: {e}"))
 }
 
-/// An empty directory of its own for each call, named after the test, this process and the
-/// call: threads of one test asking with the same tag (two searches at a time) must not clear
-/// each other's files.
-pub fn fresh_dir(tag: &str) -> PathBuf {
-    static CALLS: AtomicUsize = AtomicUsize::new(0);
-    let n = CALLS.fetch_add(1, Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("rigscript-{tag}-{}-{n}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// A `fresh_dir` that is removed again when dropped.
-pub struct TempDir(pub PathBuf);
+/// A directory of a test's own (made by `tempfile`, named after `tag`), removed when dropped.
+pub struct TempDir(tempfile::TempDir);
 
 impl TempDir {
-    /// A new empty directory named after `tag`.
+    /// A new empty directory whose name starts with `rigscript-TAG-`.
     pub fn new(tag: &str) -> Self {
-        Self(fresh_dir(tag))
+        let dir = tempfile::Builder::new()
+            .prefix(&format!("rigscript-{tag}-"))
+            .tempdir()
+            .expect("a temporary directory");
+        // Open to others as a plain `mkdir` makes it: the tests of what another uid may read
+        // must meet the modes of the files themselves, not a private parent.
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+        Self(dir)
+    }
+
+    /// The directory itself.
+    pub fn root(&self) -> &Path {
+        self.0.path()
     }
 
     /// The path of `name` in it.
     pub fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
+        self.root().join(name)
     }
 
     /// Writes `text` to `name` in it and returns the file's path as text.
@@ -171,10 +172,89 @@ impl TempDir {
     }
 }
 
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        self.root()
     }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        self.root()
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for TempDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.root().as_os_str()
+    }
+}
+
+/// What a finished command wrote on stderr, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// What a finished command wrote on stdout, as text.
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// The rest of a child's piped stderr, read until the child closes it.
+pub fn read_stderr(child: &mut Child) -> String {
+    let mut text = String::new();
+    if let Some(err) = child.stderr.as_mut() {
+        err.read_to_string(&mut text)
+            .expect("read the child's stderr");
+    }
+    text
+}
+
+/// `rigscript run ARGS` with stdout discarded and stderr piped (`read_stderr`), for a caller
+/// to add to (its environment, its limits) before spawning it.
+pub fn run_command(args: &[&str]) -> Command {
+    let mut command = Command::new(rigscript());
+    command
+        .arg("run")
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    command
+}
+
+/// Starts `rigscript run ARGS` as `run_command` makes it.
+pub fn start_run(args: &[&str]) -> Child {
+    run_command(args).spawn().expect("start rigscript run")
+}
+
+/// Fails loudly unless the tests run as root (CI does): a second uid needs it, through the
+/// tools named.
+pub fn require_root(tools: &[&str]) {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let uid = unsafe { libc::geteuid() };
+    assert_eq!(
+        uid,
+        0,
+        "this test needs root (a second uid or a private mount namespace through {}); run it as \
+         root, as CI does",
+        tools.join(", ")
+    );
+    for tool in tools {
+        require_tool(tool, "util-linux");
+    }
+}
+
+/// `program ARGS` run as uid and gid 65534 (nobody) with no groups, through `setpriv`; its
+/// output.
+pub fn as_nobody(program: &str, args: &[&str]) -> Output {
+    require_root(&["setpriv"]);
+    Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", program])
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {program} through setpriv: {e}"))
 }
 
 /// One systemd notification as a test's socket received it, and when.
@@ -364,12 +444,7 @@ pub fn lose_a_module(
         "slow.rhai",
         "kept.outputs = 0xF0;\nlost.outputs = 0xF0;\nevery(\"30s\", || {});\n",
     );
-    let mut run = Command::new(rigscript())
-        .args(["run", "--config", &config, &script])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start rigscript run");
+    let mut run = start_run(&["--config", &config, &script]);
     let driven = until(Duration::from_secs(10), || {
         (kept.state()["do"] == 0xF0 && lost.state()["do"] == 0xF0).then_some(())
     });
@@ -394,9 +469,6 @@ pub fn lose_a_module(
         .args(["-TERM", &run.id().to_string()])
         .status();
     let _ = run.wait();
-    let mut log = String::new();
-    if let Some(err) = run.stderr.as_mut() {
-        let _ = err.read_to_string(&mut log);
-    }
+    let log = read_stderr(&mut run);
     Loss { to_safe, log }
 }
