@@ -4,7 +4,7 @@
 //! plugdev), the installed binary's `--version`, `systemd-analyze verify` on the installed
 //! units, remove (the operator's config stays), purge (nothing is left).
 
-use crate::common::{require_tool, rigscript, TempDir};
+use crate::common::{assert_systemd_accepts, require_tool, rigscript, TempDir, UNITS};
 use std::collections::BTreeSet;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
@@ -15,12 +15,6 @@ const MANIFEST: &str = env!("CARGO_MANIFEST_DIR");
 /// What the targets allow: the installed binary, and the package.
 const MAX_BINARY: u64 = 12 * 1024 * 1024;
 const MAX_PACKAGE: u64 = 6 * 1024 * 1024;
-
-const UNITS: [&str; 3] = [
-    "rigscript@.service",
-    "rigscript-check@.service",
-    "rigscript-check@.timer",
-];
 
 fn said(o: &Output) -> String {
     format!(
@@ -225,26 +219,11 @@ impl ScratchRoot {
 /// on the host, so /usr/bin/rigscript is pointed into the scratch root (where verify finds no
 /// systemd of its own to load them with).
 fn verify_units(root: &ScratchRoot) {
-    let dir = TempDir::new("deb-verify");
     let installed = root.path("usr/bin/rigscript");
-    for unit in UNITS {
-        let text = root.read(&format!("usr/lib/systemd/system/{unit}"));
-        let text = text.replace("/usr/bin/rigscript", installed.to_str().unwrap());
-        std::fs::write(dir.path(unit), text).unwrap();
-    }
-    let out = Command::new("systemd-analyze")
-        .current_dir(dir.root())
-        .args([
-            "verify",
-            "./rigscript@interlock.service",
-            "./rigscript-check@bench.service",
-            "./rigscript-check@bench.timer",
-        ])
-        .output()
-        .unwrap();
-    let text = said(&out);
-    assert!(out.status.success(), "systemd-analyze verify: {text}");
-    assert_eq!(text.trim(), "", "systemd-analyze warns");
+    assert_systemd_accepts("deb-verify", |unit| {
+        root.read(&format!("usr/lib/systemd/system/{unit}"))
+            .replace("/usr/bin/rigscript", installed.to_str().unwrap())
+    });
 }
 
 #[test]

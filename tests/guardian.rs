@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use crate::common::{rigscript, SimProcess, TempDir};
+use crate::common::{kill, rigscript, SimProcess, TempDir};
 use std::io::Read;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -53,18 +53,6 @@ fn start_run(config: &str, script: &str) -> Child {
     command.spawn().expect("start rigscript run")
 }
 
-/// Polls the simulator until `pred` holds of its state, or 10 s pass.
-fn wait_for(sim: &mut SimProcess, pred: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
-    let start = Instant::now();
-    loop {
-        let s = sim.state();
-        if pred(&s) || start.elapsed() > Duration::from_secs(10) {
-            return s;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 /// The runner: the one child of the guardian (the pid that was started).
 fn runner_of(guardian: &Child) -> i32 {
     let path = format!("/proc/{0}/task/{0}/children", guardian.id());
@@ -82,30 +70,11 @@ fn runner_of(guardian: &Child) -> i32 {
     }
 }
 
-fn kill(pid: impl ToString, signal: &str) {
-    let ok = Command::new("kill")
-        .args([signal, &pid.to_string()])
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok, "kill {signal}");
-}
-
 /// Waits for the guardian to exit (killing it after a minute: a test must not hang); its
 /// status and what it wrote on stderr.
 fn finish(mut run: Child) -> (Option<i32>, String) {
-    let started = Instant::now();
-    let status = loop {
-        if let Some(status) = run.try_wait().unwrap() {
-            break status;
-        }
-        if started.elapsed() > Duration::from_secs(60) {
-            let _ = run.kill();
-            break run.wait().unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    (status.code(), common::read_stderr(&mut run))
+    let status = common::wait_at_most(&mut run, Duration::from_secs(60));
+    (status.and_then(|s| s.code()), common::read_stderr(&mut run))
 }
 
 /// Starts a run and waits until the script drives the module.
@@ -114,7 +83,7 @@ fn driven(tag: &str) -> (SimProcess, TempDir, Child) {
     let dir = TempDir::new(tag);
     let (config, script) = rig(&sim, &dir);
     let run = start_run(&config, &script);
-    let s = wait_for(&mut sim, |s| s["do"] == 0x0F);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x0F);
     assert_eq!(s["do"], 0x0F, "the script drives the module: {s}");
     (sim, dir, run)
 }
@@ -178,7 +147,7 @@ fn a_runner_aborted_by_sigabrt_while_its_loop_was_silent_is_told_as_the_watchdog
     let dir = TempDir::new("guardian-abrt-runner");
     let (config, script) = rig_with(&sim, &dir, "stall = \"30s\"\n", WORK);
     let run = start_run(&config, &script);
-    let s = wait_for(&mut sim, |s| s["do"] == 0x0F);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x0F);
     assert_eq!(s["do"], 0x0F, "the script drives the module: {s}");
     let runner = runner_of(&run);
     kill(runner, "-STOP");
@@ -289,7 +258,7 @@ fn kill_9_of_the_pid_that_was_started_stops_the_runner_in_order() {
     let runner = runner_of(&run);
     run.kill().unwrap();
     run.wait().unwrap();
-    let s = wait_for(&mut sim, |s| s["do"] == 0x00);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x00);
     assert_eq!(s["do"], 0x00, "the runner wrote its safe state: {s}");
     let start = Instant::now();
     while std::path::Path::new(&format!("/proc/{runner}")).exists() {

@@ -2,9 +2,8 @@
 //! the module at its safe value; after `kill -9` of a run without its guardian the module's own
 //! host watchdog, enabled and fed by the runner, drives it there (tests/guardian.rs: with it).
 
-use crate::common::{lose_a_module, read_stderr, start_run, Cut, SimProcess, TempDir};
-use std::process::{Child, Command};
-use std::time::{Duration, Instant};
+use crate::common::{kill, lose_a_module, read_stderr, start_run, Cut, SimProcess, TempDir};
+use std::time::Duration;
 
 fn setup(sim: &SimProcess, tag: &str) -> (TempDir, String, String) {
     let dir = TempDir::new(&format!("pty-{tag}"));
@@ -26,42 +25,16 @@ fn setup(sim: &SimProcess, tag: &str) -> (TempDir, String, String) {
     )
 }
 
-/// Polls the simulator until `pred` holds of its state, or gives up after `limit`.
-fn wait_for(
-    sim: &mut SimProcess,
-    limit: Duration,
-    pred: impl Fn(&serde_json::Value) -> bool,
-) -> serde_json::Value {
-    let start = Instant::now();
-    loop {
-        let s = sim.state();
-        if pred(&s) || start.elapsed() > limit {
-            return s;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
-fn signal(child: &Child, sig: &str) {
-    let ok = Command::new("kill")
-        .arg(sig)
-        .arg(child.id().to_string())
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok);
-}
-
 #[test]
 fn sigterm_leaves_the_module_at_its_safe_value() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let (_dir, config, script) = setup(&sim, "term");
     let mut run = start_run(&["--quiet", "--config", &config, &script]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "the script drives the module: {s}");
     assert_eq!(s["safe_value"], 0x05);
     assert_eq!(s["watchdog"]["enabled"], true);
-    signal(&run, "-TERM");
+    kill(run.id(), "-TERM");
     let status = run.wait().unwrap();
     let err = read_stderr(&mut run);
     assert_eq!(status.code(), Some(143), "128 + SIGTERM: {err}");
@@ -78,11 +51,11 @@ fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let (_dir, config, script) = setup(&sim, "kill");
     let mut run = start_run(&["--quiet", "--config", &config, &script, "--no-guardian"]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
-    signal(&run, "-KILL");
+    kill(run.id(), "-KILL");
     run.wait().unwrap();
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| {
+    let s = sim.wait_for(Duration::from_secs(10), |s| {
         s["watchdog"]["expired"] == true
     });
     assert_eq!(s["watchdog"]["expired"], true, "{s}");
@@ -96,10 +69,10 @@ fn sigterm_with_a_faulty_output_stage(fault: &str, tag: &str) {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let (_dir, config, script) = setup(&sim, tag);
     let mut run = start_run(&["--quiet", "--config", &config, &script]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
     assert_eq!(sim.control(fault), "ok");
-    signal(&run, "-TERM");
+    kill(run.id(), "-TERM");
     let status = run.wait().unwrap();
     let err = read_stderr(&mut run);
     assert_eq!(status.code(), Some(5), "{err}");
@@ -109,7 +82,7 @@ fn sigterm_with_a_faulty_output_stage(fault: &str, tag: &str) {
     );
     let s = sim.state();
     assert_eq!(s["watchdog"]["enabled"], true, "left on: {s}\n{err}");
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0x05);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x05);
     assert_eq!(s["do"], 0x05, "its watchdog drove it safe: {s}");
 }
 
@@ -129,18 +102,18 @@ fn a_module_swapped_behind_the_open_port_is_taken_control_of_and_goes_safe_after
     let (_dir, config, script) = setup(&sim, "swap");
     // Without the guardian: what is tested is the watchdog the takeover gave the new module.
     let mut run = start_run(&["--quiet", "--config", &config, &script, "--no-guardian"]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
     // Another module, safe value 0xFF and no watchdog, answers on the same port.
     assert_eq!(sim.control("swap OTHER 0xFF 0xFF"), "ok");
-    let s = wait_for(&mut sim, Duration::from_secs(15), |s| {
+    let s = sim.wait_for(Duration::from_secs(15), |s| {
         s["safe_value"] == 0x05 && s["watchdog"]["enabled"] == true && s["do"] == 0xF0
     });
     assert_eq!(s["safe_value"], 0x05, "taken control of: {s}");
     assert_eq!(s["watchdog"]["enabled"], true, "{s}");
-    signal(&run, "-KILL");
+    kill(run.id(), "-KILL");
     run.wait().unwrap();
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| {
+    let s = sim.wait_for(Duration::from_secs(10), |s| {
         s["watchdog"]["expired"] == true
     });
     assert_eq!(s["do"], 0x05, "its new watchdog drove it safe: {s}");
@@ -169,8 +142,8 @@ fn mixed_rig_runs(panel_table: &str, extra: &[&str], tag: &str) {
     .unwrap();
     let (config, script) = (config.display().to_string(), script.display().to_string());
     let mut run = start_run(&[&["--config", &config, &script], extra].concat());
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0x3C);
-    signal(&run, "-TERM");
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x3C);
+    kill(run.id(), "-TERM");
     let status = run.wait().unwrap();
     let err = read_stderr(&mut run);
     assert_eq!(

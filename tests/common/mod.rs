@@ -94,6 +94,22 @@ impl SimProcess {
         serde_json::from_str(&line).unwrap_or_else(|e| panic!("state is not JSON ({e}): {line}"))
     }
 
+    /// Polls the simulator's state until `pred` holds of it, or `limit` passes; the last state.
+    pub fn wait_for(
+        &mut self,
+        limit: Duration,
+        pred: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        let start = Instant::now();
+        loop {
+            let s = self.state();
+            if pred(&s) || start.elapsed() > limit {
+                return s;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// Sends SIGTERM and waits for the process; returns its exit code.
     pub fn terminate(mut self) -> Option<i32> {
         self.signal_term();
@@ -128,6 +144,64 @@ impl Drop for SimProcess {
             let _ = self.child.wait();
         }
     }
+}
+
+/// The systemd units rigscript ships (packaging/systemd), by file name.
+pub const UNITS: [&str; 3] = [
+    "rigscript@.service",
+    "rigscript-check@.service",
+    "rigscript-check@.timer",
+];
+
+/// Asserts `systemd-analyze verify` takes the `UNITS` as instances without a word, each unit's
+/// text as `text_of` gives it for its name (with its program pointed at a binary that exists:
+/// verify looks for it).
+pub fn assert_systemd_accepts(tag: &str, text_of: impl Fn(&str) -> String) {
+    require_tool("systemd-analyze", "systemd");
+    let dir = TempDir::new(tag);
+    for unit in UNITS {
+        std::fs::write(dir.path(unit), text_of(unit)).unwrap();
+    }
+    let out = Command::new("systemd-analyze")
+        .current_dir(dir.root())
+        .args([
+            "verify",
+            "./rigscript@interlock.service",
+            "./rigscript-check@bench.service",
+            "./rigscript-check@bench.timer",
+        ])
+        .output()
+        .expect("run systemd-analyze");
+    let said = format!("{}{}", stdout(&out), stderr(&out));
+    assert!(out.status.success(), "systemd-analyze verify: {said}");
+    assert_eq!(said.trim(), "", "systemd-analyze warns");
+}
+
+/// Sends `signal` (as `kill` writes it: `-TERM`) to process `pid`, failing the test if it
+/// cannot.
+pub fn kill(pid: impl ToString, signal: &str) {
+    let pid = pid.to_string();
+    let ok = Command::new("kill")
+        .args([signal, &pid])
+        .status()
+        .expect("run kill")
+        .success();
+    assert!(ok, "kill {signal} {pid}");
+}
+
+/// Waits for `child` until it exits or `limit` passes (then kills it: a test must not hang);
+/// its exit status, or `None` if it had to be killed.
+pub fn wait_at_most(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let started = Instant::now();
+    while started.elapsed() < limit {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    None
 }
 
 /// Runs a command and returns its output.
