@@ -516,6 +516,7 @@ fn require_root() {
 }
 
 #[test]
+#[ignore = "needs root, setpriv, unshare and socat (tier 2: CI runs .ci/run as root)"]
 fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket() {
     require_root();
     let rigs = Rigs::new("ctl-foreign");
@@ -580,6 +581,7 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
 }
 
 #[test]
+#[ignore = "needs socat (tier 2: .ci/run installs it)"]
 fn stop_believes_only_the_process_its_hello_names() {
     common::require_tool("socat", "socat");
     let rigs = Rigs::new("ctl-impostor");
@@ -614,6 +616,7 @@ fn stop_believes_only_the_process_its_hello_names() {
 }
 
 #[test]
+#[ignore = "needs root, setpriv and socat (tier 2: CI runs .ci/run as root)"]
 fn a_socket_opened_to_others_still_serves_only_its_user_and_root() {
     require_root();
     let rigs = Rigs::new("ctl-others");

@@ -138,6 +138,7 @@ fn one_board() -> String {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn list_shows_each_board_with_its_unit_and_bus_address() {
     let dir = TempDir::new("list");
     let o = run_trc(&dir, &one_board(), None, &["list"]);
@@ -158,6 +159,7 @@ fn list_shows_each_board_with_its_unit_and_bus_address() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn inputs_reports_the_switches_pressed_on_the_model() {
     let mut sim = Trc1000Sim::new();
     for s in ["S41", "S3", "S27", "S38"] {
@@ -178,6 +180,7 @@ fn inputs_reports_the_switches_pressed_on_the_model() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn rotaries_reports_the_turned_counters_of_the_model() {
     let mut sim = Trc1000Sim::new();
     sim.turn("S41A", 6).unwrap();
@@ -204,6 +207,7 @@ fn rotaries_reports_the_turned_counters_of_the_model() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn relay_5_sends_exactly_05_14() {
     let mut script = Script::default();
     script.out([0x05, 0x14, 0, 0, 0, 0, 0, 0]);
@@ -218,6 +222,7 @@ fn relay_5_sends_exactly_05_14() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn a_stale_answer_before_the_real_one_is_dropped() {
     let mut sim = Trc1000Sim::new();
     sim.press("S9").unwrap();
@@ -247,6 +252,7 @@ fn a_stale_answer_before_the_real_one_is_dropped() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn a_board_chosen_by_bus_address_is_used() {
     let mut sim = Trc1000Sim::new();
     sim.press("S45").unwrap();
@@ -268,6 +274,7 @@ fn a_board_chosen_by_bus_address_is_used() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn a_missing_unit_exits_3_and_says_what_to_try() {
     let dir = TempDir::new("missing");
     let o = run_trc(&dir, &one_board(), None, &["--unit", "1", "inputs"]);
@@ -298,6 +305,7 @@ fn without_usb_list_is_empty_and_succeeds() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
     let mut sim = Trc1000Sim::new();
     sim.turn("S40", 1).unwrap();
@@ -340,6 +348,7 @@ fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn safe_selects_the_safe_relay_and_confirms_it_with_a_request_after_it() {
     // What the guardian does for a board when its runner died: the relay selection gets no
     // answer of its own, so the request after it is what confirms that a board took it.

@@ -579,6 +579,7 @@ impl Drop for Browser {
 }
 
 #[test]
+#[ignore = "needs chromium and chromium-driver (tier 2: .ci/run installs them)"]
 fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_trip() {
     let run = serve("web-browser", &["scripts/interlock.rhai", "--sim"]);
     let a = run.addr;
@@ -650,6 +651,7 @@ fn from_base64(text: &str) -> Vec<u8> {
 }
 
 #[test]
+#[ignore = "needs chromium and chromium-driver (tier 2: .ci/run installs them)"]
 fn a_browser_forces_an_output_from_the_page_sees_it_marked_and_unforces_it() {
     let run = forcing_rig("web-force-browser", true);
     let a = run.addr;
@@ -1083,6 +1085,7 @@ fn records_and_measurements_with_their_verdict_are_kept_for_the_page() {
 }
 
 #[test]
+#[ignore = "needs chromium and chromium-driver (tier 2: .ci/run installs them)"]
 fn a_browser_is_asked_for_the_token_once_and_the_page_works_with_it() {
     let token = "browser-token-7";
     let run = serve_at(
@@ -1193,6 +1196,7 @@ fn trickling_clients_are_cut_off_at_the_deadline_and_never_keep_the_owner_out() 
 }
 
 #[test]
+#[ignore = "needs root and setpriv (tier 2: CI runs .ci/run as root)"]
 fn another_user_changes_nothing_over_http_while_the_owner_does_with_the_run_s_key() {
     let run = forcing_rig("web-authority", true);
     let a = run.addr;
