@@ -2,33 +2,15 @@
 //! the module at its safe value; after `kill -9` of a run without its guardian the module's own
 //! host watchdog, enabled and fed by the runner, drives it there (tests/guardian.rs: with it).
 
-use crate::common::{kill, lose_a_module, read_stderr, start_run, Cut, SimProcess, TempDir};
+use crate::common::{
+    kill, lose_a_module, read_stderr, start_run, watched_rig, Cut, SimProcess, TempDir,
+};
 use std::time::Duration;
-
-fn setup(sim: &SimProcess, tag: &str) -> (TempDir, String, String) {
-    let dir = TempDir::new(&format!("pty-{tag}"));
-    let config = dir.join("rig.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nsafe_value = 0x05\nwatchdog = \"1s\"\n",
-            sim.path
-        ),
-    )
-    .unwrap();
-    let script = dir.join("work.rhai");
-    std::fs::write(&script, "io.outputs = 0xF0;\nevery(\"100ms\", || {});\n").unwrap();
-    (
-        dir,
-        config.display().to_string(),
-        script.display().to_string(),
-    )
-}
 
 #[test]
 fn sigterm_leaves_the_module_at_its_safe_value() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (_dir, config, script) = setup(&sim, "term");
+    let (_dir, config, script) = watched_rig(&sim, "pty-term");
     let mut run = start_run(&["--quiet", "--config", &config, &script]);
     let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "the script drives the module: {s}");
@@ -49,7 +31,7 @@ fn sigterm_leaves_the_module_at_its_safe_value() {
 #[test]
 fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (_dir, config, script) = setup(&sim, "kill");
+    let (_dir, config, script) = watched_rig(&sim, "pty-kill");
     let mut run = start_run(&["--quiet", "--config", &config, &script, "--no-guardian"]);
     let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
@@ -67,7 +49,7 @@ fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
 /// drives it safe.
 fn sigterm_with_a_faulty_output_stage(fault: &str, tag: &str) {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (_dir, config, script) = setup(&sim, tag);
+    let (_dir, config, script) = watched_rig(&sim, &format!("pty-{tag}"));
     let mut run = start_run(&["--quiet", "--config", &config, &script]);
     let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
@@ -99,7 +81,7 @@ fn sigterm_with_a_module_that_refuses_writes_with_ff_exits_5_and_leaves_its_watc
 #[test]
 fn a_module_swapped_behind_the_open_port_is_taken_control_of_and_goes_safe_after_kill_9() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (_dir, config, script) = setup(&sim, "swap");
+    let (_dir, config, script) = watched_rig(&sim, "pty-swap");
     // Without the guardian: what is tested is the watchdog the takeover gave the new module.
     let mut run = start_run(&["--quiet", "--config", &config, &script, "--no-guardian"]);
     let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);

@@ -4,7 +4,7 @@
 //! stops them), STOPPING=1 at the end.
 
 use crate::common::{
-    read_stderr, receive_notifications, run_command, Notification, SimProcess, TempDir,
+    read_stderr, receive_notifications, run_command, watched_rig, Notification, SimProcess, TempDir,
 };
 use std::os::linux::net::SocketAddrExt;
 use std::os::unix::net::{SocketAddr, UnixDatagram};
@@ -53,29 +53,10 @@ fn ready_comes_once_the_module_is_under_control_then_watchdog_pings_then_stoppin
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let before = sim.state();
     assert_eq!(before["watchdog"]["enabled"], false, "{before}");
-    let dir = TempDir::new("notify-ready");
-    let config = dir.join("rig.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n\
-             safe_value = 0x05\nwatchdog = \"1s\"\n",
-            sim.path
-        ),
-    )
-    .unwrap();
-    let script = dir.join("work.rhai");
-    std::fs::write(&script, "io.outputs = 0xF0;\nevery(\"100ms\", || {});\n").unwrap();
+    let (dir, config, script) = watched_rig(&sim, "notify-ready");
     let (socket, name) = listen_at_path(&dir);
     let run = start_run(
-        &[
-            "--quiet",
-            "--config",
-            &config.display().to_string(),
-            &script.display().to_string(),
-            "--for",
-            "1500ms",
-        ],
+        &["--quiet", "--config", &config, &script, "--for", "1500ms"],
         &name,
         Some("200000"),
     );

@@ -460,6 +460,26 @@ pub fn served(
     (rig, ask, flag)
 }
 
+/// A rig of one module on `sim`'s pty, safe value 0x05 and a 1 s host watchdog, polled every
+/// 20 ms, and a script that drives its outputs to 0xF0 and ticks every 100 ms: the directory
+/// (named after `tag`), rig.toml's path and the script's.
+pub fn watched_rig(sim: &SimProcess, tag: &str) -> (TempDir, String, String) {
+    let dir = TempDir::new(tag);
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n\
+             safe_value = 0x05\nwatchdog = \"1s\"\n",
+            sim.path
+        ),
+    );
+    let script = dir.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\nevery(\"100ms\", || {});\n",
+    );
+    (dir, config, script)
+}
+
 /// What became of a rig of two modules when one was lost (`lose_a_module`).
 pub struct Loss {
     /// From the kill of the lost module's simulator until the other read back its safe value
