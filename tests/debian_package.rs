@@ -4,11 +4,11 @@
 //! plugdev), the installed binary's `--version`, `systemd-analyze verify` on the installed
 //! units, remove (the operator's config stays), purge (nothing is left).
 
-use crate::common::{assert_systemd_accepts, require_tool, rigscript, TempDir, UNITS};
+use crate::common::{assert_systemd_accepts, both, require_tool, rigscript, TempDir, UNITS};
 use std::collections::BTreeSet;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 const MANIFEST: &str = env!("CARGO_MANIFEST_DIR");
 
@@ -16,17 +16,9 @@ const MANIFEST: &str = env!("CARGO_MANIFEST_DIR");
 const MAX_BINARY: u64 = 12 * 1024 * 1024;
 const MAX_PACKAGE: u64 = 6 * 1024 * 1024;
 
-fn said(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
 fn ok(cmd: &mut Command) -> String {
     let o = cmd.output().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
-    assert!(o.status.success(), "{cmd:?}: {}", said(&o));
+    assert!(o.status.success(), "{cmd:?}: {}", both(&o));
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 

@@ -1,12 +1,8 @@
 //! Runs the runtime's own scenario tests (`tests/scenarios/*.test.rhai`) through
 //! `rigscript test`, and checks how `rigscript test` reports failures.
 
-use crate::common::{rigscript, TempDir};
+use crate::common::{both, rigscript, stderr, stdout, TempDir};
 use std::process::Command;
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
 
 #[test]
 fn the_runtime_scenarios_pass() {
@@ -15,8 +11,8 @@ fn the_runtime_scenarios_pass() {
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    let stdout = text(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    let stdout = stdout(&out);
+    assert!(out.status.success(), "{stdout}\n{}", stderr(&out));
     let last = stdout.lines().last().unwrap_or_default();
     assert!(last.ends_with(" passed, 0 failed"), "{stdout}");
     let passed: usize = last.split_whitespace().next().unwrap().parse().unwrap();
@@ -60,7 +56,7 @@ fn test_missing_script() {
         .arg(&dir)
         .output()
         .unwrap();
-    let stdout = text(&out.stdout);
+    let stdout = stdout(&out);
     assert_eq!(out.status.code(), Some(1), "{stdout}");
     let file = dir.join("a.test.rhai").display().to_string();
     let lines: Vec<&str> = stdout.lines().collect();
@@ -88,7 +84,7 @@ fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, TempDir
         .arg(&dir)
         .output()
         .unwrap();
-    (out.status.code(), text(&out.stdout), dir)
+    (out.status.code(), stdout(&out), dir)
 }
 
 #[test]
@@ -233,7 +229,7 @@ fn no_test_files_is_a_usage_error() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
-    assert!(text(&out.stderr).contains("no *.test.rhai files"));
+    assert!(stderr(&out).contains("no *.test.rhai files"));
 }
 
 #[test]
@@ -243,8 +239,8 @@ fn the_scripts_in_scripts_pass_their_scenarios_and_check_clean() {
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    let stdout = text(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    let stdout = stdout(&out);
+    assert!(out.status.success(), "{stdout}\n{}", stderr(&out));
     for script in [
         "rotary_relay",
         "counter_threshold",
@@ -261,12 +257,7 @@ fn the_scripts_in_scripts_pass_their_scenarios_and_check_clean() {
             .current_dir(env!("CARGO_MANIFEST_DIR"))
             .output()
             .unwrap();
-        assert!(
-            check.status.success(),
-            "check {script}: {}{}",
-            text(&check.stdout),
-            text(&check.stderr)
-        );
+        assert!(check.status.success(), "check {script}: {}", both(&check));
     }
     assert!(stdout.trim_end().ends_with(" passed, 0 failed"), "{stdout}");
 }

@@ -7,7 +7,7 @@
 
 use crate::common;
 
-use crate::common::{kill, rigscript, wait_at_most, SimProcess, TempDir};
+use crate::common::{both, kill, rigscript, wait_at_most, SimProcess, TempDir};
 use std::io::{BufRead, BufReader, Read};
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::process::{Child, Command, Stdio};
@@ -247,15 +247,6 @@ fn a_script_nested_deep_enough_to_overflow_the_stack_is_a_script_error_in_run_te
     let out = both(&o);
     assert_eq!(o.status.code(), Some(0), "{out}");
     assert!(out.contains("no counterexample in 4 runs"), "{out}");
-}
-
-/// A command's stdout and stderr, one after the other.
-fn both(o: &std::process::Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// 100 `on_stop` handlers that loop, each allowed a minute and a billion operations: a stop

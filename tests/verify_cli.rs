@@ -6,14 +6,10 @@
 //! same result whatever the number of jobs; the built-in checks; coverage warnings; exit
 //! statuses, Ctrl-C's too. And invariants in `run`: a violation is a fault with exit 1.
 
-use crate::common::{rigscript, TempDir};
+use crate::common::{rigscript, stderr, stdout, TempDir};
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
 
 fn run(args: &[&str]) -> Output {
     Command::new(rigscript())
@@ -30,13 +26,8 @@ fn verify_json(args: &[&str], out: &Path) -> (i32, Value) {
     let out_dir = out.to_string_lossy().into_owned();
     all.extend_from_slice(&["--json", "--out", &out_dir]);
     let o = run(&all);
-    let doc = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
-        panic!(
-            "not JSON ({e}): {}\nstderr: {}",
-            text(&o.stdout),
-            text(&o.stderr)
-        )
-    });
+    let doc = serde_json::from_slice(&o.stdout)
+        .unwrap_or_else(|e| panic!("not JSON ({e}): {}\nstderr: {}", stdout(&o), stderr(&o)));
     (o.status.code().unwrap_or(-1), doc)
 }
 
@@ -181,7 +172,7 @@ fn planted_bug_is_found(
     check(c["candidates_not_reproduced"] == 0, format!("{c:#}"))?;
     let test = c["test_file"].as_str().unwrap_or_default();
     let o = run(&["test", test]);
-    let stdout = text(&o.stdout);
+    let stdout = stdout(&o);
     check(
         o.status.code() == Some(1),
         format!("the test must fail: {stdout}"),
@@ -267,8 +258,8 @@ invariant("the relay stays at 0", || panel.relay == 0);
         "2",
         "--no-faults",
     ]);
-    let stdout = text(&o.stdout);
-    assert_eq!(o.status.code(), Some(0), "{stdout}{}", text(&o.stderr));
+    let stdout = stdout(&o);
+    assert_eq!(o.status.code(), Some(0), "{stdout}{}", stderr(&o));
     assert!(stdout.contains("seed 2"), "{stdout}");
     assert!(
         stdout.contains("handler panel.on_press S3: fired"),
@@ -304,7 +295,7 @@ fn a_device_fault_the_script_does_not_handle_is_a_finding() {
         "{c:#}"
     );
     let o = run(&["test", c["test_file"].as_str().unwrap()]);
-    let stdout = text(&o.stdout);
+    let stdout = stdout(&o);
     assert_eq!(o.status.code(), Some(1), "{stdout}");
     assert!(stdout.contains("no script error"), "{stdout}");
     // Without faults the module always answers.
@@ -373,7 +364,7 @@ fn outputs_not_at_the_rigs_safe_value_at_the_end_are_a_finding() {
     let written = std::fs::read_to_string(test).unwrap();
     assert!(written.contains("r.end();"), "{written}");
     let o = run(&["test", test]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stdout));
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
 }
 
 #[test]
@@ -382,19 +373,19 @@ fn a_script_that_cannot_run_or_a_bad_config_is_a_usage_error() {
     let o = run(&["verify", &s, "--runs", "1"]);
     assert_eq!(o.status.code(), Some(2));
     let check = run(&["check", &s]);
-    let problem = text(&check.stdout);
+    let problem = stdout(&check);
     let problem = problem.lines().next().unwrap();
     assert!(
-        text(&o.stderr).contains(problem),
+        stderr(&o).contains(problem),
         "the same message as check ({problem}): {}",
-        text(&o.stderr)
+        stderr(&o)
     );
     let toml = dir.join("rig.toml");
     std::fs::write(&toml, "period = \"fast\"\n").unwrap();
     let t = toml.to_string_lossy().into_owned();
     let o = run(&["verify", "scripts/interlock.rhai", "--config", &t]);
-    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("rig.toml"), "{}", text(&o.stderr));
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("rig.toml"), "{}", stderr(&o));
     let o = run(&["verify", "scripts/interlock.rhai", "--runs", "0"]);
     assert_eq!(o.status.code(), Some(2));
 }
@@ -416,7 +407,7 @@ fn in_run_a_false_invariant_ends_the_run_with_1_and_the_safe_state_recorded() {
         "--records",
         &records.to_string_lossy(),
     ]);
-    let stderr = text(&o.stderr);
+    let stderr = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
     assert!(
         stderr.contains("invariant \"at most one output\" is false (stated at "),
@@ -531,7 +522,7 @@ fn a_bug_behind_a_long_timer_or_a_count_of_hundreds_is_found_at_the_defaults() {
         assert_eq!(c["reproduced"], true, "{file}: {c:#}");
         let test = c["test_file"].as_str().expect("a test file");
         let o = run(&["test", test]);
-        let stdout = text(&o.stdout);
+        let stdout = stdout(&o);
         assert_eq!(o.status.code(), Some(1), "{file}: {stdout}");
         assert!(
             stdout.contains(&format!("invariant {invariant:?} is false")),
@@ -641,7 +632,7 @@ fn verify_and_the_test_it_writes_never_write_the_rigs_records_file() {
         "the written test runs on rig.toml's rig"
     );
     let o = run(&["test", test]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stdout));
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
     assert!(
         !records.exists(),
         "a virtual-time run wrote the rig's records file: {}",

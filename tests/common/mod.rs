@@ -276,6 +276,11 @@ pub fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
+/// What a finished command wrote on stdout, then on stderr, as text.
+pub fn both(o: &Output) -> String {
+    format!("{}{}", stdout(o), stderr(o))
+}
+
 /// The rest of a child's piped stderr, read until the child closes it.
 pub fn read_stderr(child: &mut Child) -> String {
     let mut text = String::new();
