@@ -30,7 +30,7 @@ impl Rigs {
 
     fn command(&self, args: &[&str]) -> Command {
         let mut c = Command::new(rigscript());
-        c.args(args).env("XDG_RUNTIME_DIR", &self.dir.0);
+        c.args(args).env("XDG_RUNTIME_DIR", self.dir.root());
         c.env_remove("RUNTIME_DIRECTORY");
         c
     }
@@ -105,17 +105,6 @@ fn wait_exit(child: &mut Child) -> i32 {
         .unwrap_or(-1)
 }
 
-fn stderr_of(child: &mut Child) -> String {
-    let mut text = String::new();
-    child
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut text)
-        .unwrap();
-    text
-}
-
 #[test]
 fn status_follows_the_module_while_its_inputs_change_and_stop_ends_the_run_safe() {
     let rigs = Rigs::new("ctl-status");
@@ -180,7 +169,7 @@ fn status_follows_the_module_while_its_inputs_change_and_stop_ends_the_run_safe(
         "{told}"
     );
     assert_eq!(wait_exit(&mut run), 143);
-    let log = stderr_of(&mut run);
+    let log = common::read_stderr(&mut run);
     assert!(log.contains("asked by rigscript stop (pid "), "{log}");
     assert_eq!(sim.state()["do"], 0x40);
     assert!(
@@ -253,7 +242,12 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("no rig is running"));
     // The killed rig's name is free again.
     let mut alpha = rigs.run(&["--sim", "--for", "300ms", &a]);
-    assert_eq!(wait_exit(&mut alpha), 0, "{}", stderr_of(&mut alpha));
+    assert_eq!(
+        wait_exit(&mut alpha),
+        0,
+        "{}",
+        common::read_stderr(&mut alpha)
+    );
 }
 
 /// Connects to a rig's socket.
@@ -514,21 +508,15 @@ fn impostor(rig: &str, pid: u32) -> String {
     )
 }
 
-/// Fails loudly unless the tests run as root (CI does): a second uid needs it.
+/// Fails loudly unless the tests run as root with the tools a second uid and a private mount
+/// namespace take.
 fn require_root() {
-    let out = Command::new("id").arg("-u").output().unwrap();
-    assert_eq!(
-        String::from_utf8_lossy(&out.stdout).trim(),
-        "0",
-        "this test needs root (a second uid through setpriv, a private mount namespace through \
-         unshare); run it as root, as CI does"
-    );
-    common::require_tool("setpriv", "util-linux");
-    common::require_tool("unshare", "util-linux");
+    common::require_root(&["setpriv", "unshare"]);
     common::require_tool("socat", "socat");
 }
 
 #[test]
+#[ignore = "needs root, setpriv, unshare and socat (tier 2: CI runs .ci/run as root)"]
 fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket() {
     require_root();
     let rigs = Rigs::new("ctl-foreign");
@@ -593,6 +581,7 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
 }
 
 #[test]
+#[ignore = "needs socat (tier 2: .ci/run installs it)"]
 fn stop_believes_only_the_process_its_hello_names() {
     common::require_tool("socat", "socat");
     let rigs = Rigs::new("ctl-impostor");
@@ -627,6 +616,7 @@ fn stop_believes_only_the_process_its_hello_names() {
 }
 
 #[test]
+#[ignore = "needs root, setpriv and socat (tier 2: CI runs .ci/run as root)"]
 fn a_socket_opened_to_others_still_serves_only_its_user_and_root() {
     require_root();
     let rigs = Rigs::new("ctl-others");
@@ -637,25 +627,21 @@ fn a_socket_opened_to_others_still_serves_only_its_user_and_root() {
     // serve it.
     let dir = rigs.dir.path("rigscript");
     for (path, mode) in [
-        (&rigs.dir.0, 0o711),
+        (rigs.dir.root(), 0o711),
         (&dir, 0o711),
         (&rigs.socket("steady"), 0o666),
     ] {
         std::fs::set_permissions(path, std::os::unix::fs::PermissionsExt::from_mode(mode)).unwrap();
     }
     // Reading only: the run answers before any request.
-    let out = Command::new("setpriv")
-        .args([
-            "--reuid=65534",
-            "--regid=65534",
-            "--clear-groups",
-            "socat",
+    let out = common::as_nobody(
+        "socat",
+        &[
             "-u",
-        ])
-        .arg(format!("UNIX-CONNECT:{}", rigs.socket("steady").display()))
-        .arg("-")
-        .output()
-        .unwrap();
+            &format!("UNIX-CONNECT:{}", rigs.socket("steady").display()),
+            "-",
+        ],
+    );
     let said = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(
         said.contains("only the rig's user (and root) may use its control socket"),

@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use crate::common::{rigscript, SimProcess, TempDir};
+use crate::common::{kill, rigscript, SimProcess, TempDir};
 use std::io::Read;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -35,9 +35,10 @@ fn rig_with(sim: &SimProcess, dir: &TempDir, keys: &str, script: &str) -> (Strin
     (config, script)
 }
 
+/// `rigscript run --config CONFIG SCRIPT`, leaving no core file when the test makes it crash.
 fn start_run(config: &str, script: &str) -> Child {
     use std::os::unix::process::CommandExt;
-    let mut command = Command::new(rigscript());
+    let mut command = common::run_command(&["--config", config, script]);
     // SAFETY: setrlimit is async-signal-safe; a crash the test causes leaves no core file.
     unsafe {
         command.pre_exec(|| {
@@ -49,24 +50,7 @@ fn start_run(config: &str, script: &str) -> Child {
             Ok(())
         });
     }
-    command
-        .args(["run", "--config", config, script])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
-}
-
-/// Polls the simulator until `pred` holds of its state, or 10 s pass.
-fn wait_for(sim: &mut SimProcess, pred: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
-    let start = Instant::now();
-    loop {
-        let s = sim.state();
-        if pred(&s) || start.elapsed() > Duration::from_secs(10) {
-            return s;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    command.spawn().expect("start rigscript run")
 }
 
 /// The runner: the one child of the guardian (the pid that was started).
@@ -86,32 +70,11 @@ fn runner_of(guardian: &Child) -> i32 {
     }
 }
 
-fn kill(pid: impl ToString, signal: &str) {
-    let ok = Command::new("kill")
-        .args([signal, &pid.to_string()])
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok, "kill {signal}");
-}
-
 /// Waits for the guardian to exit (killing it after a minute: a test must not hang); its
 /// status and what it wrote on stderr.
 fn finish(mut run: Child) -> (Option<i32>, String) {
-    let started = Instant::now();
-    let status = loop {
-        if let Some(status) = run.try_wait().unwrap() {
-            break status;
-        }
-        if started.elapsed() > Duration::from_secs(60) {
-            let _ = run.kill();
-            break run.wait().unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let mut err = String::new();
-    run.stderr.take().unwrap().read_to_string(&mut err).unwrap();
-    (status.code(), err)
+    let status = common::wait_at_most(&mut run, Duration::from_secs(60));
+    (status.and_then(|s| s.code()), common::read_stderr(&mut run))
 }
 
 /// Starts a run and waits until the script drives the module.
@@ -120,7 +83,7 @@ fn driven(tag: &str) -> (SimProcess, TempDir, Child) {
     let dir = TempDir::new(tag);
     let (config, script) = rig(&sim, &dir);
     let run = start_run(&config, &script);
-    let s = wait_for(&mut sim, |s| s["do"] == 0x0F);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x0F);
     assert_eq!(s["do"], 0x0F, "the script drives the module: {s}");
     (sim, dir, run)
 }
@@ -184,7 +147,7 @@ fn a_runner_aborted_by_sigabrt_while_its_loop_was_silent_is_told_as_the_watchdog
     let dir = TempDir::new("guardian-abrt-runner");
     let (config, script) = rig_with(&sim, &dir, "stall = \"30s\"\n", WORK);
     let run = start_run(&config, &script);
-    let s = wait_for(&mut sim, |s| s["do"] == 0x0F);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x0F);
     assert_eq!(s["do"], 0x0F, "the script drives the module: {s}");
     let runner = runner_of(&run);
     kill(runner, "-STOP");
@@ -282,12 +245,7 @@ fn a_healthy_loop_slower_than_its_stall_limit_is_never_ended() {
         "slow.rhai",
         "io.outputs = 0x0F;\nevery(\"3s\", || { for i in 0..20 { let x = io.inputs; } });\n",
     );
-    let run = Command::new(rigscript())
-        .args(["run", "--config", &config, &script, "--for", "7s"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let run = common::start_run(&["--config", &config, &script, "--for", "7s"]);
     let (status, err) = finish(run);
     assert_eq!(status, Some(0), "{err}");
     assert!(!err.contains("stalled"), "{err}");
@@ -300,7 +258,7 @@ fn kill_9_of_the_pid_that_was_started_stops_the_runner_in_order() {
     let runner = runner_of(&run);
     run.kill().unwrap();
     run.wait().unwrap();
-    let s = wait_for(&mut sim, |s| s["do"] == 0x00);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x00);
     assert_eq!(s["do"], 0x00, "the runner wrote its safe state: {s}");
     let start = Instant::now();
     while std::path::Path::new(&format!("/proc/{runner}")).exists() {

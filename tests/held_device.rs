@@ -28,7 +28,7 @@ impl Drop for Run {
 fn a_file_a_running_rig_holds_open_names_the_rig_and_the_commands_that_see_and_stop_it() {
     let dir = TempDir::new("held-device");
     // This process looks for rigs where the run below serves its socket.
-    std::env::set_var("XDG_RUNTIME_DIR", &dir.0);
+    std::env::set_var("XDG_RUNTIME_DIR", dir.root());
     std::env::remove_var("RUNTIME_DIRECTORY");
     let held = dir.path("bench.jsonl");
     let free = dir.file("free.jsonl", "");
@@ -37,7 +37,7 @@ fn a_file_a_running_rig_holds_open_names_the_rig_and_the_commands_that_see_and_s
         .args(["run", "--sim", "--records"])
         .arg(&held)
         .arg(&script)
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RUNTIME_DIRECTORY")
         .stdout(Stdio::null())
         .stderr(Stdio::null())

@@ -2,7 +2,7 @@
 //! independent XML parser and checked for what Jenkins and GitLab read (suites, cases, their
 //! counts, failures and errors with messages, a measurement's value and limits).
 
-use crate::common::{fresh_dir, rigscript};
+use crate::common::{rigscript, stderr, TempDir};
 use roxmltree::{Document, Node};
 use std::path::Path;
 use std::process::{Command, Output};
@@ -17,10 +17,6 @@ fn rigscript_in(dir: &Path, args: &[&str]) -> Output {
 
 fn status(o: &Output) -> i32 {
     o.status.code().unwrap_or(-1)
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 fn attr<'a>(n: Node<'a, '_>, name: &str) -> &'a str {
@@ -86,7 +82,7 @@ fn read_report(path: &Path) -> String {
 
 #[test]
 fn run_writes_each_measurement_as_a_case_with_value_and_limits() {
-    let dir = fresh_dir("junit-run");
+    let dir = TempDir::new("junit-run");
     std::fs::write(
         dir.join("rig.rhai"),
         r#"
@@ -145,14 +141,13 @@ measure("odd", 0.0 / 0.0);
     assert!(props
         .children()
         .any(|p| p.attribute("name") == Some("exit_status") && p.attribute("value") == Some("4")));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn the_packaged_timer_check_reports_its_measurement() {
     // packaging/systemd/bench-check.rhai on the simulator: nothing answers the trigger, so
     // the count is 0, below its minimum.
-    let dir = fresh_dir("junit-check");
+    let dir = TempDir::new("junit-check");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("packaging/systemd/bench-check.rhai");
     let report = dir.join("check.xml");
     let out = rigscript_in(
@@ -179,12 +174,11 @@ fn the_packaged_timer_check_reports_its_measurement() {
         "response_pulses = 0 pulses: below the minimum 1 pulses"
     );
     assert_eq!(property(case, "unit").as_deref(), Some("pulses"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn a_run_that_fails_is_an_error_case_naming_the_place() {
-    let dir = fresh_dir("junit-error");
+    let dir = TempDir::new("junit-error");
     std::fs::write(
         dir.join("bad.rhai"),
         "measure(\"before\", 1);\nafter(\"50ms\", || {\n    let x = [1][5];\n});\n",
@@ -210,12 +204,11 @@ fn a_run_that_fails_is_an_error_case_naming_the_place() {
             && message.contains("bad.rhai:3:"),
         "{message}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn a_run_that_cannot_start_still_leaves_a_report() {
-    let dir = fresh_dir("junit-absent");
+    let dir = TempDir::new("junit-absent");
     std::fs::write(
         dir.join("rig.toml"),
         "[devices.io]\nkind = \"trp-c29u\"\nport = \"/nonexistent/ttyUSB9\"\n",
@@ -240,12 +233,11 @@ fn a_run_that_cannot_start_still_leaves_a_report() {
         "{}",
         attr(error, "message")
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn a_report_path_in_a_missing_directory_is_refused_before_the_run() {
-    let dir = fresh_dir("junit-nodir");
+    let dir = TempDir::new("junit-nodir");
     std::fs::write(dir.join("s.rhai"), "io.outputs = 0xFF;\n").unwrap();
     let out = rigscript_in(
         &dir,
@@ -266,12 +258,11 @@ fn a_report_path_in_a_missing_directory_is_refused_before_the_run() {
         stderr(&out)
     );
     assert!(out.stdout.is_empty(), "no test ran");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn test_writes_a_suite_per_file_and_a_case_per_test() {
-    let dir = fresh_dir("junit-test");
+    let dir = TempDir::new("junit-test");
     std::fs::write(
         dir.join("s.rhai"),
         "io.outputs = 0x03;\nevery(\"1s\", || {});\n",
@@ -310,5 +301,4 @@ fn test_writes_a_suite_per_file_and_a_case_per_test() {
             && message.contains("./a.test.rhai:10:"),
         "{message}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{fresh_dir, rigscript};
+use common::{rigscript, TempDir};
 use rigscript::config::{C29uConfig, Port, RigConfig, ScriptLimits};
 use rigscript::heap::{self, CountingAlloc};
 use rigscript::runtime::log::LogFormat;
@@ -212,7 +212,7 @@ fn wait_for(mut child: Child, limit: Duration) -> (Option<i32>, Duration, Child)
 
 #[test]
 fn a_script_that_grows_memory_without_end_is_stopped_at_its_line() {
-    let dir = fresh_dir("memory-limit");
+    let dir = TempDir::new("memory-limit");
     let script = dir.join("grow.rhai");
     // The reproducer: every timer holds a 60 KB string.
     std::fs::write(
@@ -244,13 +244,12 @@ fn a_script_that_grows_memory_without_end_is_stopped_at_its_line() {
         err.contains("safe state (script error): io outputs 0x00"),
         "{err}"
     );
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// `rigscript run --sim --stats ARGS..` of a script that prints 600 KB of log a second, with
 /// stdout and stderr piped and nobody reading them; its directory and the process.
-fn chatty_run(tag: &str, args: &[&str]) -> (PathBuf, Child) {
-    let dir = fresh_dir(tag);
+fn chatty_run(tag: &str, args: &[&str]) -> (TempDir, Child) {
+    let dir = TempDir::new(tag);
     let script = dir.join("chatty.rhai");
     std::fs::write(
         &script,
@@ -284,7 +283,7 @@ fn stdout_of(child: &mut Child) -> String {
 
 #[test]
 fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
-    let (dir, child) = chatty_run("log-pipe", &["--for", "3s"]);
+    let (_dir, child) = chatty_run("log-pipe", &["--for", "3s"]);
     let (status, took, mut child) = wait_for(child, Duration::from_secs(60));
     assert_eq!(
         status,
@@ -299,12 +298,11 @@ fn a_stderr_nobody_reads_does_not_stall_the_run_and_the_drops_are_counted() {
     assert!(dropped.ends_with("(stderr not being read)"), "{dropped}");
     let n: u64 = dropped.split_whitespace().next().unwrap().parse().unwrap();
     assert!(n > 1000, "{n}");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn sigterm_ends_a_run_whose_stderr_nobody_reads() {
-    let (dir, child) = chatty_run("log-pipe-signal", &[]);
+    let (_dir, child) = chatty_run("log-pipe-signal", &[]);
     // The 64 KiB pipe is full long before this.
     std::thread::sleep(Duration::from_millis(1500));
     let sent = Command::new("kill")
@@ -320,12 +318,11 @@ fn sigterm_ends_a_run_whose_stderr_nobody_reads() {
         stats.lines().any(|l| l.starts_with("log lines dropped: ")),
         "the pipe was full: {stats}"
     );
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn json_logs_are_one_object_a_line() {
-    let dir = fresh_dir("log-json");
+    let dir = TempDir::new("log-json");
     let script = dir.join("j.rhai");
     std::fs::write(&script, "io.outputs = 5;\nprint(\"hi\");\n").unwrap();
     let out = Command::new(rigscript())
@@ -358,7 +355,6 @@ fn json_logs_are_one_object_a_line() {
     let err = String::from_utf8_lossy(&bad.stderr);
     assert_eq!(bad.status.code(), Some(2), "{err}");
     assert!(err.contains("[possible values: text, json]"), "{err}");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! which times the line at the module's baud and drops (and counts) every request that starts
 //! less than t3.5 after the frame before it ended, as a module on a shared RS-485 line would.
 
-use crate::common::{rigscript, run, SimProcess};
+use crate::common::{rigscript, run, SimProcess, TempDir};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions};
 use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;
@@ -72,11 +72,7 @@ fn back_to_back_requests_to_two_modules_keep_the_silence_of_the_line() {
 fn run_polls_back_to_back_at_9600_and_115200_without_an_early_frame() {
     for baud in [9600u32, 115_200] {
         let mut sim = strict_sim(baud, "1");
-        let dir = std::env::temp_dir().join(format!(
-            "rigscript-line-timing-{baud}-{}",
-            std::process::id()
-        ));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = TempDir::new(&format!("line-timing-{baud}"));
         let config = dir.join("rig.toml");
         std::fs::write(
             &config,
@@ -115,7 +111,6 @@ fn run_polls_back_to_back_at_9600_and_115200_without_an_early_frame() {
             .unwrap_or_else(|| panic!("no tick count in {stats}"));
         assert!(ticks > 5, "it polled: {err}");
         assert_eq!(early_frames(&mut sim), 0, "at {baud} baud: {err}");
-        std::fs::remove_dir_all(dir).unwrap();
     }
 }
 

@@ -147,7 +147,7 @@ impl Broker {
         require_tool("mosquitto_sub", "mosquitto-clients");
         require_tool("openssl", "openssl");
         let dir = TempDir::new(tag);
-        let d = &dir.0;
+        let d = dir.root();
         let passwords = d.join("passwords");
         std::fs::write(&passwords, "").unwrap();
         for (user, pw) in USERS {
@@ -390,7 +390,7 @@ fn run_rig(dir: &TempDir, name: &str, mqtt: &str, script: &str) -> Proc {
     let log = File::create(dir.path(&format!("{name}.log"))).unwrap();
     let child = Command::new(rigscript())
         .args(["run", "--config", &config, &script])
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RUNTIME_DIRECTORY")
         .env("TEST_MQTT_PW", "rig-pw")
         .stdout(Stdio::null())
@@ -418,6 +418,7 @@ fn lab_rig(lab: &Value, name: &str) -> Value {
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
     let broker = Broker::start("mqtt-will");
     let dir = TempDir::new("mqtt-will-run");
@@ -458,6 +459,7 @@ fn the_last_will_says_offline_for_a_killed_runner_and_a_frozen_one() {
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() {
     let broker = Broker::start("mqtt-state");
     let dir = TempDir::new("mqtt-state-run");
@@ -470,7 +472,7 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
         let ok = until(Duration::from_secs(10), || {
             Command::new(rigscript())
                 .args(["drive", "state", "set-inputs", "io", value])
-                .env("XDG_RUNTIME_DIR", &dir.0)
+                .env("XDG_RUNTIME_DIR", dir.root())
                 .env_remove("RUNTIME_DIRECTORY")
                 .output()
                 .ok()
@@ -563,6 +565,7 @@ fn stop_and_check_delivery(rig: &mut Proc, records: &Path, got: &Path, limit: Du
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn records_made_while_the_broker_is_down_10_s_all_arrive_in_order_once_and_equal_the_records_file()
 {
     let mut broker = Broker::start("mqtt-records");
@@ -616,6 +619,7 @@ fn records_made_while_the_broker_is_down_10_s_all_arrive_in_order_once_and_equal
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_command_gets_its_handlers_reply_an_unknown_one_an_error_and_a_forbidden_client_none() {
     let broker = Broker::start("mqtt-cmd");
     let dir = TempDir::new("mqtt-cmd-run");
@@ -678,6 +682,7 @@ fn a_command_gets_its_handlers_reply_an_unknown_one_an_error_and_a_forbidden_cli
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn tls_with_the_right_ca_connects_and_a_wrong_ca_is_refused_saying_why() {
     let broker = Broker::start("mqtt-tls");
     let dir = TempDir::new("mqtt-tls-run");
@@ -737,7 +742,7 @@ fn status(dir: &TempDir, name: &str, json: bool) -> Option<String> {
         c.arg("--json");
     }
     let out = c
-        .env("XDG_RUNTIME_DIR", &dir.0)
+        .env("XDG_RUNTIME_DIR", dir.root())
         .env_remove("RUNTIME_DIRECTORY")
         .output()
         .expect("run rigscript status");
@@ -747,6 +752,7 @@ fn status(dir: &TempDir, name: &str, json: bool) -> Option<String> {
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_flood_on_a_watched_topic_is_counted_in_status_as_messages_dropped() {
     let broker = Broker::start("mqtt-flood");
     let dir = TempDir::new("mqtt-flood-run");
@@ -812,6 +818,7 @@ fn line_with(file: &Path, prefix: &str) -> String {
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn huge_retained_messages_on_a_watched_topic_and_on_cmd_leave_the_connection_up() {
     let broker = Broker::start("mqtt-huge");
     let dir = TempDir::new("mqtt-huge-run");
@@ -901,6 +908,7 @@ fn huge_retained_messages_on_a_watched_topic_and_on_cmd_leave_the_connection_up(
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_cancelled_on_message_handler_unsubscribes_its_filter() {
     let broker = Broker::start("mqtt-unwatch");
     let dir = TempDir::new("mqtt-unwatch-run");
@@ -1001,6 +1009,7 @@ fn a_broker_that_accepts_and_never_answers_costs_the_loop_nothing_and_a_stop_end
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_wrong_password_is_told_naming_broker_and_user_and_retried_while_the_rig_runs() {
     let broker = Broker::start("mqtt-badpw");
     let dir = TempDir::new("mqtt-badpw-run");
@@ -1066,6 +1075,7 @@ fn cutting_proxy(port: u16, cutting: std::sync::Arc<std::sync::atomic::AtomicBoo
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order_once() {
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::Arc;
@@ -1100,6 +1110,7 @@ fn records_made_while_every_connection_is_cut_after_a_second_all_arrive_in_order
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn publishes_the_acl_refuses_are_counted_and_told_naming_broker_user_and_topic() {
     let broker = Broker::start("mqtt-acl");
     let dir = TempDir::new("mqtt-acl-run");
@@ -1220,6 +1231,7 @@ fn a_panic_in_the_clients_thread_is_an_error_in_the_log_and_in_status_and_the_ri
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_record_over_the_brokers_packet_size_is_counted_and_told_and_the_rest_arrive_in_order() {
     let broker = Broker::start_with("mqtt-big", "max_packet_size 2048\n");
     let dir = TempDir::new("mqtt-big-run");
@@ -1292,6 +1304,7 @@ fn a_record_over_the_brokers_packet_size_is_counted_and_told_and_the_rest_arrive
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_broker_asking_for_a_shorter_keep_alive_is_heeded_and_told_and_calls_a_frozen_rig_offline_sooner(
 ) {
     // Mosquitto's max_keepalive (10 s at least) sends MQTT 5 clients asking for more a Server
@@ -1349,6 +1362,7 @@ fn replies_on(file: &Path, topic: &str) -> Vec<Value> {
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn every_command_of_a_flood_gets_a_reply_and_an_mqtt5_request_gets_it_where_it_asked_with_its_data()
 {
     require_tool("mosquitto_rr", "mosquitto-clients");
@@ -1497,6 +1511,7 @@ fn every_command_of_a_flood_gets_a_reply_and_an_mqtt5_request_gets_it_where_it_a
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn the_ends_safe_outputs_are_the_retained_state_before_the_status_goes_offline() {
     let broker = Broker::start("mqtt-end");
     let dir = TempDir::new("mqtt-end-run");
@@ -1517,6 +1532,7 @@ fn the_ends_safe_outputs_are_the_retained_state_before_the_status_goes_offline()
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn an_mqtt_rig_without_a_home_keeps_its_outbox_in_the_state_directory_or_names_the_key() {
     let broker = Broker::start("mqtt-home");
     let dir = TempDir::new("mqtt-home-run");
@@ -1540,7 +1556,7 @@ fn an_mqtt_rig_without_a_home_keeps_its_outbox_in_the_state_directory_or_names_t
     let start = |config: &str, state: &Path| {
         Command::new(rigscript())
             .args(["run", "--config", config, &script])
-            .env("XDG_RUNTIME_DIR", &dir.0)
+            .env("XDG_RUNTIME_DIR", dir.root())
             .env_remove("RUNTIME_DIRECTORY")
             .env_remove("XDG_STATE_HOME")
             .env("HOME", &not_a_home)
@@ -1630,6 +1646,7 @@ fn keep_alive_off_broker() -> (u16, std::sync::Arc<[std::sync::atomic::AtomicU64
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn a_server_keep_alive_of_zero_is_taken_as_off_not_as_a_ping_at_every_turn() {
     use std::sync::atomic::Ordering;
     let (port, seen) = keep_alive_off_broker();
@@ -1662,6 +1679,7 @@ fn a_server_keep_alive_of_zero_is_taken_as_off_not_as_a_ping_at_every_turn() {
 }
 
 #[test]
+#[ignore = "needs mosquitto, mosquitto-clients and openssl (tier 2: .ci/run installs them)"]
 fn lab_writes_out_the_control_characters_of_a_retained_status() {
     let broker = Broker::start("mqtt-lab-esc");
     let payload = broker.dir.path("evil");

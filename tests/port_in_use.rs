@@ -2,7 +2,7 @@
 //! (`run`, `c29` and `scan` say it is busy and who holds it), a path that is not a serial port,
 //! and `sim --link` at a path that already exists.
 
-use crate::common::{rigscript, SimProcess, TempDir};
+use crate::common::{rigscript, stderr, SimProcess, TempDir};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -48,10 +48,6 @@ impl Drop for Holder {
 
 fn run(args: &[&str]) -> Output {
     Command::new(rigscript()).args(args).output().unwrap()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 #[test]

@@ -1,47 +1,16 @@
 //! `rigscript run` and `rigscript check` as a user runs them: exit statuses, what the run
 //! shows on stderr, records files, `--stats`.
 
-use crate::common;
-
-use crate::common::rigscript;
-use std::path::PathBuf;
+use crate::common::{rigscript, stderr, stdout, TempDir};
 use std::process::{Command, Output};
-
-struct Dir(PathBuf);
-
-impl Dir {
-    fn new(tag: &str) -> Self {
-        Self(common::fresh_dir(tag))
-    }
-
-    fn file(&self, name: &str, text: &str) -> String {
-        let p = self.0.join(name);
-        std::fs::write(&p, text).unwrap();
-        p.display().to_string()
-    }
-}
-
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn run(args: &[&str]) -> Output {
     Command::new(rigscript()).args(args).output().unwrap()
 }
 
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
 #[test]
 fn a_tiny_script_runs_for_a_second_on_the_simulators_and_shows_what_it_does() {
-    let d = Dir::new("tiny");
+    let d = TempDir::new("tiny");
     let s = d.file(
         "blink.rhai",
         "every(\"100ms\", || io.outputs = io.outputs ^ 1);\npanel.relay = 4;\n",
@@ -72,7 +41,7 @@ fn a_tiny_script_runs_for_a_second_on_the_simulators_and_shows_what_it_does() {
 
 #[test]
 fn without_config_or_sim_it_is_a_usage_error() {
-    let d = Dir::new("usage");
+    let d = TempDir::new("usage");
     let s = d.file("s.rhai", "print(1);");
     let o = run(&["run", &s]);
     assert_eq!(o.status.code(), Some(2));
@@ -85,7 +54,7 @@ fn without_config_or_sim_it_is_a_usage_error() {
 
 #[test]
 fn a_bad_config_is_exit_2_and_a_missing_device_exit_3() {
-    let d = Dir::new("config");
+    let d = TempDir::new("config");
     let s = d.file("s.rhai", "print(1);");
     let bad = d.file(
         "bad.toml",
@@ -109,7 +78,7 @@ fn a_bad_config_is_exit_2_and_a_missing_device_exit_3() {
 
 #[test]
 fn two_entries_for_one_module_are_refused_by_check_and_run() {
-    let d = Dir::new("clash");
+    let d = TempDir::new("clash");
     let s = d.file("s.rhai", "print(1);");
     let cfg = d.file(
         "rig.toml",
@@ -129,7 +98,7 @@ fn two_entries_for_one_module_are_refused_by_check_and_run() {
 
 #[test]
 fn script_errors_are_exit_1_with_file_line_and_column() {
-    let d = Dir::new("errors");
+    let d = TempDir::new("errors");
     // A name `check` cannot see: the error comes when the handler runs.
     let s = d.file(
         "runtime.rhai",
@@ -148,7 +117,7 @@ fn script_errors_are_exit_1_with_file_line_and_column() {
 
 #[test]
 fn a_script_check_rejects_does_not_run() {
-    let d = Dir::new("check-first");
+    let d = TempDir::new("check-first");
     // The interlock's off switch misspelt: it would fail just when a guard opens.
     let s = d.file(
         "interlock.rhai",
@@ -186,7 +155,7 @@ fn a_script_check_rejects_does_not_run() {
 
 #[test]
 fn an_endless_file_is_refused_with_its_limit() {
-    let d = Dir::new("endless");
+    let d = TempDir::new("endless");
     let s = d.file("ok.rhai", "let x = 1;\n");
     for (args, says) in [
         (
@@ -216,12 +185,12 @@ fn an_endless_file_is_refused_with_its_limit() {
 
 #[test]
 fn a_failed_measurement_is_exit_4_and_records_are_json_lines() {
-    let d = Dir::new("records");
+    let d = TempDir::new("records");
     let s = d.file(
         "m.rhai",
         "record(\"id\", 42);\nmeasure(\"v\", 3.3, #{min: 3.0, max: 3.2, unit: \"V\"});\n",
     );
-    let records = d.0.join("out.jsonl").display().to_string();
+    let records = d.root().join("out.jsonl").display().to_string();
     let o = run(&["run", "--sim", "--records", &records, &s]);
     assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
     let text = std::fs::read_to_string(&records).unwrap();
@@ -239,7 +208,7 @@ fn a_failed_measurement_is_exit_4_and_records_are_json_lines() {
 
 #[test]
 fn check_and_run_name_a_timer_shorter_than_the_period_with_the_period() {
-    let d = Dir::new("short-timer");
+    let d = TempDir::new("short-timer");
     let s = d.file("fast.rhai", "let n = 0;\n  every(\"100ms\", || n += 1);\n");
     let cfg = d.file(
         "rig.toml",
@@ -279,7 +248,7 @@ fn check_and_run_name_a_timer_shorter_than_the_period_with_the_period() {
 
 #[test]
 fn an_empty_script_or_one_with_nothing_to_run_is_a_warning_in_check_and_verify() {
-    let d = Dir::new("nothing-to-run");
+    let d = TempDir::new("nothing-to-run");
     let empty = d.file("empty.rhai", "// to do\n");
     let once = d.file("once.rhai", "io.outputs = 0x01;\n");
     for (s, why) in [
@@ -301,7 +270,7 @@ fn an_empty_script_or_one_with_nothing_to_run_is_a_warning_in_check_and_verify()
 
 #[test]
 fn check_reports_problems_with_line_and_column() {
-    let d = Dir::new("check");
+    let d = TempDir::new("check");
     let good = d.file("good.rhai", "io.on_rise(3, |ch| io.outputs = 1 << ch);\n");
     let o = run(&["check", &good]);
     assert_eq!(o.status.code(), Some(0), "{}", stdout(&o));
@@ -352,7 +321,7 @@ fn holds_wake_latency(pid: u32) -> bool {
 
 #[test]
 fn a_short_period_holds_the_wake_latency_request_while_running_and_stats_say_so() {
-    let d = Dir::new("wake");
+    let d = TempDir::new("wake");
     let s = d.file("idle.rhai", "every(\"10ms\", || ());\n");
     let child = Command::new(rigscript())
         .args([
@@ -387,7 +356,7 @@ fn a_short_period_holds_the_wake_latency_request_while_running_and_stats_say_so(
 
 #[test]
 fn the_wake_latency_follows_the_period_and_the_option() {
-    let d = Dir::new("wake-options");
+    let d = TempDir::new("wake-options");
     let s = d.file("idle.rhai", "every(\"50ms\", || ());\n");
     let stats = |extra: &[&str]| {
         let mut args = vec!["run", "--sim", "--for", "200ms", "--stats", "-q", &s];
@@ -466,7 +435,7 @@ fn stopped_by(signal: &str, script: &str) -> (Option<i32>, String) {
 
 #[test]
 fn signals_end_the_run_with_128_plus_the_signal_after_the_safe_state() {
-    let d = Dir::new("signals");
+    let d = TempDir::new("signals");
     let s = d.file(
         "work.rhai",
         "io.outputs = 0xF0;\nevery(\"50ms\", || ());\nafter(\"100ms\", || log(\"ready\"));\n",
@@ -485,7 +454,7 @@ fn signals_end_the_run_with_128_plus_the_signal_after_the_safe_state() {
 
 #[test]
 fn a_run_with_recovered_errors_does_not_end_0() {
-    let d = Dir::new("skip-status");
+    let d = TempDir::new("skip-status");
     let cfg = d.file(
         "rig.toml",
         "on_error = \"skip\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/x\"\n",
@@ -506,7 +475,7 @@ fn a_run_with_recovered_errors_does_not_end_0() {
 
 #[test]
 fn a_slow_script_at_a_short_period_does_not_hold_the_wake_latency() {
-    let d = Dir::new("wake-slow");
+    let d = TempDir::new("wake-slow");
     // cron_rig's shape: two ticks a second at most, at the default 20 ms period.
     let s = d.file("slow.rhai", "every(\"500ms\", || ());\n");
     let child = Command::new(rigscript())
@@ -533,7 +502,7 @@ fn a_slow_script_at_a_short_period_does_not_hold_the_wake_latency() {
 
 #[test]
 fn the_wake_latency_is_released_when_the_fast_handler_goes() {
-    let d = Dir::new("wake-release");
+    let d = TempDir::new("wake-release");
     let s = d.file(
         "fast_then_slow.rhai",
         "let fast = every(\"10ms\", || ());\nafter(\"300ms\", || cancel(fast));\nevery(\"1s\", || ());\n",
@@ -602,8 +571,8 @@ fn collect_stderr(child: &mut std::process::Child) -> std::sync::Arc<std::sync::
 #[test]
 fn a_records_pipe_nobody_reads_never_holds_the_run_and_sigterm_still_stops_it_safely() {
     use std::os::unix::fs::OpenOptionsExt;
-    let d = Dir::new("records-fifo-stuck");
-    let fifo = d.0.join("records.fifo");
+    let d = TempDir::new("records-fifo-stuck");
+    let fifo = d.root().join("records.fifo");
     mkfifo(&fifo);
     // Someone has the pipe open for reading, and never reads.
     let _reader = std::fs::OpenOptions::new()
@@ -670,8 +639,8 @@ fn a_records_pipe_nobody_reads_never_holds_the_run_and_sigterm_still_stops_it_sa
 
 #[test]
 fn a_records_pipe_with_no_reader_is_refused_at_start_without_waiting() {
-    let d = Dir::new("records-fifo-none");
-    let fifo = d.0.join("records.fifo");
+    let d = TempDir::new("records-fifo-none");
+    let fifo = d.root().join("records.fifo");
     mkfifo(&fifo);
     let s = d.file("r.rhai", "record(\"n\", 1);\n");
     let mut child = Command::new(rigscript())
@@ -694,7 +663,7 @@ fn a_records_pipe_with_no_reader_is_refused_at_start_without_waiting() {
 #[test]
 fn a_full_disk_for_the_records_is_told_once_with_the_count_and_the_run_ends_5() {
     // /dev/full refuses every write with ENOSPC, as a full disk does.
-    let d = Dir::new("records-full");
+    let d = TempDir::new("records-full");
     let s = d.file(
         "r.rhai",
         "for n in 0..20 { record(\"n\", n); }\nmeasure(\"v\", 1.0, #{min: 0.0});\n",
@@ -722,21 +691,21 @@ fn a_full_disk_for_the_records_is_told_once_with_the_count_and_the_run_ends_5() 
 #[test]
 fn records_the_disk_refuses_are_counted_in_status_while_the_run_goes_on() {
     // /dev/full refuses every write with ENOSPC, as a full disk does.
-    let d = Dir::new("records-full-live");
+    let d = TempDir::new("records-full-live");
     let s = d.file("lossy.rhai", "every(\"50ms\", || record(\"n\", 1));\n");
     let mut rig = Command::new(rigscript())
         .args(["run", "--sim", "--records", "/dev/full", &s])
-        .env("XDG_RUNTIME_DIR", &d.0)
+        .env("XDG_RUNTIME_DIR", d.root())
         .env_remove("RUNTIME_DIRECTORY")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();
     let lost = |at_least: u64| {
-        common::until(std::time::Duration::from_secs(10), || {
+        crate::common::until(std::time::Duration::from_secs(10), || {
             let o = Command::new(rigscript())
                 .args(["status", "lossy", "--json"])
-                .env("XDG_RUNTIME_DIR", &d.0)
+                .env("XDG_RUNTIME_DIR", d.root())
                 .env_remove("RUNTIME_DIRECTORY")
                 .output()
                 .ok()?;
@@ -755,7 +724,7 @@ fn records_the_disk_refuses_are_counted_in_status_while_the_run_goes_on() {
 
 #[test]
 fn quiet_leaves_the_script_s_messages_warnings_errors_and_the_safe_state_only() {
-    let d = Dir::new("quiet");
+    let d = TempDir::new("quiet");
     let s = d.file(
         "q.rhai",
         "every(\"50ms\", || io.outputs = io.outputs ^ 1);\nprint(\"hello\");\nwarn(\"careful\");\n",
@@ -783,7 +752,7 @@ fn quiet_leaves_the_script_s_messages_warnings_errors_and_the_safe_state_only() 
 
 #[test]
 fn a_missing_semicolon_is_reported_where_its_statement_ends() {
-    let d = Dir::new("syntax");
+    let d = TempDir::new("syntax");
     let s = d.file(
         "syn.rhai",
         "let io = device(\"io\");\nlet x = 1;\nlet y = 2\nio.outputs = x + y;\n",
@@ -799,10 +768,10 @@ fn a_missing_semicolon_is_reported_where_its_statement_ends() {
 
 #[test]
 fn test_without_paths_outside_the_repository_says_what_it_looks_for() {
-    let d = Dir::new("test-elsewhere");
+    let d = TempDir::new("test-elsewhere");
     let o = Command::new(rigscript())
         .arg("test")
-        .current_dir(&d.0)
+        .current_dir(d.root())
         .output()
         .unwrap();
     let err = stderr(&o);

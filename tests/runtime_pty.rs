@@ -2,79 +2,23 @@
 //! the module at its safe value; after `kill -9` of a run without its guardian the module's own
 //! host watchdog, enabled and fed by the runner, drives it there (tests/guardian.rs: with it).
 
-use crate::common::{fresh_dir, lose_a_module, rigscript, Cut, SimProcess};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
-
-fn setup(sim: &SimProcess, tag: &str) -> (std::path::PathBuf, String, String) {
-    let dir = fresh_dir(&format!("pty-{tag}"));
-    let config = dir.join("rig.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\nsafe_value = 0x05\nwatchdog = \"1s\"\n",
-            sim.path
-        ),
-    )
-    .unwrap();
-    let script = dir.join("work.rhai");
-    std::fs::write(&script, "io.outputs = 0xF0;\nevery(\"100ms\", || {});\n").unwrap();
-    (
-        dir,
-        config.display().to_string(),
-        script.display().to_string(),
-    )
-}
-
-fn start_run(config: &str, script: &str, extra: &[&str]) -> Child {
-    Command::new(rigscript())
-        .args(["run", "--quiet", "--config", config, script])
-        .args(extra)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
-}
-
-/// Polls the simulator until `pred` holds of its state, or gives up after `limit`.
-fn wait_for(
-    sim: &mut SimProcess,
-    limit: Duration,
-    pred: impl Fn(&serde_json::Value) -> bool,
-) -> serde_json::Value {
-    let start = Instant::now();
-    loop {
-        let s = sim.state();
-        if pred(&s) || start.elapsed() > limit {
-            return s;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
-fn signal(child: &Child, sig: &str) {
-    let ok = Command::new("kill")
-        .arg(sig)
-        .arg(child.id().to_string())
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok);
-}
+use crate::common::{
+    kill, lose_a_module, read_stderr, start_run, watched_rig, Cut, SimProcess, TempDir,
+};
+use std::time::Duration;
 
 #[test]
 fn sigterm_leaves_the_module_at_its_safe_value() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (dir, config, script) = setup(&sim, "term");
-    let mut run = start_run(&config, &script, &[]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let (_dir, config, script) = watched_rig(&sim, "pty-term");
+    let mut run = start_run(&["--quiet", "--config", &config, &script]);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "the script drives the module: {s}");
     assert_eq!(s["safe_value"], 0x05);
     assert_eq!(s["watchdog"]["enabled"], true);
-    signal(&run, "-TERM");
+    kill(run.id(), "-TERM");
     let status = run.wait().unwrap();
-    let mut err = String::new();
-    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let err = read_stderr(&mut run);
     assert_eq!(status.code(), Some(143), "128 + SIGTERM: {err}");
     let s = sim.state();
     assert_eq!(s["do"], 0x05, "{s}\n{err}");
@@ -82,24 +26,22 @@ fn sigterm_leaves_the_module_at_its_safe_value() {
         s["watchdog"]["enabled"], false,
         "a clean end turns it off: {s}"
     );
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
 fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (dir, config, script) = setup(&sim, "kill");
-    let mut run = start_run(&config, &script, &["--no-guardian"]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let (_dir, config, script) = watched_rig(&sim, "pty-kill");
+    let mut run = start_run(&["--quiet", "--config", &config, &script, "--no-guardian"]);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
-    signal(&run, "-KILL");
+    kill(run.id(), "-KILL");
     run.wait().unwrap();
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| {
+    let s = sim.wait_for(Duration::from_secs(10), |s| {
         s["watchdog"]["expired"] == true
     });
     assert_eq!(s["watchdog"]["expired"], true, "{s}");
     assert_eq!(s["do"], 0x05, "{s}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// SIGTERM with the module in a state the end must not take on its word: the end reads the
@@ -107,15 +49,14 @@ fn after_kill_9_without_the_guardian_the_modules_own_watchdog_drives_it_safe() {
 /// drives it safe.
 fn sigterm_with_a_faulty_output_stage(fault: &str, tag: &str) {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (dir, config, script) = setup(&sim, tag);
-    let mut run = start_run(&config, &script, &[]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let (_dir, config, script) = watched_rig(&sim, &format!("pty-{tag}"));
+    let mut run = start_run(&["--quiet", "--config", &config, &script]);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
     assert_eq!(sim.control(fault), "ok");
-    signal(&run, "-TERM");
+    kill(run.id(), "-TERM");
     let status = run.wait().unwrap();
-    let mut err = String::new();
-    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let err = read_stderr(&mut run);
     assert_eq!(status.code(), Some(5), "{err}");
     assert!(
         err.contains("io: the safe state did not reach it: ") && err.contains("outputs read 0xf0"),
@@ -123,9 +64,8 @@ fn sigterm_with_a_faulty_output_stage(fault: &str, tag: &str) {
     );
     let s = sim.state();
     assert_eq!(s["watchdog"]["enabled"], true, "left on: {s}\n{err}");
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0x05);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x05);
     assert_eq!(s["do"], 0x05, "its watchdog drove it safe: {s}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -141,32 +81,31 @@ fn sigterm_with_a_module_that_refuses_writes_with_ff_exits_5_and_leaves_its_watc
 #[test]
 fn a_module_swapped_behind_the_open_port_is_taken_control_of_and_goes_safe_after_kill_9() {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let (dir, config, script) = setup(&sim, "swap");
+    let (_dir, config, script) = watched_rig(&sim, "pty-swap");
     // Without the guardian: what is tested is the watchdog the takeover gave the new module.
-    let mut run = start_run(&config, &script, &["--no-guardian"]);
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0xF0);
+    let mut run = start_run(&["--quiet", "--config", &config, &script, "--no-guardian"]);
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0xF0);
     assert_eq!(s["do"], 0xF0, "{s}");
     // Another module, safe value 0xFF and no watchdog, answers on the same port.
     assert_eq!(sim.control("swap OTHER 0xFF 0xFF"), "ok");
-    let s = wait_for(&mut sim, Duration::from_secs(15), |s| {
+    let s = sim.wait_for(Duration::from_secs(15), |s| {
         s["safe_value"] == 0x05 && s["watchdog"]["enabled"] == true && s["do"] == 0xF0
     });
     assert_eq!(s["safe_value"], 0x05, "taken control of: {s}");
     assert_eq!(s["watchdog"]["enabled"], true, "{s}");
-    signal(&run, "-KILL");
+    kill(run.id(), "-KILL");
     run.wait().unwrap();
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| {
+    let s = sim.wait_for(Duration::from_secs(10), |s| {
         s["watchdog"]["expired"] == true
     });
     assert_eq!(s["do"], 0x05, "its new watchdog drove it safe: {s}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// A rig in commissioning: the module on its real line, the panel not there yet and simulated
 /// (`sim = true` in its table, or `--sim-device panel`); the script uses both.
 fn mixed_rig_runs(panel_table: &str, extra: &[&str], tag: &str) {
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
-    let dir = fresh_dir(&format!("pty-{tag}"));
+    let dir = TempDir::new(&format!("pty-{tag}"));
     let config = dir.join("rig.toml");
     std::fs::write(
         &config,
@@ -184,18 +123,11 @@ fn mixed_rig_runs(panel_table: &str, extra: &[&str], tag: &str) {
     )
     .unwrap();
     let (config, script) = (config.display().to_string(), script.display().to_string());
-    let mut run = Command::new(rigscript())
-        .args(["run", "--config", &config, &script])
-        .args(extra)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let s = wait_for(&mut sim, Duration::from_secs(10), |s| s["do"] == 0x3C);
-    signal(&run, "-TERM");
+    let mut run = start_run(&[&["--config", &config, &script], extra].concat());
+    let s = sim.wait_for(Duration::from_secs(10), |s| s["do"] == 0x3C);
+    kill(run.id(), "-TERM");
     let status = run.wait().unwrap();
-    let mut err = String::new();
-    std::io::Read::read_to_string(run.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let err = read_stderr(&mut run);
     assert_eq!(
         s["do"], 0x3C,
         "the real module driven from the simulated panel: {s}\n{err}"
@@ -207,7 +139,6 @@ fn mixed_rig_runs(panel_table: &str, extra: &[&str], tag: &str) {
         err.contains("safe state (signal): io outputs 0x00, panel relay 0"),
         "{err}"
     );
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]

@@ -1,12 +1,8 @@
 //! Runs the runtime's own scenario tests (`tests/scenarios/*.test.rhai`) through
 //! `rigscript test`, and checks how `rigscript test` reports failures.
 
-use crate::common::{fresh_dir, rigscript};
+use crate::common::{both, rigscript, stderr, stdout, TempDir};
 use std::process::Command;
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
 
 #[test]
 fn the_runtime_scenarios_pass() {
@@ -15,8 +11,8 @@ fn the_runtime_scenarios_pass() {
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    let stdout = text(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    let stdout = stdout(&out);
+    assert!(out.status.success(), "{stdout}\n{}", stderr(&out));
     let last = stdout.lines().last().unwrap_or_default();
     assert!(last.ends_with(" passed, 0 failed"), "{stdout}");
     let passed: usize = last.split_whitespace().next().unwrap().parse().unwrap();
@@ -29,7 +25,7 @@ fn the_runtime_scenarios_pass() {
 
 #[test]
 fn failures_name_the_test_the_message_and_where() {
-    let dir = fresh_dir("scn");
+    let dir = TempDir::new("scn");
     std::fs::write(
         dir.join("s.rhai"),
         "io.outputs = 3;\nevery(\"1s\", || {});\n",
@@ -60,7 +56,7 @@ fn test_missing_script() {
         .arg(&dir)
         .output()
         .unwrap();
-    let stdout = text(&out.stdout);
+    let stdout = stdout(&out);
     assert_eq!(out.status.code(), Some(1), "{stdout}");
     let file = dir.join("a.test.rhai").display().to_string();
     let lines: Vec<&str> = stdout.lines().collect();
@@ -75,12 +71,11 @@ fn test_missing_script() {
         "{stdout}"
     );
     assert_eq!(lines[3], "1 passed, 2 failed");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Runs `rigscript test` on a directory holding `files` (name, text); the status and stdout.
-fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, std::path::PathBuf) {
-    let dir = fresh_dir(name);
+fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, TempDir) {
+    let dir = TempDir::new(name);
     for (file, body) in files {
         std::fs::write(dir.join(file), body).unwrap();
     }
@@ -89,7 +84,7 @@ fn test_dir(name: &str, files: &[(&str, &str)]) -> (Option<i32>, String, std::pa
         .arg(&dir)
         .output()
         .unwrap();
-    (out.status.code(), text(&out.stdout), dir)
+    (out.status.code(), stdout(&out), dir)
 }
 
 #[test]
@@ -111,7 +106,6 @@ fn a_test_file_without_tests_fails() {
         )
     );
     assert!(stdout.ends_with("0 passed, 1 failed\n"), "{stdout}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -146,7 +140,6 @@ fn a_test_that_advances_a_billion_hours_fails_on_its_virtual_time_budget() {
         )),
         "{stdout}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -198,7 +191,6 @@ fn test_looks_too_early() {
         ],
         "{stdout}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -226,20 +218,18 @@ fn rigs_built_in_a_loop_count_against_the_tests_memory() {
         stdout.contains("over its limit of 256 MiB (rigs built in a loop?"),
         "{stdout}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn no_test_files_is_a_usage_error() {
-    let dir = fresh_dir("empty");
+    let dir = TempDir::new("empty");
     let out = Command::new(rigscript())
         .arg("test")
         .arg(&dir)
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
-    assert!(text(&out.stderr).contains("no *.test.rhai files"));
-    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(stderr(&out).contains("no *.test.rhai files"));
 }
 
 #[test]
@@ -249,8 +239,8 @@ fn the_scripts_in_scripts_pass_their_scenarios_and_check_clean() {
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    let stdout = text(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    let stdout = stdout(&out);
+    assert!(out.status.success(), "{stdout}\n{}", stderr(&out));
     for script in [
         "rotary_relay",
         "counter_threshold",
@@ -267,12 +257,7 @@ fn the_scripts_in_scripts_pass_their_scenarios_and_check_clean() {
             .current_dir(env!("CARGO_MANIFEST_DIR"))
             .output()
             .unwrap();
-        assert!(
-            check.status.success(),
-            "check {script}: {}{}",
-            text(&check.stdout),
-            text(&check.stderr)
-        );
+        assert!(check.status.success(), "check {script}: {}", both(&check));
     }
     assert!(stdout.trim_end().ends_with(" passed, 0 failed"), "{stdout}");
 }

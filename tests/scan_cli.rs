@@ -2,7 +2,7 @@
 //! several modules on one line, a checksum-only ASCII module, a pty given by symlink; and a
 //! machine without USB lists no boards without failing.
 
-use crate::common::{rigscript, SimProcess};
+use crate::common::{rigscript, SimProcess, TempDir};
 use serde_json::Value;
 use std::process::{Command, Output};
 
@@ -125,8 +125,8 @@ fn default_protocols_find_each_module_in_its_own() {
 
 #[test]
 fn a_symlinked_pty_is_listed_with_its_target_and_probed() {
-    let link = std::env::temp_dir().join(format!("rigscript-scan-link-{}", std::process::id()));
-    let link_text = link.to_str().unwrap().to_string();
+    let dir = TempDir::new("scan-link");
+    let link_text = dir.path("pty").display().to_string();
     let sim = SimProcess::start(&["--protocol", "modbus", "--link", &link_text]);
     let v = scan_json(&[
         "--ports",

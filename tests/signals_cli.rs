@@ -7,26 +7,11 @@
 
 use crate::common;
 
-use crate::common::{rigscript, SimProcess, TempDir};
+use crate::common::{both, kill, rigscript, wait_at_most, SimProcess, TempDir};
 use std::io::{BufRead, BufReader, Read};
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// Waits for `child` until it exits or `limit` passes (then kills it); its exit status, or
-/// None if it had to be killed.
-fn wait_at_most(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
-    let started = Instant::now();
-    while started.elapsed() < limit {
-        if let Ok(Some(status)) = child.try_wait() {
-            return Some(status);
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let _ = child.kill();
-    let _ = child.wait();
-    None
-}
 
 /// Reads `child`'s stderr line by line until a line contains `marker` (or it ends); the text so
 /// far. The rest stays in the reader.
@@ -40,15 +25,6 @@ fn read_until(err: &mut impl BufRead, marker: &str) -> String {
         log.push_str(&line);
     }
     log
-}
-
-fn kill(pid: u32, signal: &str) {
-    let ok = Command::new("kill")
-        .args([signal, &pid.to_string()])
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok, "kill {signal} {pid}");
 }
 
 #[test]
@@ -271,15 +247,6 @@ fn a_script_nested_deep_enough_to_overflow_the_stack_is_a_script_error_in_run_te
     let out = both(&o);
     assert_eq!(o.status.code(), Some(0), "{out}");
     assert!(out.contains("no counterexample in 4 runs"), "{out}");
-}
-
-/// A command's stdout and stderr, one after the other.
-fn both(o: &std::process::Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// 100 `on_stop` handlers that loop, each allowed a minute and a billion operations: a stop

@@ -4,17 +4,11 @@
 //! its `WatchdogSec=` needs, the timer's check leaves its records and JUnit report in its
 //! working directory.
 
-use crate::common::{fresh_dir, receive_notifications, require_tool, rigscript};
+use crate::common::{assert_systemd_accepts, receive_notifications, rigscript, TempDir};
 use std::collections::BTreeMap;
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-
-const UNITS: [&str; 3] = [
-    "rigscript@.service",
-    "rigscript-check@.service",
-    "rigscript-check@.timer",
-];
 
 fn packaging() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("packaging/systemd")
@@ -79,36 +73,14 @@ fn exec_start(unit: &str, script: &Path, config: &Path) -> Vec<String> {
 }
 
 #[test]
+#[ignore = "needs systemd-analyze (tier 2: .ci/run installs systemd)"]
 fn systemd_accepts_the_units() {
-    require_tool("systemd-analyze", "systemd");
-    let dir = fresh_dir("units-verify");
-    for name in UNITS {
-        let text = std::fs::read_to_string(packaging().join(name)).unwrap();
-        // verify checks that ExecStart's program exists: point it at the binary under test.
-        std::fs::write(
-            dir.join(name),
-            text.replace("/usr/local/bin/rigscript", rigscript()),
-        )
-        .unwrap();
-    }
-    let out = Command::new("systemd-analyze")
-        .current_dir(&dir)
-        .args([
-            "verify",
-            "./rigscript@interlock.service",
-            "./rigscript-check@bench.service",
-            "./rigscript-check@bench.timer",
-        ])
-        .output()
-        .unwrap();
-    let said = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "{said}");
-    assert_eq!(said.trim(), "", "systemd-analyze warns");
-    std::fs::remove_dir_all(&dir).unwrap();
+    // ExecStart's program pointed at the binary under test.
+    assert_systemd_accepts("units-verify", |unit| {
+        std::fs::read_to_string(packaging().join(unit))
+            .unwrap()
+            .replace("/usr/local/bin/rigscript", rigscript())
+    });
 }
 
 #[test]
@@ -156,7 +128,7 @@ fn the_interlock_unit_restarts_only_where_a_restart_can_help() {
 
 #[test]
 fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
-    let dir = fresh_dir("units-notify");
+    let dir = TempDir::new("units-notify");
     let script = dir.join("interlock.rhai");
     std::fs::write(&script, "every(\"100ms\", || {});\n").unwrap();
     let config = dir.join("interlock.toml");
@@ -198,12 +170,11 @@ fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
     assert!(got[0].starts_with("READY=1\n"), "{got:?}");
     assert!(got.iter().any(|m| m == "WATCHDOG=1"), "{got:?}");
     assert!(got.last().unwrap().starts_with("STOPPING=1\n"), "{got:?}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn the_check_unit_leaves_records_and_a_report_in_its_working_directory() {
-    let dir = fresh_dir("units-check");
+    let dir = TempDir::new("units-check");
     let config = dir.join("bench.toml");
     std::fs::write(
         &config,
@@ -238,5 +209,4 @@ fn the_check_unit_leaves_records_and_a_report_in_its_working_directory() {
     let report = std::fs::read_to_string(work.join("junit.xml")).unwrap();
     let doc = roxmltree::Document::parse(&report).unwrap();
     assert_eq!(doc.root_element().attribute("failures"), Some("1"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,7 +1,9 @@
 //! The integration suite, linked as one binary (`cargo test --test integration NAME::`): each
 //! module is one area's tests, driving the real `rigscript` binary, the simulators on ptys and
-//! the system tools `.ci/run` installs. `tests/held_device.rs` links on its own: it sets the
-//! process's environment, which would leak into every other test here.
+//! the system tools `.ci/run` installs. A test that needs such a tool, or root, is tier 2:
+//! ignored by a plain `cargo test`, saying what it needs, and run by `.ci/run`
+//! (`-- --include-ignored`); tests/README.md has the tiers. `tests/held_device.rs` links on its
+//! own: it sets the process's environment, which would leak into every other test here.
 
 mod c29_cli;
 mod cli_conventions;

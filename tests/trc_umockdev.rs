@@ -3,41 +3,15 @@
 //! against the model, and OUT packets must match the script byte for byte (umockdev fails an OUT
 //! that matches no line with an I/O error).
 
+use crate::common::{require_tool, stderr, stdout, TempDir};
 use rigscript::link::far_end::PacketDevice;
 use rigscript::protocol::trc1000::{Command, Packet, Relay, Rotary};
 use rigscript::sim::trc1000::Trc1000Sim;
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Output;
 
 const BIN: &str = env!("CARGO_BIN_EXE_rigscript");
-
-/// A temporary directory for one test's umockdev files, removed when dropped.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!(
-            "rigscript-trc-umockdev-{}-{test}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-
-    fn write(&self, name: &str, text: &str) -> PathBuf {
-        let path = self.0.join(name);
-        std::fs::write(&path, text).unwrap();
-        path
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().fold(String::new(), |mut s, b| {
@@ -142,36 +116,16 @@ fn run_trc(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str])
 
 /// Runs `rigscript ARGS` with `devices` emulated and `script` on board 001:002.
 fn run_rigscript(dir: &TempDir, devices: &str, script: Option<&Script>, args: &[&str]) -> Output {
-    let dev = dir.write("trc.umockdev", devices);
+    require_tool("umockdev-run", "umockdev");
+    let dev = dir.file("trc.umockdev", devices);
     let mut cmd = std::process::Command::new("umockdev-run");
     cmd.arg("-d").arg(&dev);
     if let Some(script) = script {
-        let ioctl = dir.write("trc.ioctl", &script.0);
-        cmd.arg("-i")
-            .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()));
+        let ioctl = dir.file("trc.ioctl", &script.0);
+        cmd.arg("-i").arg(format!("/dev/bus/usb/001/002={ioctl}"));
     }
     cmd.arg("--").arg(BIN).args(args);
-    output_of(cmd)
-}
-
-/// Runs `cmd` (an `umockdev-run`), failing the test with what to install when it is missing.
-fn output_of(mut cmd: std::process::Command) -> Output {
-    match cmd.output() {
-        Ok(out) => out,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => panic!(
-            "umockdev-run is not installed, so the TRC1000 USB tests cannot run: install umockdev \
-             (Debian/Ubuntu: `apt-get install umockdev`)"
-        ),
-        Err(e) => panic!("cannot start umockdev-run: {e}"),
-    }
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    cmd.output().expect("run umockdev-run")
 }
 
 fn json(o: &Output) -> serde_json::Value {
@@ -184,6 +138,7 @@ fn one_board() -> String {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn list_shows_each_board_with_its_unit_and_bus_address() {
     let dir = TempDir::new("list");
     let o = run_trc(&dir, &one_board(), None, &["list"]);
@@ -204,6 +159,7 @@ fn list_shows_each_board_with_its_unit_and_bus_address() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn inputs_reports_the_switches_pressed_on_the_model() {
     let mut sim = Trc1000Sim::new();
     for s in ["S41", "S3", "S27", "S38"] {
@@ -224,6 +180,7 @@ fn inputs_reports_the_switches_pressed_on_the_model() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn rotaries_reports_the_turned_counters_of_the_model() {
     let mut sim = Trc1000Sim::new();
     sim.turn("S41A", 6).unwrap();
@@ -250,6 +207,7 @@ fn rotaries_reports_the_turned_counters_of_the_model() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn relay_5_sends_exactly_05_14() {
     let mut script = Script::default();
     script.out([0x05, 0x14, 0, 0, 0, 0, 0, 0]);
@@ -264,6 +222,7 @@ fn relay_5_sends_exactly_05_14() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn a_stale_answer_before_the_real_one_is_dropped() {
     let mut sim = Trc1000Sim::new();
     sim.press("S9").unwrap();
@@ -293,6 +252,7 @@ fn a_stale_answer_before_the_real_one_is_dropped() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn a_board_chosen_by_bus_address_is_used() {
     let mut sim = Trc1000Sim::new();
     sim.press("S45").unwrap();
@@ -314,6 +274,7 @@ fn a_board_chosen_by_bus_address_is_used() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn a_missing_unit_exits_3_and_says_what_to_try() {
     let dir = TempDir::new("missing");
     let o = run_trc(&dir, &one_board(), None, &["--unit", "1", "inputs"]);
@@ -344,6 +305,7 @@ fn without_usb_list_is_empty_and_succeeds() {
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
     let mut sim = Trc1000Sim::new();
     sim.turn("S40", 1).unwrap();
@@ -363,28 +325,30 @@ fn monitor_prints_presses_and_signed_turns_and_stops_cleanly_on_ctrl_c() {
         poll(&mut sim, &mut script);
     }
     let dir = TempDir::new("monitor");
-    let out = dir.0.join("monitor.out");
+    let out = dir.path("monitor.out");
     // Inside the emulation: start the monitor, wait for its first event, then Ctrl-C it.
     let shell = "\"$RIGSCRIPT\" trc monitor > \"$OUT\" & pid=$!; n=0; \
                  while ! grep -q pressed \"$OUT\" && [ $n -lt 500 ]; do sleep 0.02; n=$((n+1)); done; \
                  kill -INT $pid; wait $pid";
-    let dev = dir.write("trc.umockdev", &one_board());
-    let ioctl = dir.write("trc.ioctl", &script.0);
+    require_tool("umockdev-run", "umockdev");
+    let dev = dir.file("trc.umockdev", &one_board());
+    let ioctl = dir.file("trc.ioctl", &script.0);
     let mut cmd = std::process::Command::new("umockdev-run");
     cmd.arg("-d")
         .arg(&dev)
         .arg("-i")
-        .arg(format!("/dev/bus/usb/001/002={}", ioctl.display()))
+        .arg(format!("/dev/bus/usb/001/002={ioctl}"))
         .args(["--", "sh", "-c", shell])
         .env("RIGSCRIPT", BIN)
         .env("OUT", &out);
-    let o = output_of(cmd);
+    let o = cmd.output().expect("run umockdev-run");
     let text = std::fs::read_to_string(&out).unwrap_or_default();
     assert_eq!(o.status.code(), Some(0), "{}\n{text}", stderr(&o));
     assert_eq!(text, "S3 pressed\nS41A +2 (now 2)\nS40 -3 (now 254)\n");
 }
 
 #[test]
+#[ignore = "needs umockdev (tier 2: .ci/run installs it)"]
 fn safe_selects_the_safe_relay_and_confirms_it_with_a_request_after_it() {
     // What the guardian does for a board when its runner died: the relay selection gets no
     // answer of its own, so the request after it is what confirms that a board took it.
@@ -394,11 +358,10 @@ fn safe_selects_the_safe_relay_and_confirms_it_with_a_request_after_it() {
         .ask(&mut sim, Command::SelectRelay(Relay::new(3).unwrap()))
         .ask(&mut sim, Command::RequestInput);
     let dir = TempDir::new("safe");
-    let config = dir.write(
+    let config = dir.file(
         "rig.toml",
         "[devices.panel]\nkind = \"trc1000\"\nunit = 0\nsafe_relay = 3\n",
     );
-    let config = config.display().to_string();
     let o = run_rigscript(
         &dir,
         &one_board(),

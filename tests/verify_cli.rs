@@ -6,14 +6,10 @@
 //! same result whatever the number of jobs; the built-in checks; coverage warnings; exit
 //! statuses, Ctrl-C's too. And invariants in `run`: a violation is a fault with exit 1.
 
-use crate::common::{fresh_dir, rigscript};
+use crate::common::{rigscript, stderr, stdout, TempDir};
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
 
 fn run(args: &[&str]) -> Output {
     Command::new(rigscript())
@@ -30,19 +26,14 @@ fn verify_json(args: &[&str], out: &Path) -> (i32, Value) {
     let out_dir = out.to_string_lossy().into_owned();
     all.extend_from_slice(&["--json", "--out", &out_dir]);
     let o = run(&all);
-    let doc = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
-        panic!(
-            "not JSON ({e}): {}\nstderr: {}",
-            text(&o.stdout),
-            text(&o.stderr)
-        )
-    });
+    let doc = serde_json::from_slice(&o.stdout)
+        .unwrap_or_else(|e| panic!("not JSON ({e}): {}\nstderr: {}", stdout(&o), stderr(&o)));
     (o.status.code().unwrap_or(-1), doc)
 }
 
 /// Writes `source` as `name` in a fresh directory tagged `tag`; the directory and the path.
-fn script(tag: &str, name: &str, source: &str) -> (std::path::PathBuf, String) {
-    let dir = fresh_dir(tag);
+fn script(tag: &str, name: &str, source: &str) -> (TempDir, String) {
+    let dir = TempDir::new(tag);
     let path = dir.join(name);
     std::fs::write(&path, source).unwrap();
     (dir, path.to_string_lossy().into_owned())
@@ -160,7 +151,7 @@ fn planted_bug_is_found(
     fewest: usize,
     seed: &str,
 ) -> Result<(), String> {
-    let out = fresh_dir("verify-planted");
+    let out = TempDir::new("verify-planted");
     let (status, doc) = verify_json(&[file, "--runs", "120", "--seed", seed], &out);
     let what = format!("{file} seed {seed}");
     let check = |ok: bool, msg: String| {
@@ -186,7 +177,7 @@ fn planted_bug_is_found(
     check(c["candidates_not_reproduced"] == 0, format!("{c:#}"))?;
     let test = c["test_file"].as_str().unwrap_or_default();
     let o = run(&["test", test]);
-    let stdout = text(&o.stdout);
+    let stdout = stdout(&o);
     check(
         o.status.code() == Some(1),
         format!("the test must fail: {stdout}"),
@@ -195,7 +186,6 @@ fn planted_bug_is_found(
         stdout.contains(&format!("invariant {invariant:?} is false")),
         stdout.clone(),
     )?;
-    let _ = std::fs::remove_dir_all(&out);
     Ok(())
 }
 
@@ -208,7 +198,7 @@ fn the_five_scripts_keep_their_invariants_under_a_bounded_search() {
         "safe_values",
         "cron_rig",
     ] {
-        let out = fresh_dir("verify-scripts");
+        let out = TempDir::new("verify-scripts");
         let path = format!("scripts/{script}.rhai");
         let (status, doc) = verify_json(
             &[&path, "--runs", "16", "--for", "20s", "--seed", "11"],
@@ -238,7 +228,7 @@ fn the_five_scripts_keep_their_invariants_under_a_bounded_search() {
 
 #[test]
 fn the_same_seed_gives_the_same_counterexample_whatever_the_jobs() {
-    let out = fresh_dir("verify-seed");
+    let out = TempDir::new("verify-seed");
     let file = "tests/verify/interlock_guard_mask.rhai";
     let (_, one) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "1"], &out);
     let (_, two) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "2"], &out);
@@ -273,8 +263,8 @@ invariant("the relay stays at 0", || panel.relay == 0);
         "2",
         "--no-faults",
     ]);
-    let stdout = text(&o.stdout);
-    assert_eq!(o.status.code(), Some(0), "{stdout}{}", text(&o.stderr));
+    let stdout = stdout(&o);
+    assert_eq!(o.status.code(), Some(0), "{stdout}{}", stderr(&o));
     assert!(stdout.contains("seed 2"), "{stdout}");
     assert!(
         stdout.contains("handler panel.on_press S3: fired"),
@@ -310,7 +300,7 @@ fn a_device_fault_the_script_does_not_handle_is_a_finding() {
         "{c:#}"
     );
     let o = run(&["test", c["test_file"].as_str().unwrap()]);
-    let stdout = text(&o.stdout);
+    let stdout = stdout(&o);
     assert_eq!(o.status.code(), Some(1), "{stdout}");
     assert!(stdout.contains("no script error"), "{stdout}");
     // Without faults the module always answers.
@@ -379,7 +369,7 @@ fn outputs_not_at_the_rigs_safe_value_at_the_end_are_a_finding() {
     let written = std::fs::read_to_string(test).unwrap();
     assert!(written.contains("r.end();"), "{written}");
     let o = run(&["test", test]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stdout));
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
 }
 
 #[test]
@@ -388,19 +378,19 @@ fn a_script_that_cannot_run_or_a_bad_config_is_a_usage_error() {
     let o = run(&["verify", &s, "--runs", "1"]);
     assert_eq!(o.status.code(), Some(2));
     let check = run(&["check", &s]);
-    let problem = text(&check.stdout);
+    let problem = stdout(&check);
     let problem = problem.lines().next().unwrap();
     assert!(
-        text(&o.stderr).contains(problem),
+        stderr(&o).contains(problem),
         "the same message as check ({problem}): {}",
-        text(&o.stderr)
+        stderr(&o)
     );
     let toml = dir.join("rig.toml");
     std::fs::write(&toml, "period = \"fast\"\n").unwrap();
     let t = toml.to_string_lossy().into_owned();
     let o = run(&["verify", "scripts/interlock.rhai", "--config", &t]);
-    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("rig.toml"), "{}", text(&o.stderr));
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("rig.toml"), "{}", stderr(&o));
     let o = run(&["verify", "scripts/interlock.rhai", "--runs", "0"]);
     assert_eq!(o.status.code(), Some(2));
 }
@@ -422,7 +412,7 @@ fn in_run_a_false_invariant_ends_the_run_with_1_and_the_safe_state_recorded() {
         "--records",
         &records.to_string_lossy(),
     ]);
-    let stderr = text(&o.stderr);
+    let stderr = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
     assert!(
         stderr.contains("invariant \"at most one output\" is false (stated at "),
@@ -528,7 +518,7 @@ fn a_bug_behind_a_long_timer_or_a_count_of_hundreds_is_found_at_the_defaults() {
         ),
     ];
     for (file, invariant, stretched, seed) in cases {
-        let out = fresh_dir("verify-defaults");
+        let out = TempDir::new("verify-defaults");
         let (status, doc) = verify_json(&[file, "--seed", seed], &out);
         assert_eq!(status, 1, "{file}: {doc:#}");
         assert_eq!(doc["run_for_stretched_for"].as_str(), stretched, "{doc:#}");
@@ -537,13 +527,12 @@ fn a_bug_behind_a_long_timer_or_a_count_of_hundreds_is_found_at_the_defaults() {
         assert_eq!(c["reproduced"], true, "{file}: {c:#}");
         let test = c["test_file"].as_str().expect("a test file");
         let o = run(&["test", test]);
-        let stdout = text(&o.stdout);
+        let stdout = stdout(&o);
         assert_eq!(o.status.code(), Some(1), "{file}: {stdout}");
         assert!(
             stdout.contains(&format!("invariant {invariant:?} is false")),
             "{file}: {stdout}"
         );
-        let _ = std::fs::remove_dir_all(&out);
     }
 }
 
@@ -552,7 +541,7 @@ fn a_count_reached_through_bounced_edges_shrinks_to_the_count_alone() {
     // Seed 12 finds the tool-life bug with a count carried to 296 and four bounced edges of
     // DI0 at the same instant: no edge can go alone, so shrinking left 8 events until the
     // edges were folded into the count.
-    let out = fresh_dir("verify-fold");
+    let out = TempDir::new("verify-fold");
     let file = "tests/verify/tool_life_misses_the_last_stroke.rhai";
     let (status, doc) = verify_json(&[file, "--seed", "12"], &out);
     assert_eq!(status, 1, "{doc:#}");
@@ -560,7 +549,6 @@ fn a_count_reached_through_bounced_edges_shrinks_to_the_count_alone() {
     assert_eq!(c["reproduced"], true, "{c:#}");
     let events = c["events"].as_array().map_or(0, Vec::len);
     assert_eq!(events, 1, "{c:#}");
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]
@@ -649,7 +637,7 @@ fn verify_and_the_test_it_writes_never_write_the_rigs_records_file() {
         "the written test runs on rig.toml's rig"
     );
     let o = run(&["test", test]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stdout));
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
     assert!(
         !records.exists(),
         "a virtual-time run wrote the rig's records file: {}",

@@ -58,8 +58,8 @@ fn the_version_names_the_release_and_the_commit_built_from() {
 fn a_checkout_gives_its_commit_and_dirty_once_a_source_differs_from_it() {
     require_tool("git", "git");
     let d = TempDir::new("version-checkout");
-    let head = repository(&d.0);
-    let found = commit::built_from(&d.0, &["src"]);
+    let head = repository(d.root());
+    let found = commit::built_from(d.root(), &["src"]);
     assert_eq!(found.description, format!("commit {head}"));
     // HEAD and the branch's ref: a new commit or checkout reruns the build script.
     assert!(found.git_files.iter().any(|p| p.ends_with(".git/HEAD")));
@@ -67,20 +67,20 @@ fn a_checkout_gives_its_commit_and_dirty_once_a_source_differs_from_it() {
 
     std::fs::write(d.path("README"), "changed\n").unwrap();
     assert_eq!(
-        commit::built_from(&d.0, &["src"]).description,
+        commit::built_from(d.root(), &["src"]).description,
         format!("commit {head}"),
         "a file outside the sources does not change the binary"
     );
     std::fs::write(d.path("src/new.rs"), "// new\n").unwrap();
     assert_eq!(
-        commit::built_from(&d.0, &["src"]).description,
+        commit::built_from(d.root(), &["src"]).description,
         format!("commit {head}-dirty"),
         "a source not committed yet"
     );
     std::fs::remove_file(d.path("src/new.rs")).unwrap();
     std::fs::write(d.path("src/lib.rs"), "// two\n").unwrap();
     assert_eq!(
-        commit::built_from(&d.0, &["src"]).description,
+        commit::built_from(d.root(), &["src"]).description,
         format!("commit {head}-dirty")
     );
 }
@@ -91,13 +91,13 @@ fn outside_a_checkout_of_its_own_the_commit_is_unknown() {
     let d = TempDir::new("version-tarball");
     std::fs::create_dir_all(d.path("src")).unwrap();
     assert_eq!(
-        commit::built_from(&d.0, &["src"]).description,
+        commit::built_from(d.root(), &["src"]).description,
         commit::UNKNOWN
     );
     // Unpacked inside another repository (a vendored crate): that repository's commit is not
     // this crate's.
     let outer = TempDir::new("version-outer");
-    repository(&outer.0);
+    repository(outer.root());
     let inner = outer.path("vendor/rigscript");
     std::fs::create_dir_all(inner.join("src")).unwrap();
     let found = commit::built_from(&inner, &["src"]);

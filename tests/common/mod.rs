@@ -7,10 +7,11 @@ use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
+use std::os::unix::fs::PermissionsExt;
 use std::os::unix::net::UnixDatagram;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Output, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -93,6 +94,22 @@ impl SimProcess {
         serde_json::from_str(&line).unwrap_or_else(|e| panic!("state is not JSON ({e}): {line}"))
     }
 
+    /// Polls the simulator's state until `pred` holds of it, or `limit` passes; the last state.
+    pub fn wait_for(
+        &mut self,
+        limit: Duration,
+        pred: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        let start = Instant::now();
+        loop {
+            let s = self.state();
+            if pred(&s) || start.elapsed() > limit {
+                return s;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// Sends SIGTERM and waits for the process; returns its exit code.
     pub fn terminate(mut self) -> Option<i32> {
         self.signal_term();
@@ -129,6 +146,64 @@ impl Drop for SimProcess {
     }
 }
 
+/// The systemd units rigscript ships (packaging/systemd), by file name.
+pub const UNITS: [&str; 3] = [
+    "rigscript@.service",
+    "rigscript-check@.service",
+    "rigscript-check@.timer",
+];
+
+/// Asserts `systemd-analyze verify` takes the `UNITS` as instances without a word, each unit's
+/// text as `text_of` gives it for its name (with its program pointed at a binary that exists:
+/// verify looks for it).
+pub fn assert_systemd_accepts(tag: &str, text_of: impl Fn(&str) -> String) {
+    require_tool("systemd-analyze", "systemd");
+    let dir = TempDir::new(tag);
+    for unit in UNITS {
+        std::fs::write(dir.path(unit), text_of(unit)).unwrap();
+    }
+    let out = Command::new("systemd-analyze")
+        .current_dir(dir.root())
+        .args([
+            "verify",
+            "./rigscript@interlock.service",
+            "./rigscript-check@bench.service",
+            "./rigscript-check@bench.timer",
+        ])
+        .output()
+        .expect("run systemd-analyze");
+    let said = format!("{}{}", stdout(&out), stderr(&out));
+    assert!(out.status.success(), "systemd-analyze verify: {said}");
+    assert_eq!(said.trim(), "", "systemd-analyze warns");
+}
+
+/// Sends `signal` (as `kill` writes it: `-TERM`) to process `pid`, failing the test if it
+/// cannot.
+pub fn kill(pid: impl ToString, signal: &str) {
+    let pid = pid.to_string();
+    let ok = Command::new("kill")
+        .args([signal, &pid])
+        .status()
+        .expect("run kill")
+        .success();
+    assert!(ok, "kill {signal} {pid}");
+}
+
+/// Waits for `child` until it exits or `limit` passes (then kills it: a test must not hang);
+/// its exit status, or `None` if it had to be killed.
+pub fn wait_at_most(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let started = Instant::now();
+    while started.elapsed() < limit {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    None
+}
+
 /// Runs a command and returns its output.
 pub fn run(program: &str, args: &[&str]) -> Output {
     Command::new(program)
@@ -137,30 +212,30 @@ pub fn run(program: &str, args: &[&str]) -> Output {
         .unwrap_or_else(|e| panic!("cannot run {program}: {e}"))
 }
 
-/// An empty directory of its own for each call, named after the test, this process and the
-/// call: threads of one test asking with the same tag (two searches at a time) must not clear
-/// each other's files.
-pub fn fresh_dir(tag: &str) -> PathBuf {
-    static CALLS: AtomicUsize = AtomicUsize::new(0);
-    let n = CALLS.fetch_add(1, Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("rigscript-{tag}-{}-{n}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// A `fresh_dir` that is removed again when dropped.
-pub struct TempDir(pub PathBuf);
+/// A directory of a test's own (made by `tempfile`, named after `tag`), removed when dropped.
+pub struct TempDir(tempfile::TempDir);
 
 impl TempDir {
-    /// A new empty directory named after `tag`.
+    /// A new empty directory whose name starts with `rigscript-TAG-`.
     pub fn new(tag: &str) -> Self {
-        Self(fresh_dir(tag))
+        let dir = tempfile::Builder::new()
+            .prefix(&format!("rigscript-{tag}-"))
+            .tempdir()
+            .expect("a temporary directory");
+        // Open to others as a plain `mkdir` makes it: the tests of what another uid may read
+        // must meet the modes of the files themselves, not a private parent.
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+        Self(dir)
+    }
+
+    /// The directory itself.
+    pub fn root(&self) -> &Path {
+        self.0.path()
     }
 
     /// The path of `name` in it.
     pub fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
+        self.root().join(name)
     }
 
     /// Writes `text` to `name` in it and returns the file's path as text.
@@ -171,10 +246,94 @@ impl TempDir {
     }
 }
 
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        self.root()
     }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        self.root()
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for TempDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.root().as_os_str()
+    }
+}
+
+/// What a finished command wrote on stderr, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// What a finished command wrote on stdout, as text.
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// What a finished command wrote on stdout, then on stderr, as text.
+pub fn both(o: &Output) -> String {
+    format!("{}{}", stdout(o), stderr(o))
+}
+
+/// The rest of a child's piped stderr, read until the child closes it.
+pub fn read_stderr(child: &mut Child) -> String {
+    let mut text = String::new();
+    if let Some(err) = child.stderr.as_mut() {
+        err.read_to_string(&mut text)
+            .expect("read the child's stderr");
+    }
+    text
+}
+
+/// `rigscript run ARGS` with stdout discarded and stderr piped (`read_stderr`), for a caller
+/// to add to (its environment, its limits) before spawning it.
+pub fn run_command(args: &[&str]) -> Command {
+    let mut command = Command::new(rigscript());
+    command
+        .arg("run")
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    command
+}
+
+/// Starts `rigscript run ARGS` as `run_command` makes it.
+pub fn start_run(args: &[&str]) -> Child {
+    run_command(args).spawn().expect("start rigscript run")
+}
+
+/// Fails loudly unless the tests run as root (CI does): a second uid needs it, through the
+/// tools named.
+pub fn require_root(tools: &[&str]) {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let uid = unsafe { libc::geteuid() };
+    assert_eq!(
+        uid,
+        0,
+        "this test needs root (a second uid or a private mount namespace through {}); run it as \
+         root, as CI does",
+        tools.join(", ")
+    );
+    for tool in tools {
+        require_tool(tool, "util-linux");
+    }
+}
+
+/// `program ARGS` run as uid and gid 65534 (nobody) with no groups, through `setpriv`; its
+/// output.
+pub fn as_nobody(program: &str, args: &[&str]) -> Output {
+    require_root(&["setpriv"]);
+    Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", program])
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {program} through setpriv: {e}"))
 }
 
 /// One systemd notification as a test's socket received it, and when.
@@ -306,6 +465,26 @@ pub fn served(
     (rig, ask, flag)
 }
 
+/// A rig of one module on `sim`'s pty, safe value 0x05 and a 1 s host watchdog, polled every
+/// 20 ms, and a script that drives its outputs to 0xF0 and ticks every 100 ms: the directory
+/// (named after `tag`), rig.toml's path and the script's.
+pub fn watched_rig(sim: &SimProcess, tag: &str) -> (TempDir, String, String) {
+    let dir = TempDir::new(tag);
+    let config = dir.file(
+        "rig.toml",
+        &format!(
+            "period = \"20ms\"\n[devices.io]\nkind = \"trp-c29u\"\nport = \"{}\"\n\
+             safe_value = 0x05\nwatchdog = \"1s\"\n",
+            sim.path
+        ),
+    );
+    let script = dir.file(
+        "work.rhai",
+        "io.outputs = 0xF0;\nevery(\"100ms\", || {});\n",
+    );
+    (dir, config, script)
+}
+
 /// What became of a rig of two modules when one was lost (`lose_a_module`).
 pub struct Loss {
     /// From the kill of the lost module's simulator until the other read back its safe value
@@ -364,12 +543,7 @@ pub fn lose_a_module(
         "slow.rhai",
         "kept.outputs = 0xF0;\nlost.outputs = 0xF0;\nevery(\"30s\", || {});\n",
     );
-    let mut run = Command::new(rigscript())
-        .args(["run", "--config", &config, &script])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start rigscript run");
+    let mut run = start_run(&["--config", &config, &script]);
     let driven = until(Duration::from_secs(10), || {
         (kept.state()["do"] == 0xF0 && lost.state()["do"] == 0xF0).then_some(())
     });
@@ -394,9 +568,6 @@ pub fn lose_a_module(
         .args(["-TERM", &run.id().to_string()])
         .status();
     let _ = run.wait();
-    let mut log = String::new();
-    if let Some(err) = run.stderr.as_mut() {
-        let _ = err.read_to_string(&mut log);
-    }
+    let log = read_stderr(&mut run);
     Loss { to_safe, log }
 }
