@@ -588,7 +588,9 @@ fn a_records_pipe_nobody_reads_never_holds_the_run_and_sigterm_still_stops_it_sa
          every(\"50ms\", || record(\"tick\", 1));\nafter(\"100ms\", || log(\"ready\"));\n",
     );
     let mut child = Command::new(rigscript())
-        .args(["run", "--sim", "--stats", "--records"])
+        // The top level writes 3 MB of records: on a loaded machine a debug build can take
+        // most of the default second per call for that, which is not what this test is about.
+        .args(["run", "--sim", "--stats", "--handler-time", "30s", "--records"])
         .arg(&fifo)
         .arg(&s)
         .stdout(std::process::Stdio::piped())
