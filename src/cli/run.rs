@@ -378,6 +378,16 @@ fn taken<T>(slot: Option<Started<T>>) -> Option<T> {
     slot.and_then(|s| lock(&s).take())
 }
 
+/// A run refused before any device was touched, for `why`: says so, and tells the guardian
+/// there is nothing for it to make safe; the exit status (`status`).
+fn refused(why: &str, status: i32, guardian: Option<Confirmation>, outputs: &RunOutputs) -> i32 {
+    say(&format!("rigscript run: {why}"));
+    if let Some(g) = guardian {
+        g.confirm();
+    }
+    outputs.not_started(status, why)
+}
+
 /// The run itself, from taking control of the devices to the last log line.
 fn run_started(
     source: &str,
@@ -406,14 +416,7 @@ fn run_started(
             ));
             None
         }
-        Err(e) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                // Nothing was touched: there is nothing for the guardian to make safe.
-                g.confirm();
-            }
-            return outputs.not_started(exit::UNAVAILABLE, &e.to_string());
-        }
+        Err(e) => return refused(&e.to_string(), exit::UNAVAILABLE, guardian, outputs),
     };
     // Before any device is touched, like the socket: an address in use costs nothing.
     let key = match authority::RunKey::generate() {
@@ -445,13 +448,7 @@ fn run_started(
         key.clone(),
     ) {
         Ok(t) => t,
-        Err(e) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                g.confirm();
-            }
-            return outputs.not_started(exit::USAGE, &e.to_string());
-        }
+        Err(e) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let web = match setup
         .config()
@@ -461,15 +458,11 @@ fn run_started(
     {
         Ok(w) => w,
         Err(e) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                g.confirm();
-            }
             let status = match e {
                 BindError::NotLoopback(_) => exit::USAGE,
                 BindError::Io { .. } => exit::UNAVAILABLE,
             };
-            return outputs.not_started(status, &e.to_string());
+            return refused(&e.to_string(), status, guardian, outputs);
         }
     };
     // Before any device is touched too: a password or an outbox that cannot be had.
@@ -481,13 +474,7 @@ fn run_started(
     }) {
         None => None,
         Some(Ok(p)) => Some(p),
-        Some(Err(e)) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                g.confirm();
-            }
-            return outputs.not_started(exit::USAGE, &e.to_string());
-        }
+        Some(Err(e)) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let (requester, requests) = control.queue;
     // The services that must see the run from its first start on attach before the top level.

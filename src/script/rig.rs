@@ -93,15 +93,6 @@ impl Drop for Rig {
     }
 }
 
-impl RigBuilder {
-    /// Compiles `source` (called `file` in messages), opens the devices, brings them under
-    /// control, attaches the services and runs the script's top level; then tick the rig
-    /// with `rig.runner` (a failing top level leaves the runner stopped with status 1).
-    pub fn start(self, source: &str, file: &str) -> Result<Rig, RigError> {
-        start(source, file, self)
-    }
-}
-
 impl Rig {
     /// The log lines kept so far (with `RigBuilder::keep_log`).
     pub fn log(&self) -> Vec<String> {
@@ -114,104 +105,110 @@ impl Rig {
     }
 }
 
-fn start(source: &str, file: &str, setup: RigBuilder) -> Result<Rig, RigError> {
-    if setup.config.devices.is_empty() {
-        return Err(RigError::NoDevices {
-            simulated: setup.simulate,
-        });
-    }
-    let limits = setup.config.limits;
-    let ast = sandboxed(limits.operations)
-        .compile(source)
-        .map_err(|e| RigError::Script(parse_error(file, source, &e)))?;
-    // The log first: its event stream is the run's, and the records file is a consumer of it.
-    let (clock, zone) = (setup.run_clock(), setup.run_zone());
-    let mut log = Logger::new(Arc::clone(&clock), zone, setup.log_to_stderr);
-    log.set_quiet(setup.quiet);
-    log.set_format(setup.log_format);
-    log.set_devices(setup.config.devices.keys().cloned());
-    if setup.keep_log {
-        log.keep_lines();
-    }
-    let records = match setup.records_file() {
-        Some(path) => Records::to_file(path, log.events())?,
-        None => Records::in_memory(),
-    };
-    let count = TransactionCounter::default();
-    let opened = (setup.open)(&setup.config, &clock, setup.simulate, &count)?;
-    let mut runtime = Runtime::new(
-        clock,
-        zone,
-        opened.devices,
-        records,
-        log,
-        count,
-        setup.config.grace,
-    );
-    runtime.limit_timers(limits.timers);
-    runtime.allow_forcing(setup.config.force);
-    // A signal during the start cuts its exchanges short from the first one: a silent module
-    // with long timeouts and many retries must not hold a stop for all of them.
-    runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));
-    let rt = Rc::new(RefCell::new(runtime));
-    let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
-    let started = match started {
-        Ok(started) => started,
-        Err(panic) => {
-            let message = panic_message(panic.as_ref());
-            safe_after_panic(&rt, &message);
-            return Err(RigError::Internal(message));
+impl RigBuilder {
+    /// Compiles `source` (called `file` in messages), opens the devices, brings them under
+    /// control, attaches the services and runs the script's top level; then tick the rig
+    /// with `rig.runner` (a failing top level leaves the runner stopped with status 1).
+    pub fn start(self, source: &str, file: &str) -> Result<Rig, RigError> {
+        let setup = self;
+        if setup.config.devices.is_empty() {
+            return Err(RigError::NoDevices {
+                simulated: setup.simulate,
+            });
         }
-    };
-    if let Err(e) = started {
-        // Leave the devices that did start as a clean end would.
-        let mut r = rt.borrow_mut();
-        let signal = setup.stop_flag.load(Ordering::SeqCst);
-        if signal != 0 {
-            let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
-            r.log_mut().notice(&format!(
-                "stopping during the start: {} received ({})",
-                signals::name(signal),
-                signals::likely_cause(signal)
-            ));
-            // A module not yet under control got from the start at most its safe values (the
-            // outputs it is taken control with); the end's tries on one that has not answered
-            // would cost all its timeouts, so it is left as it is.
-            for d in &r.take_out_uncontrolled() {
-                r.log_mut().warn(&format!(
-                    "{}: not under control yet: left as it is (the start writes a module nothing \
-                     but its safe values)",
-                    d.name()
-                ));
+        let limits = setup.config.limits;
+        let ast = sandboxed(limits.operations)
+            .compile(source)
+            .map_err(|e| RigError::Script(parse_error(file, source, &e)))?;
+        // The log first: its event stream is the run's, and the records file is a consumer of it.
+        let (clock, zone) = (setup.run_clock(), setup.run_zone());
+        let mut log = Logger::new(Arc::clone(&clock), zone, setup.log_to_stderr);
+        log.set_quiet(setup.quiet);
+        log.set_format(setup.log_format);
+        log.set_devices(setup.config.devices.keys().cloned());
+        if setup.keep_log {
+            log.keep_lines();
+        }
+        let records = match setup.records_file() {
+            Some(path) => Records::to_file(path, log.events())?,
+            None => Records::in_memory(),
+        };
+        let count = TransactionCounter::default();
+        let opened = (setup.open)(&setup.config, &clock, setup.simulate, &count)?;
+        let mut runtime = Runtime::new(
+            clock,
+            zone,
+            opened.devices,
+            records,
+            log,
+            count,
+            setup.config.grace,
+        );
+        runtime.limit_timers(limits.timers);
+        runtime.allow_forcing(setup.config.force);
+        // A signal during the start cuts its exchanges short from the first one: a silent module
+        // with long timeouts and many retries must not hold a stop for all of them.
+        runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));
+        let rt = Rc::new(RefCell::new(runtime));
+        let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
+        let started = match started {
+            Ok(started) => started,
+            Err(panic) => {
+                let message = panic_message(panic.as_ref());
+                safe_after_panic(&rt, &message);
+                return Err(RigError::Internal(message));
             }
-            r.end_safe("signal", true);
-            return Err(RigError::Signal(signal));
+        };
+        if let Err(e) = started {
+            // Leave the devices that did start as a clean end would.
+            let mut r = rt.borrow_mut();
+            let signal = setup.stop_flag.load(Ordering::SeqCst);
+            if signal != 0 {
+                let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
+                r.log_mut().notice(&format!(
+                    "stopping during the start: {} received ({})",
+                    signals::name(signal),
+                    signals::likely_cause(signal)
+                ));
+                // A module not yet under control got from the start at most its safe values (the
+                // outputs it is taken control with); the end's tries on one that has not answered
+                // would cost all its timeouts, so it is left as it is.
+                for d in &r.take_out_uncontrolled() {
+                    r.log_mut().warn(&format!(
+                        "{}: not under control yet: left as it is (the start writes a module nothing \
+                         but its safe values)",
+                        d.name()
+                    ));
+                }
+                r.end_safe("signal", true);
+                return Err(RigError::Signal(signal));
+            }
+            r.end_safe("a device is not available", true);
+            return Err(e.into());
         }
-        r.end_safe("a device is not available", true);
-        return Err(e.into());
+        let events = rt.borrow_mut().log_mut().events().clone();
+        for attach in setup.attached {
+            attach(&events);
+        }
+        let mut program = ScriptProgram::new(&rt, ast, file, limits);
+        if let Some(prepare) = setup.prepare {
+            prepare(&mut program);
+        }
+        let period = setup.period.unwrap_or(setup.config.period);
+        let options = RunOptions {
+            period,
+            policy: setup.config.on_error,
+            end_after: setup.end_after,
+            stop_flag: setup.stop_flag,
+            wake_latency: setup.config.wake_latency,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        Ok(Rig {
+            runner,
+            sim: opened.sim,
+        })
     }
-    let events = rt.borrow_mut().log_mut().events().clone();
-    for attach in setup.attached {
-        attach(&events);
-    }
-    let mut program = ScriptProgram::new(&rt, ast, file, limits);
-    if let Some(prepare) = setup.prepare {
-        prepare(&mut program);
-    }
-    let period = setup.period.unwrap_or(setup.config.period);
-    let options = RunOptions {
-        period,
-        policy: setup.config.on_error,
-        end_after: setup.end_after,
-        stop_flag: setup.stop_flag,
-        wake_latency: setup.config.wake_latency,
-    };
-    let mut runner = Runner::new(rt, program, options);
-    runner.start();
-    Ok(Rig {
-        runner,
-        sim: opened.sim,
-    })
 }
 
 #[cfg(test)]
@@ -221,6 +218,10 @@ mod tests {
     use crate::time::clock::{Clock, VirtualClock};
     use chrono::{TimeZone, Utc};
     use std::time::Duration;
+
+    fn start(source: &str, file: &str, setup: RigBuilder) -> Result<Rig, RigError> {
+        setup.start(source, file)
+    }
 
     fn setup(clock: &VirtualClock) -> RigBuilder {
         RigBuilder::from_config(RigConfig::simulated_default())

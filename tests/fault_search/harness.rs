@@ -97,7 +97,7 @@ pub struct ModuleState {
 pub enum End {
     /// rig.toml was refused (nothing ran).
     ConfigRefused(String),
-    /// `start_with` failed.
+    /// `RigBuilder::start` failed.
     StartFailed {
         /// Its exit status.
         status: i32,
