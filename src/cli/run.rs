@@ -477,13 +477,20 @@ fn run_started(
         Some(Err(e)) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let (requester, requests) = control.queue;
-    // The services that must see the run from its first start on attach before the top level.
+    // Every service attaches to the run's events before its top level runs: the MQTT client
+    // and systemd's notifier must see the first start, and all attach the same way.
     let asker = requester.clone();
     let (setup, client) = attach(setup, mqtt, move |p, events| p.start(events, asker));
     let devices: Vec<&str> = setup.config().devices.keys().map(String::as_str).collect();
     let status = format!("running {file} on {}", devices.join(", "));
     let notifier = outputs.take_notifier();
     let (setup, notifying) = attach(setup, notifier, move |n, events| n.attach(events, status));
+    let ui = web.as_ref().map(|w| w.addr());
+    let asker = requester.clone();
+    let (setup, page) = attach(setup, web, move |w, events| w.serve(asker, events));
+    let (setup, server) = attach(setup, claim, move |c, events| {
+        c.serve(requester, events.clone())
+    });
     // `check`'s warnings go to the run's log, in its format, once it has started.
     let warned = warnings(source, setup.scan_period());
     let started = setup.start(source, file);
@@ -528,21 +535,19 @@ fn run_started(
     };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
-    let page = web.map(|w| {
+    if let Some(addr) = ui {
         say(&format!(
             "rigscript run: ui: {}",
-            page_link(w.addr(), key.as_ref(), &key_file)
+            page_link(addr, key.as_ref(), &key_file)
         ));
-        w.serve(requester.clone(), rig.runner.events())
-    });
-    let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));
+    }
     let status = rig.runner.run();
     // What follows (the last events, the broker's goodbye, the log) is not the loop's.
     pulse::enter(Phase::Ended);
     // The last events to the subscribers (`rigscript stop` waits for the end's), then the
     // socket and the page go.
-    drop(server);
-    drop(page);
+    drop(taken(server));
+    drop(taken(page));
     if let Some(c) = client {
         c.finish();
     }

@@ -3,9 +3,12 @@
 //! `@`), and the service watchdog systemd asks for with `$WATCHDOG_USEC` (for this process
 //! unless `$WATCHDOG_PID` names another).
 //!
-//! Every send is non-blocking: a full or missing socket costs the scan loop nothing. A failed
-//! send is counted and its first error kept for the end-of-run report; it never stops the run
-//! (systemd notices missing watchdog pings by itself).
+//! A service like the others: a thread following the run's events (READY at the script's first
+//! start, STOPPING at its end) that pings the watchdog only when the loop turned since its last
+//! look (`Events::turns`, stored by the loop at every slice of its wait), so a loop stuck in a
+//! handler stops the pings. Every send is non-blocking; a failed one is counted and its first
+//! error kept for the end-of-run report; it never stops the run (systemd notices missing
+//! watchdog pings by itself).
 
 use crate::runtime::observe::{Bound, EventKind, Events, Kinds, Next, RunEvent};
 use std::cell::{Cell, RefCell};
