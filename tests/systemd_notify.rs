@@ -225,6 +225,34 @@ fn a_bad_notify_socket_is_reported_and_the_run_goes_on() {
         err.contains("NOTIFY_SOCKET=\"vsock:2:1\" is not a socket path"),
         "{err}"
     );
-    assert!(err.contains("ran"), "{err}");
+    assert!(err.contains("script: ran"), "the run went on: {err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn notifications_nobody_receives_are_counted_and_told_at_the_end() {
+    let dir = fresh_dir("notify-gone");
+    let script = dir.join("s.rhai");
+    std::fs::write(&script, "every(\"50ms\", || {});\n").unwrap();
+    let gone = dir.join("no-such.sock").display().to_string();
+    let run = start_run(
+        &["--sim", &script.display().to_string(), "--for", "500ms"],
+        &gone,
+        Some("200000"),
+    );
+    let (status, err) = finish(run);
+    assert_eq!(status, 0, "{err}");
+    // READY, the pings while the loop turned, STOPPING: all lost, all counted.
+    let told = err
+        .lines()
+        .find(|l| l.contains("notifications to systemd could not be sent (first: READY=1: "))
+        .unwrap_or_else(|| panic!("no report of the lost notifications: {err}"));
+    let lost: u32 = told
+        .split(" of ")
+        .next()
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{told}"));
+    assert!(lost >= 4, "READY, STOPPING and pings: {told}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
