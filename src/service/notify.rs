@@ -1,7 +1,9 @@
 //! The systemd notification protocol (`sd_notify`), spoken directly: one datagram per message to
 //! the socket named by `$NOTIFY_SOCKET` (a path, or an abstract name written with a leading
 //! `@`), and the service watchdog systemd asks for with `$WATCHDOG_USEC` (for this process
-//! unless `$WATCHDOG_PID` names another).
+//! unless `$WATCHDOG_PID` names another). Not the sd-notify crate: its 0.5 connects to
+//! `$NOTIFY_SOCKET` as a path (no abstract names), opens a socket at every send and blocks on
+//! it, and takes a malformed `$WATCHDOG_USEC` as no watchdog, without a word.
 //!
 //! A service like the others: a thread following the run's events (READY at the script's first
 //! start, STOPPING at its end) that pings the watchdog only when the loop turned since its last
