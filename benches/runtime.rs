@@ -25,12 +25,12 @@ mod args;
 use args::BenchArgs;
 use rigscript::config::{RigConfig, ScriptLimits, WakeLatency};
 use rigscript::runtime::devices::SimRig;
-use rigscript::runtime::log::LogFormat;
 use rigscript::runtime::stats::Histogram;
 use rigscript::runtime::wake_latency;
-use rigscript::script::rig::{start, Rig, RigSetup};
+use rigscript::script::rig::Rig;
 use rigscript::time::clock::{Clock, SharedClock, SystemClock, VirtualClock};
 use rigscript::time::zone::Zone;
+use rigscript::RigBuilder;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -180,25 +180,23 @@ fn rig_from_source(
     wake_latency: WakeLatency,
     limits: ScriptLimits,
 ) -> Rig {
-    let setup = RigSetup {
-        config: RigConfig {
-            wake_latency,
-            limits,
-            ..RigConfig::simulated_default()
-        },
-        simulate: true,
-        clock,
-        zone: Zone::utc(),
-        period,
-        end_after: end,
-        records: None,
-        log_to_stderr: false,
-        quiet: false,
-        keep_log: false,
-        log_format: LogFormat::Text,
-        stop_flag: Arc::default(),
+    let config = RigConfig {
+        wake_latency,
+        limits,
+        ..RigConfig::simulated_default()
     };
-    let rig = start(source, path, setup).expect("start the script");
+    let mut setup = RigBuilder::from_config(config)
+        .simulated()
+        .clock(clock)
+        .zone(Zone::utc())
+        .log_to_stderr(false);
+    if let Some(period) = period {
+        setup = setup.period(period);
+    }
+    if let Some(end) = end {
+        setup = setup.run_for(end);
+    }
+    let rig = setup.start(source, path).expect("start the script");
     assert!(
         rig.runner.status().is_none(),
         "{path} ended at its top level"

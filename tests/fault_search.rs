@@ -1,6 +1,6 @@
 //! The fault search: a property-based test of the runner itself. proptest makes cases (a
 //! rig.toml, a script from a grammar of the script API, and a schedule of faults), each case
-//! runs as `rigscript run` would (`rig::start_with` and `Runner::run`) in virtual time, with the
+//! runs as `rigscript run` would (`RigBuilder::start` and `Runner::run`) in virtual time, with the
 //! real drivers talking to simulated TRP-C29U modules through fault-injecting links, and the
 //! oracle judges it from the modules' own output history (see `fault_search/oracle.rs` for the
 //! rules). A failing case shrinks to a minimal one, printed with its rig.toml and script.

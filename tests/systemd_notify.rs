@@ -213,3 +213,29 @@ fn a_bad_notify_socket_is_reported_and_the_run_goes_on() {
     assert!(said < err.find("script: tick").unwrap(), "{err}");
     assert!(err.contains("stopping: ran for 1s"), "{err}");
 }
+
+#[test]
+fn notifications_nobody_receives_are_counted_and_told_at_the_end() {
+    let dir = TempDir::new("notify-gone");
+    let script = dir.file("s.rhai", "every(\"50ms\", || {});\n");
+    let gone = dir.join("no-such.sock").display().to_string();
+    let run = start_run(
+        &["--sim", &script, "--for", "500ms"],
+        &gone,
+        Some("200000"),
+    );
+    let (status, err) = finish(run);
+    assert_eq!(status, 0, "{err}");
+    // READY, the pings while the loop turned, STOPPING: all lost, all counted.
+    let told = err
+        .lines()
+        .find(|l| l.contains("notifications to systemd could not be sent (first: READY=1: "))
+        .unwrap_or_else(|| panic!("no report of the lost notifications: {err}"));
+    let lost: u32 = told
+        .split(" of ")
+        .next()
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{told}"));
+    assert!(lost >= 4, "READY, STOPPING and pings: {told}");
+}

@@ -3,9 +3,12 @@
 //!
 //! Exit statuses: `runtime::exit` (shown by `run --help`).
 //!
-//! Under systemd (`Type=notify`) it sends READY=1 once every device is under control and feeds
-//! the service watchdog from the scan loop (`cli::run_outputs`); `--junit FILE` writes the
-//! measurements as JUnit XML.
+//! The run's one composition root: every service attaches here, the same way, to the run's
+//! event stream, and those that ask the loop something through a `Requester` of the control
+//! queue: the log and the records file (`RigBuilder::start`), systemd's notifications
+//! (`service::notify`: READY=1 once every device is under control, WATCHDOG=1 while the loop
+//! turns), the MQTT client (`service::mqtt`), the control socket and the web page; `--junit
+//! FILE` writes the measurements as JUnit XML (`cli::run_outputs`).
 
 use super::check::fit_to_run;
 use super::output::say;
@@ -14,13 +17,12 @@ use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency, DE
 use crate::guardian::lone::{Ending, LoneWatch};
 use crate::guardian::pulse::{self, Phase};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
-use crate::runtime::devices::open_devices;
 use crate::runtime::log::LogFormat;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{self, Requester, Requests};
 use crate::runtime::{exit, signals};
+use crate::script::builder::RigBuilder;
 use crate::script::lint::warnings;
-use crate::script::rig::{start_observed, RigSetup};
 use crate::script::stack;
 use crate::service::authority;
 use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
@@ -28,15 +30,15 @@ use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::http::{self, BindError};
 use crate::service::mqtt;
 use crate::service::rig_dir;
+use crate::sync::lock;
 use crate::text_file::{read_text, TextKind};
-use crate::time::clock::SystemClock;
 use crate::time::duration::parse_duration;
 use crate::time::zone::Zone;
 use clap::Args;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicUsize;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Options of `rigscript run`.
@@ -225,31 +227,37 @@ pub fn run(args: RunArgs) -> i32 {
         named: config.name.is_some(),
         config: args.config.as_ref().map(|p| p.display().to_string()),
     };
-    let setup = RigSetup {
-        config,
-        simulate: args.sim,
-        clock: SystemClock::shared(),
-        zone: Zone::Local,
-        period: args.period,
-        end_after: args.run_for,
-        records: args.records.clone(),
-        log_to_stderr: true,
-        quiet: args.quiet,
-        log_format: args.log_format,
-        keep_log: outputs.keeps_log(),
-        stop_flag,
-    };
+    let mut setup = RigBuilder::from_config(config)
+        .log_format(args.log_format)
+        .stop_flag(stop_flag);
+    if args.sim {
+        setup = setup.simulated();
+    }
+    if args.quiet {
+        setup = setup.quiet();
+    }
+    if outputs.keeps_log() {
+        setup = setup.keep_log();
+    }
+    if let Some(period) = args.period {
+        setup = setup.period(period);
+    }
+    if let Some(end) = args.run_for {
+        setup = setup.run_for(end);
+    }
+    if let Some(records) = &args.records {
+        setup = setup.records(records);
+    }
     let log = GuardianLog {
         format: args.log_format,
         zone: Zone::Local,
-        stall: setup
-            .config
-            .stall_limit(args.period.unwrap_or(setup.config.period)),
+        stall: setup.config().stall_limit(setup.scan_period()),
     };
-    let guardian = if args.no_guardian || args.sim || !setup.config.has_real_devices() {
+    let real_devices = setup.config().has_real_devices();
+    let guardian = if args.no_guardian || args.sim || !real_devices {
         None
     } else {
-        match guard(&setup.config, log) {
+        match guard(setup.config(), log) {
             Ok(Guarded::Runner(confirmation)) => Some(confirmation),
             Ok(Guarded::Guardian(status)) => return status,
             Err(e) => {
@@ -264,12 +272,7 @@ pub fn run(args: RunArgs) -> i32 {
     // guardian, a thread of this process watches the loop instead.
     let lone = match &guardian {
         Some(_) => None,
-        None => match LoneWatch::start(
-            log,
-            Ending::Run {
-                real_devices: setup.config.has_real_devices(),
-            },
-        ) {
+        None => match LoneWatch::start(log, Ending::Run { real_devices }) {
             Ok(w) => Some(w),
             Err(e) => {
                 say(&format!("rigscript run: {e}"));
@@ -278,7 +281,7 @@ pub fn run(args: RunArgs) -> i32 {
         },
     };
     // The run on a stack that holds whatever the script can build within its memory limit.
-    let memory = setup.config.limits.memory;
+    let memory = setup.config().limits.memory;
     let stats = args.stats;
     stack::on_script_stack(memory, move || {
         let pulse = guardian
@@ -351,11 +354,45 @@ fn page_link(
     }
 }
 
+/// `setup` with `service`, if there is one, started by `start` on the run's events
+/// (`RigBuilder::attach`), and where what that returned is found once the rig has started.
+fn attach<S: Send + 'static, T: Send + 'static>(
+    setup: RigBuilder,
+    service: Option<S>,
+    start: impl FnOnce(S, &Events) -> T + Send + 'static,
+) -> (RigBuilder, Option<Started<T>>) {
+    let Some(service) = service else {
+        return (setup, None);
+    };
+    let slot = Started::default();
+    let filled = Arc::clone(&slot);
+    let setup = setup.attach(move |events| *lock(&filled) = Some(start(service, events)));
+    (setup, Some(slot))
+}
+
+/// What a service attached by `attach` returned when it started.
+type Started<T> = Arc<Mutex<Option<T>>>;
+
+/// What the service attached returned, if it was attached and started.
+fn taken<T>(slot: Option<Started<T>>) -> Option<T> {
+    slot.and_then(|s| lock(&s).take())
+}
+
+/// A run refused before any device was touched, for `why`: says so, and tells the guardian
+/// there is nothing for it to make safe; the exit status (`status`).
+fn refused(why: &str, status: i32, guardian: Option<Confirmation>, outputs: &RunOutputs) -> i32 {
+    say(&format!("rigscript run: {why}"));
+    if let Some(g) = guardian {
+        g.confirm();
+    }
+    outputs.not_started(status, why)
+}
+
 /// The run itself, from taking control of the devices to the last log line.
 fn run_started(
     source: &str,
     file: &str,
-    setup: RigSetup,
+    setup: RigBuilder,
     outputs: &mut RunOutputs,
     guardian: Option<Confirmation>,
     stats: bool,
@@ -379,14 +416,7 @@ fn run_started(
             ));
             None
         }
-        Err(e) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                // Nothing was touched: there is nothing for the guardian to make safe.
-                g.confirm();
-            }
-            return outputs.not_started(exit::UNAVAILABLE, &e.to_string());
-        }
+        Err(e) => return refused(&e.to_string(), exit::UNAVAILABLE, guardian, outputs),
     };
     // Before any device is touched, like the socket: an address in use costs nothing.
     let key = match authority::RunKey::generate() {
@@ -413,36 +443,26 @@ fn run_started(
         _ => None,
     };
     let tokens = match http::auth::Tokens::from(
-        setup.config.ui_token.as_ref(),
-        setup.config.ui_read_token.as_ref(),
+        setup.config().ui_token.as_ref(),
+        setup.config().ui_read_token.as_ref(),
         key.clone(),
     ) {
         Ok(t) => t,
-        Err(e) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                g.confirm();
-            }
-            return outputs.not_started(exit::USAGE, &e.to_string());
-        }
+        Err(e) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let web = match setup
-        .config
+        .config()
         .ui
         .map(|addr| http::bind(addr, tokens))
         .transpose()
     {
         Ok(w) => w,
         Err(e) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                g.confirm();
-            }
             let status = match e {
                 BindError::NotLoopback(_) => exit::USAGE,
                 BindError::Io { .. } => exit::UNAVAILABLE,
             };
-            return outputs.not_started(status, &e.to_string());
+            return refused(&e.to_string(), status, guardian, outputs);
         }
     };
     // Before any device is touched too: a password or an outbox that cannot be had.
@@ -454,22 +474,35 @@ fn run_started(
     }) {
         None => None,
         Some(Ok(p)) => Some(p),
-        Some(Err(e)) => {
-            say(&format!("rigscript run: {e}"));
-            if let Some(g) = guardian {
-                g.confirm();
-            }
-            return outputs.not_started(exit::USAGE, &e.to_string());
-        }
+        Some(Err(e)) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let (requester, requests) = control.queue;
-    let mut client = None;
-    let observe = |events: &Events| {
-        client = mqtt.map(|p| p.start(events, requester.clone()));
-    };
+    // Every service attaches to the run's events before its top level runs: the MQTT client
+    // and systemd's notifier must see the first start, and all attach the same way.
+    let asker = requester.clone();
+    let (setup, client) = attach(setup, mqtt, move |p, events| p.start(events, asker));
+    let devices: Vec<&str> = setup.config().devices.keys().map(String::as_str).collect();
+    let status = format!("running {file} on {}", devices.join(", "));
+    let notifier = outputs.take_notifier();
+    let (setup, notifying) = attach(setup, notifier, move |n, events| n.attach(events, status));
+    let ui = web.as_ref().map(|w| w.addr());
+    let asker = requester.clone();
+    let (setup, page) = attach(setup, web, move |w, events| w.serve(asker, events));
+    let (setup, server) = attach(setup, claim, move |c, events| {
+        c.serve(requester, events.clone())
+    });
     // `check`'s warnings go to the run's log, in its format, once it has started.
-    let warned = warnings(source, setup.period.unwrap_or(setup.config.period));
-    let mut rig = match start_observed(source, file, setup, open_devices, |_| {}, observe) {
+    let warned = warnings(source, setup.scan_period());
+    let started = setup.start(source, file);
+    let notifying = match taken(notifying) {
+        Some(Ok(n)) => Some(n),
+        Some(Err(e)) => {
+            say(&format!("rigscript run: {e}"));
+            None
+        }
+        None => None,
+    };
+    let mut rig = match started {
         Ok(r) => r,
         Err(e) => {
             say(&format!("rigscript run: {e}"));
@@ -477,10 +510,12 @@ fn run_started(
             if let (Some(g), false) = (guardian, e.status() == exit::INTERNAL) {
                 g.confirm();
             }
+            if let Some(n) = notifying {
+                n.finish(e.status());
+            }
             return outputs.not_started(e.status(), &e.to_string());
         }
     };
-    outputs.started(&mut rig);
     for w in &warned {
         rig.runner
             .runtime()
@@ -488,7 +523,7 @@ fn run_started(
             .log_mut()
             .warn(&w.in_file(file));
     }
-    let client = match client {
+    let client = match taken(client) {
         Some(Err(e)) => {
             say(&format!(
                 "rigscript run: warning: {e}; the run goes on without the broker"
@@ -500,31 +535,29 @@ fn run_started(
     };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
-    if let Some(c) = &client {
-        rig.runner.watch_mqtt(c.health());
-    }
-    let page = web.map(|w| {
+    if let Some(addr) = ui {
         say(&format!(
             "rigscript run: ui: {}",
-            page_link(w.addr(), key.as_ref(), &key_file)
+            page_link(addr, key.as_ref(), &key_file)
         ));
-        w.serve(requester.clone(), rig.runner.events())
-    });
-    let server = claim.map(|c| c.serve(requester, rig.runner.events().clone()));
+    }
     let status = rig.runner.run();
     // What follows (the last events, the broker's goodbye, the log) is not the loop's.
     pulse::enter(Phase::Ended);
     // The last events to the subscribers (`rigscript stop` waits for the end's), then the
     // socket and the page go.
-    drop(server);
-    drop(page);
+    drop(taken(server));
+    drop(taken(page));
     if let Some(c) = client {
         c.finish();
     }
     if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
         g.confirm();
     }
-    let status = outputs.finished(&mut rig, status);
+    if let Some(report) = notifying.and_then(|n| n.finish(status)) {
+        rig.runner.runtime().borrow_mut().log_mut().warn(&report);
+    }
+    let status = outputs.finished(&rig, status);
     // The last lines out (at most a second's wait for a stderr nobody reads).
     rig.runner.runtime().borrow_mut().close_log();
     if stats {

@@ -1,6 +1,6 @@
-//! What `rigscript run` tells the world besides its log: systemd's notifications (READY once
-//! every device is under control, the watchdog fed from the scan loop, STOPPING at the end)
-//! and the JUnit report of `--junit FILE`.
+//! What `rigscript run` tells the world besides its log: the JUnit report of `--junit FILE`,
+//! and systemd's notifier when the environment asks for one (`service::notify`, attached at
+//! `cli::run`).
 
 use crate::report::junit;
 use crate::report::measurements::{run_suite, RunOutcome};
@@ -23,10 +23,10 @@ pub struct RunOutputs {
 }
 
 impl RunOutputs {
-    /// Outputs for a run of `script`: a JUnit report to `junit` if given, and systemd
-    /// notifications if the environment asks for them (a bad setting is reported on stderr and
-    /// the run goes on without them). Refuses a report path whose directory does not exist,
-    /// before anything runs.
+    /// Outputs for a run of `script`: a JUnit report to `junit` if given, and systemd's
+    /// notifier if the environment asks for one (a bad setting is reported on stderr and the
+    /// run goes on without it). Refuses a report path whose directory does not exist, before
+    /// anything runs.
     pub fn new(script: &str, junit: Option<PathBuf>) -> Result<Self, String> {
         if let Some(path) = &junit {
             junit::check_path(path)?;
@@ -44,6 +44,11 @@ impl RunOutputs {
         })
     }
 
+    /// systemd's notifier, for the run to attach (once).
+    pub fn take_notifier(&mut self) -> Option<Notifier> {
+        self.notifier.take()
+    }
+
     /// Whether the run should keep its log in memory (the report quotes its problems).
     pub fn keeps_log(&self) -> bool {
         self.junit.is_some()
@@ -55,28 +60,9 @@ impl RunOutputs {
         self.write_report(status, &[], false, &problems)
     }
 
-    /// The devices are under control and the script's top level has run: READY, and the
-    /// systemd watchdog handed to the scan loop.
-    pub fn started(&mut self, rig: &mut Rig) {
-        let Some(notifier) = self.notifier.take() else {
-            return;
-        };
-        if rig.runner.status().is_none() {
-            let devices = rig.runner.runtime().borrow().device_names();
-            notifier.ready(&format!("running {} on {devices}", self.script));
-        }
-        rig.runner.service = Some(notifier);
-    }
-
-    /// The run ended with `status`: STOPPING, the report; returns the exit status (1 instead
-    /// of 0 if the report could not be written).
-    pub fn finished(&mut self, rig: &mut Rig, status: i32) -> i32 {
-        if let Some(notifier) = rig.runner.service.take() {
-            notifier.stopping(&format!("stopped; exit status {status}"));
-            if let Some(report) = notifier.failure_report() {
-                rig.runner.runtime().borrow_mut().log_mut().warn(&report);
-            }
-        }
+    /// The run ended with `status`: the report; returns the exit status (1 instead of 0 if
+    /// the report could not be written).
+    pub fn finished(&mut self, rig: &Rig, status: i32) -> i32 {
         if self.junit.is_none() {
             return status;
         }

@@ -274,6 +274,8 @@ struct Fanout {
     next_id: AtomicU64,
     /// Events lost by any consumer, those let go since included.
     lost: AtomicU64,
+    /// Turns of the loop so far (`turned`).
+    turns: AtomicU64,
 }
 
 struct Consumer {
@@ -377,6 +379,23 @@ impl Events {
     /// Whether an attached consumer takes events of `kind` (one not taken need not be built).
     pub fn wants(&self, kind: EventKind) -> bool {
         self.watched() && self.fanout.wanted.load(Ordering::Relaxed) & kind.bit() != 0
+    }
+
+    /// The loop turned: called from every slice of its wait between ticks (at least once a
+    /// tick), never from inside a handler, so a consumer that sees `turns` stand still knows
+    /// the loop is stuck (systemd's watchdog, `service::notify`). One store, no event built.
+    #[inline]
+    pub fn turned(&self) {
+        // One writer (the loop thread): a plain increment, no locked instruction.
+        let n = self.fanout.turns.load(Ordering::Relaxed);
+        self.fanout
+            .turns
+            .store(n.wrapping_add(1), Ordering::Release);
+    }
+
+    /// Turns of the loop so far (`turned`).
+    pub fn turns(&self) -> u64 {
+        self.fanout.turns.load(Ordering::Acquire)
     }
 
     /// Gives the event `make` builds to every consumer that takes its kind, never waiting:

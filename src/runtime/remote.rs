@@ -6,7 +6,27 @@
 //! never waits on the loop.
 
 use crate::runtime::log::Level;
+use crate::runtime::snapshot::MqttState;
 use std::sync::mpsc::SyncSender;
+
+/// What the remote consumer shares with the loop through its `Requester`
+/// (`Requester::share`): where the loop counts what it turned away, beside the consumer's own
+/// losses, and the consumer's state as the run's snapshot shows it.
+pub trait RemoteState: Send + Sync {
+    /// The loop turned away a command or a message the consumer sent.
+    fn turned_away(&self, what: TurnedAway);
+    /// The consumer's state, for the snapshot (`status`, `/metrics`).
+    fn shown(&self) -> MqttState;
+}
+
+/// What the loop turned away.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TurnedAway {
+    /// A command refused (too many waiting, the run ending or restarting).
+    Command,
+    /// A watched topic's message dropped (too many waiting, the script restarting).
+    Message,
+}
 
 /// A request from a remote consumer.
 #[derive(Debug, Clone, PartialEq, Eq)]

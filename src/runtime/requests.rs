@@ -10,6 +10,7 @@
 
 use super::devices::SimRig;
 use super::forcing::ForceOrder;
+use super::remote::RemoteState;
 use super::snapshot::RigSnapshot;
 use crate::sync::lock;
 use crate::time::doorbell::Doorbell;
@@ -17,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use signal_hook::consts::SIGTERM;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
 /// Requests waiting for the loop at most; one more is refused at once (`AskError::Busy`).
@@ -178,6 +179,7 @@ pub struct Requester {
     stop: Arc<AtomicUsize>,
     stopped_by: Arc<Mutex<Option<String>>>,
     bell: Doorbell,
+    remote: Shared,
 }
 
 /// What the loop drains.
@@ -185,24 +187,31 @@ pub struct Requests {
     queue: Receiver<Envelope>,
     stopped_by: Arc<Mutex<Option<String>>>,
     bell: Doorbell,
+    remote: Shared,
 }
+
+/// The remote consumer's state, once it shared it.
+type Shared = Arc<OnceLock<Box<dyn RemoteState>>>;
 
 /// A queue into a loop whose stop flag is `stop`.
 pub fn queue(stop: &Arc<AtomicUsize>) -> (Requester, Requests) {
     let (tx, rx) = mpsc::sync_channel(QUEUE);
     let stopped_by = Arc::new(Mutex::new(None));
     let bell = Doorbell::default();
+    let remote = Shared::default();
     (
         Requester {
             queue: tx,
             stop: Arc::clone(stop),
             stopped_by: Arc::clone(&stopped_by),
             bell: bell.clone(),
+            remote: Arc::clone(&remote),
         },
         Requests {
             queue: rx,
             stopped_by,
             bell,
+            remote,
         },
     )
 }
@@ -245,7 +254,19 @@ impl Requester {
     }
 }
 
+impl Requester {
+    /// Shares the remote consumer's `state` with the loop (once: a second is ignored).
+    pub fn share(&self, state: Box<dyn RemoteState>) {
+        let _ = self.remote.set(state);
+    }
+}
+
 impl Requests {
+    /// The state the remote consumer shared, if it did.
+    pub fn remote(&self) -> Option<&dyn RemoteState> {
+        self.remote.get().map(Box::as_ref)
+    }
+
     /// Answers the requests waiting (at most `PER_TURN`), each with `answer`.
     pub fn drain(&self, mut answer: impl FnMut(&Request) -> Answer) {
         for envelope in self.queue.try_iter().take(PER_TURN) {

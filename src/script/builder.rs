@@ -1,6 +1,8 @@
-//! A rig assembled in Rust: devices named in code (or read from a rig.toml), real or simulated,
-//! in real or virtual time, and a Rhai script started on it. What `rigscript run` and
-//! `rigscript test` do from the command line, for programs that use rigscript as a library.
+//! The one way to say what a run needs besides its script: devices named in code (or read from
+//! a rig.toml), real or simulated, in real or virtual time, the log, the records file, and the
+//! services attached to its events before its top level runs; `RigBuilder::start`
+//! (`script::rig`) then starts a Rhai script on it. What `rigscript run`, `test`, `check` and
+//! `verify` build, and what programs that use rigscript as a library build.
 //!
 //! ```
 //! use rigscript::config::{C29uConfig, Port};
@@ -18,36 +20,55 @@
 //! assert_eq!(rig.sim.outputs("io").unwrap(), 3);
 //! ```
 
-use super::rig::{start, Rig, RigError, RigSetup};
+use super::program::ScriptProgram;
+use crate::config::mqtt::MqttConfig;
 use crate::config::{C29uConfig, DeviceConfig, ErrorPolicy, RigConfig, Trc1000Config};
+use crate::runtime::devices::links::TransactionCounter;
+use crate::runtime::devices::{open_devices, OpenError, Opened};
 use crate::runtime::log::LogFormat;
+use crate::runtime::observe::Events;
 use crate::time::clock::{SharedClock, SystemClock, VirtualClock};
 use crate::time::zone::Zone;
 use chrono::{DateTime, Utc};
-use serde_json::Value;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
+
+/// What opens the devices: given the config, the clock, whether to simulate them all and the
+/// request counter (`open_devices` unless `RigBuilder::open_with` says otherwise).
+pub type Opener = Box<
+    dyn FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>
+        + Send,
+>;
+
+/// What is given the program before its top level runs (`RigBuilder::prepare`).
+type Prepare = Box<dyn FnOnce(&mut ScriptProgram) + Send>;
+
+/// A service attached to the run's events (`RigBuilder::attach`).
+type Attach = Box<dyn FnOnce(&Events) + Send>;
 
 /// Builds a rig step by step, then starts a script on it (`start`).
 ///
 /// Unless told otherwise: no devices, real hardware, real time in the local zone, the period,
 /// error policy and grace time of `RigConfig::default()`, the log on stderr, the default
-/// operation budget, no end time.
+/// operation budget, no end time, nothing attached to the run's events.
 pub struct RigBuilder {
-    config: RigConfig,
-    simulate: bool,
+    pub(super) config: RigConfig,
+    pub(super) simulate: bool,
     clock: Option<SharedClock>,
     zone: Option<Zone>,
-    period: Option<Duration>,
-    end_after: Option<Duration>,
+    pub(super) period: Option<Duration>,
+    pub(super) end_after: Option<Duration>,
     records: Option<PathBuf>,
-    log_to_stderr: bool,
-    quiet: bool,
-    log_format: LogFormat,
-    keep_log: bool,
-    stop_flag: Arc<AtomicUsize>,
+    pub(super) log_to_stderr: bool,
+    pub(super) quiet: bool,
+    pub(super) log_format: LogFormat,
+    pub(super) keep_log: bool,
+    pub(super) stop_flag: Arc<AtomicUsize>,
+    pub(super) open: Opener,
+    pub(super) prepare: Option<Prepare>,
+    pub(super) attached: Vec<Attach>,
 }
 
 impl Default for RigBuilder {
@@ -77,6 +98,9 @@ impl RigBuilder {
             log_format: LogFormat::Text,
             keep_log: false,
             stop_flag: Arc::default(),
+            open: Box::new(open_devices),
+            prepare: None,
+            attached: Vec::new(),
         }
     }
 
@@ -123,7 +147,7 @@ impl RigBuilder {
         self
     }
 
-    /// The scan period.
+    /// The scan period, overriding the config's.
     pub fn period(mut self, period: Duration) -> Self {
         self.period = Some(period);
         self
@@ -141,7 +165,8 @@ impl RigBuilder {
         self
     }
 
-    /// Appends records and measurements to this JSON-lines file.
+    /// Appends records and measurements to this JSON-lines file (overriding rig.toml's; in
+    /// virtual time the only one: `records_file`).
     pub fn records(mut self, path: impl Into<PathBuf>) -> Self {
         self.records = Some(path.into());
         self
@@ -185,45 +210,78 @@ impl RigBuilder {
         self
     }
 
-    /// What `start` will run with.
-    pub fn setup(self) -> RigSetup {
-        let virtual_time = self.clock.is_some();
-        RigSetup {
-            config: self.config,
-            simulate: self.simulate,
-            clock: self.clock.unwrap_or_else(SystemClock::shared),
-            zone: self.zone.unwrap_or(if virtual_time {
-                Zone::utc()
-            } else {
-                Zone::Local
-            }),
-            period: self.period,
-            end_after: self.end_after,
-            records: self.records,
-            log_to_stderr: self.log_to_stderr,
-            quiet: self.quiet,
-            log_format: self.log_format,
-            keep_log: self.keep_log,
-            stop_flag: self.stop_flag,
-        }
+    /// Opens the devices with `open` instead of `open_devices` (given the same config, clock,
+    /// `simulate` flag and request counter: the fault search puts simulators behind
+    /// fault-injecting links under the real drivers this way).
+    pub fn open_with(
+        mut self,
+        open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>
+            + Send
+            + 'static,
+    ) -> Self {
+        self.open = Box::new(open);
+        self
     }
 
-    /// Compiles `source` (called `file` in messages), opens the devices, brings them under
-    /// control and runs the script's top level; then tick the rig with `rig.runner`.
-    pub fn start(self, source: &str, file: &str) -> Result<Rig, RigError> {
-        start(source, file, self.setup())
-    }
-}
-
-impl Rig {
-    /// The log lines kept so far (with `RigBuilder::keep_log`).
-    pub fn log(&self) -> Vec<String> {
-        self.runner.runtime().borrow().log_lines().to_vec()
+    /// Gives `prepare` the program before its top level runs (`verify` has it keep count of
+    /// what the script does from the first line on).
+    pub fn prepare(mut self, prepare: impl FnOnce(&mut ScriptProgram) + Send + 'static) -> Self {
+        self.prepare = Some(Box::new(prepare));
+        self
     }
 
-    /// The records and measurements kept so far, oldest first, as JSON objects.
-    pub fn records(&self) -> Vec<Value> {
-        self.runner.runtime().borrow().records_kept().to_vec()
+    /// Attaches a service to the run: `attach` is given the run's event stream once every
+    /// device is under control and before the script's top level runs, so a consumer that
+    /// must see every record (the MQTT client) or the first start (systemd's READY) does.
+    pub fn attach(mut self, attach: impl FnOnce(&Events) + Send + 'static) -> Self {
+        self.attached.push(Box::new(attach));
+        self
+    }
+
+    /// The rig's config, with what was set in code.
+    pub fn config(&self) -> &RigConfig {
+        &self.config
+    }
+
+    /// The scan period the run will have.
+    pub fn scan_period(&self) -> Duration {
+        self.period.unwrap_or(self.config.period)
+    }
+
+    /// The clock the run will have.
+    pub(super) fn run_clock(&self) -> SharedClock {
+        self.clock.clone().unwrap_or_else(SystemClock::shared)
+    }
+
+    /// The zone the run will have: UTC in virtual time unless set, else the local one.
+    pub(super) fn run_zone(&self) -> Zone {
+        self.zone.unwrap_or(if self.clock.is_some() {
+            Zone::utc()
+        } else {
+            Zone::Local
+        })
+    }
+
+    fn is_virtual(&self) -> bool {
+        self.clock.as_ref().is_some_and(|c| c.is_virtual())
+    }
+
+    /// The records file the run appends to: the one asked for, else rig.toml's `records`,
+    /// but never rig.toml's in virtual time (`rigscript test`, `verify`: their records,
+    /// dated whenever the test says, would mix with the rig's real ones).
+    pub fn records_file(&self) -> Option<&Path> {
+        let production = self
+            .config
+            .records
+            .as_deref()
+            .filter(|_| !self.is_virtual());
+        self.records.as_deref().or(production)
+    }
+
+    /// The broker the run reports to (rig.toml's `[mqtt]`), never in virtual time (the
+    /// broker and the outbox hold the rig's real records).
+    pub fn mqtt(&self) -> Option<&MqttConfig> {
+        self.config.mqtt.as_ref().filter(|_| !self.is_virtual())
     }
 }
 
@@ -287,19 +345,25 @@ mod tests {
 
     #[test]
     fn defaults_are_real_time_real_devices_and_the_local_zone() {
-        let setup = RigBuilder::new().setup();
+        let setup = RigBuilder::new();
         assert!(!setup.simulate);
-        assert_eq!(setup.zone, Zone::Local);
+        assert_eq!(setup.run_zone(), Zone::Local);
+        assert!(!setup.run_clock().is_virtual());
         assert!(setup.log_to_stderr);
         assert_eq!(
             setup.config.limits.operations,
             crate::script::engine::DEFAULT_BUDGET
         );
+        let setup = RigBuilder::new().virtual_time_from(at_noon());
+        assert_eq!(setup.run_zone(), Zone::utc(), "virtual time is in UTC");
         let setup = RigBuilder::new()
             .zone(Zone::Local)
-            .virtual_time_from(at_noon())
-            .setup();
-        assert_eq!(setup.zone, Zone::Local, "an explicit zone wins over UTC");
+            .virtual_time_from(at_noon());
+        assert_eq!(
+            setup.run_zone(),
+            Zone::Local,
+            "an explicit zone wins over UTC"
+        );
     }
 
     #[test]

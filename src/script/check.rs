@@ -1490,25 +1490,20 @@ after("1s", || panel.set_output(1, true));
 
     /// How a run of `source` on the simulated rig ends within three virtual seconds.
     fn run_status(source: &str) -> (Option<i32>, String) {
-        use crate::script::rig::{start, RigSetup};
+        use crate::script::builder::RigBuilder;
         use crate::time::clock::VirtualClock;
         use chrono::{TimeZone, Utc};
         let clock = VirtualClock::new(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap());
-        let setup = RigSetup {
-            config: RigConfig::simulated_default(),
-            simulate: true,
-            clock: Arc::new(clock),
-            zone: Zone::utc(),
-            period: None,
-            end_after: Some(Duration::from_secs(3)),
-            records: None,
-            log_to_stderr: false,
-            quiet: true,
-            log_format: crate::runtime::log::LogFormat::Text,
-            keep_log: true,
-            stop_flag: Arc::default(),
-        };
-        let mut rig = start(source, "t.rhai", setup).expect("the rig starts");
+        let mut rig = RigBuilder::from_config(RigConfig::simulated_default())
+            .simulated()
+            .clock(Arc::new(clock))
+            .zone(Zone::utc())
+            .run_for(Duration::from_secs(3))
+            .log_to_stderr(false)
+            .quiet()
+            .keep_log()
+            .start(source, "t.rhai")
+            .expect("the rig starts");
         rig.runner.advance(Duration::from_millis(3500));
         let log = rig.runner.runtime().borrow().log_lines().join("\n");
         (rig.runner.status(), log)

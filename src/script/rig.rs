@@ -1,82 +1,25 @@
-//! Puts a run together: the script compiled (before any device is touched), the records
-//! file opened, the devices opened (real or simulated) and brought under control, the
-//! script's top level run. Used by `rigscript run` and by scenario tests.
+//! Puts a run together (`RigBuilder::start`): the script compiled (before any device is
+//! touched), the records file opened, the devices opened (real or simulated) and brought
+//! under control, the services attached to the run's events, the script's top level run.
 
+use super::builder::RigBuilder;
 use super::engine::sandboxed;
 use super::error::parse_error;
 use super::program::ScriptProgram;
-use crate::config::mqtt::MqttConfig;
-use crate::config::RigConfig;
 use crate::device::cancel::Cancel;
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, OpenError, Opened, SimRig};
-use crate::runtime::log::{LogFormat, Logger};
-use crate::runtime::observe::Events;
+use crate::runtime::devices::{OpenError, SimRig};
+use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::runner::{panic_message, safe_after_panic, RunOptions, Runner};
 use crate::runtime::safety::Unavailable;
 use crate::runtime::state::Runtime;
 use crate::runtime::{exit, signals};
-use crate::time::clock::SharedClock;
-use crate::time::zone::Zone;
 use std::cell::RefCell;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::path::{Path, PathBuf};
 use std::rc::Rc;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use std::time::Duration;
-
-/// Everything a run needs besides the script.
-pub struct RigSetup {
-    /// The rig (devices, period, policy, grace, records file, the script's limits).
-    pub config: RigConfig,
-    /// Replace every device by its simulator.
-    pub simulate: bool,
-    /// The clock (system time, or virtual time in scenario tests).
-    pub clock: SharedClock,
-    /// The zone of cron, `now()` and log lines.
-    pub zone: Zone,
-    /// Scan period, overriding the config's.
-    pub period: Option<Duration>,
-    /// End normally after this long.
-    pub end_after: Option<Duration>,
-    /// Records file, overriding the config's (in virtual time, the only one: `records_file`).
-    pub records: Option<PathBuf>,
-    /// Write the log to stderr.
-    pub log_to_stderr: bool,
-    /// Leave activity lines out of the log.
-    pub quiet: bool,
-    /// Log lines as text or JSON objects.
-    pub log_format: LogFormat,
-    /// Keep the log in memory (scenario tests).
-    pub keep_log: bool,
-    /// The number of the signal that asks the run to stop (0: none).
-    pub stop_flag: Arc<AtomicUsize>,
-}
-
-impl RigSetup {
-    /// The records file the run appends to: the one asked for, else rig.toml's `records`,
-    /// but never rig.toml's in virtual time (`rigscript test`, `verify`: their records,
-    /// dated whenever the test says, would mix with the rig's real ones).
-    pub fn records_file(&self) -> Option<&Path> {
-        let production = self
-            .config
-            .records
-            .as_deref()
-            .filter(|_| !self.clock.is_virtual());
-        self.records.as_deref().or(production)
-    }
-
-    /// The broker the run reports to (rig.toml's `[mqtt]`), never in virtual time (the
-    /// broker and the outbox hold the rig's real records).
-    pub fn mqtt(&self) -> Option<&MqttConfig> {
-        self.config
-            .mqtt
-            .as_ref()
-            .filter(|_| !self.clock.is_virtual())
-    }
-}
 
 /// Why a run could not start, with the exit status it calls for.
 #[derive(Debug, thiserror::Error)]
@@ -150,151 +93,142 @@ impl Drop for Rig {
     }
 }
 
-/// Compiles `source` (called `file` in messages) and starts it on the rig `setup` describes;
-/// its top level has run (a failing top level leaves the runner stopped with status 1).
-pub fn start(source: &str, file: &str, setup: RigSetup) -> Result<Rig, RigError> {
-    start_with(source, file, setup, open_devices, |_| {})
+impl Rig {
+    /// The log lines kept so far (with `RigBuilder::keep_log`).
+    pub fn log(&self) -> Vec<String> {
+        self.runner.runtime().borrow().log_lines().to_vec()
+    }
+
+    /// The records and measurements kept so far, oldest first, as JSON objects.
+    pub fn records(&self) -> Vec<serde_json::Value> {
+        self.runner.runtime().borrow().records_kept().to_vec()
+    }
 }
 
-/// As `start`, with the devices opened by `open` instead of `open_devices` (given the same
-/// config, clock, `simulate` flag and request counter: the fault search puts simulators behind
-/// fault-injecting links under the real drivers this way), and `prepare` given the program
-/// before its top level runs (`verify` has it keep count of what the script does from the
-/// first line on).
-pub fn start_with(
-    source: &str,
-    file: &str,
-    setup: RigSetup,
-    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
-    prepare: impl FnOnce(&mut ScriptProgram),
-) -> Result<Rig, RigError> {
-    start_observed(source, file, setup, open, prepare, |_| {})
-}
-
-/// As `start_with`, with `observe` given the run's event stream before the script's top
-/// level runs (a consumer that must see every record attaches there: the MQTT client).
-pub fn start_observed(
-    source: &str,
-    file: &str,
-    setup: RigSetup,
-    open: impl FnOnce(&RigConfig, &SharedClock, bool, &TransactionCounter) -> Result<Opened, OpenError>,
-    prepare: impl FnOnce(&mut ScriptProgram),
-    observe: impl FnOnce(&Events),
-) -> Result<Rig, RigError> {
-    if setup.config.devices.is_empty() {
-        return Err(RigError::NoDevices {
-            simulated: setup.simulate,
-        });
-    }
-    let limits = setup.config.limits;
-    let ast = sandboxed(limits.operations)
-        .compile(source)
-        .map_err(|e| RigError::Script(parse_error(file, source, &e)))?;
-    // The log first: its event stream is the run's, and the records file is a consumer of it.
-    let mut log = Logger::new(Arc::clone(&setup.clock), setup.zone, setup.log_to_stderr);
-    log.set_quiet(setup.quiet);
-    log.set_format(setup.log_format);
-    log.set_devices(setup.config.devices.keys().cloned());
-    if setup.keep_log {
-        log.keep_lines();
-    }
-    let records = match setup.records_file() {
-        Some(path) => Records::to_file(path, log.events())?,
-        None => Records::in_memory(),
-    };
-    let count = TransactionCounter::default();
-    let opened = open(&setup.config, &setup.clock, setup.simulate, &count)?;
-    let mut runtime = Runtime::new(
-        Arc::clone(&setup.clock),
-        setup.zone,
-        opened.devices,
-        records,
-        log,
-        count,
-        setup.config.grace,
-    );
-    runtime.limit_timers(limits.timers);
-    runtime.allow_forcing(setup.config.force);
-    // A signal during the start cuts its exchanges short from the first one: a silent module
-    // with long timeouts and many retries must not hold a stop for all of them.
-    runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));
-    let rt = Rc::new(RefCell::new(runtime));
-    let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
-    let started = match started {
-        Ok(started) => started,
-        Err(panic) => {
-            let message = panic_message(panic.as_ref());
-            safe_after_panic(&rt, &message);
-            return Err(RigError::Internal(message));
+impl RigBuilder {
+    /// Compiles `source` (called `file` in messages), opens the devices, brings them under
+    /// control, attaches the services and runs the script's top level; then tick the rig
+    /// with `rig.runner` (a failing top level leaves the runner stopped with status 1).
+    pub fn start(self, source: &str, file: &str) -> Result<Rig, RigError> {
+        let setup = self;
+        if setup.config.devices.is_empty() {
+            return Err(RigError::NoDevices {
+                simulated: setup.simulate,
+            });
         }
-    };
-    if let Err(e) = started {
-        // Leave the devices that did start as a clean end would.
-        let mut r = rt.borrow_mut();
-        let signal = setup.stop_flag.load(Ordering::SeqCst);
-        if signal != 0 {
-            let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
-            r.log_mut().notice(&format!(
-                "stopping during the start: {} received ({})",
-                signals::name(signal),
-                signals::likely_cause(signal)
-            ));
-            // A module not yet under control got from the start at most its safe values (the
-            // outputs it is taken control with); the end's tries on one that has not answered
-            // would cost all its timeouts, so it is left as it is.
-            for d in &r.take_out_uncontrolled() {
-                r.log_mut().warn(&format!(
-                    "{}: not under control yet: left as it is (the start writes a module nothing \
-                     but its safe values)",
-                    d.name()
-                ));
+        let limits = setup.config.limits;
+        let ast = sandboxed(limits.operations)
+            .compile(source)
+            .map_err(|e| RigError::Script(parse_error(file, source, &e)))?;
+        // The log first: its event stream is the run's, and the records file is a consumer of it.
+        let (clock, zone) = (setup.run_clock(), setup.run_zone());
+        let mut log = Logger::new(Arc::clone(&clock), zone, setup.log_to_stderr);
+        log.set_quiet(setup.quiet);
+        log.set_format(setup.log_format);
+        log.set_devices(setup.config.devices.keys().cloned());
+        if setup.keep_log {
+            log.keep_lines();
+        }
+        let records = match setup.records_file() {
+            Some(path) => Records::to_file(path, log.events())?,
+            None => Records::in_memory(),
+        };
+        let count = TransactionCounter::default();
+        let opened = (setup.open)(&setup.config, &clock, setup.simulate, &count)?;
+        let mut runtime = Runtime::new(
+            clock,
+            zone,
+            opened.devices,
+            records,
+            log,
+            count,
+            setup.config.grace,
+        );
+        runtime.limit_timers(limits.timers);
+        runtime.allow_forcing(setup.config.force);
+        // A signal during the start cuts its exchanges short from the first one: a silent module
+        // with long timeouts and many retries must not hold a stop for all of them.
+        runtime.set_cancel(&Cancel::when_set(Arc::clone(&setup.stop_flag)));
+        let rt = Rc::new(RefCell::new(runtime));
+        let started = catch_unwind(AssertUnwindSafe(|| rt.borrow_mut().start_devices()));
+        let started = match started {
+            Ok(started) => started,
+            Err(panic) => {
+                let message = panic_message(panic.as_ref());
+                safe_after_panic(&rt, &message);
+                return Err(RigError::Internal(message));
             }
-            r.end_safe("signal", true);
-            return Err(RigError::Signal(signal));
+        };
+        if let Err(e) = started {
+            // Leave the devices that did start as a clean end would.
+            let mut r = rt.borrow_mut();
+            let signal = setup.stop_flag.load(Ordering::SeqCst);
+            if signal != 0 {
+                let signal = i32::try_from(signal).unwrap_or(libc::SIGTERM);
+                r.log_mut().notice(&format!(
+                    "stopping during the start: {} received ({})",
+                    signals::name(signal),
+                    signals::likely_cause(signal)
+                ));
+                // A module not yet under control got from the start at most its safe values (the
+                // outputs it is taken control with); the end's tries on one that has not answered
+                // would cost all its timeouts, so it is left as it is.
+                for d in &r.take_out_uncontrolled() {
+                    r.log_mut().warn(&format!(
+                        "{}: not under control yet: left as it is (the start writes a module nothing \
+                         but its safe values)",
+                        d.name()
+                    ));
+                }
+                r.end_safe("signal", true);
+                return Err(RigError::Signal(signal));
+            }
+            r.end_safe("a device is not available", true);
+            return Err(e.into());
         }
-        r.end_safe("a device is not available", true);
-        return Err(e.into());
+        let events = rt.borrow_mut().log_mut().events().clone();
+        for attach in setup.attached {
+            attach(&events);
+        }
+        let mut program = ScriptProgram::new(&rt, ast, file, limits);
+        if let Some(prepare) = setup.prepare {
+            prepare(&mut program);
+        }
+        let period = setup.period.unwrap_or(setup.config.period);
+        let options = RunOptions {
+            period,
+            policy: setup.config.on_error,
+            end_after: setup.end_after,
+            stop_flag: setup.stop_flag,
+            wake_latency: setup.config.wake_latency,
+        };
+        let mut runner = Runner::new(rt, program, options);
+        runner.start();
+        Ok(Rig {
+            runner,
+            sim: opened.sim,
+        })
     }
-    observe(rt.borrow_mut().log_mut().events());
-    let mut program = ScriptProgram::new(&rt, ast, file, limits);
-    prepare(&mut program);
-    let period = setup.period.unwrap_or(setup.config.period);
-    let options = RunOptions {
-        period,
-        policy: setup.config.on_error,
-        end_after: setup.end_after,
-        stop_flag: setup.stop_flag,
-        wake_latency: setup.config.wake_latency,
-    };
-    let mut runner = Runner::new(rt, program, options);
-    runner.start();
-    Ok(Rig {
-        runner,
-        sim: opened.sim,
-    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::RigConfig;
     use crate::time::clock::{Clock, VirtualClock};
     use chrono::{TimeZone, Utc};
+    use std::time::Duration;
 
-    fn setup(clock: &VirtualClock) -> RigSetup {
-        RigSetup {
-            config: RigConfig::simulated_default(),
-            simulate: true,
-            clock: Arc::new(clock.clone()),
-            zone: Zone::utc(),
-            period: None,
-            end_after: None,
-            records: None,
-            log_to_stderr: false,
-            quiet: false,
-            log_format: LogFormat::Text,
-            keep_log: true,
-            stop_flag: Arc::default(),
-        }
+    fn start(source: &str, file: &str, setup: RigBuilder) -> Result<Rig, RigError> {
+        setup.start(source, file)
+    }
+
+    fn setup(clock: &VirtualClock) -> RigBuilder {
+        RigBuilder::from_config(RigConfig::simulated_default())
+            .simulated()
+            .clock(Arc::new(clock.clone()))
+            .log_to_stderr(false)
+            .keep_log()
     }
 
     #[test]

@@ -52,14 +52,14 @@
 //! A test file without a `test_*` function taking no parameters fails as `file::(no tests)`.
 
 use super::api::{duration, fail, R};
+use super::builder::RigBuilder;
 use super::engine::{sandboxed, Guard};
 use super::error::{cause, innermost, location, parse_error};
-use super::rig::{start, Rig, RigSetup};
+use super::rig::Rig;
 use super::test_budget::{breach_text, test_limits, TestBudget, TEST_BUDGET};
 use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
 use crate::runtime::devices::{FieldError, SwappedModule};
-use crate::runtime::log::LogFormat;
 use crate::runtime::runner::EndReason;
 use crate::sim::answer_faults::AnswerFault;
 use crate::sim::c29u::OutputFault;
@@ -195,21 +195,13 @@ fn load(
     let source = read_text(&path, TextKind::Script)
         .or_else(|e| fail(format!("cannot read {}: {e}", path.display())))?;
     let clock = VirtualClock::new(start_at.with_timezone(&Utc));
-    let setup = RigSetup {
-        config,
-        simulate: true,
-        clock: Arc::new(clock.clone()),
-        zone,
-        period: None,
-        end_after: None,
-        records: None,
-        log_to_stderr: false,
-        quiet: false,
-        log_format: LogFormat::Text,
-        keep_log: true,
-        stop_flag: Arc::default(),
-    };
-    let rig = start(&source, &path.display().to_string(), setup)
+    let rig = RigBuilder::from_config(config)
+        .simulated()
+        .clock(Arc::new(clock.clone()))
+        .zone(zone)
+        .log_to_stderr(false)
+        .keep_log()
+        .start(&source, &path.display().to_string())
         .or_else(|e| fail(format!("cannot start {}: {e}", path.display())))?;
     Ok(RigHandle(Rc::new(RefCell::new(Scenario {
         rig,

@@ -1,18 +1,52 @@
 //! The systemd notification protocol (`sd_notify`), spoken directly: one datagram per message to
 //! the socket named by `$NOTIFY_SOCKET` (a path, or an abstract name written with a leading
 //! `@`), and the service watchdog systemd asks for with `$WATCHDOG_USEC` (for this process
-//! unless `$WATCHDOG_PID` names another).
+//! unless `$WATCHDOG_PID` names another). Not the sd-notify crate: its 0.5 connects to
+//! `$NOTIFY_SOCKET` as a path (no abstract names), opens a socket at every send and blocks on
+//! it, and takes a malformed `$WATCHDOG_USEC` as no watchdog, without a word.
 //!
-//! Every send is non-blocking: a full or missing socket costs the scan loop nothing. A failed
-//! send is counted and its first error kept for the end-of-run report; it never stops the run
-//! (systemd notices missing watchdog pings by itself).
+//! A service like the others: a thread following the run's events (READY at the script's first
+//! start, STOPPING at its end) that pings the watchdog only when the loop turned since its last
+//! look (`Events::turns`, stored by the loop at every slice of its wait), so a loop stuck in a
+//! handler stops the pings. Every send is non-blocking; a failed one is counted and its first
+//! error kept for the end-of-run report; it never stops the run (systemd notices missing
+//! watchdog pings by itself).
 
+use crate::runtime::observe::{Bound, EventKind, Events, Kinds, Next, RunEvent};
 use std::cell::{Cell, RefCell};
 use std::ffi::OsStr;
 use std::io;
 use std::os::unix::ffi::OsStrExt;
 use std::os::unix::net::{SocketAddr, UnixDatagram};
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Watches a ping interval holds: a ping follows a stall's end within one of them, and a
+/// stalled loop's last ping came at most one of them after its last turn.
+const CHECKS_PER_PING: u32 = 8;
+
+/// The thread telling systemd of a run (`Notifier::attach`).
+pub struct Notifying {
+    /// The notifier back, and whether it owes STOPPING (it sent READY, the run's end did not
+    /// come to it).
+    thread: JoinHandle<(Notifier, bool)>,
+    closing: Arc<AtomicBool>,
+}
+
+impl Notifying {
+    /// Ends the thread once it told what the run's events hold, STOPPING with `status` if it
+    /// owes it; a sentence on the notifications that could not be sent, if any.
+    pub fn finish(self, status: i32) -> Option<String> {
+        self.closing.store(true, Ordering::Relaxed);
+        let (notifier, owed) = self.thread.join().ok()?;
+        if owed {
+            notifier.stopping(&format!("stopped; exit status {status}"));
+        }
+        notifier.failure_report()
+    }
+}
 
 /// Why the notification settings in the environment cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -32,6 +66,9 @@ pub enum NotifyError {
     /// The socket to send from cannot be made.
     #[error("cannot make a socket to notify systemd: {0}")]
     Socket(#[source] io::Error),
+    /// The thread that tells systemd cannot follow the run.
+    #[error("cannot notify systemd: {0}")]
+    Attach(String),
 }
 
 /// Where systemd listens, and the watchdog it expects; read from the environment.
@@ -90,27 +127,18 @@ impl NotifySettings {
     }
 }
 
-/// Sends notifications to systemd and feeds its watchdog from the scan loop.
+/// Sends notifications to systemd and feeds its watchdog while the scan loop turns.
 pub struct Notifier {
     socket: UnixDatagram,
     address: SocketAddr,
     /// Half of the watchdog timeout, as sd_watchdog_enabled(3) advises.
     ping_every: Option<Duration>,
     last_ping: Cell<Option<Duration>>,
+    /// The loop's turns at the last `watch`.
+    turns: Cell<Option<u64>>,
     sent: Cell<u64>,
     failed: Cell<u64>,
     first_error: RefCell<Option<String>>,
-}
-
-impl std::fmt::Debug for Notifier {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Notifier")
-            .field("address", &self.address)
-            .field("ping_every", &self.ping_every)
-            .field("sent", &self.sent.get())
-            .field("failed", &self.failed.get())
-            .finish_non_exhaustive()
-    }
 }
 
 impl Notifier {
@@ -131,15 +159,11 @@ impl Notifier {
             address,
             ping_every: settings.watchdog.map(|w| w / 2),
             last_ping: Cell::new(None),
+            turns: Cell::new(None),
             sent: Cell::new(0),
             failed: Cell::new(0),
             first_error: RefCell::new(None),
         })
-    }
-
-    /// How often the watchdog is fed (half of `WATCHDOG_USEC`), if systemd asked for it.
-    pub fn ping_interval(&self) -> Option<Duration> {
-        self.ping_every
     }
 
     /// `READY=1`: every device is under control and the script is running.
@@ -152,15 +176,13 @@ impl Notifier {
         self.send(&format!("STOPPING=1\nSTATUS={}", one_line(status)));
     }
 
-    /// `STATUS=...`: a line for `systemctl status`.
-    pub fn status(&self, status: &str) {
-        self.send(&format!("STATUS={}", one_line(status)));
-    }
-
-    /// Called from every turn of the scan loop at monotonic time `now`: sends `WATCHDOG=1`
-    /// when half the watchdog timeout has passed since the last one (at once the first time).
-    /// A loop that stops turning stops the pings, and systemd kills and restarts the service.
-    pub fn loop_alive(&self, now: Duration) {
+    /// Called at every watch (`CHECKS_PER_PING` a ping interval) at monotonic time `now`, with
+    /// the loop's `turns` so far (`Events::turns`): sends `WATCHDOG=1` when half the watchdog
+    /// timeout has passed since the last one (at once the first time) and the loop turned
+    /// since the watch before. A loop that stops turning stops the pings, and systemd kills
+    /// and restarts the service.
+    pub fn watch(&self, turns: u64, now: Duration) {
+        let turned = self.turns.replace(Some(turns)).is_some_and(|t| t != turns);
         let Some(every) = self.ping_every else {
             return;
         };
@@ -168,10 +190,64 @@ impl Notifier {
             .last_ping
             .get()
             .map_or(true, |last| now.saturating_sub(last) >= every);
-        if due {
+        if due && turned {
             self.last_ping.set(Some(now));
             self.send("WATCHDOG=1");
         }
+    }
+
+    /// How often `watch` should be called.
+    fn watch_every(&self) -> Duration {
+        self.ping_every
+            .map_or(Duration::from_millis(200), |every| every / CHECKS_PER_PING)
+            .max(Duration::from_millis(1))
+    }
+
+    /// Tells systemd of the run whose `events` these are, from a thread of its own: READY
+    /// (with `status`) once the script's top level first ran, which is once every device is
+    /// under control; `WATCHDOG=1` while the loop turns; STOPPING at its end. Attach before
+    /// the top level runs.
+    pub fn attach(self, events: &Events, status: String) -> Result<Notifying, NotifyError> {
+        let kinds = Kinds::of(&[EventKind::ScriptStarted, EventKind::Ended]);
+        let mut subscription = events
+            .subscribe_to("systemd", Bound::events(4), kinds)
+            .map_err(|e| NotifyError::Attach(e.to_string()))?;
+        let closing = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&closing);
+        let events = events.clone();
+        let thread = std::thread::Builder::new()
+            .name("systemd-notify".into())
+            .spawn(move || {
+                let started = Instant::now();
+                let (mut ready, mut stopped) = (false, false);
+                subscription.follow(
+                    self.watch_every(),
+                    || flag.load(Ordering::Relaxed),
+                    |next| {
+                        if let Next::Event(event) = next {
+                            match &*event {
+                                RunEvent::ScriptStarted { restarts: 0, .. } => {
+                                    self.ready(&status);
+                                    ready = true;
+                                }
+                                RunEvent::Ended { status, .. } => {
+                                    self.stopping(&format!("stopped; exit status {status}"));
+                                    stopped = true;
+                                    return false;
+                                }
+                                _ => {}
+                            }
+                        }
+                        if ready {
+                            self.watch(events.turns(), started.elapsed());
+                        }
+                        true
+                    },
+                );
+                (self, ready && !stopped)
+            })
+            .map_err(|e| NotifyError::Attach(e.to_string()))?;
+        Ok(Notifying { thread, closing })
     }
 
     /// Sends one message without blocking; a failure is counted, never raised.
@@ -190,16 +266,6 @@ impl Notifier {
                 false
             }
         }
-    }
-
-    /// Messages sent so far.
-    pub fn sent(&self) -> u64 {
-        self.sent.get()
-    }
-
-    /// Messages that could not be sent so far.
-    pub fn failed(&self) -> u64 {
-        self.failed.get()
     }
 
     /// A sentence on failed sends for the end-of-run log, if any failed.
@@ -322,20 +388,24 @@ mod tests {
     }
 
     #[test]
-    fn watchdog_pings_come_at_half_the_timeout() {
+    fn watchdog_pings_come_at_half_the_timeout_while_the_loop_turns() {
         let (listener, path) = bound("ping");
         let n = Notifier::new(&NotifySettings {
             socket: path.as_os_str().as_bytes().to_vec(),
             watchdog: Some(Duration::from_millis(1000)),
         })
         .unwrap();
-        assert_eq!(n.ping_interval(), Some(Duration::from_millis(500)));
+        assert_eq!(n.ping_every, Some(Duration::from_millis(500)));
         let ms = Duration::from_millis;
-        n.loop_alive(ms(0));
-        n.loop_alive(ms(499));
-        n.loop_alive(ms(500));
-        n.loop_alive(ms(900));
-        n.loop_alive(ms(1000));
+        n.watch(0, ms(0));
+        n.watch(1, ms(1));
+        n.watch(2, ms(499));
+        n.watch(3, ms(500));
+        n.watch(4, ms(900));
+        // The loop stands still: no ping, however long since the last.
+        n.watch(4, ms(1000));
+        n.watch(4, ms(1400));
+        n.watch(5, ms(1401));
         listener.set_nonblocking(true).unwrap();
         let mut got = Vec::new();
         let mut buf = [0u8; 64];
@@ -343,7 +413,7 @@ mod tests {
             got.push(String::from_utf8_lossy(&buf[..k]).into_owned());
         }
         assert_eq!(got, ["WATCHDOG=1"; 3]);
-        assert_eq!(n.sent(), 3);
+        assert_eq!(n.sent.get(), 3);
         std::fs::remove_file(path).unwrap();
     }
 
@@ -361,11 +431,12 @@ mod tests {
         })
         .unwrap();
         n.ready("running x.rhai\non io");
-        n.loop_alive(Duration::ZERO);
+        n.watch(0, Duration::ZERO);
+        n.watch(1, Duration::from_secs(1));
         n.stopping("stopped");
         assert_eq!(receive(&listener), "READY=1\nSTATUS=running x.rhai on io");
         assert_eq!(receive(&listener), "STOPPING=1\nSTATUS=stopped");
-        assert_eq!(n.sent(), 2, "no watchdog asked for, none sent");
+        assert_eq!(n.sent.get(), 2, "no watchdog asked for, none sent");
     }
 
     #[test]
@@ -376,8 +447,9 @@ mod tests {
         })
         .unwrap();
         n.ready("x");
-        n.loop_alive(Duration::ZERO);
-        assert_eq!((n.sent(), n.failed()), (0, 2));
+        n.watch(0, Duration::ZERO);
+        n.watch(1, Duration::ZERO);
+        assert_eq!((n.sent.get(), n.failed.get()), (0, 2));
         let report = n.failure_report().unwrap();
         assert!(report.starts_with("2 of 2 notifications"), "{report}");
         assert!(report.contains("READY=1: "), "{report}");
@@ -394,10 +466,10 @@ mod tests {
         // Nobody reads: the queue fills, and later sends fail at once (a blocking send would
         // hang here).
         for _ in 0..10_000 {
-            n.status("filling the queue");
+            n.send("STATUS=filling the queue");
         }
-        assert!(n.failed() > 0, "the queue never filled");
-        assert!(n.sent() > 0);
+        assert!(n.failed.get() > 0, "the queue never filled");
+        assert!(n.sent.get() > 0);
         drop(listener);
         std::fs::remove_file(path).unwrap();
     }

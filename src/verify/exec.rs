@@ -7,11 +7,11 @@ use super::coverage::Coverage;
 use super::plan::{Action, Plan};
 use super::profile::Observed;
 use crate::config::RigConfig;
-use crate::runtime::devices::{open_devices, FieldError};
+use crate::runtime::devices::FieldError;
 use crate::runtime::runner::EndReason;
 use crate::script::builder::RigBuilder;
 use crate::script::reads::Item;
-use crate::script::rig::{start_with, Rig, RigError};
+use crate::script::rig::{Rig, RigError};
 use crate::sim::answer_faults::AnswerFault;
 use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
@@ -233,18 +233,16 @@ pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, Exec
     let _ends = crate::guardian::pulse::EndsLoop;
     let zone = zone_of(&plan.start.zone)?;
     let clock = VirtualClock::new(plan.start.wall.with_timezone(&Utc));
-    let setup = RigBuilder::from_config(target.config.clone())
+    let rig = RigBuilder::from_config(target.config.clone())
         .simulated()
         .clock(Arc::new(clock.clone()))
         .zone(zone)
         .log_to_stderr(false)
         .quiet()
         .budget(target.budget)
-        .setup();
-    let rig = start_with(&target.source, &target.file, setup, open_devices, |p| {
-        p.track_coverage()
-    })
-    .map_err(|e| ExecError::Start(Box::new(e)))?;
+        .prepare(|p| p.track_coverage())
+        .start(&target.source, &target.file)
+        .map_err(|e| ExecError::Start(Box::new(e)))?;
     let mut player = Player {
         coverage: keep
             .coverage

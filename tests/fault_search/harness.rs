@@ -1,4 +1,4 @@
-//! Runs one case the way `rigscript run` runs a script (`rig::start_with`, then
+//! Runs one case the way `rigscript run` runs a script (`RigBuilder::start`, then
 //! `Runner::run`), in virtual time: the real drivers talk to simulated modules through
 //! `FaultyLink`s, the faults of the schedule come due on an `EventClock`, and afterwards the
 //! modules are left alone long enough for their own watchdogs to act. What happened is
@@ -10,8 +10,7 @@ use rigscript::config::{DeviceConfig, RigConfig, DEFAULT_MEMORY};
 use rigscript::device::c29u::{share, C29u, C29uOptions, SharedLink};
 use rigscript::runtime::devices::links::{Counted, Presence, TransactionCounter};
 use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevice, SimRig};
-use rigscript::runtime::log::LogFormat;
-use rigscript::script::rig::{start_with, RigError, RigSetup};
+use rigscript::script::rig::RigError;
 use rigscript::sim::answer_faults::AnswerFaults;
 use rigscript::sim::c29u::{
     C29uModel as Model, Eeprom, ModuleConfig, OutputFault, Protocol, WatchdogStatus,
@@ -20,6 +19,7 @@ use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
 use rigscript::sim::faults::{Connection, EventClock, FaultHit, FaultPlan, FaultyLink, LinkFault};
 use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
 use rigscript::time::zone::Zone;
+use rigscript::RigBuilder;
 use std::collections::BTreeMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::rc::Rc;
@@ -97,7 +97,7 @@ pub struct ModuleState {
 pub enum End {
     /// rig.toml was refused (nothing ran).
     ConfigRefused(String),
-    /// `start_with` failed.
+    /// `RigBuilder::start` failed.
     StartFailed {
         /// Its exit status.
         status: i32,
@@ -297,23 +297,17 @@ pub fn run(case: &Case) -> Run {
             }
         });
     }
-    let setup = RigSetup {
-        config,
-        simulate: true,
-        clock: Arc::clone(&shared),
-        zone: Zone::utc(),
-        period: None,
-        end_after: Some(ms(case.rig.run_for_ms)),
-        records: None,
-        log_to_stderr: false,
-        quiet: false,
-        keep_log: true,
-        log_format: LogFormat::Text,
-        stop_flag,
-    };
-    let opener = opener(buses, plans.clone(), &modules);
+    let setup = RigBuilder::from_config(config)
+        .simulated()
+        .clock(Arc::clone(&shared))
+        .zone(Zone::utc())
+        .run_for(ms(case.rig.run_for_ms))
+        .log_to_stderr(false)
+        .keep_log()
+        .stop_flag(stop_flag)
+        .open_with(opener(buses, plans.clone(), &modules));
     let started = catch_unwind(AssertUnwindSafe(|| {
-        start_with(&source, "case.rhai", setup, opener, |_| {}).map_err(Box::new)
+        setup.start(&source, "case.rhai").map_err(Box::new)
     }));
     let end = match started {
         Ok(Err(e)) if matches!(*e, RigError::Script(_)) => {

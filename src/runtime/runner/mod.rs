@@ -70,8 +70,6 @@ pub struct Runner<P: Program> {
     violation: Option<Violation>,
     /// How the end left each device (empty until the run has ended).
     end_report: Vec<DeviceEnd>,
-    /// systemd's service watchdog, told at every turn of `run` that the loop still turns.
-    pub service: Option<crate::service::notify::Notifier>,
     /// Where the loop tells what happens.
     events: Events,
     /// What is asked of the loop from outside, once `serve` attached it.
@@ -105,7 +103,6 @@ impl<P: Program> Runner<P> {
             errors: ErrorLog::default(),
             violation: None,
             end_report: Vec::new(),
-            service: None,
             events,
             served: None,
             restarts: 0,

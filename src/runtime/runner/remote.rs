@@ -9,10 +9,9 @@
 
 use super::contract::{describe, HandlerFault, Program};
 use super::{Runner, State};
-use crate::runtime::remote::{Command, Remote};
+use crate::runtime::remote::{Command, Remote, TurnedAway};
 use crate::runtime::subscriptions::{Arg, Source};
 use crate::runtime::topic_filter::filter_matches;
-use crate::service::mqtt::health::Loss;
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -119,7 +118,7 @@ impl<P: Program> Runner<P> {
             (None, Some(_)) => None,
         };
         if let Some(why) = refused {
-            self.count_loss(Loss::Command);
+            self.count_loss(TurnedAway::Command);
             command.reply.send(Err(why));
             return;
         }
@@ -150,7 +149,7 @@ impl<P: Program> Runner<P> {
             waiting.told = Some(now);
             waiting.dropped = 0;
         }
-        self.count_loss(Loss::Message);
+        self.count_loss(TurnedAway::Message);
         if tell {
             let why = if restarting {
                 "the script is restarting".to_string()
@@ -219,13 +218,13 @@ impl<P: Program> Runner<P> {
     fn refuse(&self, waiter: Waiter) {
         match waiter {
             Waiter::Command(command) => {
-                self.count_loss(Loss::Command);
+                self.count_loss(TurnedAway::Command);
                 let why = self
                     .refusal()
                     .unwrap_or_else(|| "the run has ended".to_string());
                 command.reply.send(Err(why));
             }
-            Waiter::Message { .. } => self.count_loss(Loss::Message),
+            Waiter::Message { .. } => self.count_loss(TurnedAway::Message),
         }
     }
 
@@ -237,9 +236,9 @@ impl<P: Program> Runner<P> {
     }
 
     /// Counts what was not delivered where `status` and `/metrics` show the client's drops.
-    fn count_loss(&self, kind: Loss) {
-        if let Some(health) = self.served.as_ref().and_then(|s| s.mqtt.as_ref()) {
-            health.lost(kind);
+    fn count_loss(&self, what: TurnedAway) {
+        if let Some(remote) = self.served.as_ref().and_then(|s| s.requests.remote()) {
+            remote.turned_away(what);
         }
     }
 

@@ -11,7 +11,6 @@ use crate::runtime::requests::{Answer, Request, Requests};
 use crate::runtime::snapshot::{
     DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
-use crate::service::mqtt::health::Health;
 use std::sync::Arc;
 
 /// A run served to askers from outside the loop (`Runner::serve`).
@@ -23,8 +22,6 @@ pub(super) struct Served {
     field: SimRig,
     /// The snapshot last made, with the tick and the exchange count it was made at.
     pub(super) made: Option<((u64, u64), Arc<RigSnapshot>)>,
-    /// The MQTT client's counts, once `watch_mqtt` gave them.
-    pub(super) mqtt: Option<Health>,
     /// The commands and messages waiting for a tick to run their handlers.
     pub(super) waiting: Waiting,
 }
@@ -38,16 +35,8 @@ impl<P: Program> Runner<P> {
             script: script.to_string(),
             field,
             made: None,
-            mqtt: None,
             waiting: Waiting::default(),
         });
-    }
-
-    /// Shows the MQTT client's `health` in the snapshot from now on (after `serve`).
-    pub fn watch_mqtt(&mut self, health: Health) {
-        if let Some(s) = self.served.as_mut() {
-            s.mqtt = Some(health);
-        }
     }
 
     /// What the loop measured so far (the snapshot's figures come from it).
@@ -103,8 +92,8 @@ impl<P: Program> Runner<P> {
             mqtt: self
                 .served
                 .as_ref()
-                .and_then(|s| s.mqtt.as_ref())
-                .map(Health::shown),
+                .and_then(|s| s.requests.remote())
+                .map(|r| r.shown()),
         }
     }
 

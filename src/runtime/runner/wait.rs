@@ -101,9 +101,7 @@ impl<P: Program> Runner<P> {
         let to_deadline = target == self.next_deadline;
         loop {
             let now = self.clock.now();
-            if let Some(service) = &self.service {
-                service.loop_alive(now);
-            }
+            self.events.turned();
             let target = if to_deadline {
                 target.min(self.next_deadline)
             } else {

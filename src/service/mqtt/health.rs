@@ -1,6 +1,7 @@
 //! The client's troubles as counts the loop reads without waiting on the client: its thread
 //! adds to shared atomics, the snapshot loads them (`runtime::snapshot::MqttState`).
 
+use crate::runtime::remote::{RemoteState, TurnedAway};
 use crate::runtime::snapshot::{MqttDropped, MqttState};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -130,6 +131,19 @@ impl Health {
                 replies: load(&c.replies),
             },
         }
+    }
+}
+
+impl RemoteState for Health {
+    fn turned_away(&self, what: TurnedAway) {
+        self.lost(match what {
+            TurnedAway::Command => Loss::Command,
+            TurnedAway::Message => Loss::Message,
+        });
+    }
+
+    fn shown(&self) -> MqttState {
+        Health::shown(self)
     }
 }
 

@@ -262,7 +262,6 @@ fn default_outbox(
 /// The running client: `finish` ends it (flushing the outbox for up to `FLUSH_WAIT`).
 pub struct MqttService {
     closing: Arc<AtomicBool>,
-    health: health::Health,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -306,8 +305,9 @@ impl Prepared {
         let closing = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&closing);
         let Prepared { settings, outbox } = self;
-        let health = health::Health::new(&settings.broker);
-        let counts = health.clone();
+        let counts = health::Health::new(&settings.broker);
+        // What the loop turns away counts beside the client's own losses, all shown in status.
+        requester.share(Box::new(counts.clone()));
         let broker = settings.broker.clone();
         let thread = std::thread::Builder::new()
             .name("mqtt".into())
@@ -337,18 +337,12 @@ impl Prepared {
             .map_err(MqttError::Thread)?;
         Ok(MqttService {
             closing,
-            health,
             thread: Some(thread),
         })
     }
 }
 
 impl MqttService {
-    /// The client's counts, for the loop's snapshot (`Runner::watch_mqtt`).
-    pub fn health(&self) -> health::Health {
-        self.health.clone()
-    }
-
     /// Ends the client once the run has ended: the outbox gets up to `FLUSH_WAIT` to go
     /// out, the status goes `offline`, what is left waits for the next start.
     pub fn finish(mut self) {
