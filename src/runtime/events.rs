@@ -61,7 +61,7 @@ impl<H: Clone> Runtime<H> {
             let events = self
                 .devices
                 .get(dev)
-                .map(|d| device_events(dev, d, self.tick))
+                .map(|d| device_events(dev, d, self.cycle().tick()))
                 .unwrap_or_default();
             for (event, args) in events {
                 self.dispatch(&event, &args, &mut calls);
@@ -108,7 +108,7 @@ impl<H: Clone> Runtime<H> {
         {
             return;
         }
-        let tick = self.tick;
+        let tick = self.cycle().tick();
         let mut lines = Vec::new();
         let fresh: Vec<Option<[u16; 8]>> = self
             .devices
@@ -157,8 +157,8 @@ impl<H: Clone> Runtime<H> {
     /// fire, not the timers there are); a spent timer's handler goes with it.
     fn timer_calls(&mut self, calls: &mut Vec<Call<H>>) {
         let now = self.now();
-        let boundary = self.tick_boundary.unwrap_or(now);
-        let clock = &self.clock;
+        let boundary = self.cycle().boundary().unwrap_or(now);
+        let clock = std::sync::Arc::clone(self.cycle().clock());
         let fired = self
             .handlers
             .schedule
@@ -453,7 +453,7 @@ mod tests {
             "press",
         );
         sub(&mut r, Source::Rise { dev: IO, ch: 0 }, "rise");
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.collect_calls();
         r.sim.set_switch("panel", "S1", true).unwrap();
         r.sim.pulse("io", 0, 1).unwrap();

@@ -66,7 +66,7 @@ impl<H: Clone> Runtime<H> {
         input: &Input<D, T>,
     ) -> Option<T> {
         self.input_accesses = self.input_accesses.wrapping_add(1);
-        let tick = self.tick;
+        let tick = self.cycle().tick();
         let d = self.devices.get_mut(idx).and_then(input.device)?;
         if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {
             let d = self.devices.get_mut(idx).and_then(input.device)?;
@@ -74,7 +74,10 @@ impl<H: Clone> Runtime<H> {
                 Err(e) => self.note_failure(idx, &e),
                 Ok(_) => {
                     // The tick's boundary stands for now: no clock read on the read's path.
-                    self.heard(idx, self.tick_boundary.unwrap_or(self.started));
+                    self.heard(
+                        idx,
+                        self.cycle().boundary().unwrap_or(self.cycle().started()),
+                    );
                     if let Some(d) = self.devices.get_mut(idx) {
                         d.health_mut().read_tick = tick;
                     }
@@ -123,7 +126,7 @@ impl<H: Clone> Runtime<H> {
     /// last one was made this tick (0 otherwise).
     pub fn turned(&mut self, idx: usize, rotary: Rotary) -> i64 {
         self.rotaries(idx);
-        let tick = self.tick;
+        let tick = self.cycle().tick();
         self.trc(idx)
             .and_then(|d| d.rotaries.change_at(tick))
             .map_or(0, |(old, new)| {

@@ -67,7 +67,7 @@ impl<H: Clone> Runtime<H> {
         self.log.error(&format!(
             "{v}; the outputs of this tick are not written, the safe state is"
         ));
-        let time = self.wall_text();
+        let time = self.cycle().wall_text();
         self.records
             .record(&time, "invariant_violated", v.to_json(), &mut self.log);
     }

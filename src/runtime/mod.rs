@@ -1,6 +1,7 @@
 //! Supervision for everything that runs: timer schedules, the rig's devices, the state scripts
 //! act on, the scan loop and its fail-safe supervision.
 
+pub mod cycle;
 pub mod device_view;
 pub mod devices;
 pub mod error_log;

@@ -8,14 +8,14 @@ use serde_json::Value;
 impl<H: Clone> Runtime<H> {
     /// `record(name, value)`: one record, stamped now.
     pub fn record(&mut self, name: &str, value: Value) {
-        let time = self.wall_text();
+        let time = self.cycle().wall_text();
         self.records.record(&time, name, value, &mut self.log);
     }
 
     /// `measure(name, value, limits)`: one measurement, stamped now and logged with its
     /// limits; whether it is within them.
     pub fn measure(&mut self, name: &str, value: f64, limits: &Limits) -> bool {
-        let time = self.wall_text();
+        let time = self.cycle().wall_text();
         let pass = self
             .records
             .measure(&time, name, value, limits, &mut self.log);

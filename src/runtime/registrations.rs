@@ -35,7 +35,7 @@ impl<H: Clone> Runtime<H> {
 
     /// `cron(expr, fn)`.
     pub fn cron(&mut self, expr: &str, handler: H) -> Result<u64, ScheduleError> {
-        let wall = self.clock.wall();
+        let wall = self.cycle().wall();
         self.handlers.cron(expr, wall, handler)
     }
 

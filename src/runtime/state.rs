@@ -7,6 +7,7 @@
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
+use super::cycle::Cycle;
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
 use super::events::Needs;
@@ -25,10 +26,8 @@ use std::time::Duration;
 
 /// The state of one run.
 pub struct Runtime<H> {
-    /// The one source of time.
-    pub(super) clock: SharedClock,
-    /// The zone of cron, `now()` and the log.
-    pub(super) zone: Zone,
+    /// The clock and the tick.
+    cycle: Cycle,
     /// The devices, in name order.
     pub(super) devices: Vec<Device>,
     /// The script's handlers and timers.
@@ -44,14 +43,6 @@ pub struct Runtime<H> {
     pub(super) records: Records,
     /// The log.
     pub(super) log: Logger,
-    /// The current tick (0 while the top level runs at start).
-    pub(super) tick: u64,
-    /// The period boundary the current tick runs for (at or before its start): timer
-    /// deadlines are counted up to it, so one that passes while the tick runs falls to the
-    /// next tick (see `Schedule::due_at_tick`).
-    pub(super) tick_boundary: Option<Duration>,
-    /// Monotonic time the run started.
-    pub(super) started: Duration,
     /// The script asked to stop, with this exit status (`request_stop`).
     stop_request: Option<i64>,
     /// The handler running now, for the log lines of the outputs it changes.
@@ -92,12 +83,12 @@ impl<H: Clone> Runtime<H> {
         transactions: TransactionCounter,
         grace: Duration,
     ) -> Self {
-        let started = clock.now();
+        let cycle = Cycle::new(clock, zone);
+        let started = cycle.started();
         // The log's stream is the run's: its lines and everything else in one order.
         let events = log.events().clone();
         Self {
-            clock,
-            zone,
+            cycle,
             devices,
             handlers: Subscriptions::new(zone),
             invariants: Rc::default(),
@@ -105,9 +96,6 @@ impl<H: Clone> Runtime<H> {
             input_accesses: 0,
             records,
             log,
-            tick: 0,
-            tick_boundary: None,
-            started,
             stop_request: None,
             cause: "top level".into(),
             held_safe: false,
@@ -125,29 +113,29 @@ impl<H: Clone> Runtime<H> {
 
     /// Monotonic now.
     pub fn now(&self) -> Duration {
-        self.clock.now()
+        self.cycle.now()
     }
 
-    /// Wall time now in the run's zone, as RFC 3339 with milliseconds.
-    pub fn wall_text(&self) -> String {
-        self.zone
-            .at(self.clock.wall())
-            .to_rfc3339_opts(chrono::SecondsFormat::Millis, false)
+    /// The run's clock and tick.
+    pub fn cycle(&self) -> &Cycle {
+        &self.cycle
     }
 
-    /// How long the run has been going.
-    pub fn uptime(&self) -> Duration {
-        self.now().saturating_sub(self.started)
+    /// Starts the next tick, for the period boundary `boundary` (the runner, as each tick
+    /// begins).
+    pub(super) fn begin_tick(&mut self, boundary: Duration) {
+        self.cycle.begin_tick(boundary);
+    }
+
+    /// The clock and tick, for a test that drives the parts by hand.
+    #[cfg(test)]
+    pub(super) fn cycle_mut(&mut self) -> &mut Cycle {
+        &mut self.cycle
     }
 
     /// Requests sent so far on all links.
     pub fn transaction_count(&self) -> u64 {
         self.transactions.load(Ordering::Relaxed)
-    }
-
-    /// The run's clock, for what measures time on it (the script's limits per call).
-    pub fn clock(&self) -> &SharedClock {
-        &self.clock
     }
 
     /// The counter of requests sent on all links, shared with what watches it (the script's
@@ -177,7 +165,7 @@ impl<H: Clone> Runtime<H> {
         if self.outputs_pending() {
             return Some(now);
         }
-        let timer = self.handlers.next_timer(now, self.clock.wall());
+        let timer = self.handlers.next_timer(now, self.cycle.wall());
         let upkeep = self.next_retry();
         let next = match (timer, upkeep) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -297,7 +285,7 @@ mod tests {
         );
         r.rt.reset_program();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.switches(PANEL);
         let lost_at = r.rt.now();
         assert_eq!(
@@ -356,7 +344,7 @@ mod tests {
     fn uptime_and_wall_time_come_from_the_runs_clock() {
         let r = TestRig::started();
         r.clock.advance(Duration::from_millis(1500));
-        assert_eq!(r.rt.uptime(), Duration::from_millis(1500));
-        assert_eq!(r.rt.wall_text(), "1970-01-01T00:00:01.500+00:00");
+        assert_eq!(r.rt.cycle().uptime(), Duration::from_millis(1500));
+        assert_eq!(r.rt.cycle().wall_text(), "1970-01-01T00:00:01.500+00:00");
     }
 }

@@ -99,7 +99,7 @@ impl TestRig {
     /// Moves virtual time on by `by` and starts the next tick (as the scan loop does).
     pub fn next_tick(&mut self, by: Duration) {
         self.clock.advance(by);
-        self.rt.tick += 1;
+        self.rt.cycle_mut().next_tick();
     }
 
     /// Requests sent so far on all links.

@@ -20,7 +20,7 @@ impl<P: Program> Runner<P> {
         let Some(end) = self.options.end_after else {
             return false;
         };
-        if self.status().is_some() || self.rt.borrow().uptime() < end {
+        if self.status().is_some() || self.rt.borrow().cycle().uptime() < end {
             return false;
         }
         self.finish(EndReason::Finished(format!(

@@ -78,7 +78,7 @@ impl<P: Program> Runner<P> {
             script: ScriptState {
                 file: script,
                 state: state.into(),
-                uptime_ms: u64::try_from(rt.uptime().as_millis()).unwrap_or(u64::MAX),
+                uptime_ms: u64::try_from(rt.cycle().uptime().as_millis()).unwrap_or(u64::MAX),
                 errors: self.errors.total(),
                 last_error: self.errors.last().map(|e| e.message.clone()),
                 restarts: self.restarts,

@@ -32,9 +32,9 @@ impl<P: Program> Runner<P> {
             .jitter
             .add(start.saturating_sub(self.next_deadline));
         {
-            let mut rt = self.rt.borrow_mut();
-            rt.tick = rt.tick.saturating_add(1);
-            rt.tick_boundary = Some(self.next_deadline.min(start));
+            self.rt
+                .borrow_mut()
+                .begin_tick(self.next_deadline.min(start));
         }
         if self.ended_by_signal() {
             return;
@@ -139,7 +139,7 @@ impl<P: Program> Runner<P> {
             next = next.min(at);
         }
         if let Some(end) = self.options.end_after {
-            next = next.min(self.rt.borrow().started.saturating_add(end));
+            next = next.min(self.rt.borrow().cycle().started().saturating_add(end));
         }
         Some(next)
     }
@@ -203,7 +203,7 @@ impl<P: Program> Runner<P> {
                         Violation {
                             name: check.name.clone(),
                             at: check.at.clone(),
-                            uptime: rt.uptime(),
+                            uptime: rt.cycle().uptime(),
                             devices: rt.readings(),
                         }
                     };

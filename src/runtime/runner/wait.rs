@@ -183,7 +183,7 @@ impl<P: Program> Runner<P> {
     /// When `--for` is over, if it was given.
     fn end_at(&self) -> Option<Duration> {
         let end = self.options.end_after?;
-        Some(self.rt.borrow().started.saturating_add(end))
+        Some(self.rt.borrow().cycle().started().saturating_add(end))
     }
 }
 
