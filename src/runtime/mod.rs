@@ -15,6 +15,7 @@ pub mod line_consumer;
 pub mod log;
 pub mod observe;
 mod outputs;
+pub mod program_state;
 mod recording;
 pub mod records;
 mod records_file;

@@ -14,7 +14,7 @@ impl<H: Clone> Runtime<H> {
     /// Sets the DO byte the script wants on the TRP-C29U at `idx` (written at the end of the
     /// tick).
     pub fn set_outputs(&mut self, idx: usize, value: u8) {
-        let cause = self.cause.clone();
+        let cause = self.program().cause().to_string();
         if let Some(d) = self.c29u(idx) {
             if d.outputs != value {
                 d.outputs = value;
@@ -26,7 +26,7 @@ impl<H: Clone> Runtime<H> {
     /// Sets the relay the script wants on the TRC1000 at `idx` (selected at the end of the
     /// tick).
     pub fn set_relay(&mut self, idx: usize, relay: u8) {
-        let cause = self.cause.clone();
+        let cause = self.program().cause().to_string();
         if let Some(d) = self.trc(idx) {
             if d.relay != relay {
                 d.relay = relay;
@@ -209,7 +209,7 @@ mod tests {
     #[test]
     fn what_the_script_sets_is_written_once_at_flush_and_only_when_it_changed() {
         let mut r = TestRig::started();
-        r.rt.cause = "io.on_rise DI3".into();
+        r.rt.set_cause("io.on_rise DI3");
         r.rt.set_outputs(IO, 0x21);
         r.rt.set_relay(PANEL, 6);
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05, "not before the flush");

@@ -10,17 +10,16 @@
 use super::cycle::Cycle;
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
-use super::events::Needs;
 use super::forcing::Forces;
 use super::invariants::InvariantCheck;
 use super::log::Logger;
 use super::observe::Events;
+use super::program_state::ProgramState;
 use super::records::Records;
-use super::subscriptions::{Call, Subscriptions};
+use super::subscriptions::Subscriptions;
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
-use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
@@ -30,23 +29,14 @@ pub struct Runtime<H> {
     cycle: Cycle,
     /// The devices, in name order.
     pub(super) devices: Vec<Device>,
-    /// The script's handlers and timers.
-    pub(super) handlers: Subscriptions<H>,
-    /// What the script states must hold after every tick (`invariants`).
-    pub(super) invariants: Rc<Vec<InvariantCheck<H>>>,
-    /// Whether the invariants read device inputs when last evaluated (or have not been yet):
-    /// then every tick runs, so the inputs they read are read every tick.
-    pub(super) invariants_read_inputs: bool,
+    /// What the script set up: handlers, timers, invariants, its stop request.
+    program: ProgramState<H>,
     /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
     pub(super) input_accesses: u64,
     /// Records and measurements.
     pub(super) records: Records,
     /// The log.
     pub(super) log: Logger,
-    /// The script asked to stop, with this exit status (`request_stop`).
-    stop_request: Option<i64>,
-    /// The handler running now, for the log lines of the outputs it changes.
-    pub(super) cause: String,
     /// A device has been lost for longer than its grace time: every device is held at its
     /// safe state until all are back.
     pub(super) held_safe: bool,
@@ -61,10 +51,6 @@ pub struct Runtime<H> {
     pub(super) events: Events,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
-    /// `collect_calls`'s lists, kept between ticks: a tick builds its calls without
-    /// allocating the lists.
-    pub(super) needs: Vec<Needs>,
-    pub(super) call_buffer: Vec<Call<H>>,
     /// When the links are next asked whether they ended (`safety::liveness`).
     pub(super) next_link_watch: Duration,
     /// Whether a device's link has a descriptor the OS tells its end on (until the first
@@ -90,22 +76,16 @@ impl<H: Clone> Runtime<H> {
         Self {
             cycle,
             devices,
-            handlers: Subscriptions::new(zone),
-            invariants: Rc::default(),
-            invariants_read_inputs: true,
+            program: ProgramState::new(zone),
             input_accesses: 0,
             records,
             log,
-            stop_request: None,
-            cause: "top level".into(),
             held_safe: false,
             transactions,
             grace,
             cancel: Cancel::never(),
             events,
             forces: Forces::default(),
-            needs: Vec::new(),
-            call_buffer: Vec::new(),
             next_link_watch: started,
             has_link_watch: true,
         }
@@ -133,6 +113,11 @@ impl<H: Clone> Runtime<H> {
         &mut self.cycle
     }
 
+    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
+    pub fn input_accesses(&self) -> u64 {
+        self.input_accesses
+    }
+
     /// Requests sent so far on all links.
     pub fn transaction_count(&self) -> u64 {
         self.transactions.load(Ordering::Relaxed)
@@ -157,15 +142,14 @@ impl<H: Clone> Runtime<H> {
     /// evaluated (an invariant that reads only outputs, script state or time can change only
     /// in a tick that runs anyway, and is checked in every tick that runs).
     pub fn idle_until(&self) -> Option<Duration> {
-        let invariants_poll = !self.invariants.is_empty() && self.invariants_read_inputs;
-        if self.handlers.polls_inputs() || invariants_poll {
+        if self.program.polls_inputs() {
             return None;
         }
         let now = self.now();
         if self.outputs_pending() {
             return Some(now);
         }
-        let timer = self.handlers.next_timer(now, self.cycle.wall());
+        let timer = self.program.handlers().next_timer(now, self.cycle.wall());
         let upkeep = self.next_retry();
         let next = match (timer, upkeep) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -178,10 +162,11 @@ impl<H: Clone> Runtime<H> {
     /// while a handler polls inputs, else at its fastest `every` (no faster than the period);
     /// `None` when only single timers, cron or upkeep wake it.
     pub fn tick_interval(&self, period: Duration) -> Option<Duration> {
-        if self.handlers.polls_inputs() {
+        let handlers = self.program.handlers();
+        if handlers.polls_inputs() {
             return Some(period);
         }
-        self.handlers.fastest_every().map(|every| every.max(period))
+        handlers.fastest_every().map(|every| every.max(period))
     }
 
     /// The log, to write a line to.
@@ -202,56 +187,67 @@ impl<H: Clone> Runtime<H> {
 
     /// The script's handlers and timers, to look at (`verify`'s coverage and profile).
     pub fn handlers(&self) -> &Subscriptions<H> {
-        &self.handlers
+        self.program.handlers()
+    }
+
+    /// What the script set up.
+    pub fn program(&self) -> &ProgramState<H> {
+        &self.program
+    }
+
+    /// What the script set up, to change.
+    pub(super) fn program_mut(&mut self) -> &mut ProgramState<H> {
+        &mut self.program
+    }
+
+    /// What the script set up, to change, with the clock (timers fall due by it).
+    pub(super) fn program_on_time(&mut self) -> (&mut ProgramState<H>, &Cycle) {
+        (&mut self.program, &self.cycle)
     }
 
     /// The handler about to run is `label` (its buffer kept: this is every call).
     pub(super) fn set_cause(&mut self, label: &str) {
-        self.cause.clear();
-        self.cause.push_str(label);
+        self.program.set_cause(label);
         // What a watcher names if the loop stalls in it.
         crate::guardian::pulse::handler(label);
     }
 
     /// The invariants the script stated, in that order.
     pub fn invariants(&self) -> &[InvariantCheck<H>] {
-        &self.invariants
+        self.program.invariants()
     }
 
     /// Caps the timers the script may have at once (its limits).
     pub fn limit_timers(&mut self, max: usize) {
-        self.handlers.set_max_timers(max);
+        self.program.handlers_mut().set_max_timers(max);
     }
 
     /// Drops every handler, timer and invariant, and with them the script's closures that
     /// hold handles to this runtime (a cycle of `Rc`s otherwise).
     pub fn forget_handlers(&mut self) {
-        self.handlers.clear();
-        self.invariants = Rc::default();
+        self.program.forget();
     }
 
     /// Something that changes when handlers come or go (their count and the next id).
     pub fn handlers_signature(&self) -> (usize, u64) {
-        self.handlers.signature()
+        self.program.handlers().signature()
     }
 
     /// The script's `stop(code)`: the run ends at the end of this tick with `code`; the first
     /// request made stands.
     pub fn request_stop(&mut self, code: i64) {
-        self.stop_request.get_or_insert(code);
+        self.program.request_stop(code);
     }
 
     /// The exit status the script asked to stop with, if it did.
     pub fn stop_requested(&self) -> Option<i64> {
-        self.stop_request
+        self.program.stop_requested()
     }
 
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {
-        self.forget_handlers();
-        self.invariants_read_inputs = true;
-        self.stop_request = None;
+        self.program.reset();
         self.reset_outputs();
     }
 }
@@ -333,7 +329,7 @@ mod tests {
         r.rt.set_outputs(IO, 0x99);
         r.rt.set_relay(PANEL, 7);
         r.rt.reset_program();
-        assert!(r.rt.handlers.is_empty());
+        assert!(r.rt.handlers().is_empty());
         assert!(!r.rt.has_work());
         assert_eq!(r.rt.stop_requested(), None);
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);

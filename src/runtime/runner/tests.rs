@@ -168,7 +168,7 @@ impl Program for Signalled {
     type Handler = ();
     fn start(&mut self) -> Result<(), HandlerFault> {
         let mut rt = self.rt.borrow_mut();
-        rt.handlers.set_max_timers(self.timers + 1);
+        rt.limit_timers(self.timers + 1);
         for _ in 0..self.timers {
             rt.every(Duration::from_secs(1), ()).unwrap();
         }

@@ -192,7 +192,7 @@ impl<P: Program> Runner<P> {
     /// script error that is never skipped or restarted: it could not vouch for the outputs).
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
-        let accesses = self.rt.borrow().input_accesses;
+        let accesses = self.rt.borrow().input_accesses();
         for check in checks.iter() {
             self.rt.borrow_mut().set_cause(&check.call.label);
             match self.program.holds(check) {
@@ -222,7 +222,8 @@ impl<P: Program> Runner<P> {
             }
         }
         let mut rt = self.rt.borrow_mut();
-        rt.invariants_read_inputs = rt.input_accesses != accesses;
+        let read = rt.input_accesses() != accesses;
+        rt.program_mut().note_invariants_read_inputs(read);
         true
     }
 }
