@@ -92,7 +92,7 @@ impl<H: Clone> Runtime<H> {
         }
         let name = source_device(event).map_or(String::new(), |dev| self.device_name(dev));
         if let Some(line) = event_line(&name, event, args) {
-            self.log.activity(&line);
+            self.log_mut().activity(&line);
         }
     }
 
@@ -146,7 +146,7 @@ impl<H: Clone> Runtime<H> {
         for (dev, ch, count, threshold) in fired {
             let name = self.devices.get(dev).map_or("", Device::name);
             let line = format!("{name}: counter DI{ch} at {count} (threshold {threshold})");
-            self.log.activity(&line);
+            self.log_mut().activity(&line);
         }
     }
 
@@ -181,7 +181,7 @@ impl<H: Clone> Runtime<H> {
             lines.extend(line);
         }
         for l in lines {
-            self.log.activity(&l);
+            self.log_mut().activity(&l);
         }
     }
 }

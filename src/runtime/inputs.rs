@@ -92,7 +92,7 @@ impl<H: Clone> Runtime<H> {
 
     /// Tells the events a reading just made that differs from the one before.
     fn tell_change<D, T: Copy + PartialEq>(&mut self, idx: usize, input: &Input<D, T>) {
-        if !self.events.wants(EventKind::Inputs) {
+        if !self.events().wants(EventKind::Inputs) {
             return;
         }
         let Some(d) = self.devices.get_mut(idx).and_then(input.device) else {
@@ -109,7 +109,8 @@ impl<H: Clone> Runtime<H> {
         let Some(device) = self.devices.get(idx).map(|d| d.name().to_string()) else {
             return;
         };
-        self.events.publish(|| RunEvent::Inputs { device, reading });
+        self.events()
+            .publish(|| RunEvent::Inputs { device, reading });
     }
 
     /// The switches of the TRC1000 at `idx` (nothing pressed before the first reading).

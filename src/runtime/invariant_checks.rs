@@ -45,11 +45,11 @@ impl<H: Clone> Runtime<H> {
     /// Records and logs a violation: the invariant, where it was stated, and the tick's
     /// inputs and outputs.
     pub fn report_violation(&mut self, v: &Violation) {
-        self.log.error(&format!(
+        self.log_mut().error(&format!(
             "{v}; the outputs of this tick are not written, the safe state is"
         ));
         let time = self.cycle().wall_text();
-        self.records
-            .record(&time, "invariant_violated", v.to_json(), &mut self.log);
+        self.figures_mut()
+            .record(&time, "invariant_violated", v.to_json());
     }
 }

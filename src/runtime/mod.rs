@@ -7,6 +7,7 @@ pub mod devices;
 pub mod error_log;
 mod events;
 pub mod exit;
+pub mod figures;
 pub mod forcing;
 mod inputs;
 mod invariant_checks;

@@ -10,6 +10,7 @@
 use super::cycle::Cycle;
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
+use super::figures::Figures;
 use super::forcing::Forces;
 use super::invariants::InvariantCheck;
 use super::log::Logger;
@@ -33,10 +34,8 @@ pub struct Runtime<H> {
     program: ProgramState<H>,
     /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
     pub(super) input_accesses: u64,
-    /// Records and measurements.
-    pub(super) records: Records,
-    /// The log.
-    pub(super) log: Logger,
+    /// The log, the records and the event stream.
+    figures: Figures,
     /// A device has been lost for longer than its grace time: every device is held at its
     /// safe state until all are back.
     pub(super) held_safe: bool,
@@ -47,8 +46,6 @@ pub struct Runtime<H> {
     /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
     /// runs; supervision also stops trying lost devices once it is set.
     pub(super) cancel: Cancel,
-    /// Where what happens is told to whoever watches the run (`observe`).
-    pub(super) events: Events,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
     /// When the links are next asked whether they ended (`safety::liveness`).
@@ -71,20 +68,16 @@ impl<H: Clone> Runtime<H> {
     ) -> Self {
         let cycle = Cycle::new(clock, zone);
         let started = cycle.started();
-        // The log's stream is the run's: its lines and everything else in one order.
-        let events = log.events().clone();
         Self {
             cycle,
             devices,
             program: ProgramState::new(zone),
             input_accesses: 0,
-            records,
-            log,
+            figures: Figures::new(records, log),
             held_safe: false,
             transactions,
             grace,
             cancel: Cancel::never(),
-            events,
             forces: Forces::default(),
             next_link_watch: started,
             has_link_watch: true,
@@ -171,18 +164,32 @@ impl<H: Clone> Runtime<H> {
 
     /// The log, to write a line to.
     pub fn log_mut(&mut self) -> &mut Logger {
-        &mut self.log
+        self.figures.log_mut()
+    }
+
+    /// The run's event stream.
+    pub fn events(&self) -> &Events {
+        self.figures.events()
+    }
+
+    /// The log, the records and the event stream.
+    pub fn figures(&self) -> &Figures {
+        &self.figures
+    }
+
+    /// The log, the records and the event stream, to add to or close.
+    pub fn figures_mut(&mut self) -> &mut Figures {
+        &mut self.figures
     }
 
     /// The log lines kept (by a run that keeps them: tests, the JUnit report), oldest first.
     pub fn log_lines(&self) -> &[String] {
-        self.log.lines()
+        self.figures.log().lines()
     }
 
     /// Closes the log, with a bounded wait for its last lines; how many lines it dropped.
     pub fn close_log(&mut self) -> u64 {
-        self.log.close();
-        self.log.dropped()
+        self.figures.close_log()
     }
 
     /// The script's handlers and timers, to look at (`verify`'s coverage and profile).

@@ -109,6 +109,6 @@ impl TestRig {
 
     /// The log so far, one line each.
     pub fn log(&self) -> String {
-        self.rt.log.lines().join("\n")
+        self.rt.log_lines().join("\n")
     }
 }

@@ -87,7 +87,7 @@ impl<P: Program> Runner<P> {
         rt.borrow_mut()
             .set_cancel(&Cancel::when_set(Arc::clone(&options.stop_flag)));
         let clock = Arc::clone(rt.borrow().cycle().clock());
-        let events = rt.borrow().events.clone();
+        let events = rt.borrow().events().clone();
         let now = clock.now();
         Self {
             rt,

@@ -173,7 +173,7 @@ impl<P: Program> Runner<P> {
                     // write past the file size limit as SIGXFSZ came).
                     let message = describe(&f, &call.label);
                     self.note_fault(&message, f.over_budget);
-                    self.rt.borrow_mut().log.error(&message);
+                    self.rt.borrow_mut().log_mut().error(&message);
                     return;
                 }
                 if !self.handle_fault(&f, &call.label) {

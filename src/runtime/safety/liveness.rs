@@ -101,7 +101,7 @@ impl<H: Clone> Runtime<H> {
         let ended = match fd::ended(&watches) {
             Ok(ended) => ended,
             Err(e) => {
-                self.log.repeating(
+                self.log_mut().repeating(
                     "links/watch",
                     Level::Warn,
                     &format!(
