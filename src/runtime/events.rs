@@ -29,10 +29,10 @@ impl<H: Clone> Runtime<H> {
     /// due, into handler calls, in order: device events (by device, then switch, rotary,
     /// input, counter), then timers (deadline order). Logs one line per event handled.
     pub fn collect_calls(&mut self) -> Vec<Call<H>> {
-        let mut needs = std::mem::take(&mut self.needs);
+        let (mut needs, mut calls) = self.program_mut().take_buffers();
         needs.clear();
         needs.resize(self.devices.len(), Needs::default());
-        for s in &self.handlers.events {
+        for s in &self.handlers().events {
             let Some(n) = source_device(&s.source).and_then(|dev| needs.get_mut(dev)) else {
                 continue;
             };
@@ -44,7 +44,6 @@ impl<H: Clone> Runtime<H> {
                 Source::Timer(_) | Source::Stop | Source::Command(_) | Source::Message(_) => {}
             }
         }
-        let mut calls = std::mem::take(&mut self.call_buffer);
         for (dev, need) in needs.iter().enumerate() {
             if need.switches {
                 self.switches(dev);
@@ -61,29 +60,28 @@ impl<H: Clone> Runtime<H> {
             let events = self
                 .devices
                 .get(dev)
-                .map(|d| device_events(dev, d, self.tick))
+                .map(|d| device_events(dev, d, self.cycle().tick()))
                 .unwrap_or_default();
             for (event, args) in events {
                 self.dispatch(&event, &args, &mut calls);
             }
         }
-        self.needs = needs;
+        self.program_mut().keep_needs(needs);
         self.counter_calls(&mut calls);
         self.timer_calls(&mut calls);
         calls
     }
 
     /// Takes back the list `collect_calls` gave, once its calls are made, for the next tick.
-    pub fn reuse_calls(&mut self, mut calls: Vec<Call<H>>) {
-        calls.clear();
-        self.call_buffer = calls;
+    pub fn reuse_calls(&mut self, calls: Vec<Call<H>>) {
+        self.program_mut().keep_calls(calls);
     }
 
     /// Adds the calls of the handlers waiting for `event`, logging it once if any.
     fn dispatch(&mut self, event: &Source, args: &[Arg], calls: &mut Vec<Call<H>>) {
         let before = calls.len();
         calls.extend(
-            self.handlers
+            self.handlers()
                 .events
                 .iter()
                 .filter(|s| s.source == *event)
@@ -94,22 +92,22 @@ impl<H: Clone> Runtime<H> {
         }
         let name = source_device(event).map_or(String::new(), |dev| self.device_name(dev));
         if let Some(line) = event_line(&name, event, args) {
-            self.log.activity(&line);
+            self.log_mut().activity(&line);
         }
     }
 
     /// Fires counter handlers whose count reached their threshold in this tick's reading.
     fn counter_calls(&mut self, calls: &mut Vec<Call<H>>) {
         if !self
-            .handlers
+            .handlers()
             .events
             .iter()
             .any(|s| matches!(s.source, Source::Counter { .. }))
         {
             return;
         }
-        let tick = self.tick;
-        let mut lines = Vec::new();
+        let tick = self.cycle().tick();
+        let mut fired = Vec::new();
         let fresh: Vec<Option<[u16; 8]>> = self
             .devices
             .iter()
@@ -118,7 +116,7 @@ impl<H: Clone> Runtime<H> {
                 _ => None,
             })
             .collect();
-        for s in &mut self.handlers.events {
+        for s in &mut self.program_mut().handlers_mut().events {
             let Source::Counter {
                 dev,
                 ch,
@@ -140,16 +138,15 @@ impl<H: Clone> Runtime<H> {
                 *armed = false;
                 let (dev, ch, threshold) = (*dev, *ch, *threshold);
                 calls.push(s.call(vec![Arg::Int(i64::from(count))]));
-                let name = self.devices.get(dev).map_or("", Device::name);
-                lines.push(format!(
-                    "{name}: counter DI{ch} at {count} (threshold {threshold})"
-                ));
+                fired.push((dev, ch, count, threshold));
             } else if !*armed && count < *threshold {
                 *armed = true;
             }
         }
-        for l in lines {
-            self.log.activity(&l);
+        for (dev, ch, count, threshold) in fired {
+            let name = self.devices.get(dev).map_or("", Device::name);
+            let line = format!("{name}: counter DI{ch} at {count} (threshold {threshold})");
+            self.log_mut().activity(&line);
         }
     }
 
@@ -157,24 +154,24 @@ impl<H: Clone> Runtime<H> {
     /// fire, not the timers there are); a spent timer's handler goes with it.
     fn timer_calls(&mut self, calls: &mut Vec<Call<H>>) {
         let now = self.now();
-        let boundary = self.tick_boundary.unwrap_or(now);
-        let clock = &self.clock;
-        let fired = self
-            .handlers
+        let boundary = self.cycle().boundary().unwrap_or(now);
+        let (program, cycle) = self.program_on_time();
+        let handlers = program.handlers_mut();
+        let fired = handlers
             .schedule
-            .due_at_tick(now, boundary, || clock.wall());
+            .due_at_tick(now, boundary, || cycle.wall());
         let mut lines = Vec::new();
         for f in fired {
             let args = vec![Arg::Int(i64::try_from(f.missed).unwrap_or(i64::MAX))];
             let (call, line) = if f.last {
-                let Some(mut sub) = self.handlers.remove_timer(f.id) else {
+                let Some(mut sub) = handlers.remove_timer(f.id) else {
                     continue;
                 };
                 let cron_ends = sub.firings.cron;
                 let line = firing_line(&sub.label, &mut sub.firings, &f, cron_ends, now);
                 (sub.call(args), line)
             } else {
-                let Some(sub) = self.handlers.timers.get_mut(&f.id) else {
+                let Some(sub) = handlers.timers.get_mut(&f.id) else {
                     continue;
                 };
                 let line = firing_line(&sub.label, &mut sub.firings, &f, false, now);
@@ -184,7 +181,7 @@ impl<H: Clone> Runtime<H> {
             lines.extend(line);
         }
         for l in lines {
-            self.log.activity(&l);
+            self.log_mut().activity(&l);
         }
     }
 }
@@ -453,7 +450,7 @@ mod tests {
             "press",
         );
         sub(&mut r, Source::Rise { dev: IO, ch: 0 }, "rise");
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.collect_calls();
         r.sim.set_switch("panel", "S1", true).unwrap();
         r.sim.pulse("io", 0, 1).unwrap();
@@ -474,7 +471,7 @@ mod tests {
             [("every", vec![Arg::Int(2)]), ("after", vec![Arg::Int(0)])],
             "every: due at 100 ms, 200 and 300 missed at 300 ms"
         );
-        assert_eq!(r.rt.handlers.len(), 1, "the spent `after` went");
+        assert_eq!(r.rt.handlers().len(), 1, "the spent `after` went");
         let log = r.log();
         assert!(log.contains("every 100ms fired (2 missed)"), "{log}");
         assert!(log.contains("after 250ms fired"), "{log}");
@@ -519,7 +516,7 @@ mod tests {
     #[test]
     fn many_timers_fire_each_their_own_handler() {
         let mut r = TestRig::started();
-        r.rt.handlers.set_max_timers(50_000);
+        r.rt.limit_timers(50_000);
         let names: Vec<&'static str> = (0..5_000)
             .map(|i| &*Box::leak(format!("t{i}").into_boxed_str()))
             .collect();

@@ -402,7 +402,7 @@ impl<H: Clone> Runtime<H> {
         } else {
             "changed to"
         };
-        self.log.warn(&format!(
+        self.log_mut().warn(&format!(
             "force: {point} {verb} {} for {} (by {by})",
             value.text(),
             format_duration(held_for)
@@ -421,7 +421,7 @@ impl<H: Clone> Runtime<H> {
             return Err(ForceError::NotForced(point.to_string()));
         };
         let f = self.forces.held.remove(i);
-        self.log.warn(&format!(
+        self.log_mut().warn(&format!(
             "force: {} removed (by {by}): the script's value applies again",
             f.point
         ));
@@ -438,7 +438,7 @@ impl<H: Clone> Runtime<H> {
             .partition(|f| now >= f.until);
         self.forces.held = kept;
         for f in &over {
-            self.log.warn(&format!(
+            self.log_mut().warn(&format!(
                 "force: {} expired after {}: the script's value applies again",
                 f.point,
                 format_duration(f.held_for)
@@ -452,7 +452,7 @@ impl<H: Clone> Runtime<H> {
     /// Cancels every force because the outputs go to their safe state (`why`).
     pub fn cancel_forces(&mut self, why: &str) {
         for f in std::mem::take(&mut self.forces.held) {
-            self.log.warn(&format!(
+            self.log_mut().warn(&format!(
                 "force: {} cancelled: the safe state wins ({why})",
                 f.point
             ));

@@ -66,7 +66,7 @@ impl<H: Clone> Runtime<H> {
         input: &Input<D, T>,
     ) -> Option<T> {
         self.input_accesses = self.input_accesses.wrapping_add(1);
-        let tick = self.tick;
+        let tick = self.cycle().tick();
         let d = self.devices.get_mut(idx).and_then(input.device)?;
         if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {
             let d = self.devices.get_mut(idx).and_then(input.device)?;
@@ -74,7 +74,10 @@ impl<H: Clone> Runtime<H> {
                 Err(e) => self.note_failure(idx, &e),
                 Ok(_) => {
                     // The tick's boundary stands for now: no clock read on the read's path.
-                    self.heard(idx, self.tick_boundary.unwrap_or(self.started));
+                    self.heard(
+                        idx,
+                        self.cycle().boundary().unwrap_or(self.cycle().started()),
+                    );
                     if let Some(d) = self.devices.get_mut(idx) {
                         d.health_mut().read_tick = tick;
                     }
@@ -89,7 +92,7 @@ impl<H: Clone> Runtime<H> {
 
     /// Tells the events a reading just made that differs from the one before.
     fn tell_change<D, T: Copy + PartialEq>(&mut self, idx: usize, input: &Input<D, T>) {
-        if !self.events.wants(EventKind::Inputs) {
+        if !self.events().wants(EventKind::Inputs) {
             return;
         }
         let Some(d) = self.devices.get_mut(idx).and_then(input.device) else {
@@ -106,7 +109,8 @@ impl<H: Clone> Runtime<H> {
         let Some(device) = self.devices.get(idx).map(|d| d.name().to_string()) else {
             return;
         };
-        self.events.publish(|| RunEvent::Inputs { device, reading });
+        self.events()
+            .publish(|| RunEvent::Inputs { device, reading });
     }
 
     /// The switches of the TRC1000 at `idx` (nothing pressed before the first reading).
@@ -123,7 +127,7 @@ impl<H: Clone> Runtime<H> {
     /// last one was made this tick (0 otherwise).
     pub fn turned(&mut self, idx: usize, rotary: Rotary) -> i64 {
         self.rotaries(idx);
-        let tick = self.tick;
+        let tick = self.cycle().tick();
         self.trc(idx)
             .and_then(|d| d.rotaries.change_at(tick))
             .map_or(0, |(old, new)| {

@@ -3,9 +3,8 @@
 
 use super::device_view::DeviceView;
 use super::devices::Device;
-use super::invariants::{DeviceReading, InvariantCheck, InvariantError, Violation, MAX_INVARIANTS};
+use super::invariants::{DeviceReading, InvariantCheck, InvariantError, Violation};
 use super::state::Runtime;
-use super::subscriptions::Call;
 use std::rc::Rc;
 
 impl<H: Clone> Runtime<H> {
@@ -16,31 +15,13 @@ impl<H: Clone> Runtime<H> {
         handler: H,
         at: Option<String>,
     ) -> Result<(), InvariantError> {
-        if name.trim().is_empty() {
-            return Err(InvariantError::NoName);
-        }
-        if self.invariants.iter().any(|i| i.name == name) {
-            return Err(InvariantError::Duplicate(name.to_string()));
-        }
-        if self.invariants.len() >= MAX_INVARIANTS {
-            return Err(InvariantError::TooMany);
-        }
-        Rc::make_mut(&mut self.invariants).push(InvariantCheck {
-            call: Call {
-                handler,
-                args: Vec::new(),
-                label: format!("invariant {name:?}").into(),
-            },
-            name: name.to_string(),
-            at,
-        });
-        Ok(())
+        self.program_mut().add_invariant(name, handler, at)
     }
 
     /// How to evaluate each invariant, in the order they were stated: the list itself, shared
     /// (the checks call the script, which may borrow the runtime meanwhile).
     pub fn invariant_checks(&self) -> Rc<Vec<InvariantCheck<H>>> {
-        Rc::clone(&self.invariants)
+        self.program().invariant_checks()
     }
 
     /// What each device the script uses shows now: the last inputs read and the outputs the
@@ -64,11 +45,11 @@ impl<H: Clone> Runtime<H> {
     /// Records and logs a violation: the invariant, where it was stated, and the tick's
     /// inputs and outputs.
     pub fn report_violation(&mut self, v: &Violation) {
-        self.log.error(&format!(
+        self.log_mut().error(&format!(
             "{v}; the outputs of this tick are not written, the safe state is"
         ));
-        let time = self.wall_text();
-        self.records
-            .record(&time, "invariant_violated", v.to_json(), &mut self.log);
+        let time = self.cycle().wall_text();
+        self.figures_mut()
+            .record(&time, "invariant_violated", v.to_json());
     }
 }

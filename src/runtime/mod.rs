@@ -1,11 +1,13 @@
 //! Supervision for everything that runs: timer schedules, the rig's devices, the state scripts
 //! act on, the scan loop and its fail-safe supervision.
 
+pub mod cycle;
 pub mod device_view;
 pub mod devices;
 pub mod error_log;
 mod events;
 pub mod exit;
+pub mod figures;
 pub mod forcing;
 mod inputs;
 mod invariant_checks;
@@ -14,6 +16,7 @@ pub mod line_consumer;
 pub mod log;
 pub mod observe;
 mod outputs;
+pub mod program_state;
 mod recording;
 pub mod records;
 mod records_file;

@@ -14,7 +14,7 @@ impl<H: Clone> Runtime<H> {
     /// Sets the DO byte the script wants on the TRP-C29U at `idx` (written at the end of the
     /// tick).
     pub fn set_outputs(&mut self, idx: usize, value: u8) {
-        let cause = self.cause.clone();
+        let cause = self.program().cause().to_string();
         if let Some(d) = self.c29u(idx) {
             if d.outputs != value {
                 d.outputs = value;
@@ -26,7 +26,7 @@ impl<H: Clone> Runtime<H> {
     /// Sets the relay the script wants on the TRC1000 at `idx` (selected at the end of the
     /// tick).
     pub fn set_relay(&mut self, idx: usize, relay: u8) {
-        let cause = self.cause.clone();
+        let cause = self.program().cause().to_string();
         if let Some(d) = self.trc(idx) {
             if d.relay != relay {
                 d.relay = relay;
@@ -87,6 +87,11 @@ impl<H: Clone> Runtime<H> {
                 continue;
             }
             let held = self.held_safe;
+            // Built only for a watched run: writes are on the tick's path.
+            let watch = self
+                .events()
+                .wants(EventKind::Outputs)
+                .then(|| self.events().clone());
             let result = match self.devices.get_mut(idx) {
                 Some(Device::Trc(d)) => {
                     let forced = self.forces.relay(idx, d.relay);
@@ -111,13 +116,9 @@ impl<H: Clone> Runtime<H> {
                                     before.map_or("?".to_string(), |r| r.to_string()),
                                 )
                             });
-                            // Built only for a watched run: writes are on the tick's path.
-                            let told = self
-                                .events
-                                .wants(EventKind::Outputs)
-                                .then(|| (d.name.clone(), cause.to_string()));
+                            let told = watch.map(|e| (e, d.name.clone(), cause.to_string()));
                             d.select_relay(relay).map(|()| {
-                                tell_written(&self.events, told, relay);
+                                tell_written(told, relay);
                                 line
                             })
                         }
@@ -141,12 +142,9 @@ impl<H: Clone> Runtime<H> {
                             d.name,
                             before.map_or("?".to_string(), |v| format!("{v:#04x}")),
                         );
-                        let told = self
-                            .events
-                            .wants(EventKind::Outputs)
-                            .then(|| (d.name.clone(), cause.to_string()));
+                        let told = watch.map(|e| (e, d.name.clone(), cause.to_string()));
                         d.write_outputs(target).map(|()| {
-                            tell_written(&self.events, told, target);
+                            tell_written(told, target);
                             Some(line)
                         })
                     }
@@ -157,9 +155,9 @@ impl<H: Clone> Runtime<H> {
             let refusal = |name: &str| format!("{name}/write");
             match result {
                 Ok(Some(line)) => {
-                    self.log.activity(&line);
+                    self.log_mut().activity(&line);
                     let name = self.device_name(idx);
-                    self.log
+                    self.log_mut()
                         .settled(&refusal(&name), &format!("{name}: outputs written again"));
                 }
                 Ok(None) => {}
@@ -177,7 +175,7 @@ impl<H: Clone> Runtime<H> {
                             d.refusing = true;
                             d.refused_writes = d.refused_writes.saturating_add(1);
                         }
-                        self.log.repeating(
+                        self.log_mut().repeating(
                             &refusal(&name),
                             Level::Error,
                             &format!("{name}: writing outputs failed: {e}; trying again"),
@@ -191,8 +189,8 @@ impl<H: Clone> Runtime<H> {
 }
 
 /// Tells the events a write made: `told` is the device and the cause, when anyone watches.
-fn tell_written(events: &Events, told: Option<(String, String)>, value: u8) {
-    if let Some((device, cause)) = told {
+fn tell_written(told: Option<(Events, String, String)>, value: u8) {
+    if let Some((events, device, cause)) = told {
         events.publish(|| RunEvent::Outputs {
             device,
             value,
@@ -209,7 +207,7 @@ mod tests {
     #[test]
     fn what_the_script_sets_is_written_once_at_flush_and_only_when_it_changed() {
         let mut r = TestRig::started();
-        r.rt.cause = "io.on_rise DI3".into();
+        r.rt.set_cause("io.on_rise DI3");
         r.rt.set_outputs(IO, 0x21);
         r.rt.set_relay(PANEL, 6);
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05, "not before the flush");
@@ -315,7 +313,7 @@ mod tests {
     fn a_relay_selected_again_after_the_check_is_not_logged_again() {
         let mut r = TestRig::started();
         r.rt.flush_outputs();
-        let lines = r.rt.log.lines().len();
+        let lines = r.rt.log_lines().len();
         for _ in 0..10 {
             // What the periodic check does: the board may have forgotten its relay.
             r.rt.trc(PANEL).unwrap().relay_written = None;
@@ -323,7 +321,7 @@ mod tests {
             r.rt.flush_outputs();
             assert_eq!(r.requests(), before + 1, "selected again");
         }
-        assert_eq!(r.rt.log.lines().len(), lines, "{}", r.log());
+        assert_eq!(r.rt.log_lines().len(), lines, "{}", r.log());
         r.rt.set_relay(PANEL, 5);
         r.rt.flush_outputs();
         assert!(r.log().contains("panel: relay 3 -> 5 ("), "{}", r.log());

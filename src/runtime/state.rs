@@ -7,55 +7,35 @@
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
+use super::cycle::Cycle;
 use super::devices::links::TransactionCounter;
 use super::devices::Device;
-use super::events::Needs;
+use super::figures::Figures;
 use super::forcing::Forces;
 use super::invariants::InvariantCheck;
 use super::log::Logger;
 use super::observe::Events;
+use super::program_state::ProgramState;
 use super::records::Records;
-use super::subscriptions::{Call, Subscriptions};
+use super::subscriptions::Subscriptions;
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
-use std::rc::Rc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 /// The state of one run.
 pub struct Runtime<H> {
-    /// The one source of time.
-    pub(super) clock: SharedClock,
-    /// The zone of cron, `now()` and the log.
-    pub(super) zone: Zone,
+    /// The clock and the tick.
+    cycle: Cycle,
     /// The devices, in name order.
     pub(super) devices: Vec<Device>,
-    /// The script's handlers and timers.
-    pub(super) handlers: Subscriptions<H>,
-    /// What the script states must hold after every tick (`invariants`).
-    pub(super) invariants: Rc<Vec<InvariantCheck<H>>>,
-    /// Whether the invariants read device inputs when last evaluated (or have not been yet):
-    /// then every tick runs, so the inputs they read are read every tick.
-    pub(super) invariants_read_inputs: bool,
+    /// What the script set up: handlers, timers, invariants, its stop request.
+    program: ProgramState<H>,
     /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
     pub(super) input_accesses: u64,
-    /// Records and measurements.
-    pub(super) records: Records,
-    /// The log.
-    pub(super) log: Logger,
-    /// The current tick (0 while the top level runs at start).
-    pub(super) tick: u64,
-    /// The period boundary the current tick runs for (at or before its start): timer
-    /// deadlines are counted up to it, so one that passes while the tick runs falls to the
-    /// next tick (see `Schedule::due_at_tick`).
-    pub(super) tick_boundary: Option<Duration>,
-    /// Monotonic time the run started.
-    pub(super) started: Duration,
-    /// The script asked to stop, with this exit status (`request_stop`).
-    stop_request: Option<i64>,
-    /// The handler running now, for the log lines of the outputs it changes.
-    pub(super) cause: String,
+    /// The log, the records and the event stream.
+    figures: Figures,
     /// A device has been lost for longer than its grace time: every device is held at its
     /// safe state until all are back.
     pub(super) held_safe: bool,
@@ -66,14 +46,8 @@ pub struct Runtime<H> {
     /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
     /// runs; supervision also stops trying lost devices once it is set.
     pub(super) cancel: Cancel,
-    /// Where what happens is told to whoever watches the run (`observe`).
-    pub(super) events: Events,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
-    /// `collect_calls`'s lists, kept between ticks: a tick builds its calls without
-    /// allocating the lists.
-    pub(super) needs: Vec<Needs>,
-    pub(super) call_buffer: Vec<Call<H>>,
     /// When the links are next asked whether they ended (`safety::liveness`).
     pub(super) next_link_watch: Duration,
     /// Whether a device's link has a descriptor the OS tells its end on (until the first
@@ -92,32 +66,19 @@ impl<H: Clone> Runtime<H> {
         transactions: TransactionCounter,
         grace: Duration,
     ) -> Self {
-        let started = clock.now();
-        // The log's stream is the run's: its lines and everything else in one order.
-        let events = log.events().clone();
+        let cycle = Cycle::new(clock, zone);
+        let started = cycle.started();
         Self {
-            clock,
-            zone,
+            cycle,
             devices,
-            handlers: Subscriptions::new(zone),
-            invariants: Rc::default(),
-            invariants_read_inputs: true,
+            program: ProgramState::new(zone),
             input_accesses: 0,
-            records,
-            log,
-            tick: 0,
-            tick_boundary: None,
-            started,
-            stop_request: None,
-            cause: "top level".into(),
+            figures: Figures::new(records, log),
             held_safe: false,
             transactions,
             grace,
             cancel: Cancel::never(),
-            events,
             forces: Forces::default(),
-            needs: Vec::new(),
-            call_buffer: Vec::new(),
             next_link_watch: started,
             has_link_watch: true,
         }
@@ -125,29 +86,34 @@ impl<H: Clone> Runtime<H> {
 
     /// Monotonic now.
     pub fn now(&self) -> Duration {
-        self.clock.now()
+        self.cycle.now()
     }
 
-    /// Wall time now in the run's zone, as RFC 3339 with milliseconds.
-    pub fn wall_text(&self) -> String {
-        self.zone
-            .at(self.clock.wall())
-            .to_rfc3339_opts(chrono::SecondsFormat::Millis, false)
+    /// The run's clock and tick.
+    pub fn cycle(&self) -> &Cycle {
+        &self.cycle
     }
 
-    /// How long the run has been going.
-    pub fn uptime(&self) -> Duration {
-        self.now().saturating_sub(self.started)
+    /// Starts the next tick, for the period boundary `boundary` (the runner, as each tick
+    /// begins).
+    pub(super) fn begin_tick(&mut self, boundary: Duration) {
+        self.cycle.begin_tick(boundary);
+    }
+
+    /// The clock and tick, for a test that drives the parts by hand.
+    #[cfg(test)]
+    pub(super) fn cycle_mut(&mut self) -> &mut Cycle {
+        &mut self.cycle
+    }
+
+    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
+    pub fn input_accesses(&self) -> u64 {
+        self.input_accesses
     }
 
     /// Requests sent so far on all links.
     pub fn transaction_count(&self) -> u64 {
         self.transactions.load(Ordering::Relaxed)
-    }
-
-    /// The run's clock, for what measures time on it (the script's limits per call).
-    pub fn clock(&self) -> &SharedClock {
-        &self.clock
     }
 
     /// The counter of requests sent on all links, shared with what watches it (the script's
@@ -169,15 +135,14 @@ impl<H: Clone> Runtime<H> {
     /// evaluated (an invariant that reads only outputs, script state or time can change only
     /// in a tick that runs anyway, and is checked in every tick that runs).
     pub fn idle_until(&self) -> Option<Duration> {
-        let invariants_poll = !self.invariants.is_empty() && self.invariants_read_inputs;
-        if self.handlers.polls_inputs() || invariants_poll {
+        if self.program.polls_inputs() {
             return None;
         }
         let now = self.now();
         if self.outputs_pending() {
             return Some(now);
         }
-        let timer = self.handlers.next_timer(now, self.clock.wall());
+        let timer = self.program.handlers().next_timer(now, self.cycle.wall());
         let upkeep = self.next_retry();
         let next = match (timer, upkeep) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -190,80 +155,106 @@ impl<H: Clone> Runtime<H> {
     /// while a handler polls inputs, else at its fastest `every` (no faster than the period);
     /// `None` when only single timers, cron or upkeep wake it.
     pub fn tick_interval(&self, period: Duration) -> Option<Duration> {
-        if self.handlers.polls_inputs() {
+        let handlers = self.program.handlers();
+        if handlers.polls_inputs() {
             return Some(period);
         }
-        self.handlers.fastest_every().map(|every| every.max(period))
+        handlers.fastest_every().map(|every| every.max(period))
     }
 
     /// The log, to write a line to.
     pub fn log_mut(&mut self) -> &mut Logger {
-        &mut self.log
+        self.figures.log_mut()
+    }
+
+    /// The run's event stream.
+    pub fn events(&self) -> &Events {
+        self.figures.events()
+    }
+
+    /// The log, the records and the event stream.
+    pub fn figures(&self) -> &Figures {
+        &self.figures
+    }
+
+    /// The log, the records and the event stream, to add to or close.
+    pub fn figures_mut(&mut self) -> &mut Figures {
+        &mut self.figures
     }
 
     /// The log lines kept (by a run that keeps them: tests, the JUnit report), oldest first.
     pub fn log_lines(&self) -> &[String] {
-        self.log.lines()
+        self.figures.log().lines()
     }
 
     /// Closes the log, with a bounded wait for its last lines; how many lines it dropped.
     pub fn close_log(&mut self) -> u64 {
-        self.log.close();
-        self.log.dropped()
+        self.figures.close_log()
     }
 
     /// The script's handlers and timers, to look at (`verify`'s coverage and profile).
     pub fn handlers(&self) -> &Subscriptions<H> {
-        &self.handlers
+        self.program.handlers()
+    }
+
+    /// What the script set up.
+    pub fn program(&self) -> &ProgramState<H> {
+        &self.program
+    }
+
+    /// What the script set up, to change.
+    pub(super) fn program_mut(&mut self) -> &mut ProgramState<H> {
+        &mut self.program
+    }
+
+    /// What the script set up, to change, with the clock (timers fall due by it).
+    pub(super) fn program_on_time(&mut self) -> (&mut ProgramState<H>, &Cycle) {
+        (&mut self.program, &self.cycle)
     }
 
     /// The handler about to run is `label` (its buffer kept: this is every call).
     pub(super) fn set_cause(&mut self, label: &str) {
-        self.cause.clear();
-        self.cause.push_str(label);
+        self.program.set_cause(label);
         // What a watcher names if the loop stalls in it.
         crate::guardian::pulse::handler(label);
     }
 
     /// The invariants the script stated, in that order.
     pub fn invariants(&self) -> &[InvariantCheck<H>] {
-        &self.invariants
+        self.program.invariants()
     }
 
     /// Caps the timers the script may have at once (its limits).
     pub fn limit_timers(&mut self, max: usize) {
-        self.handlers.set_max_timers(max);
+        self.program.handlers_mut().set_max_timers(max);
     }
 
     /// Drops every handler, timer and invariant, and with them the script's closures that
     /// hold handles to this runtime (a cycle of `Rc`s otherwise).
     pub fn forget_handlers(&mut self) {
-        self.handlers.clear();
-        self.invariants = Rc::default();
+        self.program.forget();
     }
 
     /// Something that changes when handlers come or go (their count and the next id).
     pub fn handlers_signature(&self) -> (usize, u64) {
-        self.handlers.signature()
+        self.program.handlers().signature()
     }
 
     /// The script's `stop(code)`: the run ends at the end of this tick with `code`; the first
     /// request made stands.
     pub fn request_stop(&mut self, code: i64) {
-        self.stop_request.get_or_insert(code);
+        self.program.request_stop(code);
     }
 
     /// The exit status the script asked to stop with, if it did.
     pub fn stop_requested(&self) -> Option<i64> {
-        self.stop_request
+        self.program.stop_requested()
     }
 
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {
-        self.forget_handlers();
-        self.invariants_read_inputs = true;
-        self.stop_request = None;
+        self.program.reset();
         self.reset_outputs();
     }
 }
@@ -297,7 +288,7 @@ mod tests {
         );
         r.rt.reset_program();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.switches(PANEL);
         let lost_at = r.rt.now();
         assert_eq!(
@@ -345,7 +336,7 @@ mod tests {
         r.rt.set_outputs(IO, 0x99);
         r.rt.set_relay(PANEL, 7);
         r.rt.reset_program();
-        assert!(r.rt.handlers.is_empty());
+        assert!(r.rt.handlers().is_empty());
         assert!(!r.rt.has_work());
         assert_eq!(r.rt.stop_requested(), None);
         assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
@@ -356,7 +347,7 @@ mod tests {
     fn uptime_and_wall_time_come_from_the_runs_clock() {
         let r = TestRig::started();
         r.clock.advance(Duration::from_millis(1500));
-        assert_eq!(r.rt.uptime(), Duration::from_millis(1500));
-        assert_eq!(r.rt.wall_text(), "1970-01-01T00:00:01.500+00:00");
+        assert_eq!(r.rt.cycle().uptime(), Duration::from_millis(1500));
+        assert_eq!(r.rt.cycle().wall_text(), "1970-01-01T00:00:01.500+00:00");
     }
 }

@@ -99,7 +99,7 @@ impl TestRig {
     /// Moves virtual time on by `by` and starts the next tick (as the scan loop does).
     pub fn next_tick(&mut self, by: Duration) {
         self.clock.advance(by);
-        self.rt.tick += 1;
+        self.rt.cycle_mut().next_tick();
     }
 
     /// Requests sent so far on all links.
@@ -109,6 +109,6 @@ impl TestRig {
 
     /// The log so far, one line each.
     pub fn log(&self) -> String {
-        self.rt.log.lines().join("\n")
+        self.rt.log_lines().join("\n")
     }
 }

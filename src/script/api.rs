@@ -727,10 +727,10 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         stop(&r, code)
     });
     let r = Rc::clone(rt);
-    engine.register_fn("now", move || r.borrow().wall_text());
+    engine.register_fn("now", move || r.borrow().cycle().wall_text());
     let r = Rc::clone(rt);
     engine.register_fn("uptime", move || {
-        i64::try_from(r.borrow().uptime().as_millis()).unwrap_or(i64::MAX)
+        i64::try_from(r.borrow().cycle().uptime().as_millis()).unwrap_or(i64::MAX)
     });
     let r = Rc::clone(rt);
     engine.on_print(move |s| r.borrow_mut().log_mut().info(&format!("script: {s}")));

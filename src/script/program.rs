@@ -48,7 +48,10 @@ impl ScriptProgram {
         let mut engine = sandboxed(limits.operations);
         let (clock, transactions) = {
             let r = rt.borrow();
-            (Arc::clone(r.clock()), Arc::clone(r.transaction_counter()))
+            (
+                Arc::clone(r.cycle().clock()),
+                Arc::clone(r.transaction_counter()),
+            )
         };
         let guard = Guard::install(&mut engine, limits, clock, transactions);
         let arities = Arities::default();

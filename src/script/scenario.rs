@@ -118,14 +118,16 @@ impl Scenario {
     /// Moves the rig on by `by` within the test's budgets (`what` names the call).
     fn advance(&mut self, what: &str, by: std::time::Duration) -> R<()> {
         self.budget.take_virtual(what, by).or_else(fail)?;
-        let budget = Rc::clone(&self.budget);
-        if !self
-            .rig
-            .runner
-            .advance_while(by, || budget.wall_time_left())
-        {
-            return fail(TestBudget::out_of_wall_time(what));
+        let runner = &mut self.rig.runner;
+        let target = self.clock.now().saturating_add(by);
+        // The wall-time budget is asked before each tick.
+        while runner.tick_due_by(target) {
+            if !self.budget.wall_time_left() {
+                return fail(TestBudget::out_of_wall_time(what));
+            }
+            runner.step_toward(target);
         }
+        runner.step_toward(target);
         self.violation()
     }
 
@@ -518,7 +520,13 @@ fn register_observations(engine: &mut Engine) {
             .collect()
     });
     engine.register_fn("now", |r: &mut RigHandle| -> String {
-        r.0.borrow().rig.runner.runtime().borrow().wall_text()
+        r.0.borrow()
+            .rig
+            .runner
+            .runtime()
+            .borrow()
+            .cycle()
+            .wall_text()
     });
     engine.register_fn("overruns", |r: &mut RigHandle| -> i64 {
         i64::try_from(r.0.borrow().rig.runner.stats().overruns).unwrap_or(i64::MAX)

@@ -108,15 +108,13 @@ pub fn zone_of(name: &str) -> Result<Zone, ExecError> {
 }
 
 impl Player<'_> {
-    /// Runs the ticks due up to `target` (as `Runner::advance`), watching each; the finding,
+    /// Runs the ticks due up to `target` (`Runner::step_toward`, as `Runner::advance`), watching each; the finding,
     /// if one comes.
     fn advance_to(&mut self, target: Duration) -> Option<Finding> {
         let from = self.clock.now();
         let mut ticked = false;
-        while self.rig.runner.status().is_none() && self.rig.runner.next_deadline() <= target {
+        while let Some(deadline) = self.rig.runner.step_toward(target) {
             ticked = true;
-            let deadline = self.rig.runner.next_deadline();
-            self.rig.runner.step();
             if let Some(c) = self.coverage.as_mut() {
                 c.after_tick(&self.rig);
             }
@@ -132,7 +130,6 @@ impl Player<'_> {
                 return found.or_else(|| self.watch.after_end(&self.rig, now));
             }
         }
-        self.rig.runner.wait_between_ticks(target);
         // The planned wait, not how far the clock moved: a tick that ran past `target` would
         // make the longer wait run the catch-up tick before the next event when replayed.
         // `r.advance("0s")` still runs the ticks that are due.

@@ -20,7 +20,7 @@ impl<P: Program> Runner<P> {
         let Some(end) = self.options.end_after else {
             return false;
         };
-        if self.status().is_some() || self.rt.borrow().uptime() < end {
+        if self.status().is_some() || self.rt.borrow().cycle().uptime() < end {
             return false;
         }
         self.finish(EndReason::Finished(format!(
@@ -50,20 +50,22 @@ impl<P: Program> Runner<P> {
         {
             let mut rt = self.rt.borrow_mut();
             match &reason {
-                EndReason::Error(m) => rt.log.error(m),
+                EndReason::Error(m) => rt.log_mut().error(m),
                 EndReason::Signal(n) => {
-                    rt.log.notice(&format!(
+                    rt.log_mut().notice(&format!(
                         "stopping: {} received ({})",
                         signals::name(*n),
                         signals::likely_cause(*n)
                     ));
                 }
                 EndReason::Stopped(code) => {
-                    rt.log
+                    rt.log_mut()
                         .notice(&format!("stopping: the script called stop({code})"));
                 }
-                EndReason::Finished(why) => rt.log.notice(&format!("stopping: {why}")),
-                EndReason::Requested(by) => rt.log.notice(&format!("stopping: asked by {by}")),
+                EndReason::Finished(why) => rt.log_mut().notice(&format!("stopping: {why}")),
+                EndReason::Requested(by) => {
+                    rt.log_mut().notice(&format!("stopping: asked by {by}"))
+                }
                 // Logged with the tick's readings by `report_violation`.
                 EndReason::Violated(_) => {}
             }
@@ -107,8 +109,8 @@ impl<P: Program> Runner<P> {
             .collect();
         // After the safe state: the records file gets a bounded wait for what is queued.
         let r = &mut *rt;
-        self.trouble.records_lost = r.records.close(&mut r.log);
-        let failed = rt.records.failed();
+        self.trouble.records_lost = r.figures_mut().close_records();
+        let failed = rt.figures().records().failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
             EndReason::Stopped(code) if code != 0 => (
@@ -126,8 +128,10 @@ impl<P: Program> Runner<P> {
             _ => (exit::OK, None),
         };
         match because {
-            Some(why) => rt.log.warn(&format!("{why}: exit status {status}")),
-            None => rt.log.notice(&format!("stopped; exit status {status}")),
+            Some(why) => rt.log_mut().warn(&format!("{why}: exit status {status}")),
+            None => rt
+                .log_mut()
+                .notice(&format!("stopped; exit status {status}")),
         }
         drop(rt);
         self.state = State::Stopped { status };
@@ -170,7 +174,7 @@ impl<P: Program> Runner<P> {
                         crate::time::duration::format_duration(STOP_BUDGET)
                     ),
                 };
-                self.rt.borrow_mut().log.warn(&format!(
+                self.rt.borrow_mut().log_mut().warn(&format!(
                     "{why}: {left} on_stop handler(s) skipped, straight to the safe state"
                 ));
                 if signal == 0 {
@@ -191,7 +195,7 @@ impl<P: Program> Runner<P> {
                 // Asked for by whoever sent the signal: no failure of the script's.
                 Err(_) if cut_by != 0 => {
                     let signal = i32::try_from(cut_by).unwrap_or(SIGTERM);
-                    self.rt.borrow_mut().log.warn(&format!(
+                    self.rt.borrow_mut().log_mut().warn(&format!(
                         "{}: cut off by {} while stopping",
                         call.label,
                         signals::name(signal)
@@ -200,7 +204,7 @@ impl<P: Program> Runner<P> {
                 Err(f) => {
                     let message = describe(&f, &call.label);
                     self.note_fault(&message, f.over_budget);
-                    self.rt.borrow_mut().log.error(&message);
+                    self.rt.borrow_mut().log_mut().error(&message);
                     self.trouble.on_stop_failed = self.trouble.on_stop_failed.saturating_add(1);
                 }
                 Ok(()) => {}
@@ -285,7 +289,7 @@ pub fn safe_after_panic<H: Clone>(rt: &Shared<H>, message: &str) {
         };
         // The writes first: the log is the part most likely to have broken.
         rt.end_safe("internal error", false);
-        rt.log.error(&format!(
+        rt.log_mut().error(&format!(
             "internal error (a bug in rigscript; please report it with this log): {message}; \
              host watchdogs left on; exit status {}",
             exit::INTERNAL

@@ -84,8 +84,8 @@ impl<P: Program> Runner<P> {
     pub fn new(rt: Shared<P::Handler>, program: P, options: RunOptions) -> Self {
         rt.borrow_mut()
             .set_cancel(&Cancel::when_set(Arc::clone(&options.stop_flag)));
-        let clock = Arc::clone(&rt.borrow().clock);
-        let events = rt.borrow().events.clone();
+        let clock = Arc::clone(rt.borrow().cycle().clock());
+        let events = rt.borrow().events().clone();
         let now = clock.now();
         Self {
             rt,
@@ -199,24 +199,30 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    /// Runs ticks until the clock has advanced by `by` (virtual time: scenario tests).
+    /// Runs ticks until the clock has advanced by `by` (virtual time).
     pub fn advance(&mut self, by: Duration) {
-        self.advance_while(by, || true);
+        let target = self.clock.now().saturating_add(by);
+        while self.step_toward(target).is_some() {}
     }
 
-    /// As `advance`, asking `go_on` before each tick (a scenario test's wall-time budget);
-    /// false when it said no, the clock left where that tick was due.
-    pub fn advance_while(&mut self, by: Duration, mut go_on: impl FnMut() -> bool) -> bool {
-        let target = self.clock.now().saturating_add(by);
-        while self.status().is_none() && self.next_deadline <= target {
-            if !go_on() {
-                return false;
-            }
-            self.wait_until(self.next_deadline, false);
-            self.tick();
+    /// Whether a tick is due at or before `target` (the run still going).
+    pub fn tick_due_by(&self, target: Duration) -> bool {
+        self.status().is_none() && self.next_deadline <= target
+    }
+
+    /// The one step of the loop in virtual time, which `advance`, scenario tests and `verify`
+    /// drive (each looks at the run between steps): runs the next tick due at or before
+    /// `target` and returns when it was due; when none is (or the run has ended), lets time
+    /// reach `target` between ticks and returns `None`.
+    pub fn step_toward(&mut self, target: Duration) -> Option<Duration> {
+        if !self.tick_due_by(target) {
+            self.wait_between_ticks(target);
+            return None;
         }
-        self.wait_between_ticks(target);
-        true
+        let due = self.next_deadline;
+        self.wait_until(due, false);
+        self.tick();
+        Some(due)
     }
 
     /// Lets virtual time reach `target` without a tick, doing what falls due between ticks
@@ -230,8 +236,7 @@ impl<P: Program> Runner<P> {
     /// Waits for the next deadline and runs one tick.
     pub fn step(&mut self) {
         if self.status().is_none() {
-            self.wait_until(self.next_deadline, false);
-            self.tick();
+            self.step_toward(self.next_deadline);
         }
     }
 

@@ -263,7 +263,8 @@ impl<P: Program> Runner<P> {
             let after_last = self
                 .rt
                 .borrow()
-                .tick_boundary
+                .cycle()
+                .boundary()
                 .map_or(soon, |last| last.saturating_add(period));
             self.next_deadline = soon.max(after_last).min(self.next_deadline);
         }

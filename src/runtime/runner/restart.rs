@@ -35,7 +35,7 @@ impl<P: Program> Runner<P> {
                 self.trouble.recovered_errors = self.trouble.recovered_errors.saturating_add(1);
                 self.rt
                     .borrow_mut()
-                    .log
+                    .log_mut()
                     .error(&format!("{message} (policy skip: going on)"));
                 true
             }
@@ -57,10 +57,10 @@ impl<P: Program> Runner<P> {
             .min(MAX_BACKOFF);
         self.failures_in_a_row = self.failures_in_a_row.saturating_add(1);
         let mut rt = self.rt.borrow_mut();
-        rt.log.error(message);
+        rt.log_mut().error(message);
         rt.write_safe_state("script error");
         rt.reset_program();
-        rt.log.notice(&format!(
+        rt.log_mut().notice(&format!(
             "policy restart: starting the script again in {} (failure {} in a row); outputs \
              safe meanwhile",
             crate::time::duration::format_duration(wait),
@@ -83,7 +83,7 @@ impl<P: Program> Runner<P> {
             let mut rt = self.rt.borrow_mut();
             rt.reset_program();
             rt.set_cause("top level");
-            rt.log.notice("starting the script again");
+            rt.log_mut().notice("starting the script again");
         }
         match self.program.start() {
             Ok(()) => self.tell_started(),

@@ -67,7 +67,7 @@ impl<P: Program> Runner<P> {
             script: ScriptState {
                 file: script,
                 state: state.into(),
-                uptime_ms: u64::try_from(rt.uptime().as_millis()).unwrap_or(u64::MAX),
+                uptime_ms: u64::try_from(rt.cycle().uptime().as_millis()).unwrap_or(u64::MAX),
                 errors: self.errors.total(),
                 last_error: self.errors.last().map(|e| e.message.clone()),
                 restarts: self.restarts,
@@ -83,11 +83,14 @@ impl<P: Program> Runner<P> {
             held_safe: rt.held_safe,
             ticks: TickFigures::of(&self.stats, self.options.period),
             dropped: self.events.dropped(),
-            log_dropped: rt.log.dropped(),
+            log_dropped: rt.figures().log().dropped(),
             forcing: rt.forces().allowed(),
             forces: rt.forces_shown(),
             // Counted as it happens; the end's count takes in what was queued too.
-            records_lost: self.trouble.records_lost.max(rt.records.lost_so_far()),
+            records_lost: self
+                .trouble
+                .records_lost
+                .max(rt.figures().records().lost_so_far()),
             dropped_in_all: self.events.dropped_in_all(),
             mqtt: self
                 .served

@@ -69,7 +69,7 @@ fn runner(every: Duration, burn: Duration, policy: ErrorPolicy) -> (Runner<Burne
         TransactionCounter::default(),
         Duration::from_secs(1),
     )));
-    rt.borrow_mut().log.keep_lines();
+    rt.borrow_mut().log_mut().keep_lines();
     let program = Burner {
         rt: Rc::clone(&rt),
         clock: clock.clone(),
@@ -151,7 +151,7 @@ fn restart_backs_off_doubling() {
     r.advance(Duration::from_millis(200));
     assert_eq!(r.program().calls, 3);
     assert!(r.status().is_none());
-    let log = r.runtime().borrow().log.lines().join("\n");
+    let log = r.runtime().borrow().log_lines().join("\n");
     assert!(log.contains("x.rhai:1:1: in every 100ms: boom"), "{log}");
     assert!(clock.now() >= Duration::from_millis(3300));
 }
@@ -168,7 +168,7 @@ impl Program for Signalled {
     type Handler = ();
     fn start(&mut self) -> Result<(), HandlerFault> {
         let mut rt = self.rt.borrow_mut();
-        rt.handlers.set_max_timers(self.timers + 1);
+        rt.limit_timers(self.timers + 1);
         for _ in 0..self.timers {
             rt.every(Duration::from_secs(1), ()).unwrap();
         }
@@ -210,7 +210,7 @@ fn a_signal_during_a_tick_of_many_timers_ends_the_run_before_the_next_handler() 
     r.advance(Duration::from_secs(2));
     assert_eq!(r.program().calls, 3, "no handler after the signal");
     assert_eq!(r.status(), Some(exit::signal(SIGTERM)));
-    let log = r.runtime().borrow().log.lines().join("\n");
+    let log = r.runtime().borrow().log_lines().join("\n");
     assert!(log.contains("stopping: SIGTERM received"), "{log}");
 }
 
@@ -220,7 +220,7 @@ fn a_refused_prompt_wakeup_request_is_logged_once_and_shown_by_stats() {
     let denied = std::io::Error::from_raw_os_error(libc::EPERM);
     r.note_prompt_wakeups(Err(denied));
     r.advance(Duration::from_secs(2));
-    let log = r.runtime().borrow().log.lines().join("\n");
+    let log = r.runtime().borrow().log_lines().join("\n");
     assert_eq!(
         log.matches("prompt wake-ups (1 ns timer slack, short scheduler slice) refused (")
             .count(),
@@ -316,7 +316,7 @@ fn a_panic_in_a_handler_writes_the_safe_state_and_ends_with_70() {
         r.sim.watchdog("io").unwrap().enabled,
         "the watchdog is left on"
     );
-    let log = runner.runtime().borrow().log.lines().join("\n");
+    let log = runner.runtime().borrow().log_lines().join("\n");
     assert!(
         log.contains("safe state (internal error): io outputs 0x05, panel relay 3"),
         "{log}"
@@ -331,7 +331,7 @@ fn a_panic_in_a_handler_writes_the_safe_state_and_ends_with_70() {
 fn a_panic_at_the_top_level_ends_safe_too() {
     let (runner, r) = panicking(true);
     assert_eq!(runner.status(), Some(exit::INTERNAL));
-    let log = runner.runtime().borrow().log.lines().join("\n");
+    let log = runner.runtime().borrow().log_lines().join("\n");
     assert!(log.contains("io: outputs 0x05 -> 0xf0"), "{log}");
     assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
 }
@@ -395,7 +395,7 @@ fn a_sigterm_while_a_silent_module_is_waited_for_is_honoured_within_a_slice() {
     let tries = END_TRIES * 2;
     let bound = CANCEL_SLICE + Duration::from_secs(1) * tries;
     assert!(took <= bound, "{took:?}, more than {bound:?}");
-    let log = runner.runtime().borrow().log.lines().join("\n");
+    let log = runner.runtime().borrow().log_lines().join("\n");
     assert!(log.contains("stopping: SIGTERM received"), "{log}");
     assert!(log.contains("io: the safe state did not reach it"), "{log}");
     assert!(
@@ -471,7 +471,7 @@ fn a_lost_devices_grace_end_holds_every_output_safe_at_once_whatever_the_period(
             .health()
             .lost_at
             .expect("io is lost");
-        let log = runner.runtime().borrow().log.lines().join("\n");
+        let log = runner.runtime().borrow().log_lines().join("\n");
         assert_eq!(r.sim.relay("panel").unwrap(), 3, "{period:?}: {log}");
         let grace = Duration::from_secs(1);
         assert!(
@@ -495,7 +495,7 @@ fn the_end_of_for_is_honoured_to_the_sleep_slice_not_the_period() {
         ended >= Duration::from_secs(2) && ended <= Duration::from_secs(2) + SLEEP_SLICE,
         "ended at {ended:?}"
     );
-    let log = runner.runtime().borrow().log.lines().join("\n");
+    let log = runner.runtime().borrow().log_lines().join("\n");
     assert!(log.contains("stopping: ran for 2s"), "{log}");
 }
 
@@ -573,7 +573,7 @@ fn on_stop_handlers_share_one_budget_and_the_rest_are_skipped() {
     // 300 ms each: the seventh starts before 2 s are spent and ends past them.
     assert_eq!(r.program().calls, 7);
     assert!(clock.now() - stopped_at <= STOP_BUDGET + Duration::from_millis(300));
-    let log = r.runtime().borrow().log.lines().join("\n");
+    let log = r.runtime().borrow().log_lines().join("\n");
     assert!(
         log.contains("the on_stop handlers' 2s are spent: 93 on_stop handler(s) skipped, straight to the safe state"),
         "{log}"
@@ -591,7 +591,7 @@ fn a_second_signal_while_stopping_skips_the_remaining_on_stop_handlers() {
     r.advance(Duration::from_millis(100));
     r.signal_stop();
     assert_eq!(r.program().calls, 2, "none after the second signal");
-    let log = r.runtime().borrow().log.lines().join("\n");
+    let log = r.runtime().borrow().log_lines().join("\n");
     let skipped = log
         .find("SIGINT received while stopping: 3 on_stop handler(s) skipped, straight to the safe state")
         .unwrap_or_else(|| panic!("{log}"));

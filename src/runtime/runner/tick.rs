@@ -32,9 +32,9 @@ impl<P: Program> Runner<P> {
             .jitter
             .add(start.saturating_sub(self.next_deadline));
         {
-            let mut rt = self.rt.borrow_mut();
-            rt.tick = rt.tick.saturating_add(1);
-            rt.tick_boundary = Some(self.next_deadline.min(start));
+            self.rt
+                .borrow_mut()
+                .begin_tick(self.next_deadline.min(start));
         }
         if self.ended_by_signal() {
             return;
@@ -139,7 +139,7 @@ impl<P: Program> Runner<P> {
             next = next.min(at);
         }
         if let Some(end) = self.options.end_after {
-            next = next.min(self.rt.borrow().started.saturating_add(end));
+            next = next.min(self.rt.borrow().cycle().started().saturating_add(end));
         }
         Some(next)
     }
@@ -173,7 +173,7 @@ impl<P: Program> Runner<P> {
                     // write past the file size limit as SIGXFSZ came).
                     let message = describe(&f, &call.label);
                     self.note_fault(&message, f.over_budget);
-                    self.rt.borrow_mut().log.error(&message);
+                    self.rt.borrow_mut().log_mut().error(&message);
                     return;
                 }
                 if !self.handle_fault(&f, &call.label) {
@@ -192,7 +192,7 @@ impl<P: Program> Runner<P> {
     /// script error that is never skipped or restarted: it could not vouch for the outputs).
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
-        let accesses = self.rt.borrow().input_accesses;
+        let accesses = self.rt.borrow().input_accesses();
         for check in checks.iter() {
             self.rt.borrow_mut().set_cause(&check.call.label);
             match self.program.holds(check) {
@@ -203,7 +203,7 @@ impl<P: Program> Runner<P> {
                         Violation {
                             name: check.name.clone(),
                             at: check.at.clone(),
-                            uptime: rt.uptime(),
+                            uptime: rt.cycle().uptime(),
                             devices: rt.readings(),
                         }
                     };
@@ -222,7 +222,8 @@ impl<P: Program> Runner<P> {
             }
         }
         let mut rt = self.rt.borrow_mut();
-        rt.invariants_read_inputs = rt.input_accesses != accesses;
+        let read = rt.input_accesses() != accesses;
+        rt.program_mut().note_invariants_read_inputs(read);
         true
     }
 }

@@ -23,7 +23,7 @@ impl<P: Program> Runner<P> {
             Ok(()) => "granted".to_string(),
             Err(e) => {
                 let text = format!("refused ({e})");
-                self.rt.borrow_mut().log.notice(&format!(
+                self.rt.borrow_mut().log_mut().notice(&format!(
                     "prompt wake-ups (1 ns timer slack, short scheduler slice) {text}: ticks \
                      may start later under load"
                 ));
@@ -56,7 +56,7 @@ impl<P: Program> Runner<P> {
         let mut rt = self.rt.borrow_mut();
         let Some(limit) = wanted else {
             self.latency.hold = None;
-            rt.log.notice(
+            rt.log_mut().notice(
                 "CPU wake-up latency released: no handler needs ticks of 20 ms or less now",
             );
             return;
@@ -72,12 +72,13 @@ impl<P: Program> Runner<P> {
         });
         match outcome {
             Some(Ok(h)) => {
-                rt.log.notice(&format!("CPU wake-up latency {text}{every}"));
+                rt.log_mut()
+                    .notice(&format!("CPU wake-up latency {text}{every}"));
                 self.latency.hold = Some(h);
             }
             _ => {
                 self.latency.refused = true;
-                rt.log.notice(&format!(
+                rt.log_mut().notice(&format!(
                     "CPU wake-up latency {text}: ticks may start up to milliseconds late; \
                      give this user write access to it (packaging/udev/61-rigscript-wake-latency.rules) or set \
                      wake_latency = \"off\""
@@ -181,7 +182,7 @@ impl<P: Program> Runner<P> {
     /// When `--for` is over, if it was given.
     fn end_at(&self) -> Option<Duration> {
         let end = self.options.end_after?;
-        Some(self.rt.borrow().started.saturating_add(end))
+        Some(self.rt.borrow().cycle().started().saturating_add(end))
     }
 }
 

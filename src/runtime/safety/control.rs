@@ -37,7 +37,7 @@ impl<H: Clone> Runtime<H> {
             match self.try_take_control(idx) {
                 Ok(found) => {
                     for line in found {
-                        self.log.notice(&line);
+                        self.log_mut().notice(&line);
                     }
                 }
                 Err(source) => {
@@ -48,7 +48,7 @@ impl<H: Clone> Runtime<H> {
                 }
             }
             let summary = self.describe_control(idx);
-            self.log.notice(&format!("{name}: {summary}"));
+            self.log_mut().notice(&format!("{name}: {summary}"));
         }
         Ok(())
     }
@@ -80,7 +80,7 @@ impl<H: Clone> Runtime<H> {
     pub fn regain_control(&mut self, idx: usize) {
         let name = self.device_name(idx);
         // Once, then counted: a module that stays in safe mode refuses every tick's write.
-        self.log.repeating(
+        self.log_mut().repeating(
             &safe_mode_key(&name),
             Level::Warn,
             &format!(
@@ -100,12 +100,12 @@ impl<H: Clone> Runtime<H> {
             Ok(found) => {
                 self.heard(idx, self.now());
                 for line in found {
-                    self.log.notice(&line);
+                    self.log_mut().notice(&line);
                 }
                 let name = self.device_name(idx);
                 let done = format!("{name}: taken control of");
-                self.log.settled(&takeover_key(&name), &done);
-                self.log.settled(&safe_mode_key(&name), &done);
+                self.log_mut().settled(&takeover_key(&name), &done);
+                self.log_mut().settled(&safe_mode_key(&name), &done);
                 self.log_differences(idx, before.as_ref());
                 true
             }
@@ -115,7 +115,7 @@ impl<H: Clone> Runtime<H> {
                 // a device that keeps refusing is tried again and again.
                 if !e.is_comm_failure() && !e.is_cancelled() {
                     let name = self.device_name(idx);
-                    self.log.repeating(
+                    self.log_mut().repeating(
                         &takeover_key(&name),
                         Level::Error,
                         &format!("{name}: taking control failed: {e}"),
@@ -175,7 +175,7 @@ impl<H: Clone> Runtime<H> {
                  (the next device check, within 5s); set power_on_value in rig.toml",
                 d.name, d.config.safe_value
             );
-            self.log.warn(&line);
+            self.log_mut().warn(&line);
         }
         Ok(self.describe_findings(idx, takeover.notes()))
     }
@@ -185,7 +185,7 @@ impl<H: Clone> Runtime<H> {
     /// control of as a new one (`take_control` logs what differs from the one before).
     pub fn take_control_as_new(&mut self, idx: usize, why: &str) {
         let name = self.device_name(idx);
-        self.log.warn(&format!(
+        self.log_mut().warn(&format!(
             "{name}: {why}; taking control of it as a new module"
         ));
         self.take_control(idx);
@@ -205,7 +205,7 @@ impl<H: Clone> Runtime<H> {
                 d.name,
                 differs.join(", ")
             );
-            self.log.warn(&line);
+            self.log_mut().warn(&line);
         }
     }
 
@@ -436,7 +436,7 @@ mod tests {
     fn a_different_module_back_after_a_loss_is_named_with_what_differs() {
         let mut r = TestRig::started();
         r.sim.set_gone("io", true).unwrap();
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.inputs(IO);
         assert!(!r.rt.online(IO));
         let other = crate::runtime::devices::SwappedModule {

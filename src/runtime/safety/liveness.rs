@@ -47,7 +47,7 @@ impl<H: Clone> Runtime<H> {
         if !h.online() {
             return None;
         }
-        let read_now = h.read_tick == self.tick && self.tick > 0;
+        let read_now = h.read_tick == self.cycle().tick() && self.cycle().tick() > 0;
         if read_now && next_tick <= h.heard_at.saturating_add(self.grace / 2) {
             return None;
         }
@@ -101,7 +101,7 @@ impl<H: Clone> Runtime<H> {
         let ended = match fd::ended(&watches) {
             Ok(ended) => ended,
             Err(e) => {
-                self.log.repeating(
+                self.log_mut().repeating(
                     "links/watch",
                     Level::Warn,
                     &format!(
@@ -224,7 +224,8 @@ mod tests {
         let mut r = TestRig::started();
         for _ in 0..100 {
             r.next_tick(Duration::from_millis(20));
-            r.rt.tick_boundary = Some(r.rt.now());
+            let now = r.rt.now();
+            r.rt.cycle_mut().set_boundary(now);
             let before = r.requests();
             r.rt.switches(PANEL);
             let now = r.rt.now();
@@ -240,7 +241,7 @@ mod tests {
         let mut r = TestRig::started();
         r.next_tick(Duration::from_millis(20));
         let read_at = r.rt.now();
-        r.rt.tick_boundary = Some(read_at);
+        r.rt.cycle_mut().set_boundary(read_at);
         r.rt.switches(PANEL);
         r.clock.advance(Duration::from_millis(300));
         r.rt.feed_watchdogs();

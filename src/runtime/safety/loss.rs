@@ -50,9 +50,9 @@ impl<H: Clone> Runtime<H> {
                 } else {
                     format!("every {}", format_duration(RETRY_INTERVAL))
                 };
-                self.log
+                self.log_mut()
                     .warn(&format!("{name}: lost: {error}; trying again {when}"));
-                self.events.publish(|| RunEvent::DeviceLost {
+                self.events().publish(|| RunEvent::DeviceLost {
                     device: name,
                     cause: error.to_string(),
                 });
@@ -109,12 +109,12 @@ impl<H: Clone> Runtime<H> {
                         if let Some(d) = self.devices.get_mut(idx) {
                             d.health_mut().back();
                         }
-                        self.log.notice(&format!(
+                        self.log_mut().notice(&format!(
                             "{name}: back after {}; watchdog, safe value and outputs applied \
                              again",
                             format_duration(lost_for)
                         ));
-                        self.events
+                        self.events()
                             .publish(|| RunEvent::DeviceBack { device: name });
                     } else if let Some(d) = self.devices.get_mut(idx) {
                         // Only a lost answer moves the retry time on (`note_failure`); after a
@@ -180,15 +180,15 @@ impl<H: Clone> Runtime<H> {
         if !self.held_safe && !beyond.is_empty() {
             self.held_safe = true;
             self.cancel_forces(&format!("{} lost past its grace time", beyond.join(", ")));
-            self.log.warn(&format!(
-                "{} lost for longer than the grace time ({}): every output is held at its \
-                 safe state until it is back",
+            let grace = format_duration(self.grace);
+            self.log_mut().warn(&format!(
+                "{} lost for longer than the grace time ({grace}): every output is held at \
+                 its safe state until it is back",
                 beyond.join(", "),
-                format_duration(self.grace)
             ));
         } else if self.held_safe && all_back {
             self.held_safe = false;
-            self.log
+            self.log_mut()
                 .notice("every device is back: the script's outputs apply again");
         }
     }

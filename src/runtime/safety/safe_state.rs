@@ -71,7 +71,7 @@ impl<H: Clone> Runtime<H> {
                 EndOutcome::Unconfirmed(u) => {
                     let name = d.name().to_string();
                     done.push(not_reached(&name, &u));
-                    self.log
+                    self.log_mut()
                         .error(&format!("{name}: the safe state did not reach it: {u}"));
                     if let Unconfirmed::NoAnswer(e) = &u {
                         self.note_failure(idx, e);
@@ -80,7 +80,7 @@ impl<H: Clone> Runtime<H> {
             }
         }
         if !done.is_empty() {
-            self.log
+            self.log_mut()
                 .info(&format!("safe state ({why}): {}", done.join(", ")));
         }
     }
@@ -119,7 +119,7 @@ impl<H: Clone> Runtime<H> {
                     let value = match *reading {
                         SafeReading::Outputs(v) | SafeReading::Relay(v) => v,
                     };
-                    self.events.publish(|| RunEvent::Outputs {
+                    self.events().publish(|| RunEvent::Outputs {
                         device: name.clone(),
                         value,
                         cause: format!("safe state ({why})"),
@@ -131,7 +131,7 @@ impl<H: Clone> Runtime<H> {
                 EndOutcome::NoSafeState => {}
                 EndOutcome::Unconfirmed(u) => {
                     let note = self.unreached_note(idx);
-                    self.log.error(&format!(
+                    self.log_mut().error(&format!(
                         "{name}: the safe state did not reach it: {u}; {note}"
                     ));
                     if let Unconfirmed::NoAnswer(e) = u {
@@ -152,7 +152,7 @@ impl<H: Clone> Runtime<H> {
             });
         }
         if !done.is_empty() {
-            self.log
+            self.log_mut()
                 .info(&format!("safe state ({why}): {}", done.join(", ")));
         }
         ends
@@ -198,7 +198,7 @@ impl<H: Clone> Runtime<H> {
             Ok(()) => ours,
             Err(e) => {
                 let name = d.name.clone();
-                self.log.warn(&format!(
+                self.log_mut().warn(&format!(
                     "{name}: turning its watchdog off failed: {e}; it stays on, and the \
                      outputs are safe either way"
                 ));
@@ -377,7 +377,7 @@ mod tests {
         r.rt.set_relay(PANEL, 6);
         r.rt.flush_outputs();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.switches(PANEL);
         r.rt.write_safe_state("signal");
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
@@ -426,7 +426,7 @@ mod tests {
         r.rt.flush_outputs();
         // Lost (say while the runner tried to reconnect), and answering again by the end.
         r.sim.set_gone("io", true).unwrap();
-        r.rt.tick += 1;
+        r.rt.cycle_mut().next_tick();
         r.rt.inputs(IO);
         assert!(!r.rt.online(IO));
         r.sim.set_gone("io", false).unwrap();

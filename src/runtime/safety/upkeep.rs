@@ -58,7 +58,7 @@ impl<H: Clone> Runtime<H> {
             Err(e) if e.is_safe_mode() => {
                 let timeout = d.watchdog.map_or(stall, |t| t.as_duration());
                 let (name, safe) = (d.name.clone(), d.config.safe_value);
-                self.log.warn(&format!(
+                self.log_mut().warn(&format!(
                     "{name}: host watchdog fired after a {} stall (not fed for that long, its \
                      timeout is {}): its outputs went to the safe value {safe:#04x}; taking \
                      control again",
@@ -136,13 +136,13 @@ impl<H: Clone> Runtime<H> {
         let key = format!("{name}/read-back");
         match finding {
             CheckFinding::Same => self
-                .log
+                .log_mut()
                 .settled(&key, &format!("{name}: outputs as written")),
             CheckFinding::Outputs { read, written } => {
                 if let Some(d) = self.c29u(idx) {
                     d.forget_outputs_written();
                 }
-                self.log.repeating(
+                self.log_mut().repeating(
                     &key,
                     Level::Warn,
                     &format!(
