@@ -5,7 +5,12 @@
 //! The silence is counted from the end of the last frame on the line, whoever sent it: an
 //! answer, our own request that gets none, stray bytes. After a timeout the line must stay
 //! silent for one more timeout before the next request, so a late answer is heard and dropped
-//! instead of being taken for the answer to the request after it. The waits sleep; a request
+//! instead of being taken for the answer to the request after it; an answer taken after a
+//! timeout may itself be late, so the line then stays silent as long as it may have been late
+//! (since the first unanswered request), the answers to the later tries being dropped in turn;
+//! a port just opened settles as after a timeout (another program may have left a request
+//! unanswered). Matching an answer to its request cannot replace this: a DO and a DI read
+//! have answers of the same shape. The waits sleep; a request
 //! already late is sent at once. Every buffer is bounded by the longest valid answer. A
 //! `Cancel` cuts an exchange short: nothing is sent once it is set, and the waits look at it
 //! between slices.
@@ -149,8 +154,6 @@ fn send_and_collect(
     tracer: &mut Option<Tracer>,
     cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
-    // A try after a timeout: the answers to the tries before it may still be on their way.
-    let retrying = line.unanswered;
     keep_silence(link, clock, line, timing, cancel)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
@@ -173,23 +176,20 @@ fn send_and_collect(
     let mut received = Vec::with_capacity(timing.max_answer.min(chunk.len()));
     loop {
         let left = deadline.saturating_sub(now);
-        if left.is_zero() {
-            // The module may still answer: the next request waits until the line has been
-            // silent for one more timeout.
+        let cancelled = cancel.is_cancelled();
+        if left.is_zero() || cancelled {
+            // The module may still answer (after a stop too: the next request is the end's
+            // safe state): the next request waits until the line has been silent for the
+            // settling time.
             line.quiet_since = Some(now);
             line.settle = Some(timing.timeout);
-            line.unanswered = true;
+            line.unanswered_since.get_or_insert(request_end);
             trace_received(tracer, &received);
-            return Err(ExchangeError::Timeout { received });
-        }
-        if cancel.is_cancelled() {
-            // The module may still answer, as after a timeout: the next request (the end's
-            // safe state) waits for the line to settle.
-            line.quiet_since = Some(now);
-            line.settle = Some(timing.timeout);
-            line.unanswered = true;
-            trace_received(tracer, &received);
-            return Err(ExchangeError::Cancelled);
+            return Err(if cancelled {
+                ExchangeError::Cancelled
+            } else {
+                ExchangeError::Timeout { received }
+            });
         }
         let wait = match timing.gap {
             // At most 29 ms (t3.5 at 1200 baud): shorter than a slice.
@@ -221,12 +221,12 @@ fn send_and_collect(
         received.extend_from_slice(bytes);
         if let Some(answer) = frame(&received) {
             line.quiet_since = Some(read_at);
-            if retrying {
-                // This answer may be a late one to an earlier try, with the answers to the
-                // later tries still to come (same shape, and ASCII says not whose): the next
-                // request waits until the line has been silent for a timeout, as after one.
-                line.settle = Some(timing.timeout);
-                line.unanswered = false;
+            if let Some(since) = line.unanswered_since.take() {
+                // This answer may be a late one to an earlier request, with the answers to the
+                // requests after it still to come (same shape, and neither a DO and a DI read
+                // nor ASCII say whose): the next request waits until the line has been silent
+                // as long as this answer may have been late, and never less than a timeout.
+                line.settle = Some(timing.timeout.max(read_at.saturating_sub(since)));
             }
             trace_received(tracer, &answer);
             return Ok(answer);
@@ -263,6 +263,12 @@ fn keep_silence(
     let gap = timing.silence_on(line);
     let started = clock.now();
     let mut now = started;
+    if std::mem::take(&mut line.just_opened) {
+        // Another program's request may still be answered: heard and dropped, as after a
+        // timeout, with whatever the port held already.
+        line.quiet_since = Some(now);
+        line.settle = Some(timing.timeout);
+    }
     let mut heard = 0usize;
     let mut scratch = [0u8; 256];
     loop {
@@ -671,6 +677,89 @@ mod tests {
             link.read(&mut [0u8; 8], Duration::ZERO).unwrap() == 0,
             "nothing left over"
         );
+    }
+
+    /// Answers every request with its own text in lower case, so an answer names its request.
+    struct Lower;
+    impl ByteDevice for Lower {
+        fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+            bytes.to_ascii_lowercase()
+        }
+    }
+
+    fn lower_late(
+        late: impl FnMut(u64) -> Duration + Send + 'static,
+    ) -> (VirtualClock, MemoryByteLink<Lower>) {
+        let clock = VirtualClock::at_epoch();
+        let link = MemoryByteLink::new(Lower, "lower")
+            .with_clock(Arc::new(clock.clone()))
+            .with_line(9600)
+            .delay_answers(late);
+        (clock, link)
+    }
+
+    fn send(
+        link: &mut dyn ByteLink,
+        clock: &VirtualClock,
+        request: &[u8],
+    ) -> Result<Vec<u8>, ExchangeError> {
+        exchange(
+            link,
+            clock,
+            request,
+            true,
+            timing(None),
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+    }
+
+    #[test]
+    fn an_answer_taken_after_a_timeout_keeps_the_line_silent_as_long_as_it_was_late() {
+        // Every answer comes 500 ms late against a 200 ms timeout: the retry takes the first
+        // try's answer, and the retry's own answer is still to come when the next request,
+        // one whose answer has the same shape, would go after one timeout of silence.
+        let (clock, mut link) = lower_late(|_| Duration::from_millis(500));
+        assert!(matches!(
+            send(&mut link, &clock, b"DO\r"),
+            Err(ExchangeError::Timeout { .. })
+        ));
+        assert_eq!(send(&mut link, &clock, b"DO\r").unwrap(), b"do\r");
+        let mut other = Vec::new();
+        for _ in 0..3 {
+            match send(&mut link, &clock, b"DI\r") {
+                Ok(answer) => {
+                    other = answer;
+                    break;
+                }
+                Err(ExchangeError::Timeout { received }) => assert!(received.is_empty()),
+                Err(e) => panic!("{e}"),
+            }
+        }
+        assert_eq!(
+            other, b"di\r",
+            "the DO read's late answer taken for the DI read's"
+        );
+    }
+
+    #[test]
+    fn a_port_just_opened_drops_the_answer_to_another_programs_request() {
+        // Another program asked and gave up; its answer comes 150 ms after this one opened.
+        let (clock, mut link) = lower_late(|n| Duration::from_millis(if n == 0 { 150 } else { 0 }));
+        link.write_all(b"OLD\r").unwrap();
+        link.line().unwrap().just_opened = true;
+        assert_eq!(send(&mut link, &clock, b"NEW\r").unwrap(), b"new\r");
+        let old_end = Duration::from_millis(150) + crate::link::line::wire_time(8, 9600);
+        assert!(
+            clock.now() > old_end + Duration::from_millis(200),
+            "{:?}",
+            clock.now()
+        );
+        // Only once: the next request keeps the frame gap alone.
+        let before = clock.now();
+        send(&mut link, &clock, b"NEW\r").unwrap();
+        assert!(clock.now() - before < Duration::from_millis(20));
     }
 
     #[test]
