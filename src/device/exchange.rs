@@ -15,9 +15,10 @@
 //! `Cancel` cuts an exchange short: nothing is sent once it is set, and the waits look at it
 //! between slices.
 
-use crate::device::cancel::Cancel;
+use crate::device::cancel::{Cancel, CANCEL_SLICE};
 use crate::link::line::{FrameGap, LineState};
 use crate::link::{ByteLink, LinkError};
+use crate::protocol::c29u::{frame_gap, Protocol};
 use crate::time::clock::Clock;
 use std::time::Duration;
 
@@ -35,8 +36,8 @@ pub struct Timing {
     pub gap: Option<Duration>,
     /// The silence to keep on a timed serial line before the request.
     pub frame_gap: FrameGap,
-    /// The protocol's rule for `FrameGap::Auto`: the silence at a given baud.
-    pub auto_gap: fn(u32) -> Duration,
+    /// The protocol spoken, whose rule `FrameGap::Auto` follows (`c29u::frame_gap`).
+    pub protocol: Protocol,
     /// The longest answer the protocol has; more bytes than this are not an answer.
     pub max_answer: usize,
     /// How long the answer can be, when the protocol tells: on a timed line the rest of it
@@ -59,11 +60,9 @@ impl Timing {
     /// The silence to keep before a request on `line`: none where the host does not time the
     /// line (TCP device servers time their own; memory has no wire).
     pub fn silence_on(&self, line: &LineState) -> Duration {
-        match (line.baud, self.frame_gap) {
-            (None, _) => Duration::ZERO,
-            (Some(baud), FrameGap::Auto) => (self.auto_gap)(baud),
-            (Some(_), FrameGap::Fixed(gap)) => gap,
-        }
+        line.baud.map_or(Duration::ZERO, |baud| {
+            frame_gap(self.protocol, self.frame_gap, baud)
+        })
     }
 }
 
@@ -154,6 +153,13 @@ fn send_and_collect(
     tracer: &mut Option<Tracer>,
     cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
+    if expect_answer && std::mem::take(&mut line.just_opened) {
+        // Another program's request may still be answered: heard and dropped, as after a
+        // timeout, with whatever the port held already. A request that gets no answer (host
+        // OK, fed from a shell loop) cannot take it, and leaves the settling to the next.
+        line.quiet_since = Some(clock.now());
+        line.settle = Some(timing.timeout);
+    }
     keep_silence(link, clock, line, timing, cancel)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
@@ -263,12 +269,6 @@ fn keep_silence(
     let gap = timing.silence_on(line);
     let started = clock.now();
     let mut now = started;
-    if std::mem::take(&mut line.just_opened) {
-        // Another program's request may still be answered: heard and dropped, as after a
-        // timeout, with whatever the port held already.
-        line.quiet_since = Some(now);
-        line.settle = Some(timing.timeout);
-    }
     let mut heard = 0usize;
     let mut scratch = [0u8; 256];
     loop {
@@ -276,7 +276,9 @@ fn keep_silence(
             return Err(ExchangeError::Cancelled);
         }
         let needed = line.settle.map_or(gap, |settle| settle.max(gap));
-        let waited = now.saturating_sub(started);
+        // Bytes still coming that long after the wait began: a wait cut into slices has not
+        // waited that long for silence.
+        let waited = line.quiet_since.unwrap_or(now).saturating_sub(started);
         if heard > 0 && waited > timing.timeout.saturating_add(needed) {
             return Err(ExchangeError::Busy {
                 heard,
@@ -288,8 +290,10 @@ fn keep_silence(
             // Listen rather than sleep: bytes that arrive restart the count, and a wait that
             // hears nothing has shown the line silent, so no look is needed after it (one
             // system call for the silence and the check for stale input).
-            let wait = cancel.slice(quiet_at.saturating_sub(now));
-            // Each slice of a wait is a sign of life of the loop (`guardian::pulse`).
+            // In slices even when nothing can cancel (the end's writes): a settle after a late
+            // answer may outlast the stall limit, and each slice is a sign of life of the loop
+            // (`guardian::pulse`).
+            let wait = quiet_at.saturating_sub(now).min(CANCEL_SLICE);
             crate::guardian::pulse::beat();
             let n = link.read(&mut scratch, wait)?;
             let after = clock.now();
@@ -416,7 +420,7 @@ mod tests {
             timeout: Duration::from_millis(200),
             gap: gap.map(Duration::from_millis),
             frame_gap: FrameGap::Auto,
-            auto_gap: t35,
+            protocol: Protocol::Modbus,
             max_answer: 64,
             answer_len: None,
         }
