@@ -2,7 +2,8 @@
 //! control lines on standard input.
 
 use crate::cli::c29::parse_baud;
-use crate::device::c29u::auto_frame_gap;
+use crate::link::line::FrameGap;
+use crate::protocol::c29u::frame_gap;
 use crate::protocol::c29u::{baud_code, FirmwareDate};
 use crate::protocol::c29u_modbus::silence_gap;
 use crate::protocol::c29u_modbus::SLAVE_IDS;
@@ -476,7 +477,7 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
     if args.strict_timing {
         server.strict_timing(StrictTiming {
             baud,
-            required: auto_frame_gap(args.protocol.into(), baud),
+            required: frame_gap(args.protocol.into(), FrameGap::Auto, baud),
             early,
         });
     }

@@ -8,7 +8,7 @@ mod transport;
 pub use crate::link::line::FrameGap;
 pub use crate::protocol::c29u::{CounterEdge, Protocol, WatchdogTimeout};
 pub use crate::protocol::c29u_ascii::Preset;
-pub use transport::{ascii_frame_gap, auto_frame_gap, share, SharedLink};
+pub use transport::{share, SharedLink};
 
 use crate::device::cancel::Cancel;
 use crate::device::exchange::{format_frame, ExchangeError, Tracer};
