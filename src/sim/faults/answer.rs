@@ -1,4 +1,5 @@
-//! Faults in a simulated device's answers, on demand: the next answers dropped (the driver
+//! Faults queued for a simulated device's next answers (the words are `sim::faults`'s): the
+//! next answers dropped (the driver
 //! times out), garbled (a byte of each gets its top bit flipped, which no frame of either
 //! TRP-C29U protocol survives: the CRC or checksum fails, or the ASCII turns non-ASCII), late
 //! (given on time, arriving later: within the driver's timeout a slow answer, past it one that
@@ -6,8 +7,6 @@
 //! simulator; a scenario test or `verify` queues the faults. Lateness and the second copy are
 //! the link's business (it holds the answer's arrival): the wrapper hands them over through
 //! `AnswerFaults::take_delivery`, which the link asks after each answer.
-//!
-//! (Drawn faults at a probability per answer are `pty::Faults`, for the pty server.)
 
 use crate::link::far_end::{ByteDevice, PacketDevice};
 use std::collections::VecDeque;
