@@ -6,7 +6,8 @@ use rigscript::protocol::c29u::{baud_code, Protocol};
 use rigscript::protocol::c29u_modbus::silence_gap;
 use rigscript::sim::c29u::{C29uModel as Model, Eeprom, ModuleConfig};
 use rigscript::sim::c29u_line::SimulatedC29u;
-use rigscript::sim::pty::{Faults, PtyServer};
+use rigscript::sim::faults::drawn::Drawn;
+use rigscript::sim::pty::PtyServer;
 use rigscript::time::clock::SystemClock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -79,7 +80,7 @@ impl Served {
             // A module answers at once: keep the simulator's own delays out of the timings.
             rigscript::sim::pty::prefer_realtime();
             server
-                .serve(&mut *device, &Faults::default(), idle_after(baud), &stop2)
+                .serve(&mut *device, &Drawn::default(), idle_after(baud), &stop2)
                 .expect("serve the simulator");
         });
         Self {

@@ -2,13 +2,15 @@
 //! control lines on standard input.
 
 use crate::cli::c29::parse_baud;
-use crate::device::c29u::auto_frame_gap;
+use crate::link::line::FrameGap;
+use crate::protocol::c29u::frame_gap;
 use crate::protocol::c29u::{baud_code, FirmwareDate};
 use crate::protocol::c29u_modbus::silence_gap;
 use crate::protocol::c29u_modbus::SLAVE_IDS;
 use crate::sim::c29u::{C29uModel, Eeprom, OutputFault, Protocol};
 use crate::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
-use crate::sim::pty::{Faults, PtyServer, StrictTiming};
+use crate::sim::faults::drawn::Drawn;
+use crate::sim::pty::{PtyServer, StrictTiming};
 use crate::time::clock::{SharedClock, SystemClock};
 use clap::{Args, Subcommand, ValueEnum};
 use std::io::{BufRead, Write};
@@ -82,10 +84,11 @@ pub struct C29uSimArgs {
     /// Probability (0-1) that an answer is dropped.
     #[arg(long, default_value = "0", value_parser = parse_probability)]
     pub drop: f64,
-    /// Probability (0-1) that one bit of an answer is flipped.
-    #[arg(long, default_value = "0", value_parser = parse_probability)]
-    pub corrupt: f64,
-    /// Delay before each answer, in milliseconds.
+    /// Probability (0-1) that one bit of an answer is flipped (also `--corrupt`).
+    #[arg(long, alias = "corrupt", default_value = "0", value_parser = parse_probability)]
+    pub flip: f64,
+    /// How late each answer is given, in milliseconds (the module answers one request at a
+    /// time).
     #[arg(long, default_value = "0")]
     pub delay: u64,
     /// Seed for fault injection, for repeatable runs.
@@ -476,14 +479,14 @@ fn serve_c29u(args: C29uSimArgs) -> Result<(), String> {
     if args.strict_timing {
         server.strict_timing(StrictTiming {
             baud,
-            required: auto_frame_gap(args.protocol.into(), baud),
+            required: frame_gap(args.protocol.into(), FrameGap::Auto, baud),
             early,
         });
     }
-    let faults = Faults {
+    let faults = Drawn {
         drop: args.drop,
-        corrupt: args.corrupt,
-        delay: Duration::from_millis(args.delay),
+        flip: args.flip,
+        late: Duration::from_millis(args.delay),
         seed: args.seed,
     };
     server

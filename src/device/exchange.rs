@@ -5,14 +5,20 @@
 //! The silence is counted from the end of the last frame on the line, whoever sent it: an
 //! answer, our own request that gets none, stray bytes. After a timeout the line must stay
 //! silent for one more timeout before the next request, so a late answer is heard and dropped
-//! instead of being taken for the answer to the request after it. The waits sleep; a request
+//! instead of being taken for the answer to the request after it; an answer taken after a
+//! timeout may itself be late, so the line then stays silent as long as it may have been late
+//! (since the first unanswered request), the answers to the later tries being dropped in turn;
+//! a port just opened settles as after a timeout (another program may have left a request
+//! unanswered). Matching an answer to its request cannot replace this: a DO and a DI read
+//! have answers of the same shape. The waits sleep; a request
 //! already late is sent at once. Every buffer is bounded by the longest valid answer. A
 //! `Cancel` cuts an exchange short: nothing is sent once it is set, and the waits look at it
 //! between slices.
 
-use crate::device::cancel::Cancel;
+use crate::device::cancel::{Cancel, CANCEL_SLICE};
 use crate::link::line::{FrameGap, LineState};
 use crate::link::{ByteLink, LinkError};
+use crate::protocol::c29u::{frame_gap, Protocol};
 use crate::time::clock::Clock;
 use std::time::Duration;
 
@@ -30,8 +36,8 @@ pub struct Timing {
     pub gap: Option<Duration>,
     /// The silence to keep on a timed serial line before the request.
     pub frame_gap: FrameGap,
-    /// The protocol's rule for `FrameGap::Auto`: the silence at a given baud.
-    pub auto_gap: fn(u32) -> Duration,
+    /// The protocol spoken, whose rule `FrameGap::Auto` follows (`c29u::frame_gap`).
+    pub protocol: Protocol,
     /// The longest answer the protocol has; more bytes than this are not an answer.
     pub max_answer: usize,
     /// How long the answer can be, when the protocol tells: on a timed line the rest of it
@@ -54,11 +60,9 @@ impl Timing {
     /// The silence to keep before a request on `line`: none where the host does not time the
     /// line (TCP device servers time their own; memory has no wire).
     pub fn silence_on(&self, line: &LineState) -> Duration {
-        match (line.baud, self.frame_gap) {
-            (None, _) => Duration::ZERO,
-            (Some(baud), FrameGap::Auto) => (self.auto_gap)(baud),
-            (Some(_), FrameGap::Fixed(gap)) => gap,
-        }
+        line.baud.map_or(Duration::ZERO, |baud| {
+            frame_gap(self.protocol, self.frame_gap, baud)
+        })
     }
 }
 
@@ -149,8 +153,13 @@ fn send_and_collect(
     tracer: &mut Option<Tracer>,
     cancel: &Cancel,
 ) -> Result<Vec<u8>, ExchangeError> {
-    // A try after a timeout: the answers to the tries before it may still be on their way.
-    let retrying = line.unanswered;
+    if expect_answer && std::mem::take(&mut line.just_opened) {
+        // Another program's request may still be answered: heard and dropped, as after a
+        // timeout, with whatever the port held already. A request that gets no answer (host
+        // OK, fed from a shell loop) cannot take it, and leaves the settling to the next.
+        line.quiet_since = Some(clock.now());
+        line.settle = Some(timing.timeout);
+    }
     keep_silence(link, clock, line, timing, cancel)?;
     if let Some(trace) = tracer.as_mut() {
         trace(Direction::Sent, request);
@@ -173,23 +182,20 @@ fn send_and_collect(
     let mut received = Vec::with_capacity(timing.max_answer.min(chunk.len()));
     loop {
         let left = deadline.saturating_sub(now);
-        if left.is_zero() {
-            // The module may still answer: the next request waits until the line has been
-            // silent for one more timeout.
+        let cancelled = cancel.is_cancelled();
+        if left.is_zero() || cancelled {
+            // The module may still answer (after a stop too: the next request is the end's
+            // safe state): the next request waits until the line has been silent for the
+            // settling time.
             line.quiet_since = Some(now);
             line.settle = Some(timing.timeout);
-            line.unanswered = true;
+            line.unanswered_since.get_or_insert(request_end);
             trace_received(tracer, &received);
-            return Err(ExchangeError::Timeout { received });
-        }
-        if cancel.is_cancelled() {
-            // The module may still answer, as after a timeout: the next request (the end's
-            // safe state) waits for the line to settle.
-            line.quiet_since = Some(now);
-            line.settle = Some(timing.timeout);
-            line.unanswered = true;
-            trace_received(tracer, &received);
-            return Err(ExchangeError::Cancelled);
+            return Err(if cancelled {
+                ExchangeError::Cancelled
+            } else {
+                ExchangeError::Timeout { received }
+            });
         }
         let wait = match timing.gap {
             // At most 29 ms (t3.5 at 1200 baud): shorter than a slice.
@@ -221,12 +227,12 @@ fn send_and_collect(
         received.extend_from_slice(bytes);
         if let Some(answer) = frame(&received) {
             line.quiet_since = Some(read_at);
-            if retrying {
-                // This answer may be a late one to an earlier try, with the answers to the
-                // later tries still to come (same shape, and ASCII says not whose): the next
-                // request waits until the line has been silent for a timeout, as after one.
-                line.settle = Some(timing.timeout);
-                line.unanswered = false;
+            if let Some(since) = line.unanswered_since.take() {
+                // This answer may be a late one to an earlier request, with the answers to the
+                // requests after it still to come (same shape, and neither a DO and a DI read
+                // nor ASCII say whose): the next request waits until the line has been silent
+                // as long as this answer may have been late, and never less than a timeout.
+                line.settle = Some(timing.timeout.max(read_at.saturating_sub(since)));
             }
             trace_received(tracer, &answer);
             return Ok(answer);
@@ -270,7 +276,9 @@ fn keep_silence(
             return Err(ExchangeError::Cancelled);
         }
         let needed = line.settle.map_or(gap, |settle| settle.max(gap));
-        let waited = now.saturating_sub(started);
+        // Bytes still coming that long after the wait began: a wait cut into slices has not
+        // waited that long for silence.
+        let waited = line.quiet_since.unwrap_or(now).saturating_sub(started);
         if heard > 0 && waited > timing.timeout.saturating_add(needed) {
             return Err(ExchangeError::Busy {
                 heard,
@@ -282,8 +290,10 @@ fn keep_silence(
             // Listen rather than sleep: bytes that arrive restart the count, and a wait that
             // hears nothing has shown the line silent, so no look is needed after it (one
             // system call for the silence and the check for stale input).
-            let wait = cancel.slice(quiet_at.saturating_sub(now));
-            // Each slice of a wait is a sign of life of the loop (`guardian::pulse`).
+            // In slices even when nothing can cancel (the end's writes): a settle after a late
+            // answer may outlast the stall limit, and each slice is a sign of life of the loop
+            // (`guardian::pulse`).
+            let wait = quiet_at.saturating_sub(now).min(CANCEL_SLICE);
             crate::guardian::pulse::beat();
             let n = link.read(&mut scratch, wait)?;
             let after = clock.now();
@@ -410,7 +420,7 @@ mod tests {
             timeout: Duration::from_millis(200),
             gap: gap.map(Duration::from_millis),
             frame_gap: FrameGap::Auto,
-            auto_gap: t35,
+            protocol: Protocol::Modbus,
             max_answer: 64,
             answer_len: None,
         }
@@ -671,6 +681,89 @@ mod tests {
             link.read(&mut [0u8; 8], Duration::ZERO).unwrap() == 0,
             "nothing left over"
         );
+    }
+
+    /// Answers every request with its own text in lower case, so an answer names its request.
+    struct Lower;
+    impl ByteDevice for Lower {
+        fn receive(&mut self, bytes: &[u8]) -> Vec<u8> {
+            bytes.to_ascii_lowercase()
+        }
+    }
+
+    fn lower_late(
+        late: impl FnMut(u64) -> Duration + Send + 'static,
+    ) -> (VirtualClock, MemoryByteLink<Lower>) {
+        let clock = VirtualClock::at_epoch();
+        let link = MemoryByteLink::new(Lower, "lower")
+            .with_clock(Arc::new(clock.clone()))
+            .with_line(9600)
+            .delay_answers(late);
+        (clock, link)
+    }
+
+    fn send(
+        link: &mut dyn ByteLink,
+        clock: &VirtualClock,
+        request: &[u8],
+    ) -> Result<Vec<u8>, ExchangeError> {
+        exchange(
+            link,
+            clock,
+            request,
+            true,
+            timing(None),
+            line_end,
+            &mut None,
+            &Cancel::never(),
+        )
+    }
+
+    #[test]
+    fn an_answer_taken_after_a_timeout_keeps_the_line_silent_as_long_as_it_was_late() {
+        // Every answer comes 500 ms late against a 200 ms timeout: the retry takes the first
+        // try's answer, and the retry's own answer is still to come when the next request,
+        // one whose answer has the same shape, would go after one timeout of silence.
+        let (clock, mut link) = lower_late(|_| Duration::from_millis(500));
+        assert!(matches!(
+            send(&mut link, &clock, b"DO\r"),
+            Err(ExchangeError::Timeout { .. })
+        ));
+        assert_eq!(send(&mut link, &clock, b"DO\r").unwrap(), b"do\r");
+        let mut other = Vec::new();
+        for _ in 0..3 {
+            match send(&mut link, &clock, b"DI\r") {
+                Ok(answer) => {
+                    other = answer;
+                    break;
+                }
+                Err(ExchangeError::Timeout { received }) => assert!(received.is_empty()),
+                Err(e) => panic!("{e}"),
+            }
+        }
+        assert_eq!(
+            other, b"di\r",
+            "the DO read's late answer taken for the DI read's"
+        );
+    }
+
+    #[test]
+    fn a_port_just_opened_drops_the_answer_to_another_programs_request() {
+        // Another program asked and gave up; its answer comes 150 ms after this one opened.
+        let (clock, mut link) = lower_late(|n| Duration::from_millis(if n == 0 { 150 } else { 0 }));
+        link.write_all(b"OLD\r").unwrap();
+        link.line().unwrap().just_opened = true;
+        assert_eq!(send(&mut link, &clock, b"NEW\r").unwrap(), b"new\r");
+        let old_end = Duration::from_millis(150) + crate::link::line::wire_time(8, 9600);
+        assert!(
+            clock.now() > old_end + Duration::from_millis(200),
+            "{:?}",
+            clock.now()
+        );
+        // Only once: the next request keeps the frame gap alone.
+        let before = clock.now();
+        send(&mut link, &clock, b"NEW\r").unwrap();
+        assert!(clock.now() - before < Duration::from_millis(20));
     }
 
     #[test]

@@ -57,9 +57,13 @@ pub struct LineState {
     /// After a timeout: the silence the line must keep before the next request, so that a late
     /// answer is heard and dropped instead of taken for the answer to that request.
     pub settle: Option<Duration>,
-    /// A request went unanswered (timed out or cut short) and no answer has come since: the
-    /// next answer may be a late one, with the answers to the requests after it still to come.
-    pub unanswered: bool,
+    /// When the first request still unanswered (timed out or cut short) left the wire, with no
+    /// answer since: the next answer may be a late one, with the answers to the requests after
+    /// it still to come.
+    pub unanswered_since: Option<Duration>,
+    /// Just opened: another program may have left a request on it unanswered, so the first
+    /// request settles as after a timeout.
+    pub just_opened: bool,
 }
 
 impl LineState {

@@ -1,6 +1,8 @@
-//! What both TRP-C29U protocols share: the protocol choice itself, the baud rate codes (8-2),
-//! the watchdog timeout and the firmware date.
+//! What both TRP-C29U protocols share: the protocol choice itself, the silence kept before
+//! each request (the frame-gap rule), the baud rate codes (8-2), the watchdog timeout and the
+//! firmware date.
 
+use crate::link::line::FrameGap;
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
@@ -127,9 +129,50 @@ impl WatchdogTimeout {
     }
 }
 
+/// The silence kept on a serial line at `baud` before each request to a module speaking
+/// `protocol`, as `setting` says: `Fixed` is itself; `Auto` is Modbus RTU's t3.5, the silence
+/// that also ends a frame (section 9; Modbus over Serial Line 2.5.1.1), and for ASCII t1.5, its
+/// shape; each fixed above 19200 baud (1.75 ms, 0.75 ms). ASCII frames end at their CR, so no
+/// module needs silence to find a frame's end; what a shared RS-485 pair needs is turnaround
+/// (the answering module letting go of the line before the next request starts), and a
+/// receiver that also frames by silence must see the request apart from the answer. Both take
+/// well under 1.5 characters; t3.5 would cost a quarter of a 9600 baud poll, this a tenth.
+pub fn frame_gap(protocol: Protocol, setting: FrameGap, baud: u32) -> Duration {
+    let (half_chars, above_19200) = match (setting, protocol) {
+        (FrameGap::Fixed(gap), _) => return gap,
+        (FrameGap::Auto, Protocol::Modbus) => (7, Duration::from_micros(1_750)),
+        (FrameGap::Auto, Protocol::Ascii) => (3, Duration::from_micros(750)),
+    };
+    if baud > 19_200 {
+        return above_19200;
+    }
+    // Half a character of 10 bits is 5 bit times.
+    Duration::from_nanos(half_chars * 5 * 1_000_000_000 / u64::from(baud.max(1)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn modbus_keeps_three_and_a_half_characters_ascii_one_and_a_half() {
+        let auto = |p, baud| frame_gap(p, FrameGap::Auto, baud);
+        assert_eq!(
+            auto(Protocol::Ascii, 9600),
+            Duration::from_micros(1562) + Duration::from_nanos(500)
+        );
+        assert_eq!(auto(Protocol::Ascii, 115_200), Duration::from_micros(750));
+        assert_eq!(auto(Protocol::Ascii, 19_200), Duration::from_nanos(781_250));
+        assert_eq!(
+            auto(Protocol::Modbus, 9600),
+            Duration::from_nanos(3_645_833)
+        );
+        assert_eq!(auto(Protocol::Modbus, 38_400), Duration::from_micros(1750));
+        let five = Duration::from_millis(5);
+        for p in [Protocol::Ascii, Protocol::Modbus] {
+            assert_eq!(frame_gap(p, FrameGap::Fixed(five), 1200), five);
+        }
+    }
 
     #[test]
     fn table_of_8_2_both_ways() {

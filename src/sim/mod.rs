@@ -1,6 +1,5 @@
 //! Device models that answer at the far end of a link: in memory, or on a pseudo-terminal.
 
-pub mod answer_faults;
 pub mod c29u;
 pub mod c29u_ascii;
 pub mod c29u_line;
@@ -10,3 +9,6 @@ pub mod pty;
 pub mod relay;
 pub mod trc1000;
 pub mod wire;
+
+/// The faults queued for a device's next answers, under their old path.
+pub use faults::answer as answer_faults;

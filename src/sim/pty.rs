@@ -1,7 +1,9 @@
 //! Serves a simulated byte device on a pseudo-terminal, so any serial program can talk to it,
-//! with optional fault injection (dropped, corrupted or delayed answers) and, with strict
+//! with optional faults drawn for each answer (`sim::faults::drawn`: dropped, flipped or late
+//! answers) and, with strict
 //! timing, the line's timing as a module on a shared line sees it.
 
+use super::faults::drawn::Drawn;
 use super::wire::{Side, Timeline};
 use crate::link::far_end::ByteDevice;
 use crate::link::holders::{holders_of, Holders};
@@ -44,19 +46,6 @@ pub enum PtyError {
     /// Reading or writing the pty failed.
     #[error("pseudo-terminal I/O failed: {0}")]
     Io(#[from] io::Error),
-}
-
-/// Faults to inject into answers, each drawn independently per answer.
-#[derive(Debug, Clone, Default)]
-pub struct Faults {
-    /// Probability (0..=1) that an answer is not sent at all.
-    pub drop: f64,
-    /// Probability (0..=1) that one byte of an answer is flipped.
-    pub corrupt: f64,
-    /// Time to wait before sending each answer.
-    pub delay: Duration,
-    /// Seed for the random draws, for repeatable runs.
-    pub seed: Option<u64>,
 }
 
 /// Real-time line timing for the served device (`sim c29u --strict-timing`): a pty delivers
@@ -171,14 +160,11 @@ impl PtyServer {
     pub fn serve(
         &mut self,
         device: &mut dyn ByteDevice,
-        faults: &Faults,
+        faults: &Drawn,
         gap: Duration,
         stop: &AtomicBool,
     ) -> Result<(), PtyError> {
-        let mut rng = match faults.seed {
-            Some(seed) => fastrand::Rng::with_seed(seed),
-            None => fastrand::Rng::new(),
-        };
+        let mut rng = faults.rng();
         let poll = Duration::from_millis(50);
         let mut buf = [0u8; 1024];
         let mut heard_since_idle = false;
@@ -231,8 +217,8 @@ impl PtyServer {
 
     fn answer(
         &mut self,
-        mut answer: Vec<u8>,
-        faults: &Faults,
+        answer: Vec<u8>,
+        faults: &Drawn,
         rng: &mut fastrand::Rng,
         line: Option<&mut Line>,
     ) -> Result<(), PtyError> {
@@ -244,24 +230,18 @@ impl PtyServer {
                 .timeline
                 .busy_until(Side::Master)
                 .map_or(now, |end| end.max(now))
-                .saturating_add(faults.delay);
+                .saturating_add(faults.late);
             let end = start.saturating_add(l.timeline.wire_time(answer.len()));
             (l, start, end)
         });
         match &timed {
             Some((l, _, end)) => std::thread::sleep(end.saturating_sub(l.now())),
-            None if !faults.delay.is_zero() => std::thread::sleep(faults.delay),
+            None if !faults.late.is_zero() => std::thread::sleep(faults.late),
             None => {}
         }
-        if faults.drop > 0.0 && rng.f64() < faults.drop {
+        let Some(answer) = faults.apply(rng, answer) else {
             return Ok(());
-        }
-        if faults.corrupt > 0.0 && rng.f64() < faults.corrupt {
-            let at = rng.usize(..answer.len());
-            if let Some(byte) = answer.get_mut(at) {
-                *byte ^= 1 << rng.u8(..8);
-            }
-        }
+        };
         // The frame ends as its last byte is handed over: the master can have it before the
         // write returns.
         if let Some((l, start, _)) = timed {
@@ -368,7 +348,7 @@ mod tests {
     }
 
     fn run_server(
-        faults: Faults,
+        faults: Drawn,
         link: Option<PathBuf>,
     ) -> (
         String,
@@ -380,7 +360,7 @@ mod tests {
     }
 
     fn run_timed_server(
-        faults: Faults,
+        faults: Drawn,
         link: Option<PathBuf>,
         strict: Option<StrictTiming>,
     ) -> (
@@ -427,7 +407,7 @@ mod tests {
     fn serves_answers_reports_idle_and_removes_its_link() {
         let link_path =
             std::env::temp_dir().join(format!("rigscript-pty-test-{}", std::process::id()));
-        let (path, stop, idles, handle) = run_server(Faults::default(), Some(link_path.clone()));
+        let (path, stop, idles, handle) = run_server(Drawn::default(), Some(link_path.clone()));
         assert_eq!(
             std::fs::read_link(&link_path).unwrap(),
             PathBuf::from(&path)
@@ -452,11 +432,11 @@ mod tests {
     }
 
     #[test]
-    fn drop_and_corrupt_faults_change_answers() {
-        let faults = Faults {
+    fn drop_and_flip_faults_change_answers() {
+        let faults = Drawn {
             drop: 1.0,
             seed: Some(1),
-            ..Faults::default()
+            ..Drawn::default()
         };
         let (path, stop, _, handle) = run_server(faults, None);
         let mut link = SerialLink::open(&path, 9600).unwrap();
@@ -464,10 +444,10 @@ mod tests {
         stop.store(true, Ordering::Relaxed);
         handle.join().unwrap();
 
-        let faults = Faults {
-            corrupt: 1.0,
+        let faults = Drawn {
+            flip: 1.0,
             seed: Some(2),
-            ..Faults::default()
+            ..Drawn::default()
         };
         let (path, stop, _, handle) = run_server(faults, None);
         let mut link = SerialLink::open(&path, 9600).unwrap();
@@ -493,7 +473,7 @@ mod tests {
             required,
             early: Arc::clone(&early),
         };
-        let (path, stop, _, handle) = run_timed_server(Faults::default(), None, Some(strict));
+        let (path, stop, _, handle) = run_timed_server(Drawn::default(), None, Some(strict));
         let mut link = SerialLink::open(&path, 9600).unwrap();
         let started = Instant::now();
         assert_eq!(ask(&mut link, b"abc\r", 4), b"cba\r");

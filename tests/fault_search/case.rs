@@ -143,7 +143,7 @@ pub enum InjectedFault {
     /// The next answers on the line are lost.
     Drop { line: u8, answers: u8 },
     /// The next answer on the line has a byte changed.
-    Garble { line: u8, at: u8, xor: u8 },
+    Flip { line: u8, at: u8, xor: u8 },
     /// The next answer on the line comes `ms` late.
     Late { line: u8, ms: u64 },
     /// The next call on the line blocks for `ms`.
@@ -351,7 +351,7 @@ fn fault() -> impl Strategy<Value = InjectedFault> {
         1 => Just(InjectedFault::Kill),
         2 => (line.clone(), 1..4u8).prop_map(|(line, answers)| InjectedFault::Drop { line, answers }),
         2 => (line.clone(), any::<u8>(), any::<u8>())
-            .prop_map(|(line, at, xor)| InjectedFault::Garble { line, at, xor }),
+            .prop_map(|(line, at, xor)| InjectedFault::Flip { line, at, xor }),
         2 => (line.clone(), select(vec![250u64, 60, 1000]))
             .prop_map(|(line, ms)| InjectedFault::Late { line, ms }),
         1 => (line.clone(), long.clone()).prop_map(|(line, ms)| InjectedFault::LinkStall { line, ms }),

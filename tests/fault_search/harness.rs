@@ -424,7 +424,7 @@ fn states(modules: &[ModuleView]) -> Vec<ModuleState> {
 pub fn answer_fault(fault: InjectedFault) -> Option<(u8, LinkFault)> {
     match fault {
         InjectedFault::Drop { line, answers } => Some((line, LinkFault::Drop { answers })),
-        InjectedFault::Garble { line, at, xor } => Some((line, LinkFault::Garble { at, xor })),
+        InjectedFault::Flip { line, at, xor } => Some((line, LinkFault::Flip { at, xor })),
         InjectedFault::Late { line, ms: d } => Some((line, LinkFault::Late(ms(d)))),
         _ => None,
     }
@@ -477,7 +477,7 @@ fn schedule(
                 });
             }
             InjectedFault::Drop { .. }
-            | InjectedFault::Garble { .. }
+            | InjectedFault::Flip { .. }
             | InjectedFault::Late { .. } => {
                 if let Some((line, f)) = answer_fault(fault) {
                     plan(line).add(t, f);

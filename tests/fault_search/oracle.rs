@@ -14,7 +14,7 @@
 //! - the run ends in time, within bounded memory and work (`hang`, `memory`,
 //!   `unbounded-work`), its exit status
 //!   matches why it ended (`exit-status`), and what the script reads of the inputs is what
-//!   the field put on them (`wrong-input`; not where ASCII cannot tell: an answer garbled into
+//!   the field put on them (`wrong-input`; not where ASCII cannot tell: an answer flipped into
 //!   another well-formed one, or one later than twice the timeout); a clean status after a
 //!   failure is `exit-hides-failure` (the statuses are `runtime::exit`'s);
 //! - a script error says where in the script it happened (`error-without-location`);
@@ -225,7 +225,7 @@ impl Facts<'_> {
             let answers_lost = self.case.faults.iter().any(|&(_, f)| match f {
                 InjectedFault::Swap { dev, .. } => self.addresses(i, dev),
                 InjectedFault::Drop { line, .. }
-                | InjectedFault::Garble { line, .. }
+                | InjectedFault::Flip { line, .. }
                 | InjectedFault::Late { line, .. }
                 | InjectedFault::LinkStall { line, .. }
                 | InjectedFault::Silence { line, .. }
@@ -426,7 +426,7 @@ impl Facts<'_> {
                 | InjectedFault::Unplug { ms: d, .. }
                 | InjectedFault::Late { ms: d, .. } => ms(d),
                 InjectedFault::Drop { answers, .. } => slow * u32::from(answers),
-                InjectedFault::Garble { .. } | InjectedFault::Panic { .. } => slow,
+                InjectedFault::Flip { .. } | InjectedFault::Panic { .. } => slow,
             };
             let from = ms(start);
             let until = self.last_hit(start, f).map_or(from, |hit| hit.max(from));
@@ -842,11 +842,11 @@ impl Facts<'_> {
         }
     }
 
-    /// Whether a reading of module `i` recorded at `t` may have come from an answer a `Garble`
+    /// Whether a reading of module `i` recorded at `t` may have come from an answer a `Flip`
     /// took, on a protocol that cannot tell: ASCII without checksums (the search's modules have
     /// none) reads a hex digit flipped into another hex digit as a well-formed value. Such an
     /// answer was given in the tick that recorded the reading, at most a tick's exchanges before.
-    fn garbled_unchecked(&self, i: usize, t: Duration) -> bool {
+    fn flipped_unchecked(&self, i: usize, t: Duration) -> bool {
         let m = &self.run.modules[i];
         let ascii = m
             .entries
@@ -856,7 +856,7 @@ impl Facts<'_> {
         ascii
             && self.run.hits.get(&m.line).is_some_and(|hits| {
                 hits.iter().any(|h| {
-                    matches!(h.fault, LinkFault::Garble { .. }) && h.at <= t && h.at + tick >= t
+                    matches!(h.fault, LinkFault::Flip { .. }) && h.at <= t && h.at + tick >= t
                 })
             })
     }
@@ -893,7 +893,7 @@ impl Facts<'_> {
 
     /// What the script recorded of the inputs must be what the field put on them by then, and
     /// no counter may show more edges than the field made on its channel; a reading from an
-    /// answer garbled into another well-formed one, or from one later than the timeout and the
+    /// answer flipped into another well-formed one, or from one later than the timeout and the
     /// settle together, is not held against the runner where the protocol cannot tell.
     fn inputs(&mut self) {
         let End::Ran { records, .. } = &self.run.end else {
@@ -925,7 +925,7 @@ impl Facts<'_> {
                 continue;
             };
             let t = (t.to_utc() - origin).to_std().unwrap_or_default() + ms(1);
-            if self.garbled_unchecked(i, t) || self.answered_too_late(i, t) {
+            if self.flipped_unchecked(i, t) || self.answered_too_late(i, t) {
                 continue;
             }
             let field: Vec<u8> = self.run.modules[i]

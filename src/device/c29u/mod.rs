@@ -8,7 +8,7 @@ mod transport;
 pub use crate::link::line::FrameGap;
 pub use crate::protocol::c29u::{CounterEdge, Protocol, WatchdogTimeout};
 pub use crate::protocol::c29u_ascii::Preset;
-pub use transport::{ascii_frame_gap, auto_frame_gap, share, SharedLink};
+pub use transport::{share, SharedLink};
 
 use crate::device::cancel::Cancel;
 use crate::device::exchange::{format_frame, ExchangeError, Tracer};
@@ -685,14 +685,15 @@ pub fn open_port(
     baud: u32,
     timeout: Duration,
 ) -> Result<Box<dyn crate::link::ByteLink>, LinkError> {
-    if port.starts_with(crate::link::tcp::SCHEME) {
-        Ok(Box::new(TcpLink::connect(
-            port,
-            timeout.max(Duration::from_secs(2)),
-        )?))
+    let mut link: Box<dyn crate::link::ByteLink> = if port.starts_with(crate::link::tcp::SCHEME) {
+        Box::new(TcpLink::connect(port, timeout.max(Duration::from_secs(2)))?)
     } else {
-        Ok(Box::new(SerialLink::open(port, baud)?))
+        Box::new(SerialLink::open(port, baud)?)
+    };
+    if let Some(line) = link.line() {
+        line.just_opened = true;
     }
+    Ok(link)
 }
 
 /// Turns the end of an exchange into a fault: silence is worth retrying, link failures are not.

@@ -7,7 +7,7 @@ use crate::device::exchange::{exchange, AnswerLen, ExchangeError, Timing, Tracer
 use crate::link::line::FrameGap;
 use crate::link::{ByteLink, LinkError};
 use crate::protocol::c29u::Protocol;
-use crate::protocol::c29u_modbus::{silence_gap, MAX_FRAME_LEN};
+use crate::protocol::c29u_modbus::MAX_FRAME_LEN;
 use crate::time::clock::SharedClock;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -17,29 +17,6 @@ use super::C29uError;
 /// The longest ASCII answer is 16 characters (`!01C29M090703`, checksum, CR); four times that
 /// leaves room for noise before a whole answer and bounds what a babbling line can fill.
 pub const ASCII_MAX_ANSWER: usize = 64;
-
-/// The silence kept before each ASCII request on a serial line: 1.5 character times, 0.75 ms
-/// above 19200 baud (the shape of Modbus's t1.5). ASCII frames end at their CR, so no module
-/// needs silence to find a frame's end; what a shared RS-485 pair needs is turnaround, the
-/// answering module letting go of the line before the next request starts, and a receiver
-/// that also frames by silence must see the request apart from the answer. Both take well
-/// under 1.5 characters; t3.5 would cost a quarter of a 9600 baud poll, this costs a tenth.
-pub fn ascii_frame_gap(baud: u32) -> Duration {
-    if baud > 19_200 {
-        return Duration::from_micros(750);
-    }
-    // 1.5 characters x 10 bits = 15 bit times.
-    Duration::from_nanos(15_000_000_000 / u64::from(baud.max(1)))
-}
-
-/// The silence `FrameGap::Auto` keeps before each request in `protocol` at `baud`: Modbus
-/// RTU's t3.5 (Modbus over Serial Line 2.5.1.1), or `ascii_frame_gap`.
-pub fn auto_frame_gap(protocol: Protocol, baud: u32) -> Duration {
-    match protocol {
-        Protocol::Modbus => silence_gap(baud),
-        Protocol::Ascii => ascii_frame_gap(baud),
-    }
-}
 
 /// A byte link that several drivers (modules with different IDs on one line) take turns on.
 pub type SharedLink = Arc<Mutex<Box<dyn ByteLink>>>;
@@ -127,15 +104,15 @@ impl Transport {
         answer_len: Option<AnswerLen>,
         frame: impl FnMut(&[u8]) -> Option<Vec<u8>>,
     ) -> Result<Vec<u8>, ExchangeError> {
-        let (auto_gap, max_answer): (fn(u32) -> Duration, usize) = match self.protocol {
-            Protocol::Modbus => (silence_gap, MAX_FRAME_LEN),
-            Protocol::Ascii => (ascii_frame_gap, ASCII_MAX_ANSWER),
+        let max_answer = match self.protocol {
+            Protocol::Modbus => MAX_FRAME_LEN,
+            Protocol::Ascii => ASCII_MAX_ANSWER,
         };
         let timing = Timing {
             timeout: self.timeout,
             gap,
             frame_gap: self.frame_gap,
-            auto_gap,
+            protocol: self.protocol,
             max_answer,
             answer_len,
         };
@@ -177,24 +154,6 @@ mod tests {
     use crate::link::far_end::ByteDevice;
     use crate::link::memory::MemoryByteLink;
     use crate::time::clock::{Clock, VirtualClock};
-
-    #[test]
-    fn ascii_keeps_one_and_a_half_characters_modbus_three_and_a_half() {
-        assert_eq!(
-            ascii_frame_gap(9600),
-            Duration::from_micros(1562) + Duration::from_nanos(500)
-        );
-        assert_eq!(ascii_frame_gap(115_200), Duration::from_micros(750));
-        assert_eq!(
-            auto_frame_gap(Protocol::Ascii, 19_200),
-            Duration::from_nanos(781_250)
-        );
-        assert_eq!(auto_frame_gap(Protocol::Modbus, 9600), silence_gap(9600));
-        assert_eq!(
-            auto_frame_gap(Protocol::Modbus, 38_400),
-            Duration::from_micros(1750)
-        );
-    }
 
     struct Silent;
     impl ByteDevice for Silent {

@@ -1,5 +1,7 @@
 //! CRC-16/MODBUS sealing and checking of RTU frames, and the RTU silence gap (section 9).
 
+use crate::link::line::FrameGap;
+use crate::protocol::c29u::{frame_gap, Protocol};
 use std::time::Duration;
 
 /// The CRC engine of every RTU frame (CRC-16/MODBUS: poly 0x8005 reflected, init 0xFFFF).
@@ -44,13 +46,9 @@ pub(crate) fn crc_ok(frame: &[u8]) -> bool {
     open_frame(frame).is_some()
 }
 
-/// The silence that ends a frame: 3.5 characters of 10 bits, fixed at 1.75 ms above 19200 baud.
+/// The silence that ends a frame (t3.5): the frame-gap rule's `Auto` for Modbus.
 pub fn silence_gap(baud: u32) -> Duration {
-    if baud > 19_200 {
-        return Duration::from_micros(1_750);
-    }
-    // 3.5 chars x 10 bits = 35 bit times.
-    Duration::from_nanos(35_000_000_000 / u64::from(baud.max(1)))
+    frame_gap(Protocol::Modbus, FrameGap::Auto, baud)
 }
 
 #[cfg(test)]

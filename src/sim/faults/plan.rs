@@ -1,10 +1,10 @@
-//! Fault injection for simulated rigs, in virtual time: a byte link to a simulated device that
-//! loses, garbles, delays or cuts answers as a `FaultPlan` says (`FaultyLink`), and a virtual
+//! Faults planned in virtual time (the words are `sim::faults`'s): a byte link to a simulated
+//! device that drops, flips, delays or cuts answers as a `FaultPlan` says (`FaultyLink`), and a virtual
 //! clock that runs scheduled actions as time passes (`EventClock`: a signal, a stalled
 //! process, a module unplugged by hand).
 //!
 //! How a fault plays out on the line:
-//! - Answer faults (`Drop`, `Garble`, `Late`) take the next answer(s) the device gives at or
+//! - Answer faults (`Drop`, `Flip`, `Late`) take the next answer(s) the device gives at or
 //!   after their time. The request always reaches the device: only what comes back suffers.
 //! - The line is a queue: an answer can never overtake one sent before it (and comes
 //!   `ANSWER_SPACING` after one still on its way), so a late answer holds up the answers behind
@@ -49,7 +49,7 @@ pub enum LinkFault {
         answers: u8,
     },
     /// The next answer arrives with the byte at `at` (modulo its length) XORed with `xor`.
-    Garble {
+    Flip {
         /// Which byte.
         at: u8,
         /// What to flip (0 flips bit 0).
@@ -71,7 +71,7 @@ impl fmt::Display for LinkFault {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             LinkFault::Drop { answers } => write!(f, "drop {answers} answer(s)"),
-            LinkFault::Garble { at, xor } => write!(f, "garble byte {at} (xor {xor:#04x})"),
+            LinkFault::Flip { at, xor } => write!(f, "flip byte {at} (xor {xor:#04x})"),
             LinkFault::Late(d) => write!(f, "next answer {d:?} late"),
             LinkFault::Disconnect(d) => write!(f, "disconnect for {d:?}"),
             LinkFault::Silence(d) => write!(f, "silence for {d:?}"),
@@ -93,7 +93,7 @@ pub enum Connection {
     Silent,
 }
 
-/// An answer fault's act: the answer it dropped, garbled or delayed.
+/// An answer fault's act: the answer it dropped, flipped or delayed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FaultHit {
     /// When the fault was planned for.
@@ -109,7 +109,7 @@ pub struct FaultHit {
 #[derive(Debug, Default)]
 struct Armed {
     drop: VecDeque<(usize, u32)>,
-    garble: VecDeque<(usize, u8, u8)>,
+    flip: VecDeque<(usize, u8, u8)>,
     late: VecDeque<(usize, Duration)>,
     stall: Duration,
     panic: bool,
@@ -171,7 +171,7 @@ impl FaultPlan {
         self.lock().applied.clone()
     }
 
-    /// Every answer the answer faults (`Drop`, `Garble`, `Late`) have acted on so far, in
+    /// Every answer the answer faults (`Drop`, `Flip`, `Late`) have acted on so far, in
     /// order.
     pub fn hits(&self) -> Vec<FaultHit> {
         let p = self.lock();
@@ -210,7 +210,7 @@ impl PlanState {
                     a.drop.push_back((i, answers.into()));
                 }
                 LinkFault::Drop { .. } => {}
-                LinkFault::Garble { at, xor } => a.garble.push_back((i, at, xor)),
+                LinkFault::Flip { at, xor } => a.flip.push_back((i, at, xor)),
                 LinkFault::Late(d) => a.late.push_back((i, d)),
                 LinkFault::Disconnect(d) => self
                     .holds
@@ -313,7 +313,7 @@ impl<D: ByteDevice> FaultyLink<D> {
                 }
                 return;
             }
-            if let Some((i, at, xor)) = a.garble.pop_front() {
+            if let Some((i, at, xor)) = a.flip.pop_front() {
                 p.hits.push((now, i));
                 let i = usize::from(at) % answer.len();
                 if let Some(b) = answer.get_mut(i) {
@@ -533,8 +533,8 @@ mod tests {
         let timing = Timing {
             timeout: Duration::from_millis(200),
             gap: None,
-            frame_gap: FrameGap::Auto,
-            auto_gap: |_| Duration::ZERO,
+            frame_gap: FrameGap::Fixed(Duration::ZERO),
+            protocol: crate::protocol::c29u::Protocol::Modbus,
             max_answer: 64,
             answer_len: None,
         };
@@ -600,22 +600,23 @@ mod tests {
         assert_eq!(ask(&mut link, &clock, b"b").as_deref(), Some(&b"a!"[..]));
         assert_eq!(clock.now(), MS(450));
         // The answer to b was behind it on the wire (at 455). An exchange after a timeout may
-        // have caught a late answer, so the next request settles too: b's answer is heard and
-        // dropped, and c goes out after 200 ms of silence and gets its own answer.
+        // have caught a late answer, so the next request settles too, as long as that answer
+        // may have been late (450 ms since a): b's answer is heard and dropped, and c goes out
+        // after 450 ms of silence and gets its own answer.
         assert_eq!(ask(&mut link, &clock, b"c").as_deref(), Some(&b"c!"[..]));
-        assert_eq!(clock.now(), MS(655));
+        assert_eq!(clock.now(), MS(905));
         assert_eq!(ask(&mut link, &clock, b"d").as_deref(), Some(&b"d!"[..]));
         assert_eq!(
             clock.now(),
-            MS(655),
+            MS(905),
             "nothing on the wire: the answer is there at once"
         );
     }
 
     #[test]
-    fn garbled_answers_have_one_byte_flipped() {
+    fn flipped_answers_have_one_byte_changed() {
         let (mut link, plan, clock, _) = rig();
-        plan.add(MS(0), LinkFault::Garble { at: 5, xor: 0x20 });
+        plan.add(MS(0), LinkFault::Flip { at: 5, xor: 0x20 });
         // Byte 5 of a 3-byte answer is byte 2; '!' ^ 0x20 is '\x01', so no frame end.
         assert_eq!(ask(&mut link, &clock, b"xy"), None);
         assert_eq!(ask(&mut link, &clock, b"xy").as_deref(), Some(&b"xy!"[..]));

@@ -1,13 +1,8 @@
-//! Faults in a simulated device's answers, on demand: the next answers dropped (the driver
-//! times out), garbled (a byte of each gets its top bit flipped, which no frame of either
-//! TRP-C29U protocol survives: the CRC or checksum fails, or the ASCII turns non-ASCII), late
-//! (given on time, arriving later: within the driver's timeout a slow answer, past it one that
-//! lands in a later exchange's window) or sent twice. Put between an in-memory link and its
-//! simulator; a scenario test or `verify` queues the faults. Lateness and the second copy are
-//! the link's business (it holds the answer's arrival): the wrapper hands them over through
+//! Faults queued for a simulated device's next answers (drop, garble, late, duplicate: the
+//! words are `sim::faults`'s), put between an in-memory link and its simulator; a scenario
+//! test or `verify` queues them. Lateness and the second copy are the link's business (it
+//! holds the answer's arrival): the wrapper hands them over through
 //! `AnswerFaults::take_delivery`, which the link asks after each answer.
-//!
-//! (Drawn faults at a probability per answer are `pty::Faults`, for the pty server.)
 
 use crate::link::far_end::{ByteDevice, PacketDevice};
 use std::collections::VecDeque;
