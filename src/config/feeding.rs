@@ -10,6 +10,14 @@
 //! fire, and at least every quarter of its timeout; a watchdog so short that this leaves less
 //! than a tenth of its timeout between feeds is refused, with the arithmetic.
 //!
+//! The arithmetic covers modules that answer within their timeout or not at all. One that
+//! answers later than its timeout makes its line keep silent after the late answer is taken for
+//! as long as it may have been late (`device::exchange`: up to that whole exchange again), so a
+//! feed on that line can come later than counted here. Counting that for every rig would
+//! nearly double the shortest watchdog accepted for a fault a rig rarely has; its worst outcome
+//! is safe: the module's watchdog fires, its outputs take their safe value, and the runner
+//! finds it in safe mode and takes control again.
+//!
 //! Opening a lost module's link again costs no more than one of its exchanges (a device server
 //! gets the module's timeout to connect, `runtime::devices::open`). The loop feeds between
 //! handlers too, but a handler that computes for long between two of its exchanges delays a
