@@ -14,7 +14,7 @@
 //! | simulate either device | [`sim::c29u_line::SimulatedC29u`] behind [`link::memory::MemoryByteLink`] (or [`sim::pty::PtyServer`] for other programs); [`sim::trc1000::Trc1000Sim`] behind [`link::memory::MemoryPacketLink`] |
 //! | run a script on a rig | [`RigBuilder`]: devices in code or from a rig.toml ([`config::RigConfig`]), real or simulated, real or virtual time |
 //! | test a script | [`RigBuilder::virtual_time_from`], then [`Rig::sim`] (the field side) and [`Rig::runner`] (`advance`, `status`) |
-//! | report to CI or systemd | [`report::junit`], [`service::notify`] |
+//! | report to CI | [`report::junit`] |
 //!
 //! The examples directory holds a runnable program for each (`cargo run --example c29u`,
 //! `trc1000_watch`, `script_on_rig`, `scenario_test`).
@@ -52,18 +52,18 @@
 pub mod cli;
 pub mod config;
 pub mod device;
-pub mod guardian;
+pub(crate) mod guardian;
 pub mod heap;
 pub mod link;
 pub mod protocol;
 pub mod report;
 pub mod runtime;
 pub mod script;
-pub mod service;
+pub(crate) mod service;
 pub mod sim;
-pub mod suggest;
-pub mod sync;
-pub mod text_file;
+pub(crate) mod suggest;
+pub(crate) mod sync;
+pub(crate) mod text_file;
 pub mod time;
 pub mod verify;
 

@@ -13,7 +13,4 @@ pub mod pulse;
 pub mod safe;
 mod watch;
 
-pub use watch::{
-    describe, describe_stall, exit_status, guard, Confirmation, GuardError, Guarded, GuardianLog,
-    RunnerEnd,
-};
+pub use watch::{guard, Confirmation, Guarded, GuardianLog};

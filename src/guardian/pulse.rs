@@ -204,11 +204,6 @@ impl StallWatch {
         }
     }
 
-    /// The limit watched.
-    pub fn limit(&self) -> Duration {
-        self.limit
-    }
-
     /// How often a watcher should look: a twentieth of the limit, from 10 to 100 ms.
     pub fn every(&self) -> Duration {
         (self.limit / 20).clamp(Duration::from_millis(10), Duration::from_millis(100))

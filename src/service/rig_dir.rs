@@ -100,11 +100,6 @@ pub fn search() -> Search {
     search
 }
 
-/// Every rig directory searched (`search`), the refused ones left out.
-pub fn search_dirs() -> Vec<Searched> {
-    search().dirs
-}
-
 /// The socket of rig `name`: in the first searched directory that has one, with the user its
 /// rig must answer as. None: why, with the directories refused on the way.
 pub fn find_socket(name: &str) -> Result<(PathBuf, u32), Vec<String>> {

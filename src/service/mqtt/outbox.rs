@@ -57,7 +57,6 @@ pub struct Outbox {
     next_seq: u64,
     acked: u64,
     acked_written: u64,
-    dropped: u64,
 }
 
 impl Outbox {
@@ -105,7 +104,6 @@ impl Outbox {
             next_seq: highest + 1,
             acked,
             acked_written: acked,
-            dropped: 0,
         };
         // Start from a journal holding only what waits (and no half line at its end).
         outbox.compact().map_err(at(&outbox.journal_path.clone()))?;
@@ -118,7 +116,6 @@ impl Outbox {
         let payload = with_seq(line, seq);
         let size = payload.len() as u64 + 1;
         if self.waiting_bytes + size > self.max {
-            self.dropped += 1;
             return Ok(Pushed::Full);
         }
         self.next_seq += 1;
@@ -139,11 +136,6 @@ impl Outbox {
     /// The records waiting, oldest first.
     pub fn waiting(&self) -> &VecDeque<Pending> {
         &self.waiting
-    }
-
-    /// Records dropped because the outbox was full.
-    pub fn dropped(&self) -> u64 {
-        self.dropped
     }
 
     /// The highest seq acknowledged with all before it.
@@ -278,14 +270,13 @@ mod tests {
     }
 
     #[test]
-    fn a_full_outbox_drops_counted_and_a_torn_last_line_is_skipped() {
+    fn a_full_outbox_refuses_more_and_a_torn_last_line_is_skipped() {
         let d = dir("full");
         let mut o = Outbox::open(&d, "b", 100).unwrap();
         let line = format!("{{\"v\":\"{}\"}}", "x".repeat(30));
         assert!(matches!(o.push(&line).unwrap(), Pushed::Kept(1)));
         assert!(matches!(o.push(&line).unwrap(), Pushed::Kept(2)));
         assert_eq!(o.push(&line).unwrap(), Pushed::Full);
-        assert_eq!(o.dropped(), 1);
         drop(o);
         let mut f = OpenOptions::new()
             .append(true)

@@ -1,9 +1,7 @@
 //! The rig's topics on the broker and what goes on them (pure: names and payloads, no I/O).
 
 use crate::runtime::observe::RunEvent;
-pub use crate::runtime::topic_filter::{
-    check_filter, check_topic, filter_matches, MAX_PAYLOAD, MAX_TOPIC,
-};
+pub use crate::runtime::topic_filter::{check_topic, MAX_PAYLOAD, MAX_TOPIC};
 use serde_json::{json, Value};
 
 /// The retained status message while the rig is connected.
@@ -122,6 +120,7 @@ pub fn reply_payload(result: &Result<Value, String>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::runtime::topic_filter::{check_filter, filter_matches};
 
     #[test]
     fn topics_come_from_the_prefix_and_commands_are_told_by_name() {
