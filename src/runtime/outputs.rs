@@ -16,10 +16,7 @@ impl<H: Clone> Runtime<H> {
     pub fn set_outputs(&mut self, idx: usize, value: u8) {
         let cause = self.cause.clone();
         if let Some(d) = self.c29u(idx) {
-            if d.outputs != value {
-                d.outputs = value;
-                d.outputs_cause = cause;
-            }
+            d.want_outputs(value, cause);
         }
     }
 
@@ -28,10 +25,7 @@ impl<H: Clone> Runtime<H> {
     pub fn set_relay(&mut self, idx: usize, relay: u8) {
         let cause = self.cause.clone();
         if let Some(d) = self.trc(idx) {
-            if d.relay != relay {
-                d.relay = relay;
-                d.relay_cause = cause;
-            }
+            d.want_relay(relay, cause);
         }
     }
 
@@ -39,14 +33,7 @@ impl<H: Clone> Runtime<H> {
     /// them); a TRC1000 without a safe relay keeps its relay.
     pub fn reset_outputs(&mut self) {
         for d in &mut self.devices {
-            match d {
-                Device::Trc(t) => {
-                    if let Some(r) = t.config.safe_relay {
-                        t.relay = r;
-                    }
-                }
-                Device::C29u(c) => c.outputs = c.config.safe_value,
-            }
+            d.want_safe_state();
         }
     }
 
@@ -60,19 +47,19 @@ impl<H: Clone> Runtime<H> {
                 && match d {
                     Device::C29u(c) => {
                         let target = if held {
-                            c.config.safe_value
+                            c.config().safe_value
                         } else {
-                            forces.outputs(idx, c.outputs)
+                            forces.outputs(idx, c.wanted_outputs())
                         };
                         c.outputs_written() != Some(target)
                     }
                     Device::Trc(t) => {
                         let target = if held {
-                            t.config.safe_relay
+                            t.config().safe_relay
                         } else {
-                            Some(forces.relay(idx, t.relay))
+                            Some(forces.relay(idx, t.wanted_relay()))
                         };
-                        target.is_some() && t.relay_written != target
+                        target.is_some() && t.relay_written() != target
                     }
                 }
         })
@@ -89,25 +76,25 @@ impl<H: Clone> Runtime<H> {
             let held = self.held_safe;
             let result = match self.devices.get_mut(idx) {
                 Some(Device::Trc(d)) => {
-                    let forced = self.forces.relay(idx, d.relay);
+                    let forced = self.forces.relay(idx, d.wanted_relay());
                     let target = if held {
-                        d.config.safe_relay
+                        d.config().safe_relay
                     } else {
                         Some(forced)
                     };
                     match target {
-                        Some(relay) if d.relay_written != Some(relay) => {
-                            let before = d.relay_last;
-                            let cause = match (held, d.relay_cause.as_str()) {
+                        Some(relay) if d.relay_written() != Some(relay) => {
+                            let before = d.relay_last();
+                            let cause = match (held, d.relay_cause()) {
                                 (true, _) => "held safe",
-                                (false, _) if forced != d.relay => "forced",
+                                (false, _) if forced != d.wanted_relay() => "forced",
                                 (false, "") => "start",
                                 (false, cause) => cause,
                             };
                             let line = (before != Some(relay)).then(|| {
                                 format!(
                                     "{}: relay {} -> {relay} ({cause})",
-                                    d.name,
+                                    d.name(),
                                     before.map_or("?".to_string(), |r| r.to_string()),
                                 )
                             });
@@ -115,7 +102,7 @@ impl<H: Clone> Runtime<H> {
                             let told = self
                                 .events
                                 .wants(EventKind::Outputs)
-                                .then(|| (d.name.clone(), cause.to_string()));
+                                .then(|| (d.name().to_string(), cause.to_string()));
                             d.select_relay(relay).map(|()| {
                                 tell_written(&self.events, told, relay);
                                 line
@@ -125,26 +112,26 @@ impl<H: Clone> Runtime<H> {
                     }
                 }
                 Some(Device::C29u(d)) => {
-                    let forced = self.forces.outputs(idx, d.outputs);
-                    let target = if held { d.config.safe_value } else { forced };
+                    let forced = self.forces.outputs(idx, d.wanted_outputs());
+                    let target = if held { d.config().safe_value } else { forced };
                     if d.outputs_written() == Some(target) {
                         Ok(None)
                     } else {
                         let before = d.outputs_written();
                         let cause = match held {
                             true => "held safe",
-                            false if forced != d.outputs => "forced",
-                            false => &d.outputs_cause,
+                            false if forced != d.wanted_outputs() => "forced",
+                            false => d.outputs_cause(),
                         };
                         let line = format!(
                             "{}: outputs {} -> {target:#04x} ({cause})",
-                            d.name,
+                            d.name(),
                             before.map_or("?".to_string(), |v| format!("{v:#04x}")),
                         );
                         let told = self
                             .events
                             .wants(EventKind::Outputs)
-                            .then(|| (d.name.clone(), cause.to_string()));
+                            .then(|| (d.name().to_string(), cause.to_string()));
                         d.write_outputs(target).map(|()| {
                             tell_written(&self.events, told, target);
                             Some(line)
@@ -165,7 +152,7 @@ impl<H: Clone> Runtime<H> {
                 Ok(None) => {}
                 // A module that refused even with its watchdog off is not in safe mode: its
                 // refusals are refusals until a write gets through.
-                Err(e) if e.is_safe_mode() && !self.c29u(idx).is_some_and(|d| d.refusing) => {
+                Err(e) if e.is_safe_mode() && !self.c29u(idx).is_some_and(|d| d.refusing()) => {
                     self.regain_control(idx);
                 }
                 Err(e) => {
@@ -173,9 +160,7 @@ impl<H: Clone> Runtime<H> {
                         let name = self.device_name(idx);
                         if let Some(d) = self.c29u(idx) {
                             // Unconfirmed: what the module drives is not known.
-                            d.forget_outputs_written();
-                            d.refusing = true;
-                            d.refused_writes = d.refused_writes.saturating_add(1);
+                            d.note_refused();
                         }
                         self.log.repeating(
                             &refusal(&name),
@@ -265,7 +250,7 @@ mod tests {
         // Someone else sets a 0.1 s watchdog behind the runner's back; it fires although the
         // runner fed on time (a stall is caught before this: see upkeep).
         let io = r.rt.c29u(IO).unwrap();
-        io.driver
+        io.driver()
             .set_watchdog(Some(Duration::from_millis(100)))
             .unwrap();
         r.clock.advance(Duration::from_millis(150));
@@ -295,7 +280,7 @@ mod tests {
         r.rt.flush_outputs();
         assert_eq!(r.requests(), before, "a lost device is not written");
         assert_eq!(
-            r.rt.c29u(IO).unwrap().outputs,
+            r.rt.c29u(IO).unwrap().wanted_outputs(),
             0x33,
             "what the script wants is kept"
         );
@@ -307,8 +292,8 @@ mod tests {
         r.rt.set_outputs(IO, 0x77);
         r.rt.set_relay(PANEL, 1);
         r.rt.reset_outputs();
-        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
-        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+        assert_eq!(r.rt.c29u(IO).unwrap().wanted_outputs(), 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().wanted_relay(), 3);
     }
 
     #[test]
@@ -318,7 +303,7 @@ mod tests {
         let lines = r.rt.log.lines().len();
         for _ in 0..10 {
             // What the periodic check does: the board may have forgotten its relay.
-            r.rt.trc(PANEL).unwrap().relay_written = None;
+            r.rt.trc(PANEL).unwrap().forget_relay_written();
             let before = r.requests();
             r.rt.flush_outputs();
             assert_eq!(r.requests(), before + 1, "selected again");
