@@ -4,8 +4,9 @@
 
 use crate::config::{DeviceConfig, RigConfig};
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError};
+use crate::runtime::devices::{Device, OpenError};
 use crate::runtime::safety::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed, END_TRIES};
+use crate::sim::rig::open_devices;
 use crate::time::clock::SharedClock;
 use std::collections::BTreeMap;
 use std::fmt;

@@ -8,5 +8,6 @@ pub mod c29u_modbus;
 pub mod faults;
 pub mod pty;
 pub mod relay;
+pub mod rig;
 pub mod trc1000;
 pub mod wire;

@@ -12,9 +12,11 @@ mod trc;
 
 pub mod links;
 
+/// Where callers not yet composing their own run find the opener of a (partly) simulated rig.
+pub use crate::sim::rig::open_devices;
 pub use c29u::{C29uDevice, Stored};
 pub use identity::{watchdog_words, CheckFinding, Found, ModuleCheck};
-pub use open::{c29u_options, open_devices, OpenError, Opened};
+pub use open::{c29u_options, open_devices_with, OpenError, Opened, SimLinks};
 pub use settings::SettingRefused;
 pub use sim::{FieldError, SimDevice, SimRig, SwappedModule};
 pub use takeover::{ControlNotes, Takeover};
