@@ -46,11 +46,7 @@ impl<H: Clone> Runtime<H> {
             d.health().online()
                 && match d {
                     Device::C29u(c) => {
-                        let target = if held {
-                            c.config().safe_value
-                        } else {
-                            forces.outputs(idx, c.wanted_outputs())
-                        };
+                        let target = c.outputs_to_write(held, |v| forces.outputs(idx, v));
                         c.outputs_written() != Some(target)
                     }
                     Device::Trc(t) => {

@@ -115,7 +115,6 @@ impl C29uDevice {
     }
 
     /// The name scripts use.
-    #[inline]
     pub fn name(&self) -> &str {
         &self.name
     }
@@ -134,7 +133,6 @@ impl C29uDevice {
 
     /// The driver, for requests that change nothing the runtime holds of the module (reads,
     /// the script's own requests).
-    #[inline]
     pub fn driver(&mut self) -> &mut C29u {
         &mut self.driver
     }
@@ -174,8 +172,18 @@ impl C29uDevice {
         self.outputs
     }
 
-    /// The handler that last changed the DO byte the script wants ("": none yet).
+    /// The DO byte to drive: the safe value while every output is held safe, else what the
+    /// script wants with an operator's force (`force`) over it.
     #[inline]
+    pub fn outputs_to_write(&self, held: bool, force: impl FnOnce(u8) -> u8) -> u8 {
+        if held {
+            self.config.safe_value
+        } else {
+            force(self.outputs)
+        }
+    }
+
+    /// The handler that last changed the DO byte the script wants ("": none yet).
     pub fn outputs_cause(&self) -> &str {
         &self.outputs_cause
     }
@@ -189,18 +197,12 @@ impl C29uDevice {
         }
     }
 
-    /// The script wants the safe value again (a restarted script starts from it).
-    pub fn want_safe_value(&mut self) {
-        self.outputs = self.config.safe_value;
-    }
-
     /// The next write of the outputs is for `cause` (an operator's force ended).
     pub fn credit_outputs_to(&mut self, cause: String) {
         self.outputs_cause = cause;
     }
 
     /// The host watchdog the runner feeds (`None`: none).
-    #[inline]
     pub fn watchdog(&self) -> Option<WatchdogTimeout> {
         self.watchdog
     }
@@ -211,7 +213,6 @@ impl C29uDevice {
     }
 
     /// Whether the runner has taken control of it (and feeds its watchdog).
-    #[inline]
     pub fn controlled(&self) -> bool {
         self.controlled
     }
@@ -222,7 +223,6 @@ impl C29uDevice {
     }
 
     /// Whether its last output write was refused (not for a safe mode its watchdog explains).
-    #[inline]
     pub fn refusing(&self) -> bool {
         self.refusing
     }

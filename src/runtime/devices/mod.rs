@@ -116,7 +116,6 @@ impl Health {
     }
 
     /// When it stopped answering (`None` while it answers).
-    #[inline]
     pub fn lost_at(&self) -> Option<Duration> {
         self.lost_at
     }
@@ -133,7 +132,6 @@ impl Health {
     }
 
     /// Whether the link itself failed: reopen it before trying again.
-    #[inline]
     pub fn link_failed(&self) -> bool {
         self.link_failed
     }
@@ -324,8 +322,8 @@ impl Device {
     /// TRC1000 without a safe relay keeps its relay.
     pub fn want_safe_state(&mut self) {
         match self {
-            Device::Trc(d) => d.want_safe_relay(),
-            Device::C29u(d) => d.want_safe_value(),
+            Device::Trc(d) => d.relay = d.config.safe_relay.unwrap_or(d.relay),
+            Device::C29u(d) => d.outputs = d.config.safe_value,
         }
     }
 

@@ -70,7 +70,6 @@ impl TrcDevice {
     }
 
     /// The name scripts use.
-    #[inline]
     pub fn name(&self) -> &str {
         &self.name
     }
@@ -82,7 +81,6 @@ impl TrcDevice {
     }
 
     /// The driver, for requests that change nothing the runtime holds of the board.
-    #[inline]
     pub fn driver(&mut self) -> &mut Trc1000<Box<dyn PacketLink>> {
         &mut self.driver
     }
@@ -117,7 +115,6 @@ impl TrcDevice {
     }
 
     /// The handler that last changed the relay the script wants ("": none yet).
-    #[inline]
     pub fn relay_cause(&self) -> &str {
         &self.relay_cause
     }
@@ -129,7 +126,6 @@ impl TrcDevice {
     }
 
     /// The relay last selected, even when no longer trusted.
-    #[inline]
     pub fn relay_last(&self) -> Option<u8> {
         self.relay_last
     }
@@ -140,14 +136,6 @@ impl TrcDevice {
         if self.relay != relay {
             self.relay = relay;
             self.relay_cause = cause;
-        }
-    }
-
-    /// The script wants the safe relay again, if one is set (a restarted script starts from
-    /// it).
-    pub fn want_safe_relay(&mut self) {
-        if let Some(r) = self.config.safe_relay {
-            self.relay = r;
         }
     }
 

@@ -63,13 +63,13 @@ impl<H: Clone> Runtime<H> {
                 };
                 format!(
                     "{}, outputs at safe value {:#04x}, {wd}",
-                    d.driver().describe(),
+                    d.describe(),
                     d.config().safe_value
                 )
             }
             Some(Device::Trc(d)) => match d.config().safe_relay {
-                Some(r) => format!("{}, relay at safe position {r}", d.driver().describe()),
-                None => format!("{} (no safe relay set)", d.driver().describe()),
+                Some(r) => format!("{}, relay at safe position {r}", d.describe()),
+                None => format!("{} (no safe relay set)", d.describe()),
             },
             None => String::new(),
         }
@@ -138,11 +138,9 @@ impl<H: Clone> Runtime<H> {
         let held = self.held_safe;
         let forces = &self.forces;
         let mut takeover = match self.devices.get_mut(idx) {
-            Some(Device::C29u(d)) => Takeover::new(if held {
-                d.config().safe_value
-            } else {
-                forces.outputs(idx, d.wanted_outputs())
-            }),
+            Some(Device::C29u(d)) => {
+                Takeover::new(d.outputs_to_write(held, |v| forces.outputs(idx, v)))
+            }
             Some(Device::Trc(d)) => {
                 d.note_taking_control();
                 d.probe()?;

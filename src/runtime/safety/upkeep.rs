@@ -47,11 +47,7 @@ impl<H: Clone> Runtime<H> {
         let Some(Device::C29u(d)) = self.devices.get_mut(idx) else {
             return;
         };
-        let target = if held {
-            d.config().safe_value
-        } else {
-            forces.outputs(idx, d.wanted_outputs())
-        };
+        let target = d.outputs_to_write(held, |v| forces.outputs(idx, v));
         let result = d.write_outputs(target).and_then(|()| d.feed(now));
         match result {
             Ok(_) => {}
