@@ -145,6 +145,7 @@ impl TrcDevice {
     }
 
     /// The relay on the board is not known any more: the next write selects it again.
+    #[cfg(test)]
     pub fn forget_relay_written(&mut self) {
         self.relay_written = None;
     }
@@ -220,7 +221,7 @@ impl TrcDevice {
     /// Taken control of again after a loss (or at start): the counts the board reports next
     /// are the ones last seen, whatever it counts from now (a power cycle resets its counts;
     /// turns made while it was lost are not seen either: the runner cannot tell them apart).
-    pub fn rebase_rotaries(&mut self) {
+    fn rebase_rotaries(&mut self) {
         self.rebase_pending = true;
     }
 
