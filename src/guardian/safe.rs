@@ -4,8 +4,9 @@
 
 use crate::config::{DeviceConfig, RigConfig};
 use crate::runtime::devices::links::TransactionCounter;
-use crate::runtime::devices::{open_devices, Device, OpenError};
+use crate::runtime::devices::{Device, OpenError};
 use crate::runtime::safety::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed, END_TRIES};
+use crate::sim::rig::open_devices;
 use crate::time::clock::SharedClock;
 use std::collections::BTreeMap;
 use std::fmt;
@@ -113,15 +114,12 @@ fn make_one_safe(
 /// driver's configured retries, in two tries.
 fn confirm(device: &mut Device) -> Result<Confirmed, SafeError> {
     let target = match device {
-        Device::C29u(d) => SafeDriver::C29u {
-            safe_value: d.config.safe_value,
-            driver: &mut d.driver,
-        },
-        Device::Trc(t) => match t.config.safe_relay {
-            Some(relay) => SafeDriver::Trc1000 {
-                driver: &mut t.driver,
-                relay,
-            },
+        Device::C29u(d) => {
+            let (driver, safe_value) = d.safe_driver(false);
+            SafeDriver::C29u { driver, safe_value }
+        }
+        Device::Trc(t) => match t.safe_driver() {
+            Some((driver, relay)) => SafeDriver::Trc1000 { driver, relay },
             None => return Ok(Confirmed::NoSafeRelay),
         },
     };

@@ -74,11 +74,11 @@ impl ModuleView {
     /// What module `c` shows now.
     pub fn of(c: &C29uDevice) -> Self {
         ModuleView {
-            online: c.health.online(),
-            inputs: c.inputs.current,
-            outputs: c.outputs,
-            counters: c.counters.current,
-            latches: c.latches.current.map(|l| LatchState {
+            online: c.health().online(),
+            inputs: c.inputs().current,
+            outputs: c.wanted_outputs(),
+            counters: c.counters().current,
+            latches: c.latches().current.map(|l| LatchState {
                 energized: l.energized,
                 released: l.released,
             }),
@@ -90,10 +90,10 @@ impl PanelView {
     /// What panel `t` shows now.
     pub fn of(t: &TrcDevice) -> Self {
         PanelView {
-            online: t.health.online(),
-            relay: t.relay,
-            switches: t.switches.current,
-            rotaries: t.rotaries.current,
+            online: t.health().online(),
+            relay: t.wanted_relay(),
+            switches: t.switches().current,
+            rotaries: t.rotaries().current,
         }
     }
 }

@@ -112,7 +112,7 @@ impl<H: Clone> Runtime<H> {
             .devices
             .iter()
             .map(|d| match d {
-                Device::C29u(c) if c.counters.fresh(tick) => c.counters.current,
+                Device::C29u(c) if c.counters().fresh(tick) => c.counters().current,
                 _ => None,
             })
             .collect();
@@ -242,7 +242,7 @@ fn device_events(idx: usize, device: &Device, tick: u64) -> Vec<(Source, Vec<Arg
     let mut events = Vec::new();
     match device {
         Device::Trc(d) => {
-            if let Some((old, new)) = d.switches.change_at(tick) {
+            if let Some((old, new)) = d.switches().change_at(tick) {
                 let (pressed, released) = old.changes(&new);
                 for switch in pressed {
                     events.push((
@@ -257,7 +257,7 @@ fn device_events(idx: usize, device: &Device, tick: u64) -> Vec<(Source, Vec<Arg
                     ));
                 }
             }
-            if let Some((old, new)) = d.rotaries.change_at(tick) {
+            if let Some((old, new)) = d.rotaries().change_at(tick) {
                 for c in rotary_changes(&old, &new) {
                     events.push((
                         Source::Turn {
@@ -270,7 +270,7 @@ fn device_events(idx: usize, device: &Device, tick: u64) -> Vec<(Source, Vec<Arg
             }
         }
         Device::C29u(d) => {
-            if let Some((old, new)) = d.inputs.change_at(tick).filter(|(o, n)| o != n) {
+            if let Some((old, new)) = d.inputs().change_at(tick).filter(|(o, n)| o != n) {
                 for ch in 0..8u8 {
                     let bit = 1u8 << ch;
                     let args = || vec![Arg::Int(i64::from(ch))];
@@ -418,7 +418,7 @@ mod tests {
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])]);
         r.sim.pulse("io", 2, 5).unwrap();
         assert!(tick(&mut r).is_empty(), "once");
-        r.rt.c29u(IO).unwrap().driver.clear_counter(2).unwrap();
+        r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
         assert!(tick(&mut r).is_empty(), "below again: re-armed");
         r.sim.pulse("io", 2, 4).unwrap();
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(4)])]);

@@ -485,8 +485,8 @@ impl<H: Clone> Runtime<H> {
     /// A forced input applies from the next reading, not the one the tick already made.
     fn reread_forced(&mut self, idx: usize) {
         match self.devices.get_mut(idx) {
-            Some(Device::C29u(d)) => d.inputs.tick = None,
-            Some(Device::Trc(d)) => d.switches.tick = None,
+            Some(Device::C29u(d)) => d.reread_inputs(),
+            Some(Device::Trc(d)) => d.reread_switches(),
             None => {}
         }
     }
@@ -496,8 +496,8 @@ impl<H: Clone> Runtime<H> {
     fn ended(&mut self, f: &Force, how: &str) {
         let cause = format!("force on {} {how}", f.point);
         match (self.devices.get_mut(f.device), f.target) {
-            (Some(Device::C29u(d)), Target::Outputs { .. }) => d.outputs_cause = cause,
-            (Some(Device::Trc(d)), Target::Relay(_)) => d.relay_cause = cause,
+            (Some(Device::C29u(d)), Target::Outputs { .. }) => d.credit_outputs_to(cause),
+            (Some(Device::Trc(d)), Target::Relay(_)) => d.credit_relay_to(cause),
             _ => {}
         }
         self.reread_forced(f.device);
@@ -537,16 +537,8 @@ impl<H: Clone> Runtime<H> {
         }
         let forces = &self.forces;
         match self.devices.get_mut(idx) {
-            Some(Device::C29u(d)) => {
-                if let Some(v) = d.inputs.current {
-                    d.inputs.current = Some(forces.inputs(idx, v));
-                }
-            }
-            Some(Device::Trc(d)) => {
-                if let Some(v) = d.switches.current {
-                    d.switches.current = Some(forces.switches(idx, v));
-                }
-            }
+            Some(Device::C29u(d)) => d.force_inputs(|v| forces.inputs(idx, v)),
+            Some(Device::Trc(d)) => d.force_switches(|v| forces.switches(idx, v)),
             None => {}
         }
     }

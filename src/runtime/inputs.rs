@@ -19,7 +19,7 @@ struct Input<D, T> {
 
 const SWITCHES: Input<TrcDevice, SwitchSet> = Input {
     device: Device::as_trc,
-    snapshot: |d| &d.switches,
+    snapshot: |d| d.switches(),
     read: TrcDevice::read_switches,
     event: |s| {
         Some(Reading::Switches {
@@ -30,28 +30,28 @@ const SWITCHES: Input<TrcDevice, SwitchSet> = Input {
 
 const ROTARIES: Input<TrcDevice, RotaryValues> = Input {
     device: Device::as_trc,
-    snapshot: |d| &d.rotaries,
+    snapshot: |d| d.rotaries(),
     read: TrcDevice::read_rotaries,
     event: |_| None,
 };
 
 const INPUTS: Input<C29uDevice, u8> = Input {
     device: Device::as_c29u,
-    snapshot: |d| &d.inputs,
+    snapshot: |d| d.inputs(),
     read: C29uDevice::read_inputs,
     event: |&value| Some(Reading::DigitalInputs { value }),
 };
 
 const COUNTERS: Input<C29uDevice, [u16; 8]> = Input {
     device: Device::as_c29u,
-    snapshot: |d| &d.counters,
+    snapshot: |d| d.counters(),
     read: C29uDevice::read_counters,
     event: |&values| Some(Reading::Counters { values }),
 };
 
 const LATCHES: Input<C29uDevice, Latches> = Input {
     device: Device::as_c29u,
-    snapshot: |d| &d.latches,
+    snapshot: |d| d.latches(),
     read: C29uDevice::read_latches,
     event: |_| None,
 };
@@ -79,7 +79,7 @@ impl<H: Clone> Runtime<H> {
                         self.cycle().boundary().unwrap_or(self.cycle().started()),
                     );
                     if let Some(d) = self.devices.get_mut(idx) {
-                        d.health_mut().read_tick = tick;
+                        d.health_mut().note_read(tick);
                     }
                     self.force_readings(idx);
                     self.tell_change(idx, input);
@@ -129,7 +129,7 @@ impl<H: Clone> Runtime<H> {
         self.rotaries(idx);
         let tick = self.cycle().tick();
         self.trc(idx)
-            .and_then(|d| d.rotaries.change_at(tick))
+            .and_then(|d| d.rotaries().change_at(tick))
             .map_or(0, |(old, new)| {
                 i64::from(rotary_delta(old.get(rotary), new.get(rotary)))
             })

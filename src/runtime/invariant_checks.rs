@@ -30,9 +30,12 @@ impl<H: Clone> Runtime<H> {
         self.devices
             .iter()
             .filter(|d| match d {
-                Device::C29u(c) => c.inputs.current.is_some() || c.outputs != c.config.safe_value,
+                Device::C29u(c) => {
+                    c.inputs().current.is_some() || c.wanted_outputs() != c.config().safe_value
+                }
                 Device::Trc(t) => {
-                    t.switches.current.is_some() || Some(t.relay) != t.config.safe_relay
+                    t.switches().current.is_some()
+                        || Some(t.wanted_relay()) != t.config().safe_relay
                 }
             })
             .map(|d| DeviceReading {

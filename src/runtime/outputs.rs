@@ -16,10 +16,7 @@ impl<H: Clone> Runtime<H> {
     pub fn set_outputs(&mut self, idx: usize, value: u8) {
         let cause = self.program().cause().to_string();
         if let Some(d) = self.c29u(idx) {
-            if d.outputs != value {
-                d.outputs = value;
-                d.outputs_cause = cause;
-            }
+            d.want_outputs(value, cause);
         }
     }
 
@@ -28,10 +25,7 @@ impl<H: Clone> Runtime<H> {
     pub fn set_relay(&mut self, idx: usize, relay: u8) {
         let cause = self.program().cause().to_string();
         if let Some(d) = self.trc(idx) {
-            if d.relay != relay {
-                d.relay = relay;
-                d.relay_cause = cause;
-            }
+            d.want_relay(relay, cause);
         }
     }
 
@@ -39,14 +33,7 @@ impl<H: Clone> Runtime<H> {
     /// them); a TRC1000 without a safe relay keeps its relay.
     pub fn reset_outputs(&mut self) {
         for d in &mut self.devices {
-            match d {
-                Device::Trc(t) => {
-                    if let Some(r) = t.config.safe_relay {
-                        t.relay = r;
-                    }
-                }
-                Device::C29u(c) => c.outputs = c.config.safe_value,
-            }
+            d.want_safe_state();
         }
     }
 
@@ -59,20 +46,16 @@ impl<H: Clone> Runtime<H> {
             d.health().online()
                 && match d {
                     Device::C29u(c) => {
-                        let target = if held {
-                            c.config.safe_value
-                        } else {
-                            forces.outputs(idx, c.outputs)
-                        };
+                        let target = c.outputs_to_write(held, |v| forces.outputs(idx, v));
                         c.outputs_written() != Some(target)
                     }
                     Device::Trc(t) => {
                         let target = if held {
-                            t.config.safe_relay
+                            t.config().safe_relay
                         } else {
-                            Some(forces.relay(idx, t.relay))
+                            Some(forces.relay(idx, t.wanted_relay()))
                         };
-                        target.is_some() && t.relay_written != target
+                        target.is_some() && t.relay_written() != target
                     }
                 }
         })
@@ -94,29 +77,29 @@ impl<H: Clone> Runtime<H> {
                 .then(|| self.events().clone());
             let result = match self.devices.get_mut(idx) {
                 Some(Device::Trc(d)) => {
-                    let forced = self.forces.relay(idx, d.relay);
+                    let forced = self.forces.relay(idx, d.wanted_relay());
                     let target = if held {
-                        d.config.safe_relay
+                        d.config().safe_relay
                     } else {
                         Some(forced)
                     };
                     match target {
-                        Some(relay) if d.relay_written != Some(relay) => {
-                            let before = d.relay_last;
-                            let cause = match (held, d.relay_cause.as_str()) {
+                        Some(relay) if d.relay_written() != Some(relay) => {
+                            let before = d.relay_last();
+                            let cause = match (held, d.relay_cause()) {
                                 (true, _) => "held safe",
-                                (false, _) if forced != d.relay => "forced",
+                                (false, _) if forced != d.wanted_relay() => "forced",
                                 (false, "") => "start",
                                 (false, cause) => cause,
                             };
                             let line = (before != Some(relay)).then(|| {
                                 format!(
                                     "{}: relay {} -> {relay} ({cause})",
-                                    d.name,
+                                    d.name(),
                                     before.map_or("?".to_string(), |r| r.to_string()),
                                 )
                             });
-                            let told = watch.map(|e| (e, d.name.clone(), cause.to_string()));
+                            let told = watch.map(|e| (e, d.name().to_string(), cause.to_string()));
                             d.select_relay(relay).map(|()| {
                                 tell_written(told, relay);
                                 line
@@ -126,23 +109,23 @@ impl<H: Clone> Runtime<H> {
                     }
                 }
                 Some(Device::C29u(d)) => {
-                    let forced = self.forces.outputs(idx, d.outputs);
-                    let target = if held { d.config.safe_value } else { forced };
+                    let forced = self.forces.outputs(idx, d.wanted_outputs());
+                    let target = if held { d.config().safe_value } else { forced };
                     if d.outputs_written() == Some(target) {
                         Ok(None)
                     } else {
                         let before = d.outputs_written();
                         let cause = match held {
                             true => "held safe",
-                            false if forced != d.outputs => "forced",
-                            false => &d.outputs_cause,
+                            false if forced != d.wanted_outputs() => "forced",
+                            false => d.outputs_cause(),
                         };
                         let line = format!(
                             "{}: outputs {} -> {target:#04x} ({cause})",
-                            d.name,
+                            d.name(),
                             before.map_or("?".to_string(), |v| format!("{v:#04x}")),
                         );
-                        let told = watch.map(|e| (e, d.name.clone(), cause.to_string()));
+                        let told = watch.map(|e| (e, d.name().to_string(), cause.to_string()));
                         d.write_outputs(target).map(|()| {
                             tell_written(told, target);
                             Some(line)
@@ -163,7 +146,7 @@ impl<H: Clone> Runtime<H> {
                 Ok(None) => {}
                 // A module that refused even with its watchdog off is not in safe mode: its
                 // refusals are refusals until a write gets through.
-                Err(e) if e.is_safe_mode() && !self.c29u(idx).is_some_and(|d| d.refusing) => {
+                Err(e) if e.is_safe_mode() && !self.c29u(idx).is_some_and(|d| d.refusing()) => {
                     self.regain_control(idx);
                 }
                 Err(e) => {
@@ -171,9 +154,7 @@ impl<H: Clone> Runtime<H> {
                         let name = self.device_name(idx);
                         if let Some(d) = self.c29u(idx) {
                             // Unconfirmed: what the module drives is not known.
-                            d.forget_outputs_written();
-                            d.refusing = true;
-                            d.refused_writes = d.refused_writes.saturating_add(1);
+                            d.note_refused();
                         }
                         self.log_mut().repeating(
                             &refusal(&name),
@@ -263,7 +244,7 @@ mod tests {
         // Someone else sets a 0.1 s watchdog behind the runner's back; it fires although the
         // runner fed on time (a stall is caught before this: see upkeep).
         let io = r.rt.c29u(IO).unwrap();
-        io.driver
+        io.driver()
             .set_watchdog(Some(Duration::from_millis(100)))
             .unwrap();
         r.clock.advance(Duration::from_millis(150));
@@ -293,7 +274,7 @@ mod tests {
         r.rt.flush_outputs();
         assert_eq!(r.requests(), before, "a lost device is not written");
         assert_eq!(
-            r.rt.c29u(IO).unwrap().outputs,
+            r.rt.c29u(IO).unwrap().wanted_outputs(),
             0x33,
             "what the script wants is kept"
         );
@@ -305,8 +286,8 @@ mod tests {
         r.rt.set_outputs(IO, 0x77);
         r.rt.set_relay(PANEL, 1);
         r.rt.reset_outputs();
-        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
-        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+        assert_eq!(r.rt.c29u(IO).unwrap().wanted_outputs(), 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().wanted_relay(), 3);
     }
 
     #[test]
@@ -316,7 +297,7 @@ mod tests {
         let lines = r.rt.log_lines().len();
         for _ in 0..10 {
             // What the periodic check does: the board may have forgotten its relay.
-            r.rt.trc(PANEL).unwrap().relay_written = None;
+            r.rt.trc(PANEL).unwrap().forget_relay_written();
             let before = r.requests();
             r.rt.flush_outputs();
             assert_eq!(r.requests(), before + 1, "selected again");

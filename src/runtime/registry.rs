@@ -22,7 +22,7 @@ impl<H: Clone> Runtime<H> {
     pub fn take_out_uncontrolled(&mut self) -> Vec<Device> {
         let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut self.devices)
             .into_iter()
-            .partition(|d| matches!(d, Device::C29u(c) if !c.controlled));
+            .partition(|d| matches!(d, Device::C29u(c) if !c.controlled()));
         self.devices = taken;
         untaken
     }
@@ -126,7 +126,7 @@ mod tests {
         let mut r = TestRig::started();
         r.sim.set_gone("io", true).unwrap();
         let read = |d: &mut Device| match d {
-            Device::C29u(c) => Ok(c.driver.read_inputs()?),
+            Device::C29u(c) => Ok(c.driver().read_inputs()?),
             Device::Trc(_) => unreachable!("IO is a TRP-C29U"),
         };
         let e = r.rt.command(IO, read).unwrap_err();

@@ -369,7 +369,7 @@ impl DeviceState {
         let offline_reason = (!online).then(|| {
             format!(
                 "{} (for {})",
-                health.cause,
+                health.cause(),
                 crate::time::duration::format_duration(health.lost_for(now))
             )
         });
@@ -385,12 +385,9 @@ impl DeviceState {
                     outputs_written: c.outputs_written(),
                     counters: view.counters,
                     latches: view.latches,
-                    watchdog_ms: c
-                        .watchdog
-                        .filter(|_| c.watchdog_ours)
-                        .map(|w| u64::from(w.tenths()) * 100),
-                    safe_value: c.config.safe_value,
-                    safe_mode: c.refusing,
+                    watchdog_ms: c.watchdog_turned_on().map(|w| u64::from(w.tenths()) * 100),
+                    safe_value: c.config().safe_value,
+                    safe_mode: c.refusing(),
                 }
             }
             Device::Trc(t) => {
@@ -400,7 +397,7 @@ impl DeviceState {
                     offline_reason,
                     simulated,
                     relay: view.relay,
-                    relay_written: t.relay_written,
+                    relay_written: t.relay_written(),
                     pressed: view
                         .switches
                         .map(|s| s.pressed_names().into_iter().map(String::from).collect()),

@@ -339,8 +339,8 @@ mod tests {
         assert!(r.rt.handlers().is_empty());
         assert!(!r.rt.has_work());
         assert_eq!(r.rt.stop_requested(), None);
-        assert_eq!(r.rt.c29u(IO).unwrap().outputs, 0x05);
-        assert_eq!(r.rt.trc(PANEL).unwrap().relay, 3);
+        assert_eq!(r.rt.c29u(IO).unwrap().wanted_outputs(), 0x05);
+        assert_eq!(r.rt.trc(PANEL).unwrap().wanted_relay(), 3);
     }
 
     #[test]

@@ -1,12 +1,13 @@
 //! A runtime over the in-memory simulators in virtual time, for the runtime's own unit tests.
 
 use super::devices::links::TransactionCounter;
-use super::devices::{open_devices, SimRig};
+use super::devices::SimRig;
 use super::log::Logger;
 use super::records::Records;
 use super::runner::Shared;
 use super::state::Runtime;
 use crate::config::RigConfig;
+use crate::sim::rig::open_devices;
 use crate::time::clock::{SharedClock, VirtualClock};
 use crate::time::zone::Zone;
 use std::cell::RefCell;

@@ -13,7 +13,7 @@ use super::engine::Guard;
 use super::error::STOP_MARKER;
 use super::reads::{Item, ReadTracker, ALL_COUNTERS, ALL_INPUTS, ALL_SWITCHES};
 use super::values::to_json;
-use crate::device::c29u::{C29uError, Latches, WatchdogTimeout};
+use crate::device::c29u::{C29uError, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::{Device, DeviceError};
 use crate::runtime::records::Limits;
@@ -359,7 +359,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
         p.read(Item::Relay.mask());
         p.rt.borrow_mut()
             .trc(p.idx)
-            .map_or(0, |d| i64::from(d.relay))
+            .map_or(0, |d| i64::from(d.wanted_relay()))
     });
     setter(engine, "relay", |p: &mut Panel, v: i64| -> R<()> {
         match u8::try_from(v) {
@@ -455,7 +455,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         d.read(Item::Outputs.mask());
         d.rt.borrow_mut()
             .c29u(d.idx)
-            .map_or(0, |c| i64::from(c.outputs))
+            .map_or(0, |c| i64::from(c.wanted_outputs()))
     });
     setter(engine, "outputs", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("DO byte", v)?;
@@ -465,13 +465,16 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     engine.register_fn("output", |d: &mut Io, ch: i64| -> R<bool> {
         let c = channel(&d.name, ch)?;
         d.read(Item::Outputs.mask());
-        let v = d.rt.borrow_mut().c29u(d.idx).map_or(0, |c| c.outputs);
+        let v =
+            d.rt.borrow_mut()
+                .c29u(d.idx)
+                .map_or(0, |c| c.wanted_outputs());
         Ok(v & (1 << c) != 0)
     });
     engine.register_fn("set_output", |d: &mut Io, ch: i64, on: bool| -> R<()> {
         let c = channel(&d.name, ch)?;
         let mut rt = d.rt.borrow_mut();
-        let v = rt.c29u(d.idx).map_or(0, |c| c.outputs);
+        let v = rt.c29u(d.idx).map_or(0, |c| c.wanted_outputs());
         let v = if on { v | (1 << c) } else { v & !(1 << c) };
         rt.set_outputs(d.idx, v);
         Ok(())
@@ -501,30 +504,13 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("clear_counter", |d: &mut Io, ch: i64| -> R<()> {
         let c = channel(&d.name, ch)?;
-        c29u_op(d, |m| {
-            m.driver.clear_counter(c)?;
-            if let Some(slot) = m
-                .counters
-                .current
-                .as_mut()
-                .and_then(|v| v.get_mut(usize::from(c)))
-            {
-                *slot = 0;
-            }
-            Ok(())
-        })
+        c29u_op(d, |m| m.clear_counter(c))
     });
     engine.register_fn("clear_counters", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| {
-            m.driver.clear_counters()?;
-            if let Some(v) = m.counters.current.as_mut() {
-                *v = [0; 8];
-            }
-            Ok(())
-        })
+        c29u_op(d, |m| m.clear_counters())
     });
     engine.register_fn("save_counters", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| Ok(m.driver.save_counters()?))
+        c29u_op(d, |m| Ok(m.driver().save_counters()?))
     });
     engine.register_fn("latched", |d: &mut Io| -> Map {
         d.read(Item::Latches.mask());
@@ -536,13 +522,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         m
     });
     engine.register_fn("clear_latch", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| {
-            m.driver.clear_latches()?;
-            if let Some(l) = m.latches.current.as_mut() {
-                *l = Latches::default();
-            }
-            Ok(())
-        })
+        c29u_op(d, |m| m.clear_latches())
     });
     engine.register_fn("watchdog", |d: &mut Io, seconds: i64| -> R<()> {
         set_watchdog(d, seconds as f64)
@@ -551,7 +531,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         set_watchdog(d, seconds)
     });
     engine.register_fn("watchdog", |d: &mut Io| -> R<Map> {
-        let info = c29u_op(d, |m| Ok(m.driver.watchdog()?))?;
+        let info = c29u_op(d, |m| Ok(m.driver().watchdog()?))?;
         let mut map = Map::new();
         map.insert("enabled".into(), Dynamic::from(info.enabled));
         map.insert(
@@ -569,44 +549,37 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         c29u_op(d, |m| m.change_watchdog(None, now))
     });
     engine.register_get("safe_value", |d: &mut Io| -> R<i64> {
-        c29u_op(d, |m| Ok(i64::from(m.driver.safe_value()?)))
+        c29u_op(d, |m| Ok(i64::from(m.driver().safe_value()?)))
     });
     setter(engine, "safe_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("safe value", v)?;
         c29u_op(d, |m| m.change_safe_value(v))
     });
     engine.register_get("power_on_value", |d: &mut Io| -> R<i64> {
-        c29u_op(d, |m| Ok(i64::from(m.driver.power_on_value()?)))
+        c29u_op(d, |m| Ok(i64::from(m.driver().power_on_value()?)))
     });
     setter(engine, "power_on_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("power-on value", v)?;
         c29u_op(d, |m| m.change_power_on_value(v))
     });
     engine.register_get("name", |d: &mut Io| -> R<String> {
-        c29u_op(d, |m| Ok(m.driver.name()?))
+        c29u_op(d, |m| Ok(m.driver().name()?))
     });
     engine.register_get("firmware", |d: &mut Io| -> R<String> {
-        c29u_op(d, |m| Ok(m.driver.firmware()?.text))
+        c29u_op(d, |m| Ok(m.driver().firmware()?.text))
     });
     engine.register_fn("reset", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| {
-            m.driver.reset()?;
-            // The module comes back at its power-on value; the script's outputs are written
-            // again at the end of the tick, and the periodic check knows this reset.
-            m.forget_outputs_written();
-            m.reset_by_script = true;
-            Ok(())
-        })
+        c29u_op(d, |m| m.reset_module())
     });
     engine.register_get("in_safe_mode", |d: &mut Io| -> R<bool> {
         c29u_op(d, |m| {
-            if let Some(expired) = m.driver.watchdog()?.expired {
+            if let Some(expired) = m.driver().watchdog()?.expired {
                 return Ok(expired);
             }
             // The protocol cannot say: write the module's own outputs back, which only a
             // module in safe mode refuses.
-            let now = m.driver.read_outputs()?;
-            match m.driver.write_outputs(now) {
+            let now = m.driver().read_outputs()?;
+            match m.driver().write_outputs(now) {
                 Ok(()) => Ok(false),
                 Err(C29uError::SafeMode { .. }) => Ok(true),
                 Err(e) => Err(e.into()),

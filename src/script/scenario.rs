@@ -61,7 +61,7 @@ use super::values::{from_json, show, to_json};
 use crate::config::RigConfig;
 use crate::runtime::devices::{FieldError, SwappedModule};
 use crate::runtime::runner::EndReason;
-use crate::sim::answer_faults::AnswerFault;
+use crate::sim::faults::answer::AnswerFault;
 use crate::sim::c29u::OutputFault;
 use crate::text_file::{read_text, TextKind};
 use crate::time::clock::{Clock, VirtualClock};

@@ -7,8 +7,7 @@ pub mod c29u_modbus;
 pub mod faults;
 pub mod pty;
 pub mod relay;
+pub mod rig;
 pub mod trc1000;
 pub mod wire;
 
-/// The faults queued for a device's next answers, under their old path.
-pub use faults::answer as answer_faults;

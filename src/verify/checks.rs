@@ -133,43 +133,43 @@ fn device_as_read(d: &Device, mask: u128) -> String {
     let mut parts = Vec::new();
     let online = match d {
         Device::C29u(c) => {
-            parts.push(format!("{} outputs {:#04x}", c.name, c.outputs));
+            parts.push(format!("{} outputs {:#04x}", c.name(), c.wanted_outputs()));
             if (0..8).any(|ch| reads(Item::Input(ch))) {
-                parts.push(match c.inputs.current {
+                parts.push(match c.inputs().current {
                     Some(i) => format!("inputs {i:#04x}"),
                     None => "inputs not read".into(),
                 });
             }
             for ch in (0..8).filter(|ch| reads(Item::Counter(*ch))) {
-                parts.push(match c.counters.current {
+                parts.push(match c.counters().current {
                     Some(n) => format!("counter DI{ch} {}", n.get(usize::from(ch)).unwrap_or(&0)),
                     None => format!("counter DI{ch} not read"),
                 });
             }
             if reads(Item::Latches) {
-                parts.push(match c.latches.current {
+                parts.push(match c.latches().current {
                     Some(l) => format!("latches on {:#04x} off {:#04x}", l.energized, l.released),
                     None => "latches not read".into(),
                 });
             }
-            c.health.online()
+            c.health().online()
         }
         Device::Trc(t) => {
-            parts.push(format!("{} relay {}", t.name, t.relay));
+            parts.push(format!("{} relay {}", t.name(), t.wanted_relay()));
             if Switch::all().any(|s| reads(Item::Switch(s))) {
-                parts.push(match t.switches.current {
+                parts.push(match t.switches().current {
                     Some(s) if s.pressed_names().is_empty() => "pressed none".into(),
                     Some(s) => format!("pressed {}", s.pressed_names().join(" ")),
                     None => "switches not read".into(),
                 });
             }
             for r in Rotary::ALL.into_iter().filter(|r| reads(Item::Rotary(*r))) {
-                parts.push(match t.rotaries.current {
+                parts.push(match t.rotaries().current {
                     Some(v) => format!("{} {}", r.name(), v.get(r)),
                     None => format!("{} not read", r.name()),
                 });
             }
-            t.health.online()
+            t.health().online()
         }
     };
     let mut text = parts.join(", ");

@@ -12,7 +12,7 @@ use crate::runtime::runner::EndReason;
 use crate::script::builder::RigBuilder;
 use crate::script::reads::Item;
 use crate::script::rig::{Rig, RigError};
-use crate::sim::answer_faults::AnswerFault;
+use crate::sim::faults::answer::AnswerFault;
 use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
 use chrono::{TimeDelta, Utc};

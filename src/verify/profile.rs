@@ -70,7 +70,7 @@ impl Observed {
         }
         for (idx, d) in rt.devices().iter().enumerate() {
             if let Device::C29u(c) = d {
-                if let Some(w) = c.watchdog {
+                if let Some(w) = c.watchdog() {
                     self.watchdogs.insert((idx, w.as_duration()));
                 }
             }

@@ -11,7 +11,7 @@ use rigscript::device::c29u::{share, C29u, C29uOptions, SharedLink};
 use rigscript::runtime::devices::links::{Counted, Presence, TransactionCounter};
 use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevice, SimRig};
 use rigscript::script::rig::RigError;
-use rigscript::sim::answer_faults::AnswerFaults;
+use rigscript::sim::faults::answer::AnswerFaults;
 use rigscript::sim::c29u::{
     C29uModel as Model, Eeprom, ModuleConfig, OutputFault, Protocol, WatchdogStatus,
 };

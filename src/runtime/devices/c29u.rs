@@ -17,63 +17,63 @@ pub type ByteReopener = Box<dyn FnMut() -> Result<Box<dyn ByteLink>, LinkError>>
 /// A TRP-C29U in the rig.
 pub struct C29uDevice {
     /// The name scripts use.
-    pub name: String,
+    pub(super) name: String,
     /// Its configuration; the script may change the safe value, power-on value and watchdog.
-    pub config: C29uConfig,
+    pub(super) config: C29uConfig,
     /// The driver, with the configured retries.
-    pub driver: C29u,
+    pub(super) driver: C29u,
     /// A driver on the same line without retries: a lost module costs one timeout per try.
     probe: C29u,
     line: SharedLink,
     reopener: Option<ByteReopener>,
     /// Whether it answers.
-    pub health: Health,
+    pub(super) health: Health,
     /// DI byte (bit n = DIn energized), read lazily.
-    pub inputs: Snapshot<u8>,
+    pub(super) inputs: Snapshot<u8>,
     /// The eight counters, read lazily.
-    pub counters: Snapshot<[u16; 8]>,
+    pub(super) counters: Snapshot<[u16; 8]>,
     /// The latches, read lazily.
-    pub latches: Snapshot<Latches>,
+    pub(super) latches: Snapshot<Latches>,
     /// The DO byte the script wants.
-    pub outputs: u8,
+    pub(super) outputs: u8,
     /// The DO byte last written (`None`: unknown, write again).
     outputs_written: Option<u8>,
     /// The handler that last changed `outputs`, for the log.
-    pub outputs_cause: String,
+    pub(super) outputs_cause: String,
     /// The host watchdog the runner feeds (`None`: none).
-    pub watchdog: Option<WatchdogTimeout>,
+    pub(super) watchdog: Option<WatchdogTimeout>,
     /// The runner turned that watchdog on (and turns it off at a clean end).
-    pub watchdog_ours: bool,
+    pub(super) watchdog_ours: bool,
     /// When the watchdog was last fed.
-    pub last_feed: Duration,
+    pub(super) last_feed: Duration,
     /// The runner has taken control of it (its watchdog is fed from then on).
-    pub controlled: bool,
+    pub(super) controlled: bool,
     /// How late a feed can reach it on this rig (`None`: not worked out, a quarter of the
     /// timeout is used).
-    pub feed_timing: Option<FeedTiming>,
+    pub(super) feed_timing: Option<FeedTiming>,
     /// What the module holds, so that unchanged values are not written again.
-    pub stored: Stored,
+    pub(super) stored: Stored,
     /// Who it is and what it stored when last taken control of, before anything was written.
-    pub found: Option<Found>,
+    pub(super) found: Option<Found>,
     /// Which item the next periodic check reads in turn (`identity::ModuleCheck`).
-    pub check_turn: usize,
+    pub(super) check_turn: usize,
     /// The script reset it (`.reset()`): its reset flag is no news.
-    pub reset_by_script: bool,
+    pub(super) reset_by_script: bool,
     /// Its last output write was refused (not for a safe mode its watchdog explains).
-    pub refusing: bool,
+    pub(super) refusing: bool,
     /// Output writes it refused during the run.
-    pub refused_writes: u64,
+    pub(super) refused_writes: u64,
 }
 
 /// What the module holds in its EEPROM, as last read or written (`None`: not known).
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct Stored {
     /// Its watchdog safe value.
-    pub safe_value: Option<u8>,
+    pub(super) safe_value: Option<u8>,
     /// Its power-on value.
-    pub power_on_value: Option<u8>,
+    pub(super) power_on_value: Option<u8>,
     /// Its host watchdog (`Some(None)`: off).
-    pub watchdog: Option<Option<WatchdogTimeout>>,
+    pub(super) watchdog: Option<Option<WatchdogTimeout>>,
 }
 
 impl C29uDevice {
@@ -114,6 +114,206 @@ impl C29uDevice {
         }
     }
 
+    /// The name scripts use.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Its configuration, with what the script changed since.
+    #[inline]
+    pub fn config(&self) -> &C29uConfig {
+        &self.config
+    }
+
+    /// Its configuration, for a test to change what a rig.toml could not.
+    #[cfg(test)]
+    pub fn config_mut(&mut self) -> &mut C29uConfig {
+        &mut self.config
+    }
+
+    /// The driver, for requests that change nothing the runtime holds of the module (reads,
+    /// the script's own requests).
+    pub fn driver(&mut self) -> &mut C29u {
+        &mut self.driver
+    }
+
+    /// Its link in words.
+    pub fn describe(&self) -> String {
+        self.driver.describe()
+    }
+
+    /// Whether it answers.
+    #[inline]
+    pub fn health(&self) -> &Health {
+        &self.health
+    }
+
+    /// The DI byte as last read.
+    #[inline]
+    pub fn inputs(&self) -> &Snapshot<u8> {
+        &self.inputs
+    }
+
+    /// The counters as last read.
+    #[inline]
+    pub fn counters(&self) -> &Snapshot<[u16; 8]> {
+        &self.counters
+    }
+
+    /// The latches as last read.
+    #[inline]
+    pub fn latches(&self) -> &Snapshot<Latches> {
+        &self.latches
+    }
+
+    /// The DO byte the script wants.
+    #[inline]
+    pub fn wanted_outputs(&self) -> u8 {
+        self.outputs
+    }
+
+    /// The DO byte to drive: the safe value while every output is held safe, else what the
+    /// script wants with an operator's force (`force`) over it.
+    #[inline]
+    pub fn outputs_to_write(&self, held: bool, force: impl FnOnce(u8) -> u8) -> u8 {
+        if held {
+            self.config.safe_value
+        } else {
+            force(self.outputs)
+        }
+    }
+
+    /// The handler that last changed the DO byte the script wants ("": none yet).
+    pub fn outputs_cause(&self) -> &str {
+        &self.outputs_cause
+    }
+
+    /// The script wants `value` on the outputs, for `cause` (kept only if it is a change).
+    #[inline]
+    pub fn want_outputs(&mut self, value: u8, cause: String) {
+        if self.outputs != value {
+            self.outputs = value;
+            self.outputs_cause = cause;
+        }
+    }
+
+    /// The next write of the outputs is for `cause` (an operator's force ended).
+    pub fn credit_outputs_to(&mut self, cause: String) {
+        self.outputs_cause = cause;
+    }
+
+    /// The host watchdog the runner feeds (`None`: none).
+    pub fn watchdog(&self) -> Option<WatchdogTimeout> {
+        self.watchdog
+    }
+
+    /// The host watchdog the runner turned on (and turns off at a clean end), if it did.
+    pub fn watchdog_turned_on(&self) -> Option<WatchdogTimeout> {
+        self.watchdog.filter(|_| self.watchdog_ours)
+    }
+
+    /// Whether the runner has taken control of it (and feeds its watchdog).
+    pub fn controlled(&self) -> bool {
+        self.controlled
+    }
+
+    /// Who it was and what it stored when last taken control of.
+    pub fn found(&self) -> Option<&Found> {
+        self.found.as_ref()
+    }
+
+    /// Whether its last output write was refused (not for a safe mode its watchdog explains).
+    pub fn refusing(&self) -> bool {
+        self.refusing
+    }
+
+    /// Output writes it refused during the run.
+    pub fn refused_writes(&self) -> u64 {
+        self.refused_writes
+    }
+
+    /// It refused an output write: what it drives is not known (written again), and the
+    /// refusal is counted.
+    pub fn note_refused(&mut self) {
+        self.outputs_written = None;
+        self.refusing = true;
+        self.refused_writes = self.refused_writes.saturating_add(1);
+    }
+
+    /// Resets the module (the script's `.reset()`): it comes back at its power-on value, so
+    /// the outputs are written again at the end of the tick, and the periodic check knows
+    /// this reset.
+    pub fn reset_module(&mut self) -> Result<(), DeviceError> {
+        self.driver.reset()?;
+        self.outputs_written = None;
+        self.reset_by_script = true;
+        Ok(())
+    }
+
+    /// Clears counter `channel` on the module and in the last reading.
+    pub fn clear_counter(&mut self, channel: u8) -> Result<(), DeviceError> {
+        self.driver.clear_counter(channel)?;
+        if let Some(slot) = self
+            .counters
+            .current
+            .as_mut()
+            .and_then(|v| v.get_mut(usize::from(channel)))
+        {
+            *slot = 0;
+        }
+        Ok(())
+    }
+
+    /// Clears every counter on the module and in the last reading.
+    pub fn clear_counters(&mut self) -> Result<(), DeviceError> {
+        self.driver.clear_counters()?;
+        if let Some(v) = self.counters.current.as_mut() {
+            *v = [0; 8];
+        }
+        Ok(())
+    }
+
+    /// Clears the latches on the module and in the last reading.
+    pub fn clear_latches(&mut self) -> Result<(), DeviceError> {
+        self.driver.clear_latches()?;
+        if let Some(l) = self.latches.current.as_mut() {
+            *l = Latches::default();
+        }
+        Ok(())
+    }
+
+    /// Puts forced inputs (`force`) over the last reading.
+    pub fn force_inputs(&mut self, force: impl FnOnce(u8) -> u8) {
+        if let Some(v) = self.inputs.current {
+            self.inputs.current = Some(force(v));
+        }
+    }
+
+    /// The inputs are read again at their next access, even in this tick (a force changed).
+    pub fn reread_inputs(&mut self) {
+        self.inputs.tick = None;
+    }
+
+    /// The driver to write and confirm the safe value with (`single`: without retries, at
+    /// the end), and the safe value.
+    pub fn safe_driver(&mut self, single: bool) -> (&mut C29u, u8) {
+        let safe = self.config.safe_value;
+        (
+            if single {
+                &mut self.probe
+            } else {
+                &mut self.driver
+            },
+            safe,
+        )
+    }
+
+    /// Whether the safe value was confirmed on the outputs (`false`: what they hold is not
+    /// what the runner wants, written again).
+    pub fn note_safe_state(&mut self, confirmed: bool) {
+        self.outputs_written = confirmed.then_some(self.config.safe_value);
+    }
+
     /// Reads the inputs into the snapshot at `tick`.
     pub fn read_inputs(&mut self, tick: u64) -> Result<u8, DeviceError> {
         let v = self.driver.read_inputs()?;
@@ -150,7 +350,7 @@ impl C29uDevice {
 
     /// The module was seen to drive `value` by a write other than `write_outputs` (a
     /// takeover's step, the safe state confirmed).
-    pub fn note_outputs_written(&mut self, value: u8) {
+    pub(super) fn note_outputs_written(&mut self, value: u8) {
         self.outputs_written = Some(value);
     }
 
@@ -241,12 +441,6 @@ impl C29uDevice {
             safe_value: self.stored.safe_value.unwrap_or(f.safe_value),
             power_on_value: self.stored.power_on_value.unwrap_or(f.power_on_value),
         })
-    }
-
-    /// The driver on the same line without retries: one try costs one timeout (the end of a
-    /// run gives each device a bounded time).
-    pub fn single_try_driver(&mut self) -> &mut C29u {
-        &mut self.probe
     }
 
     /// Turns off the watchdog the runner turned on (at a clean end, outputs already safe), in

@@ -12,9 +12,10 @@ mod trc;
 
 pub mod links;
 
+/// Where callers not yet composing their own run find the opener of a (partly) simulated rig.
 pub use c29u::{C29uDevice, Stored};
 pub use identity::{watchdog_words, CheckFinding, Found, ModuleCheck};
-pub use open::{c29u_options, open_devices, OpenError, Opened};
+pub use open::{c29u_options, open_devices_with, OpenError, Opened, SimLinks};
 pub use settings::SettingRefused;
 pub use sim::{FieldError, SimDevice, SimRig, SwappedModule};
 pub use takeover::{ControlNotes, Takeover};
@@ -93,24 +94,82 @@ impl DeviceError {
 #[derive(Debug, Clone, Default)]
 pub struct Health {
     /// When it stopped answering (`None` while it answers).
-    pub lost_at: Option<Duration>,
+    pub(super) lost_at: Option<Duration>,
     /// When to try it again.
-    pub next_retry: Duration,
+    pub(super) next_retry: Duration,
     /// Why it stopped answering.
-    pub cause: String,
+    pub(super) cause: String,
     /// The link itself failed: reopen it before trying again.
-    pub link_failed: bool,
+    pub(super) link_failed: bool,
     /// When it last answered (as far as the runner noted: reads, commands, feeds, probes).
-    pub heard_at: Duration,
+    pub(super) heard_at: Duration,
     /// The tick the script last read it in (0: none): a device read every tick is left to
     /// the next tick's read rather than asked between ticks.
-    pub read_tick: u64,
+    pub(super) read_tick: u64,
 }
 
 impl Health {
     /// Whether the device answers.
     pub fn online(&self) -> bool {
         self.lost_at.is_none()
+    }
+
+    /// When it stopped answering (`None` while it answers).
+    pub fn lost_at(&self) -> Option<Duration> {
+        self.lost_at
+    }
+
+    /// When to try it again (while lost).
+    #[inline]
+    pub fn next_retry(&self) -> Duration {
+        self.next_retry
+    }
+
+    /// Why it stopped answering.
+    pub fn cause(&self) -> &str {
+        &self.cause
+    }
+
+    /// Whether the link itself failed: reopen it before trying again.
+    pub fn link_failed(&self) -> bool {
+        self.link_failed
+    }
+
+    /// When it last answered (as far as the runner noted).
+    #[inline]
+    pub fn heard_at(&self) -> Duration {
+        self.heard_at
+    }
+
+    /// Whether the script read it in `tick` (0: none).
+    #[inline]
+    pub fn read_in(&self, tick: u64) -> bool {
+        self.read_tick == tick && tick > 0
+    }
+
+    /// It answered at `at`.
+    #[inline]
+    pub fn heard(&mut self, at: Duration) {
+        self.heard_at = self.heard_at.max(at);
+    }
+
+    /// The script read it in `tick`.
+    #[inline]
+    pub fn note_read(&mut self, tick: u64) {
+        self.read_tick = tick;
+    }
+
+    /// A try of it while lost failed with `error`: tried again at `retry_at`.
+    pub fn note_try_failed(&mut self, error: &DeviceError, retry_at: Duration) {
+        self.next_retry = retry_at;
+        self.link_failed = self.link_failed || error.is_link_failure();
+    }
+
+    /// Moves a retry time already past at `now` on by `interval` (while lost).
+    pub fn put_off_retry(&mut self, now: Duration, interval: Duration) {
+        if !self.online() && self.next_retry <= now {
+            self.next_retry = now.saturating_add(interval);
+        }
     }
 
     /// Marks the device lost at `now` (keeps the first time); true if it was online.
@@ -247,6 +306,23 @@ impl Device {
         match self {
             Device::Trc(_) => "TRC1000",
             Device::C29u(_) => "TRP-C29U",
+        }
+    }
+
+    /// Its link in words.
+    pub fn describe(&self) -> String {
+        match self {
+            Device::Trc(d) => d.describe(),
+            Device::C29u(d) => d.describe(),
+        }
+    }
+
+    /// The script wants the safe values again (a restarted script starts from them); a
+    /// TRC1000 without a safe relay keeps its relay.
+    pub fn want_safe_state(&mut self) {
+        match self {
+            Device::Trc(d) => d.relay = d.config.safe_relay.unwrap_or(d.relay),
+            Device::C29u(d) => d.outputs = d.config.safe_value,
         }
     }
 

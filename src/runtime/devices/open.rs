@@ -1,8 +1,9 @@
 //! Makes the rig's devices from rig.toml: real drivers over real links, or (`--sim`, scenario
-//! tests) the same drivers over in-memory links to simulators.
+//! tests) the same drivers over the links to simulators that the composition root opens
+//! (`SimLinks`: the runtime builds no simulator).
 
 use super::c29u::{ByteReopener, C29uDevice};
-use super::links::{Counted, Presence, TransactionCounter, Unpluggable};
+use super::links::{Counted, TransactionCounter};
 use super::sim::{SimDevice, SimRig};
 use super::trc::{PacketReopener, TrcDevice};
 use super::{Device, DeviceError};
@@ -10,18 +11,12 @@ use crate::config::feeding::{feed_timing, TRC1000_TIMEOUT};
 use crate::config::{C29uConfig, DeviceConfig, Port, RigConfig, Trc1000Address, Trc1000Config};
 use crate::device::c29u::{open_port, share, C29u, C29uOptions, SharedLink};
 use crate::device::trc1000::{Trc1000, Trc1000Error};
-use crate::link::memory::{MemoryByteLink, MemoryPacketLink};
 use crate::link::tcp::TcpLink;
 use crate::link::usb::{UsbPacketLink, UsbTarget};
 use crate::link::{ByteLink, PacketLink};
-use crate::protocol::c29u::baud_code;
-use crate::sim::answer_faults::{AnswerFaults, Faulty};
-use crate::sim::c29u::{C29uModel, Eeprom, ModuleConfig};
-use crate::sim::c29u_line::SimulatedC29u;
-use crate::sim::trc1000::Trc1000Sim;
 use crate::time::clock::SharedClock;
 use std::collections::BTreeMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 /// A device that could not be opened.
 #[derive(Debug, thiserror::Error)]
@@ -42,13 +37,37 @@ pub struct Opened {
     pub sim: SimRig,
 }
 
-/// Opens every device `config` names: simulators for all when `simulate`, and for those it
-/// marks simulated (`RigConfig::is_simulated`) in any case. Every request is counted in `count`.
-pub fn open_devices(
+/// Opens the links to simulated devices: made where a run is composed (`sim::rig`), so that
+/// the runtime drives a simulator as it drives hardware, through a link.
+pub trait SimLinks {
+    /// A simulated TRC1000 called `name`: the link its driver talks over (every request
+    /// counted in `count`: `links::Counted`), and its field side.
+    fn trc(
+        &mut self,
+        name: &str,
+        clock: &SharedClock,
+        count: &TransactionCounter,
+    ) -> (Box<dyn PacketLink>, SimDevice);
+    /// A simulated TRP-C29U called `name`, set up as `config` has it: the link its drivers
+    /// talk over (counted as `trc`'s), and its field side.
+    fn c29u(
+        &mut self,
+        name: &str,
+        config: &C29uConfig,
+        clock: &SharedClock,
+        count: &TransactionCounter,
+    ) -> (Box<dyn ByteLink>, SimDevice);
+}
+
+/// Opens every device `config` names: over the links `sims` opens for all when `simulate`,
+/// and for those it marks simulated (`RigConfig::is_simulated`) in any case. Every request is
+/// counted in `count`.
+pub fn open_devices_with(
     config: &RigConfig,
     clock: &SharedClock,
     simulate: bool,
     count: &TransactionCounter,
+    sims: &mut dyn SimLinks,
 ) -> Result<Opened, OpenError> {
     let mut devices = Vec::new();
     let mut sim = SimRig::default();
@@ -57,13 +76,13 @@ pub fn open_devices(
         let simulate = simulate || config.is_simulated(name);
         let mut opened = match device {
             DeviceConfig::Trc1000(c) if simulate => {
-                let (d, s) = simulated_trc(name, c, clock, count);
+                let (d, s) = simulated_trc(name, c, clock, count, sims);
                 sim.insert(name, s);
                 Device::Trc(Box::new(d))
             }
             DeviceConfig::Trc1000(c) => Device::Trc(Box::new(real_trc(name, c, clock, count)?)),
             DeviceConfig::C29u(c) if simulate => {
-                let (d, s) = simulated_c29u(name, c, clock, count)?;
+                let (d, s) = simulated_c29u(name, c, clock, count, sims)?;
                 sim.insert(name, s);
                 Device::C29u(Box::new(d))
             }
@@ -91,34 +110,12 @@ fn simulated_trc(
     config: &Trc1000Config,
     clock: &SharedClock,
     count: &TransactionCounter,
+    sims: &mut dyn SimLinks,
 ) -> (TrcDevice, SimDevice) {
-    let board = Arc::new(Mutex::new(Trc1000Sim::new()));
-    let presence = Presence::new();
-    let faults = AnswerFaults::default();
-    let link = MemoryPacketLink::new(
-        Unpluggable::new(
-            Faulty::new(Arc::clone(&board), faults.clone()),
-            presence.clone(),
-        )
-        .with_clock(Arc::clone(clock)),
-        format!("TRC1000 {name}"),
-    )
-    .with_clock(Arc::clone(clock))
-    .deliver_with({
-        let faults = faults.clone();
-        move || faults.take_delivery()
-    });
-    let link: Box<dyn PacketLink> = Box::new(Counted::new(link, Arc::clone(count)));
+    let (link, sim) = sims.trc(name, clock, count);
     let mut driver = Trc1000::with_clock(link, Arc::clone(clock));
     driver.set_timeout(TRC1000_TIMEOUT);
-    (
-        TrcDevice::new(name, config.clone(), driver, None),
-        SimDevice::Trc {
-            board,
-            presence,
-            faults,
-        },
-    )
+    (TrcDevice::new(name, config.clone(), driver, None), sim)
 }
 
 fn real_trc(
@@ -181,39 +178,14 @@ fn simulated_c29u(
     c: &C29uConfig,
     clock: &SharedClock,
     count: &TransactionCounter,
+    sims: &mut dyn SimLinks,
 ) -> Result<(C29uDevice, SimDevice), OpenError> {
-    let eeprom = Eeprom {
-        config: ModuleConfig {
-            id: c.id,
-            baud_code: baud_code(c.baud).unwrap_or(ModuleConfig::factory().baud_code),
-            checksum: c.checksum,
-            ..ModuleConfig::factory()
-        },
-        ..Eeprom::factory()
-    };
-    let module = SimulatedC29u::new(C29uModel::new(c.protocol, Arc::clone(clock), eeprom));
-    let model = module.model();
-    let presence = Presence::new();
-    let faults = AnswerFaults::default();
-    let link = MemoryByteLink::new(
-        Unpluggable::new(Faulty::new(module, faults.clone()), presence.clone())
-            .with_clock(Arc::clone(clock)),
-        format!("TRP-C29U {name}"),
-    )
-    .with_clock(Arc::clone(clock))
-    .delay_answers({
-        let faults = faults.clone();
-        move |_| faults.take_delivery().late
-    });
-    let line = share(Box::new(Counted::new(link, Arc::clone(count))));
+    let (link, sim) = sims.c29u(name, c, clock, count);
+    let line = share(link);
     let (driver, probe) = drivers(name, c, &line, clock)?;
     Ok((
         C29uDevice::new(name, c.clone(), driver, probe, line, None),
-        SimDevice::C29u {
-            model,
-            presence,
-            faults,
-        },
+        sim,
     ))
 }
 

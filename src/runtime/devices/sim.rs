@@ -3,7 +3,7 @@
 
 use super::links::Presence;
 use crate::protocol::c29u::FirmwareDate;
-use crate::sim::answer_faults::{AnswerFault, AnswerFaults};
+use crate::sim::faults::answer::{AnswerFault, AnswerFaults};
 use crate::sim::c29u::{Eeprom, OutputFault, WatchdogStatus};
 use crate::sim::c29u_line::{lock, SharedModel};
 use crate::sim::trc1000::Trc1000Sim;
@@ -220,7 +220,7 @@ impl SimRig {
     }
 
     /// Drops, garbles, delays or (on a module) duplicates the next `n` answers of a simulated
-    /// device; returns how many were queued (`answer_faults::MAX_QUEUED` wait at most).
+    /// device; returns how many were queued (`sim::faults::answer::MAX_QUEUED` wait at most).
     pub fn fault_answers(
         &self,
         dev: &str,

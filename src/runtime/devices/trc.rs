@@ -13,19 +13,19 @@ pub type PacketReopener = Box<dyn FnMut() -> Result<Box<dyn PacketLink>, LinkErr
 /// A TRC1000 in the rig.
 pub struct TrcDevice {
     /// The name scripts use.
-    pub name: String,
+    pub(super) name: String,
     /// Its configuration (safe relay).
-    pub config: Trc1000Config,
+    pub(super) config: Trc1000Config,
     /// The driver.
-    pub driver: Trc1000<Box<dyn PacketLink>>,
+    pub(super) driver: Trc1000<Box<dyn PacketLink>>,
     reopener: Option<PacketReopener>,
     /// Whether it answers.
-    pub health: Health,
+    pub(super) health: Health,
     /// The 45 switches, read lazily.
-    pub switches: Snapshot<SwitchSet>,
+    pub(super) switches: Snapshot<SwitchSet>,
     /// The 14 rotary counters, read lazily, as the script sees them (the board's plus
     /// `rotary_offset`).
-    pub rotaries: Snapshot<RotaryValues>,
+    pub(super) rotaries: Snapshot<RotaryValues>,
     /// Added (wrapping) to each count the board reports, so that the counts the script sees
     /// carry on across a loss: a board power cycled comes back counting from 0, and that is
     /// no turn of a knob.
@@ -34,14 +34,14 @@ pub struct TrcDevice {
     /// it shows the counts last seen.
     rebase_pending: bool,
     /// The relay the script wants (0-7).
-    pub relay: u8,
+    pub(super) relay: u8,
     /// The relay last selected on the board (`None`: unknown, select again).
-    pub relay_written: Option<u8>,
+    pub(super) relay_written: Option<u8>,
     /// The relay last selected, even when no longer trusted: selecting it again (after the
     /// periodic check, or a return) is not news for the log.
-    pub relay_last: Option<u8>,
+    pub(super) relay_last: Option<u8>,
     /// The handler that last changed `relay`, for the log.
-    pub relay_cause: String,
+    pub(super) relay_cause: String,
 }
 
 impl TrcDevice {
@@ -66,6 +66,123 @@ impl TrcDevice {
             relay_written: None,
             relay_last: None,
             relay_cause: String::new(),
+        }
+    }
+
+    /// The name scripts use.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Its configuration.
+    #[inline]
+    pub fn config(&self) -> &Trc1000Config {
+        &self.config
+    }
+
+    /// The driver, for requests that change nothing the runtime holds of the board.
+    pub fn driver(&mut self) -> &mut Trc1000<Box<dyn PacketLink>> {
+        &mut self.driver
+    }
+
+    /// Its link in words.
+    pub fn describe(&self) -> String {
+        self.driver.describe()
+    }
+
+    /// Whether it answers.
+    #[inline]
+    pub fn health(&self) -> &Health {
+        &self.health
+    }
+
+    /// The switches as last read.
+    #[inline]
+    pub fn switches(&self) -> &Snapshot<SwitchSet> {
+        &self.switches
+    }
+
+    /// The rotaries as last read (as the script sees them).
+    #[inline]
+    pub fn rotaries(&self) -> &Snapshot<RotaryValues> {
+        &self.rotaries
+    }
+
+    /// The relay the script wants (0-7).
+    #[inline]
+    pub fn wanted_relay(&self) -> u8 {
+        self.relay
+    }
+
+    /// The handler that last changed the relay the script wants ("": none yet).
+    pub fn relay_cause(&self) -> &str {
+        &self.relay_cause
+    }
+
+    /// The relay last selected on the board (`None`: unknown, selected again).
+    #[inline]
+    pub fn relay_written(&self) -> Option<u8> {
+        self.relay_written
+    }
+
+    /// The relay last selected, even when no longer trusted.
+    pub fn relay_last(&self) -> Option<u8> {
+        self.relay_last
+    }
+
+    /// The script wants `relay`, for `cause` (kept only if it is a change).
+    #[inline]
+    pub fn want_relay(&mut self, relay: u8, cause: String) {
+        if self.relay != relay {
+            self.relay = relay;
+            self.relay_cause = cause;
+        }
+    }
+
+    /// The next selection of the relay is for `cause` (an operator's force ended).
+    pub fn credit_relay_to(&mut self, cause: String) {
+        self.relay_cause = cause;
+    }
+
+    /// The relay on the board is not known any more: the next write selects it again.
+    #[cfg(test)]
+    pub fn forget_relay_written(&mut self) {
+        self.relay_written = None;
+    }
+
+    /// Taking control of it (again): the relay on the board is not known, and the counts
+    /// it reports next are rebased to the ones last seen (`rebase_rotaries`).
+    pub fn note_taking_control(&mut self) {
+        self.relay_written = None;
+        self.rebase_rotaries();
+    }
+
+    /// Puts forced switches (`force`) over the last reading.
+    pub fn force_switches(&mut self, force: impl FnOnce(SwitchSet) -> SwitchSet) {
+        if let Some(v) = self.switches.current {
+            self.switches.current = Some(force(v));
+        }
+    }
+
+    /// The switches are read again at their next access, even in this tick (a force
+    /// changed).
+    pub fn reread_switches(&mut self) {
+        self.switches.tick = None;
+    }
+
+    /// The driver to select and confirm the safe relay with, and that relay (`None`: no
+    /// safe relay is set). What the board holds is not known until `note_safe_state`.
+    pub fn safe_driver(&mut self) -> Option<(&mut Trc1000<Box<dyn PacketLink>>, u8)> {
+        let relay = self.config.safe_relay?;
+        self.relay_written = None;
+        Some((&mut self.driver, relay))
+    }
+
+    /// Whether the safe relay was confirmed selected.
+    pub fn note_safe_state(&mut self, confirmed: bool) {
+        if let (true, Some(relay)) = (confirmed, self.config.safe_relay) {
+            self.relay_written = Some(relay);
+            self.relay_last = Some(relay);
         }
     }
 
@@ -104,7 +221,7 @@ impl TrcDevice {
     /// Taken control of again after a loss (or at start): the counts the board reports next
     /// are the ones last seen, whatever it counts from now (a power cycle resets its counts;
     /// turns made while it was lost are not seen either: the runner cannot tell them apart).
-    pub fn rebase_rotaries(&mut self) {
+    fn rebase_rotaries(&mut self) {
         self.rebase_pending = true;
     }
 

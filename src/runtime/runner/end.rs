@@ -84,7 +84,7 @@ impl<P: Program> Runner<P> {
         self.trouble.refused_writes = rt
             .devices
             .iter_mut()
-            .filter_map(|d| d.as_c29u().map(|c| c.refused_writes))
+            .filter_map(|d| d.as_c29u().map(|c| c.refused_writes()))
             .sum();
         self.trouble.lost_at_end = rt
             .devices

@@ -57,19 +57,19 @@ impl<H: Clone> Runtime<H> {
     fn describe_control(&mut self, idx: usize) -> String {
         match self.devices.get_mut(idx) {
             Some(Device::C29u(d)) => {
-                let wd = match d.watchdog {
+                let wd = match d.watchdog() {
                     Some(t) => format!("host watchdog {}", format_duration(t.as_duration())),
                     None => "no host watchdog".into(),
                 };
                 format!(
                     "{}, outputs at safe value {:#04x}, {wd}",
-                    d.driver.describe(),
-                    d.config.safe_value
+                    d.describe(),
+                    d.config().safe_value
                 )
             }
-            Some(Device::Trc(d)) => match d.config.safe_relay {
-                Some(r) => format!("{}, relay at safe position {r}", d.driver.describe()),
-                None => format!("{} (no safe relay set)", d.driver.describe()),
+            Some(Device::Trc(d)) => match d.config().safe_relay {
+                Some(r) => format!("{}, relay at safe position {r}", d.describe()),
+                None => format!("{} (no safe relay set)", d.describe()),
             },
             None => String::new(),
         }
@@ -138,20 +138,17 @@ impl<H: Clone> Runtime<H> {
         let held = self.held_safe;
         let forces = &self.forces;
         let mut takeover = match self.devices.get_mut(idx) {
-            Some(Device::C29u(d)) => Takeover::new(if held {
-                d.config.safe_value
-            } else {
-                forces.outputs(idx, d.outputs)
-            }),
+            Some(Device::C29u(d)) => {
+                Takeover::new(d.outputs_to_write(held, |v| forces.outputs(idx, v)))
+            }
             Some(Device::Trc(d)) => {
-                d.relay_written = None;
-                d.rebase_rotaries();
+                d.note_taking_control();
                 d.probe()?;
-                if let Some(safe) = d.config.safe_relay {
+                if let Some(safe) = d.config().safe_relay {
                     d.select_relay(if held {
                         safe
                     } else {
-                        forces.relay(idx, d.relay)
+                        forces.relay(idx, d.wanted_relay())
                     })?;
                 }
                 return Ok(Vec::new());
@@ -173,7 +170,8 @@ impl<H: Clone> Runtime<H> {
                 "{}: its power-on value {v:#04x} is not its safe value {:#04x}, and rig.toml \
                  sets none: after a power cycle it drives {v:#04x} until the runner notices \
                  (the next device check, within 5s); set power_on_value in rig.toml",
-                d.name, d.config.safe_value
+                d.name(),
+                d.config().safe_value
             );
             self.log_mut().warn(&line);
         }
@@ -195,14 +193,14 @@ impl<H: Clone> Runtime<H> {
     /// expected there (`before`): another module, or one changed behind its back.
     fn log_differences(&mut self, idx: usize, before: Option<&Found>) {
         let Some(d) = self.c29u(idx) else { return };
-        let (Some(before), Some(found)) = (before, d.found.as_ref()) else {
+        let (Some(before), Some(found)) = (before, d.found()) else {
             return;
         };
         let differs = found.differences(before);
         if !differs.is_empty() {
             let line = format!(
                 "{}: the module taken control of differs from the one before: {}",
-                d.name,
+                d.name(),
                 differs.join(", ")
             );
             self.log_mut().warn(&line);
@@ -214,7 +212,7 @@ impl<H: Clone> Runtime<H> {
         let Some(d) = self.c29u(idx) else {
             return Vec::new();
         };
-        let name = &d.name;
+        let name = &d.name();
         let mut lines = Vec::new();
         if notes.left_safe_mode {
             lines.push(format!(
@@ -225,10 +223,10 @@ impl<H: Clone> Runtime<H> {
         if let Some(was) = notes.safe_value_was {
             lines.push(format!(
                 "{name}: stored safe value {was:#04x} -> {:#04x}",
-                d.config.safe_value
+                d.config().safe_value
             ));
         }
-        if let (Some(was), Some(v)) = (notes.power_on_value_was, d.config.power_on_value) {
+        if let (Some(was), Some(v)) = (notes.power_on_value_was, d.config().power_on_value) {
             lines.push(format!(
                 "{name}: stored power-on value {was:#04x} -> {v:#04x}"
             ));
@@ -270,7 +268,7 @@ mod tests {
         let seen = Arc::clone(&writes);
         r.rt.c29u(IO)
             .unwrap()
-            .driver
+            .driver()
             .set_tracer(Some(Box::new(move |dir, frame| {
                 if let (Direction::Sent, Ok((_, Request::WriteOutputs(v)))) =
                     (dir, decode_request(frame, true))
@@ -301,7 +299,7 @@ mod tests {
         // rig.toml refuses it first (config::device); taking control refuses it too, for a
         // configuration made some other way.
         let mut r = ascii_rig(0x05);
-        r.rt.c29u(IO).unwrap().config.power_on_value = Some(0x11);
+        r.rt.c29u(IO).unwrap().config_mut().power_on_value = Some(0x11);
         let writes = output_writes(&mut r);
         let e = r.rt.start_devices().unwrap_err().to_string();
         assert!(e.contains("would drive its outputs to 0x11"), "{e}");
@@ -337,8 +335,8 @@ mod tests {
         let mut r = TestRig::started();
         let at_start = r.log().matches("stored").count();
         let io = r.rt.c29u(IO).unwrap();
-        io.driver.set_safe_value(0x09).unwrap();
-        io.driver.set_power_on_value(0x11).unwrap();
+        io.driver().set_safe_value(0x09).unwrap();
+        io.driver().set_power_on_value(0x11).unwrap();
         assert!(r.rt.take_control(IO));
         assert_eq!(r.sim.safe_value("io").unwrap(), 0x05);
         let log = r.log();
@@ -358,8 +356,8 @@ mod tests {
         let rig = RIG.replace("watchdog = \"1s\"\n", "");
         let mut r = TestRig::new(&rig);
         let io = r.rt.c29u(IO).unwrap();
-        io.driver.set_safe_value(0x0A).unwrap();
-        io.driver
+        io.driver().set_safe_value(0x0A).unwrap();
+        io.driver()
             .set_watchdog(Some(Duration::from_millis(500)))
             .unwrap();
         r.clock.advance(Duration::from_secs(1));
@@ -425,7 +423,7 @@ mod tests {
         let mut r = TestRig::new(&rig);
         r.rt.c29u(IO)
             .unwrap()
-            .driver
+            .driver()
             .set_power_on_value(0x05)
             .unwrap();
         r.rt.start_devices().unwrap();
@@ -472,7 +470,7 @@ mod tests {
     #[test]
     fn taking_control_again_leaves_safe_mode_and_writes_the_scripts_outputs() {
         let mut r = TestRig::started();
-        r.rt.c29u(IO).unwrap().outputs = 0x60;
+        r.rt.set_outputs(IO, 0x60);
         r.clock.advance(Duration::from_secs(2));
         assert!(r.sim.safe_mode("io").unwrap());
         assert!(r.rt.take_control(IO));
@@ -489,7 +487,7 @@ mod tests {
     #[test]
     fn taking_control_while_held_safe_writes_the_safe_value() {
         let mut r = TestRig::started();
-        r.rt.c29u(IO).unwrap().outputs = 0x60;
+        r.rt.set_outputs(IO, 0x60);
         r.rt.held_safe = true;
         assert!(r.rt.take_control(IO));
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);

@@ -33,8 +33,7 @@ impl<H: Clone> Runtime<H> {
     /// Notes that the device at `idx` answered at `at` (it needs no probe for a while).
     pub fn heard(&mut self, idx: usize, at: Duration) {
         if let Some(d) = self.devices.get_mut(idx) {
-            let h = d.health_mut();
-            h.heard_at = h.heard_at.max(at);
+            d.health_mut().heard(at);
         }
     }
 
@@ -47,11 +46,11 @@ impl<H: Clone> Runtime<H> {
         if !h.online() {
             return None;
         }
-        let read_now = h.read_tick == self.cycle().tick() && self.cycle().tick() > 0;
-        if read_now && next_tick <= h.heard_at.saturating_add(self.grace / 2) {
+        let read_now = h.read_in(self.cycle().tick());
+        if read_now && next_tick <= h.heard_at().saturating_add(self.grace / 2) {
             return None;
         }
-        Some(h.heard_at.saturating_add(self.probe_interval()))
+        Some(h.heard_at().saturating_add(self.probe_interval()))
     }
 
     /// When the loop next has to look at the links or probe a device (`None`: no device has
@@ -136,7 +135,11 @@ impl<H: Clone> Runtime<H> {
             return;
         }
         let result = match self.devices.get_mut(idx) {
-            Some(Device::C29u(d)) => d.driver.read_outputs().map(drop).map_err(DeviceError::from),
+            Some(Device::C29u(d)) => d
+                .driver()
+                .read_outputs()
+                .map(drop)
+                .map_err(DeviceError::from),
             Some(Device::Trc(d)) => d.probe(),
             None => return,
         };
@@ -171,10 +174,7 @@ fn has_watch(d: &Device) -> bool {
 
 /// The link of a device in words, for the loss's log line.
 fn link_name(d: &Device) -> String {
-    match d {
-        Device::C29u(c) => c.driver.describe(),
-        Device::Trc(t) => t.driver.describe(),
-    }
+    d.describe()
 }
 
 #[cfg(test)]
@@ -191,7 +191,7 @@ mod tests {
             "grace 1 s"
         );
         // Nobody reads the panel; the module is heard at each feed of its watchdog.
-        let due = r.rt.devices[PANEL].health().heard_at + r.rt.probe_interval();
+        let due = r.rt.devices[PANEL].health().heard_at() + r.rt.probe_interval();
         assert!(r
             .rt
             .next_liveness(Duration::MAX)
@@ -207,7 +207,7 @@ mod tests {
         let now = r.rt.now();
         r.rt.watch_liveness(now, Duration::MAX);
         assert_eq!(r.requests(), before + 1, "one question to the panel");
-        assert_eq!(r.rt.devices[PANEL].health().heard_at, now);
+        assert_eq!(r.rt.devices[PANEL].health().heard_at(), now);
         // It goes silent: asked again a quarter of the grace time on, and lost then, not at the next
         // device check.
         r.sim.set_gone("panel", true).unwrap();
@@ -232,7 +232,7 @@ mod tests {
             r.rt.watch_liveness(now, Duration::MAX);
             // The read, and the module's feed when it falls due: never a probe of the panel.
             assert!(r.requests() - before <= 2);
-            assert!(r.rt.devices[PANEL].health().heard_at == now);
+            assert!(r.rt.devices[PANEL].health().heard_at() == now);
         }
     }
 

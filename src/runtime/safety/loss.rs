@@ -19,7 +19,7 @@ pub const RETRY_INTERVAL: Duration = Duration::from_secs(1);
 /// once a second, so a device that is really gone costs one timeout a second.
 fn first_retry(d: &Device) -> Duration {
     match d {
-        Device::C29u(c) if c.controlled => c
+        Device::C29u(c) if c.controlled() => c
             .feed_interval()
             .map_or(RETRY_INTERVAL, |feed| feed.min(RETRY_INTERVAL)),
         _ => RETRY_INTERVAL,
@@ -66,7 +66,7 @@ impl<H: Clone> Runtime<H> {
             .iter()
             .map(Device::health)
             .filter(|h| !h.online())
-            .map(|h| h.next_retry)
+            .map(|h| h.next_retry())
             .min()
     }
 
@@ -84,7 +84,7 @@ impl<H: Clone> Runtime<H> {
             let due = self
                 .devices
                 .get(idx)
-                .is_some_and(|d| !d.health().online() && now >= d.health().next_retry);
+                .is_some_and(|d| !d.health().online() && now >= d.health().next_retry());
             if !due {
                 continue;
             }
@@ -93,7 +93,7 @@ impl<H: Clone> Runtime<H> {
                 continue;
             };
             let health = d.health();
-            let reopen = health.link_failed;
+            let reopen = health.link_failed();
             let tried = if reopen { d.reopen() } else { Ok(()) };
             let tried = tried.and_then(|()| match d {
                 Device::C29u(c) => c.probe(),
@@ -119,17 +119,12 @@ impl<H: Clone> Runtime<H> {
                     } else if let Some(d) = self.devices.get_mut(idx) {
                         // Only a lost answer moves the retry time on (`note_failure`); after a
                         // refusal it would stay past, and the device be tried every tick.
-                        let h = d.health_mut();
-                        if !h.online() && h.next_retry <= now {
-                            h.next_retry = now.saturating_add(RETRY_INTERVAL);
-                        }
+                        d.health_mut().put_off_retry(now, RETRY_INTERVAL);
                     }
                 }
                 Err(e) => {
                     let retry = now.saturating_add(RETRY_INTERVAL);
-                    let h = d.health_mut();
-                    h.next_retry = retry;
-                    h.link_failed = h.link_failed || e.is_link_failure();
+                    d.health_mut().note_try_failed(&e, retry);
                 }
             }
         }
@@ -146,7 +141,7 @@ impl<H: Clone> Runtime<H> {
         let first_lost = self
             .devices
             .iter()
-            .filter_map(|d| d.health().lost_at)
+            .filter_map(|d| d.health().lost_at())
             .min()?;
         // Held once lost for longer than the grace time, as `check_grace` has it.
         Some(
@@ -246,7 +241,7 @@ mod tests {
         assert_eq!(r.requests(), before + 1, "one try, no retries");
         assert!(!r.rt.online(IO));
         r.sim.set_gone("io", false).unwrap();
-        r.rt.c29u(IO).unwrap().outputs = 0x0C;
+        r.rt.set_outputs(IO, 0x0C);
         r.clock.advance(RETRY_INTERVAL);
         r.rt.supervise();
         assert!(r.rt.online(IO));
@@ -307,7 +302,7 @@ mod tests {
         // It answers again, but every takeover is refused (here: a power-on value it cannot
         // store over ASCII without driving its outputs; a module answering with an exception
         // takes the same way).
-        r.rt.c29u(IO).unwrap().config.power_on_value = Some(0x11);
+        r.rt.c29u(IO).unwrap().config_mut().power_on_value = Some(0x11);
         r.sim.set_gone("io", false).unwrap();
         let before = r.requests();
         let minute = 60_000 / TICK.as_millis();

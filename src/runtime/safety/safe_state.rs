@@ -163,7 +163,7 @@ impl<H: Clone> Runtime<H> {
         let Some(d) = self.devices.get_mut(idx) else {
             return EndOutcome::NoSafeState;
         };
-        if lost && d.health().link_failed {
+        if lost && d.health().link_failed() {
             if let Err(e) = d.reopen() {
                 return EndOutcome::Unconfirmed(Unconfirmed::NoAnswer(e));
             }
@@ -174,11 +174,11 @@ impl<H: Clone> Runtime<H> {
     /// What happens to the device at `idx` when the safe state did not reach it.
     fn unreached_note(&mut self, idx: usize) -> String {
         match self.c29u(idx) {
-            Some(d) => match d.watchdog {
+            Some(d) => match d.watchdog() {
                 Some(t) => format!(
                     "its host watchdog is left on: it drives its outputs to {:#04x} within {} \
                      (if the module acts on it)",
-                    d.config.safe_value,
+                    d.config().safe_value,
                     format_duration(t.as_duration())
                 ),
                 None => "it has no host watchdog: its outputs stay as they are".into(),
@@ -193,11 +193,11 @@ impl<H: Clone> Runtime<H> {
         let Some(d) = self.c29u(idx) else {
             return false;
         };
-        let ours = d.watchdog_ours && d.watchdog.is_some();
+        let ours = d.watchdog_turned_on().is_some();
         match d.release_watchdog() {
             Ok(()) => ours,
             Err(e) => {
-                let name = d.name.clone();
+                let name = d.name().to_string();
                 self.log_mut().warn(&format!(
                     "{name}: turning its watchdog off failed: {e}; it stays on, and the \
                      outputs are safe either way"
@@ -213,36 +213,18 @@ impl<H: Clone> Runtime<H> {
 fn confirm_device(d: &mut Device, single: bool, tries: u32) -> EndOutcome {
     let result = match d {
         Device::C29u(c) => {
-            let safe_value = c.config.safe_value;
-            let driver = if single {
-                c.single_try_driver()
-            } else {
-                &mut c.driver
-            };
+            let (driver, safe_value) = c.safe_driver(single);
             let result = confirm_safe_state(SafeDriver::C29u { driver, safe_value }, tries);
             // Unconfirmed, what the outputs hold is not what the runner wants: written again.
-            match result {
-                Ok(_) => c.note_outputs_written(safe_value),
-                Err(_) => c.forget_outputs_written(),
-            }
+            c.note_safe_state(result.is_ok());
             result
         }
         Device::Trc(t) => {
-            let Some(relay) = t.config.safe_relay else {
+            let Some((driver, relay)) = t.safe_driver() else {
                 return EndOutcome::NoSafeState;
             };
-            t.relay_written = None;
-            let result = confirm_safe_state(
-                SafeDriver::Trc1000 {
-                    driver: &mut t.driver,
-                    relay,
-                },
-                tries,
-            );
-            if result.is_ok() {
-                t.relay_written = Some(relay);
-                t.relay_last = Some(relay);
-            }
+            let result = confirm_safe_state(SafeDriver::Trc1000 { driver, relay }, tries);
+            t.note_safe_state(result.is_ok());
             result
         }
     };
@@ -409,7 +391,7 @@ mod tests {
         let rig = RIG.replace("watchdog = \"1s\"\n", "");
         let mut r = TestRig::new(&rig);
         let own = Some(Duration::from_secs(3));
-        r.rt.c29u(IO).unwrap().driver.set_watchdog(own).unwrap();
+        r.rt.c29u(IO).unwrap().driver().set_watchdog(own).unwrap();
         r.rt.start_devices().unwrap();
         assert!(r.log().contains("host watchdog 3s"), "{}", r.log());
         r.rt.end_safe("end of run", true);

@@ -47,17 +47,13 @@ impl<H: Clone> Runtime<H> {
         let Some(Device::C29u(d)) = self.devices.get_mut(idx) else {
             return;
         };
-        let target = if held {
-            d.config.safe_value
-        } else {
-            forces.outputs(idx, d.outputs)
-        };
+        let target = d.outputs_to_write(held, |v| forces.outputs(idx, v));
         let result = d.write_outputs(target).and_then(|()| d.feed(now));
         match result {
             Ok(_) => {}
             Err(e) if e.is_safe_mode() => {
-                let timeout = d.watchdog.map_or(stall, |t| t.as_duration());
-                let (name, safe) = (d.name.clone(), d.config.safe_value);
+                let timeout = d.watchdog().map_or(stall, |t| t.as_duration());
+                let (name, safe) = (d.name().to_string(), d.config().safe_value);
                 self.log_mut().warn(&format!(
                     "{name}: host watchdog fired after a {} stall (not fed for that long, its \
                      timeout is {}): its outputs went to the safe value {safe:#04x}; taking \
@@ -103,7 +99,7 @@ impl<H: Clone> Runtime<H> {
                 // never learn that the board stopped answering: the check selects the relay
                 // again (a board reset behind the runner's back gets it back) and confirms it
                 // with a request after it.
-                Some(Device::Trc(d)) => match d.relay_written {
+                Some(Device::Trc(d)) => match d.relay_written() {
                     Some(relay) => d.select_relay_confirmed(relay),
                     None => Ok(()),
                 },
@@ -365,9 +361,7 @@ mod tests {
     fn the_scripts_own_reset_is_no_news() {
         let mut r = TestRig::started();
         let io = r.rt.c29u(IO).unwrap();
-        io.driver.reset().unwrap();
-        io.reset_by_script = true;
-        io.forget_outputs_written();
+        io.reset_module().unwrap();
         r.rt.check_devices();
         assert!(!r.log().contains("reset or power cycled"), "{}", r.log());
     }
