@@ -4,7 +4,7 @@
 //! `modbus_read_bits`, with and without t3.5 of silence before each request, all against the
 //! same simulator (served in this process on a pty) in the same run.
 //!
-//! Through a baud-accurate line (`sim::relay`: each byte handed over when its stop bit ends,
+//! Through a baud-accurate line (`sim::timed_line`: each byte handed over when its stop bit ends,
 //! the module answering in the relay's thread as the request's last byte is in) at 9600 and
 //! 115200 baud it reports polls per second (and the share of what a compliant master can reach:
 //! 14 characters and t3.5 a poll), the 2nd, 50th and 99th percentiles of the silence each master
@@ -39,7 +39,7 @@ use rigscript::device::c29u::{C29u, C29uOptions};
 use rigscript::link::line::wire_time;
 use rigscript::protocol::c29u::Protocol;
 use rigscript::protocol::c29u_modbus::silence_gap;
-use rigscript::sim::relay::LineRelay;
+use rigscript::sim::timed_line::TimedLine;
 use rigscript::sim::wire::{Frame, Side};
 use rigscript::time::clock::SystemClock;
 use std::path::{Path, PathBuf};
@@ -338,7 +338,7 @@ fn measure(
     let (served, relay, answered) = if relayed {
         let (module, answered) = counting_module(Protocol::Modbus, baud);
         let relay =
-            LineRelay::with_device(module, baud, idle_after(baud)).expect("start the relay");
+            TimedLine::with_device(module, baud, idle_after(baud)).expect("start the relay");
         (None, Some(relay), answered)
     } else {
         let served = Served::start(Protocol::Modbus, baud);
@@ -354,10 +354,10 @@ fn measure(
     let poller = start(master, &port, baud, c_loop, dir);
     std::thread::sleep(warm_up);
     let (cpu0, polls0, at0) = (poller.cpu_time(), polls(), Instant::now());
-    let mark0 = relay.as_ref().map(LineRelay::now);
+    let mark0 = relay.as_ref().map(TimedLine::now);
     std::thread::sleep(window);
     let (cpu1, polls1, elapsed) = (poller.cpu_time(), polls(), at0.elapsed());
-    let mark1 = relay.as_ref().map(LineRelay::now);
+    let mark1 = relay.as_ref().map(TimedLine::now);
     poller.stop(&master.name());
     let polls = polls1.saturating_sub(polls0);
     assert!(polls > 0, "{} made no poll in {window:?}", master.name());

@@ -590,7 +590,14 @@ fn a_records_pipe_nobody_reads_never_holds_the_run_and_sigterm_still_stops_it_sa
     let mut child = Command::new(rigscript())
         // The top level writes 3 MB of records: on a loaded machine a debug build can take
         // most of the default second per call for that, which is not what this test is about.
-        .args(["run", "--sim", "--stats", "--handler-time", "30s", "--records"])
+        .args([
+            "run",
+            "--sim",
+            "--stats",
+            "--handler-time",
+            "30s",
+            "--records",
+        ])
         .arg(&fifo)
         .arg(&s)
         .stdout(std::process::Stdio::piped())

@@ -219,11 +219,7 @@ fn notifications_nobody_receives_are_counted_and_told_at_the_end() {
     let dir = TempDir::new("notify-gone");
     let script = dir.file("s.rhai", "every(\"50ms\", || {});\n");
     let gone = dir.join("no-such.sock").display().to_string();
-    let run = start_run(
-        &["--sim", &script, "--for", "500ms"],
-        &gone,
-        Some("200000"),
-    );
+    let run = start_run(&["--sim", &script, "--for", "500ms"], &gone, Some("200000"));
     let (status, err) = finish(run);
     assert_eq!(status, 0, "{err}");
     // READY, the pings while the loop turned, STOPPING: all lost, all counted.

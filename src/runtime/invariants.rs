@@ -6,7 +6,7 @@
 //! stating and checking them on the run is `invariant_checks`.
 
 use super::device_view::DeviceView;
-use super::subscriptions::Call;
+use super::handlers::Call;
 use serde_json::{json, Value};
 use std::fmt;
 use std::time::Duration;

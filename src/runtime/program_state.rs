@@ -2,16 +2,16 @@
 //! asked for and the handler running now. The runtime composes it; the script changes it
 //! through the runtime's registrations (`registrations`, `invariant_checks`).
 
-use super::events::Needs;
+use super::handlers::{Call, Handlers};
 use super::invariants::{InvariantCheck, InvariantError, MAX_INVARIANTS};
-use super::subscriptions::{Call, Subscriptions};
+use super::triggers::Needs;
 use crate::time::zone::Zone;
 use std::rc::Rc;
 
 /// The script's side of the run.
 pub struct ProgramState<H> {
     /// The script's handlers and timers.
-    handlers: Subscriptions<H>,
+    handlers: Handlers<H>,
     /// What the script states must hold after every tick (`invariants`).
     invariants: Rc<Vec<InvariantCheck<H>>>,
     /// Whether the invariants read device inputs when last evaluated (or have not been yet):
@@ -31,7 +31,7 @@ impl<H: Clone> ProgramState<H> {
     /// Nothing set up yet; cron in `zone`.
     pub fn new(zone: Zone) -> Self {
         Self {
-            handlers: Subscriptions::new(zone),
+            handlers: Handlers::new(zone),
             invariants: Rc::default(),
             invariants_read_inputs: true,
             stop_request: None,
@@ -42,12 +42,12 @@ impl<H: Clone> ProgramState<H> {
     }
 
     /// The script's handlers and timers.
-    pub fn handlers(&self) -> &Subscriptions<H> {
+    pub fn handlers(&self) -> &Handlers<H> {
         &self.handlers
     }
 
     /// The script's handlers and timers, to add, fire or drop one.
-    pub fn handlers_mut(&mut self) -> &mut Subscriptions<H> {
+    pub fn handlers_mut(&mut self) -> &mut Handlers<H> {
         &mut self.handlers
     }
 

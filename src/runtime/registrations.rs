@@ -1,9 +1,9 @@
 //! The script's side of its handlers: what `on`, `every`, `after`, `cron`, `on_stop` and
 //! `cancel` do to the run (the handlers themselves are kept in `subscriptions`).
 
+use super::handlers::{Call, Source, TooManyStopHandlers, MAX_STOP_HANDLERS};
 use super::schedule::ScheduleError;
 use super::state::Runtime;
-use super::subscriptions::{Call, Source, TooManyStopHandlers, MAX_STOP_HANDLERS};
 use std::time::Duration;
 
 /// The script's side: what its registrations do to the run's handlers.

@@ -12,12 +12,12 @@ use super::devices::links::TransactionCounter;
 use super::devices::Device;
 use super::figures::Figures;
 use super::forcing::Forces;
+use super::handlers::Handlers;
 use super::invariants::InvariantCheck;
 use super::log::Logger;
 use super::observe::Events;
 use super::program_state::ProgramState;
 use super::records::Records;
-use super::subscriptions::Subscriptions;
 use crate::device::cancel::Cancel;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
@@ -193,7 +193,7 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// The script's handlers and timers, to look at (`verify`'s coverage and profile).
-    pub fn handlers(&self) -> &Subscriptions<H> {
+    pub fn handlers(&self) -> &Handlers<H> {
         self.program.handlers()
     }
 
@@ -261,7 +261,7 @@ impl<H: Clone> Runtime<H> {
 
 #[cfg(test)]
 mod tests {
-    use crate::runtime::subscriptions::Source;
+    use crate::runtime::handlers::Source;
     use crate::runtime::testing::{TestRig, IO, PANEL};
     use std::time::Duration;
 

@@ -16,9 +16,9 @@ use super::values::to_json;
 use crate::device::c29u::{C29uError, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::handlers::Source;
 use crate::runtime::records::Limits;
 use crate::runtime::runner::Shared;
-use crate::runtime::subscriptions::Source;
 use crate::time::duration::{duration_from_millis_f64, duration_from_millis_i64, parse_duration};
 use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, NativeCallContext, Position, AST};
 use std::cell::RefCell;
@@ -725,8 +725,8 @@ const MAX_COMMAND_NAME: usize = 64;
 /// `on_command`, `on_message` and `mqtt_publish`: the script's side of the broker
 /// (`service::mqtt` carries them; without `[mqtt]` nothing arrives and nothing goes).
 fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
+    use crate::runtime::handlers::Source;
     use crate::runtime::observe::RunEvent;
-    use crate::runtime::subscriptions::Source;
     use crate::runtime::topic_filter::{check_filter, check_topic};
     let (r, a) = (Rc::clone(rt), arities.clone());
     engine.register_fn("on_command", move |name: &str, f: FnPtr| -> R<i64> {

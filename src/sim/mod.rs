@@ -6,8 +6,7 @@ pub mod c29u_line;
 pub mod c29u_modbus;
 pub mod faults;
 pub mod pty;
-pub mod relay;
 pub mod rig;
+pub mod timed_line;
 pub mod trc1000;
 pub mod wire;
-

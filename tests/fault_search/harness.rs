@@ -11,11 +11,11 @@ use rigscript::device::c29u::{share, C29u, C29uOptions, SharedLink};
 use rigscript::runtime::devices::links::{Counted, Presence, TransactionCounter};
 use rigscript::runtime::devices::{C29uDevice, Device, OpenError, Opened, SimDevice, SimRig};
 use rigscript::script::rig::RigError;
-use rigscript::sim::faults::answer::AnswerFaults;
 use rigscript::sim::c29u::{
     C29uModel as Model, Eeprom, ModuleConfig, OutputFault, Protocol, WatchdogStatus,
 };
 use rigscript::sim::c29u_line::{lock, MultiDrop, SharedModel, SimulatedC29u};
+use rigscript::sim::faults::answer::AnswerFaults;
 use rigscript::sim::faults::{Connection, EventClock, FaultHit, FaultPlan, FaultyLink, LinkFault};
 use rigscript::time::clock::{Clock, SharedClock, VirtualClock};
 use rigscript::time::zone::Zone;

@@ -3,9 +3,9 @@
 
 use super::links::Presence;
 use crate::protocol::c29u::FirmwareDate;
-use crate::sim::faults::answer::{AnswerFault, AnswerFaults};
 use crate::sim::c29u::{Eeprom, OutputFault, WatchdogStatus};
 use crate::sim::c29u_line::{lock, SharedModel};
+use crate::sim::faults::answer::{AnswerFault, AnswerFaults};
 use crate::sim::trc1000::Trc1000Sim;
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};

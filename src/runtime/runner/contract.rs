@@ -2,10 +2,10 @@
 //! run is driven and why it ended.
 
 use crate::config::{ErrorPolicy, WakeLatency};
+use crate::runtime::handlers::Call;
 use crate::runtime::invariants::InvariantCheck;
 use crate::runtime::signals;
 use crate::runtime::state::Runtime;
-use crate::runtime::subscriptions::Call;
 use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::atomic::AtomicUsize;
@@ -32,7 +32,7 @@ pub struct HandlerFault {
 pub struct StopLimit {
     /// When the budget of all the stop's `on_stop` handlers runs out, on the run's clock.
     pub until: Duration,
-    /// That budget (`subscriptions::STOP_BUDGET`), for the message.
+    /// That budget (`handlers::STOP_BUDGET`), for the message.
     pub budget: Duration,
     /// The run's stop flag, cleared as the stop began: set again by another signal.
     pub signal: Arc<AtomicUsize>,

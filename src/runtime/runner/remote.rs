@@ -9,8 +9,8 @@
 
 use super::contract::{describe, HandlerFault, Program};
 use super::{Runner, State};
+use crate::runtime::handlers::{Arg, Source};
 use crate::runtime::remote::{Command, Remote, TurnedAway};
-use crate::runtime::subscriptions::{Arg, Source};
 use crate::runtime::topic_filter::filter_matches;
 use std::collections::VecDeque;
 use std::time::Duration;

@@ -3,10 +3,10 @@
 use super::contract::{describe, EndReason, Program};
 use super::{Runner, State};
 use crate::guardian::pulse::{self, Phase};
+use crate::runtime::handlers::Call;
 use crate::runtime::invariants::Violation;
 use crate::runtime::observe::{EventKind, RunEvent};
 use crate::runtime::snapshot::micros;
-use crate::runtime::subscriptions::Call;
 use std::time::Duration;
 
 /// How often each device is checked (`Runtime::check_devices`: a module reset, swapped or

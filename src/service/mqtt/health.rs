@@ -31,7 +31,7 @@ pub enum Loss {
 
 /// The shared counts: cheap to clone, one for the client's thread, one for the loop.
 #[derive(Debug, Clone, Default)]
-pub struct Health(Arc<Counts>);
+pub struct ClientHealth(Arc<Counts>);
 
 #[derive(Debug, Default)]
 struct Counts {
@@ -54,7 +54,7 @@ struct Counts {
     stopped: Mutex<Option<String>>,
 }
 
-impl Health {
+impl ClientHealth {
     /// Counts for the client of `broker` (`host:port`), nothing lost yet.
     pub fn new(broker: &str) -> Self {
         Self(Arc::new(Counts {
@@ -134,7 +134,7 @@ impl Health {
     }
 }
 
-impl RemoteState for Health {
+impl RemoteState for ClientHealth {
     fn turned_away(&self, what: TurnedAway) {
         self.lost(match what {
             TurnedAway::Command => Loss::Command,
@@ -143,7 +143,7 @@ impl RemoteState for Health {
     }
 
     fn shown(&self) -> MqttState {
-        Health::shown(self)
+        ClientHealth::shown(self)
     }
 }
 
@@ -153,7 +153,7 @@ mod tests {
 
     #[test]
     fn losses_and_failures_are_counted_by_kind_and_seen_from_another_handle() {
-        let client = Health::new("broker:1883");
+        let client = ClientHealth::new("broker:1883");
         let loop_side = client.clone();
         for _ in 0..3 {
             client.lost(Loss::Message);

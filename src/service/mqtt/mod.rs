@@ -305,7 +305,7 @@ impl Prepared {
         let closing = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&closing);
         let Prepared { settings, outbox } = self;
-        let counts = health::Health::new(&settings.broker);
+        let counts = health::ClientHealth::new(&settings.broker);
         // What the loop turns away counts beside the client's own losses, all shown in status.
         requester.share(Box::new(counts.clone()));
         let broker = settings.broker.clone();

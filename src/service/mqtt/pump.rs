@@ -3,7 +3,7 @@
 //! replies, and hands inbound commands and messages to the loop. It never waits on the loop
 //! for long (a snapshot at most `SNAPSHOT_WAIT`) and the loop never waits on it.
 
-use super::health::{Health, Loss};
+use super::health::{ClientHealth, Loss};
 use super::link::{Link, NetEvent, Respond, Sent};
 use super::outbox::{Outbox, Pushed};
 use super::topics::{self, log_payload, reply_payload, MAX_PAYLOAD};
@@ -90,7 +90,7 @@ pub struct Pump {
     too_large_through: u64,
     notices: HashMap<&'static str, (Instant, u64)>,
     /// What was lost and how the connection goes, shared with the loop's snapshot.
-    health: Health,
+    health: ClientHealth,
 }
 
 impl Pump {
@@ -101,7 +101,7 @@ impl Pump {
         ask: Requester,
         outbox: Outbox,
         closing: Arc<AtomicBool>,
-        health: Health,
+        health: ClientHealth,
     ) -> Self {
         let now = Instant::now();
         Self {

@@ -76,7 +76,7 @@ pub enum Source {
 
 /// A handler and what it waits for.
 #[derive(Debug, Clone)]
-pub struct Subscription<H> {
+pub struct Registration<H> {
     /// Returned to the script, for `cancel`.
     pub id: u64,
     /// What it waits for.
@@ -127,7 +127,7 @@ pub struct Call<H> {
     pub label: Rc<str>,
 }
 
-impl<H: Clone> Subscription<H> {
+impl<H: Clone> Registration<H> {
     /// A call of this handler with `args`.
     pub fn call(&self, args: Vec<Arg>) -> Call<H> {
         Call {
@@ -139,15 +139,15 @@ impl<H: Clone> Subscription<H> {
 }
 
 /// Every handler of the script, and the schedule of its timers.
-pub struct Subscriptions<H> {
+pub struct Handlers<H> {
     /// Device-event handlers, in the order they were added.
-    pub(super) events: Vec<Subscription<H>>,
+    pub(super) events: Vec<Registration<H>>,
     /// `on_stop` handlers, in the order they were added.
-    stops: Vec<Subscription<H>>,
+    stops: Vec<Registration<H>>,
     /// `on_command` and `on_message` handlers, in the order they were added.
-    remote: Vec<Subscription<H>>,
+    remote: Vec<Registration<H>>,
     /// Timer handlers, by their timer.
-    pub(super) timers: HashMap<TimerId, Subscription<H>>,
+    pub(super) timers: HashMap<TimerId, Registration<H>>,
     /// The timer of each timer handler, by handler id (for `cancel`).
     timer_of: HashMap<u64, TimerId>,
     /// How many `every` timers there are of each period (the fastest sets the tick).
@@ -157,7 +157,7 @@ pub struct Subscriptions<H> {
     pub(super) schedule: Schedule<Zone>,
 }
 
-impl<H: Clone> Subscriptions<H> {
+impl<H: Clone> Handlers<H> {
     /// No handlers; timers keep time in `zone`.
     pub fn new(zone: Zone) -> Self {
         Self {
@@ -182,7 +182,7 @@ impl<H: Clone> Subscriptions<H> {
     pub fn add(&mut self, source: Source, handler: H, label: String) -> u64 {
         let id = self.next_id;
         self.next_id = self.next_id.saturating_add(1);
-        let sub = Subscription {
+        let sub = Registration {
             id,
             source,
             handler,
@@ -268,7 +268,7 @@ impl<H: Clone> Subscriptions<H> {
     }
 
     /// The handler of a timer that fired for the last time: it goes with its timer.
-    pub(super) fn remove_timer(&mut self, t: TimerId) -> Option<Subscription<H>> {
+    pub(super) fn remove_timer(&mut self, t: TimerId) -> Option<Registration<H>> {
         let sub = self.timers.remove(&t)?;
         self.timer_of.remove(&sub.id);
         Some(sub)
@@ -302,7 +302,7 @@ impl<H: Clone> Subscriptions<H> {
 
     /// The `on_command` or `on_message` handlers waiting for `source`'s kind: a command's of
     /// that name (the last one added), a message's whose filter matches (every one).
-    pub fn remote_calls(&self, matches: impl Fn(&Source) -> bool) -> Vec<&Subscription<H>> {
+    pub fn remote_calls(&self, matches: impl Fn(&Source) -> bool) -> Vec<&Registration<H>> {
         self.remote.iter().filter(|s| matches(&s.source)).collect()
     }
 
@@ -323,8 +323,8 @@ impl<H: Clone> Subscriptions<H> {
 
     /// Every handler in the order it was added, for inspection (sorts the timers: not for
     /// every tick).
-    pub fn list(&self) -> Vec<&Subscription<H>> {
-        let mut all: Vec<&Subscription<H>> = self
+    pub fn list(&self) -> Vec<&Registration<H>> {
+        let mut all: Vec<&Registration<H>> = self
             .events
             .iter()
             .chain(&self.stops)
@@ -377,8 +377,8 @@ mod tests {
     use crate::runtime::schedule::TimerKind;
     use crate::time::clock::{Clock, VirtualClock};
 
-    fn store() -> Subscriptions<&'static str> {
-        Subscriptions::new(Zone::utc())
+    fn store() -> Handlers<&'static str> {
+        Handlers::new(Zone::utc())
     }
 
     #[test]

@@ -52,7 +52,7 @@ impl Record {
 }
 
 /// A running relay; stops when dropped.
-pub struct LineRelay {
+pub struct TimedLine {
     path: String,
     origin: Instant,
     stop: Arc<AtomicBool>,
@@ -60,7 +60,7 @@ pub struct LineRelay {
     thread: Option<JoinHandle<Result<(), PtyError>>>,
 }
 
-impl LineRelay {
+impl TimedLine {
     /// Opens a pty for the master and relays it at `baud` to the serial device at `far` (a
     /// simulator's pty). The master opens `path()`.
     pub fn start(far: &str, baud: u32) -> Result<Self, PtyError> {
@@ -154,7 +154,7 @@ impl LineRelay {
     }
 }
 
-impl Drop for LineRelay {
+impl Drop for TimedLine {
     fn drop(&mut self) {
         let _ = self.halt();
     }
@@ -366,7 +366,7 @@ mod tests {
         // The far end: a pty whose other side this test plays.
         let (far_master, far_slave) = TTYPort::pair().unwrap();
         let far_path = far_slave.name().unwrap();
-        let relay = LineRelay::start(&far_path, 9600).unwrap();
+        let relay = TimedLine::start(&far_path, 9600).unwrap();
         let mut master = SerialLink::open(relay.path(), 9600).unwrap();
         let started = Instant::now();
         master.write_all(&[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
@@ -437,7 +437,7 @@ mod tests {
             idles: Arc::clone(&idles),
         };
         let relay =
-            LineRelay::with_device(Box::new(device), 9600, Duration::from_millis(20)).unwrap();
+            TimedLine::with_device(Box::new(device), 9600, Duration::from_millis(20)).unwrap();
         let mut master = SerialLink::open(relay.path(), 9600).unwrap();
         let started = Instant::now();
         master.write_all(&[1, 2, 3, 4]).unwrap();

@@ -5,9 +5,9 @@
 //! million times a day), and when one ends for want of a later time.
 
 use super::devices::Device;
+use super::handlers::{Arg, Call, Firings, Source};
 use super::schedule::Fired;
 use super::state::Runtime;
-use super::subscriptions::{Arg, Call, Firings, Source};
 use crate::device::trc1000::rotary_changes;
 use crate::time::duration::format_duration;
 use std::time::Duration;
@@ -303,7 +303,7 @@ fn event_line(name: &str, event: &Source, args: &[Arg]) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use crate::protocol::trc1000::{Rotary, Switch};
-    use crate::runtime::subscriptions::{Arg, Call, Source};
+    use crate::runtime::handlers::{Arg, Call, Source};
     use crate::runtime::testing::{TestRig, IO, PANEL};
     use std::time::Duration;
 
