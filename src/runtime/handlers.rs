@@ -60,8 +60,9 @@ pub enum Source {
         ch: u8,
         /// The count that fires the handler.
         threshold: u16,
-        /// Fires when the count is at or above the threshold; re-armed when a reading shows
-        /// it below again (cleared, reset, wrapped).
+        /// Fires when the count is at or above the threshold; re-armed when a reading (this
+        /// one or the one before, which after the script's own clear is the cleared count)
+        /// shows it below, or the count went down (cleared, reset, wrapped).
         armed: bool,
     },
     /// A timer of the schedule.

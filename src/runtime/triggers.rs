@@ -108,11 +108,15 @@ impl<H: Clone> Runtime<H> {
         }
         let tick = self.cycle().tick();
         let mut fired = Vec::new();
-        let fresh: Vec<Option<[u16; 8]>> = self
+        // This tick's reading and the one before it (after the script's own clear, that is the
+        // cleared count: `C29uDevice::clear_counter`).
+        let fresh: Vec<Option<([u16; 8], Option<[u16; 8]>)>> = self
             .devices
             .iter()
             .map(|d| match d {
-                Device::C29u(c) if c.counters().fresh(tick) => c.counters().current,
+                Device::C29u(c) if c.counters().fresh(tick) => {
+                    c.counters().current.map(|now| (now, c.counters().previous))
+                }
                 _ => None,
             })
             .collect();
@@ -126,21 +130,24 @@ impl<H: Clone> Runtime<H> {
             else {
                 continue;
             };
-            let Some(count) = fresh
-                .get(*dev)
-                .copied()
-                .flatten()
-                .and_then(|c| c.get(usize::from(*ch)).copied())
-            else {
+            let Some((now, before)) = fresh.get(*dev).copied().flatten() else {
                 continue;
             };
+            let i = usize::from(*ch);
+            let count = now[i];
+            let last = before.map(|b| b[i]);
+            // A count below the threshold, now or in the reading before, re-arms; so does a
+            // count that went down (cleared, reset, wrapped: counting started again), even if
+            // the pulses since took it past the threshold before a reading could show it low.
+            if !*armed && (count < *threshold || last.is_some_and(|l| l < *threshold || count < l))
+            {
+                *armed = true;
+            }
             if *armed && count >= *threshold {
                 *armed = false;
                 let (dev, ch, threshold) = (*dev, *ch, *threshold);
                 calls.push(s.call(vec![Arg::Int(i64::from(count))]));
                 fired.push((dev, ch, count, threshold));
-            } else if !*armed && count < *threshold {
-                *armed = true;
             }
         }
         for (dev, ch, count, threshold) in fired {
@@ -419,7 +426,11 @@ mod tests {
         r.sim.pulse("io", 2, 5).unwrap();
         assert!(tick(&mut r).is_empty(), "once");
         r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
-        assert!(tick(&mut r).is_empty(), "below again: re-armed");
+        assert_eq!(
+            tick(&mut r),
+            [("zero", vec![Arg::Int(0)])],
+            "below again: re-armed; counting started again, so at 0 too"
+        );
         r.sim.pulse("io", 2, 4).unwrap();
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(4)])]);
         assert!(
@@ -427,6 +438,38 @@ mod tests {
             "{}",
             r.log()
         );
+    }
+
+    #[test]
+    fn a_clear_rearms_a_counter_handler_even_when_no_reading_shows_the_count_below() {
+        let mut r = TestRig::started();
+        let three = Source::Counter {
+            dev: IO,
+            ch: 2,
+            threshold: 3,
+            armed: true,
+        };
+        sub(&mut r, three, "three");
+        assert!(tick(&mut r).is_empty());
+        r.sim.pulse("io", 2, 5).unwrap();
+        assert_eq!(tick(&mut r), [("three", vec![Arg::Int(5)])]);
+        // The script clears it (as `io.clear_counter(2)` does), and four strokes come before
+        // the next reading: the batch is not missed.
+        r.rt.c29u(IO).unwrap().clear_counter(2).unwrap();
+        r.sim.pulse("io", 2, 4).unwrap();
+        assert_eq!(
+            tick(&mut r),
+            [("three", vec![Arg::Int(4)])],
+            "after the clear"
+        );
+        // Cleared from elsewhere (another program, a reset): seen only as a count that went
+        // down, 4 -> 0 -> 3 between two readings.
+        r.sim.pulse("io", 2, 4).unwrap();
+        assert!(tick(&mut r).is_empty(), "8: still the same batch");
+        r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
+        r.sim.pulse("io", 2, 3).unwrap();
+        assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])], "went down");
+        assert!(tick(&mut r).is_empty(), "once a batch");
     }
 
     #[test]
