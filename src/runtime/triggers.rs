@@ -12,6 +12,9 @@ use crate::device::trc1000::rotary_changes;
 use crate::time::duration::format_duration;
 use std::time::Duration;
 
+/// A module's eight counters as one reading.
+type Counts = [u16; 8];
+
 /// The longest a firing timer goes without a line in the log.
 pub const TIMER_LOG_INTERVAL: Duration = Duration::from_secs(3600);
 
@@ -110,7 +113,7 @@ impl<H: Clone> Runtime<H> {
         let mut fired = Vec::new();
         // This tick's reading and the one before it (after the script's own clear, that is the
         // cleared count: `C29uDevice::clear_counter`).
-        let fresh: Vec<Option<([u16; 8], Option<[u16; 8]>)>> = self
+        let fresh: Vec<Option<(Counts, Option<Counts>)>> = self
             .devices
             .iter()
             .map(|d| match d {
