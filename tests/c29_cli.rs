@@ -3,7 +3,7 @@
 //! line shared by two modules; then the faults: silence, garbled answers, the wrong ID, a
 //! simulator that dies under `monitor`, and a port that does not exist.
 
-use crate::common::{rigscript, SimProcess};
+use crate::common::{rigscript, stderr, stdout, SimProcess};
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Output, Stdio};
@@ -34,8 +34,8 @@ impl Run {
     fn from(out: Output) -> Self {
         Self {
             status: out.status.code().unwrap_or(-1),
-            stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-            stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+            stdout: stdout(&out),
+            stderr: stderr(&out),
         }
     }
 

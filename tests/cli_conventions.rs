@@ -222,7 +222,7 @@ fn api_shows_the_script_reference_in_the_terminal() {
         .args(["api", "every"])
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = stdout(&out);
     assert_eq!(out.status.code(), Some(0), "{text}");
     assert!(text.starts_with("every(dur, |missed| ..)"), "{text}");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_rigscript"))
@@ -230,8 +230,5 @@ fn api_shows_the_script_reference_in_the_terminal() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
-    assert!(
-        String::from_utf8_lossy(&out.stderr).contains("did you mean `every`?"),
-        "{out:?}"
-    );
+    assert!(stderr(&out).contains("did you mean `every`?"), "{out:?}");
 }

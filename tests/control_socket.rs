@@ -9,7 +9,7 @@
 
 use crate::common;
 
-use crate::common::{rigscript, until, SimProcess, TempDir};
+use crate::common::{rigscript, stderr, stdout, until, SimProcess, TempDir};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;
@@ -153,16 +153,16 @@ fn status_follows_the_module_while_its_inputs_change_and_stop_ends_the_run_safe(
     );
     // The same for people.
     let text = rigs.output(&["status", "bench-a"]);
-    let text = String::from_utf8_lossy(&text.stdout).to_string();
+    let text = stdout(&text);
     assert!(text.contains("rig bench-a (pid "), "{text}");
     assert!(text.contains("DI 0-7: 0 1 0 1 0 0 0 0 (0x0a)"), "{text}");
     // A port the rig holds names the rig.
     let held = rigs.output(&["c29", "--port", &sim.path, "status"]);
-    let said = String::from_utf8_lossy(&held.stderr).to_string();
+    let said = stderr(&held);
     assert!(said.contains("rigscript status bench-a"), "{said}");
     // Stop: the safe state, the status of SIGTERM, and the module at its safe value.
     let stop = rigs.output(&["stop", "bench-a"]);
-    let told = String::from_utf8_lossy(&stop.stdout).to_string();
+    let told = stdout(&stop);
     assert!(stop.status.success(), "{stop:?}");
     assert!(
         told.contains("exit status 143") && told.contains("safe state confirmed: io"),
@@ -199,7 +199,7 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     // A second run of a script takes the next free name; one of a rig named in rig.toml is
     // refused, naming the first.
     let again = rigs.output(&["run", "--sim", "--for", "100ms", &a]);
-    let said = String::from_utf8_lossy(&again.stderr).to_string();
+    let said = stderr(&again);
     assert_eq!(again.status.code(), Some(0), "{said}");
     assert!(
         said.contains("rig alpha is running already: this run is rig alpha-2"),
@@ -212,7 +212,7 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     let mut gamma = rigs.run(&["--sim", "--config", &named, &a]);
     rigs.status("gamma");
     let refused = rigs.output(&["run", "--sim", "--config", &named, "--for", "1s", &a]);
-    let said = String::from_utf8_lossy(&refused.stderr).to_string();
+    let said = stderr(&refused);
     assert_eq!(refused.status.code(), Some(3), "{said}");
     assert!(
         said.contains(&format!(
@@ -239,7 +239,7 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     assert_eq!(wait_exit(&mut beta), 143);
     assert!(rigs.list().is_empty());
     let out = rigs.output(&["list"]);
-    assert!(String::from_utf8_lossy(&out.stdout).contains("no rig is running"));
+    assert!(stdout(&out).contains("no rig is running"));
     // The killed rig's name is free again.
     let mut alpha = rigs.run(&["--sim", "--for", "300ms", &a]);
     assert_eq!(
@@ -304,7 +304,7 @@ fn hostile_clients_cost_the_loop_no_tick_and_are_told_what_is_wrong() {
         "a busy run's socket was removed"
     );
     let second = rigs.output(&["run", "--sim", "--for", "100ms", &script]);
-    let said = String::from_utf8_lossy(&second.stderr).to_string();
+    let said = stderr(&second);
     assert_eq!(second.status.code(), Some(0), "{said}");
     assert!(said.contains("this run is rig steady-2"), "{said}");
     assert!(rigs.socket("steady").exists());
@@ -408,7 +408,7 @@ fn a_trickling_client_is_cut_off_a_crowd_of_them_does_not_block_stop_and_a_full_
         })
         .collect();
     let out = rigs.output(&["status", "steady"]);
-    let said = String::from_utf8_lossy(&out.stderr).to_string();
+    let said = stderr(&out);
     assert!(!out.status.success(), "{out:?}");
     assert!(
         said.contains("the rig's control socket is full (16 clients"),
@@ -420,7 +420,7 @@ fn a_trickling_client_is_cut_off_a_crowd_of_them_does_not_block_stop_and_a_full_
     std::thread::sleep(Duration::from_secs(1));
     let out = rigs.output(&["stop", "steady"]);
     stop.store(true, std::sync::atomic::Ordering::SeqCst);
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    let said = stdout(&out);
     assert!(out.status.success(), "stop past 40 tricklers: {out:?}");
     assert!(said.contains("rig steady stopped"), "{said}");
     assert_eq!(wait_exit(&mut run), 143);
@@ -457,13 +457,10 @@ fn drive_acts_on_the_simulated_field_between_ticks_and_refuses_a_real_device() {
     assert_eq!(seen["devices"]["panel"]["relay"], 3);
     let bad = rigs.output(&["drive", "knob", "press", "S99"]);
     assert_eq!(bad.status.code(), Some(1));
-    assert!(
-        String::from_utf8_lossy(&bad.stderr).contains("S99"),
-        "{bad:?}"
-    );
+    assert!(stderr(&bad).contains("S99"), "{bad:?}");
     let none = rigs.output(&["drive", "knob", "fail", "pump"]);
     assert!(
-        String::from_utf8_lossy(&none.stderr).contains("pump is not a simulated device"),
+        stderr(&none).contains("pump is not a simulated device"),
         "{none:?}"
     );
     assert_eq!(rigs.output(&["stop", "knob"]).status.code(), Some(0));
@@ -486,7 +483,7 @@ fn drive_acts_on_the_simulated_field_between_ticks_and_refuses_a_real_device() {
     let refused = rigs.output(&["drive", "real", "set-inputs", "io", "0xff"]);
     assert_eq!(refused.status.code(), Some(1));
     assert!(
-        String::from_utf8_lossy(&refused.stderr).contains("drive acts on simulators only"),
+        stderr(&refused).contains("drive acts on simulators only"),
         "{refused:?}"
     );
     assert_eq!(sim.state()["di"], 0, "the module's inputs were not touched");
@@ -555,10 +552,7 @@ fn root_refuses_a_rig_directory_another_user_made_and_never_believes_its_socket(
         .args(["--mount", "--propagation", "private", "sh", "-c", &script])
         .output()
         .unwrap();
-    let (said, err) = (
-        String::from_utf8_lossy(&out.stdout).to_string(),
-        String::from_utf8_lossy(&out.stderr).to_string(),
-    );
+    let (said, err) = (stdout(&out), stderr(&out));
     assert!(said.contains("stop=3"), "root's stop: {said}\n{err}");
     assert!(!said.contains("safe state confirmed"), "{said}");
     assert!(
@@ -605,10 +599,7 @@ fn stop_believes_only_the_process_its_hello_names() {
     let list = rigs.list();
     let _ = fake.kill();
     let _ = fake.wait();
-    let (said, err) = (
-        String::from_utf8_lossy(&out.stdout).to_string(),
-        String::from_utf8_lossy(&out.stderr).to_string(),
-    );
+    let (said, err) = (stdout(&out), stderr(&out));
     assert!(!out.status.success(), "{said}");
     assert!(!said.contains("safe state confirmed"), "{said}");
     assert!(err.contains("is not the rig it names (pid 1"), "{err}");
@@ -642,15 +633,15 @@ fn a_socket_opened_to_others_still_serves_only_its_user_and_root() {
             "-",
         ],
     );
-    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    let said = stdout(&out);
     assert!(
         said.contains("only the rig's user (and root) may use its control socket"),
         "{said} {}",
-        String::from_utf8_lossy(&out.stderr)
+        stderr(&out)
     );
     // Nor does its owner's client believe a socket others may write.
     let stop = rigs.output(&["stop", "steady"]);
-    let said = String::from_utf8_lossy(&stop.stderr).to_string();
+    let said = stderr(&stop);
     assert!(!stop.status.success(), "{said}");
     assert!(
         said.contains("steady.sock is writable by others (mode 0666"),

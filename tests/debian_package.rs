@@ -4,7 +4,9 @@
 //! plugdev), the installed binary's `--version`, `systemd-analyze verify` on the installed
 //! units, remove (the operator's config stays), purge (nothing is left).
 
-use crate::common::{assert_systemd_accepts, both, require_tool, rigscript, TempDir, UNITS};
+use crate::common::{
+    assert_systemd_accepts, both, require_tool, rigscript, stdout, TempDir, UNITS,
+};
 use std::collections::BTreeSet;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
@@ -19,7 +21,7 @@ const MAX_PACKAGE: u64 = 6 * 1024 * 1024;
 fn ok(cmd: &mut Command) -> String {
     let o = cmd.output().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
     assert!(o.status.success(), "{cmd:?}: {}", both(&o));
-    String::from_utf8_lossy(&o.stdout).into_owned()
+    stdout(&o)
 }
 
 /// Builds the package as CI and a release would; returns the .deb's path.

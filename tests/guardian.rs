@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use crate::common::{kill, rigscript, SimProcess, TempDir};
+use crate::common::{kill, rigscript, stderr, stdout, SimProcess, TempDir};
 use std::io::Read;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -303,7 +303,7 @@ fn safe_writes_and_reads_back_the_safe_state_by_hand() {
         .args(["safe", "--config", &config])
         .output()
         .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert_eq!(out.status.code(), Some(0), "{out:?}");
     assert_eq!(stdout.trim(), "io outputs 0x00 (read back)");
     assert_eq!(sim.state()["do"], 0x00);
@@ -320,7 +320,7 @@ fn safe_says_which_device_it_could_not_reach() {
         .args(["safe", "--config", &config])
         .output()
         .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert_eq!(out.status.code(), Some(3), "{stderr}");
     assert!(
         stderr.contains("rigscript safe: io NOT confirmed:")

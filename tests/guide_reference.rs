@@ -4,6 +4,7 @@
 //! what the guide documents exists in the code. Every script and rig.toml the guide shows is a
 //! file under docs/guide/examples/, and those pass `rigscript check` and `rigscript test`.
 
+use crate::common::{stderr, stdout};
 use rigscript::config::{ConfigError, ProblemKind, RigConfig};
 use rigscript::runtime::exit;
 use std::collections::BTreeSet;
@@ -349,8 +350,8 @@ fn the_guide_s_scripts_pass_check() {
             out.status.success(),
             "rigscript check {}: {}{}",
             script.display(),
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
+            stdout(&out),
+            stderr(&out)
         );
     }
 }
@@ -362,10 +363,10 @@ fn the_guide_s_scenario_tests_pass() {
         .arg(guide_dir().join("examples"))
         .output()
         .expect("rigscript test");
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert!(
         out.status.success() && stdout.contains(" passed, 0 failed"),
         "rigscript test docs/guide/examples: {stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
+        stderr(&out)
     );
 }

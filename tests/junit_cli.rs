@@ -2,7 +2,7 @@
 //! independent XML parser and checked for what Jenkins and GitLab read (suites, cases, their
 //! counts, failures and errors with messages, a measurement's value and limits).
 
-use crate::common::{rigscript, stderr, TempDir};
+use crate::common::{rigscript, stderr, stdout, TempDir};
 use roxmltree::{Document, Node};
 use std::path::Path;
 use std::process::{Command, Output};
@@ -282,7 +282,7 @@ fn test_writes_a_suite_per_file_and_a_case_per_test() {
     .unwrap();
     let out = rigscript_in(&dir, &["test", ".", "--junit", "tests.xml"]);
     assert_eq!(status(&out), 1, "{}", stderr(&out));
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert!(stdout.contains("2 passed, 1 failed"), "{stdout}");
     let text = read_report(&dir.join("tests.xml"));
     let doc = Document::parse(&text).unwrap();

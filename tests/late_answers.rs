@@ -5,7 +5,7 @@
 //! answers to requests alone cannot tell them apart. Answers that come twice or torn end right
 //! or in a clear error, and the line's silence holds after each (docs/design/line-timing.md).
 
-use crate::common::{rigscript, run, SimProcess};
+use crate::common::{rigscript, run, stderr, stdout, SimProcess};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions, Protocol};
 use rigscript::link::far_end::ByteDevice;
 use rigscript::link::memory::MemoryByteLink;
@@ -26,10 +26,7 @@ fn c29(sim: &SimProcess, protocol: &str, args: &[&str]) -> Output {
 /// (exit 3, and no reading shown): never anything else. A reading is a line whose first word is
 /// the first word of an entry of `truth`; it must begin with that entry.
 fn truth_or_timeout(out: &Output, truth: &[&str]) {
-    let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
+    let (stdout, stderr) = (stdout(out), stderr(out));
     let label = |line: &str| line.split_whitespace().next().map(str::to_string);
     let readings: Vec<&str> = stdout
         .lines()

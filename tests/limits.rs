@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{rigscript, TempDir};
+use common::{rigscript, stderr, TempDir};
 use rigscript::config::{C29uConfig, Port, RigConfig, ScriptLimits};
 use rigscript::heap::{self, CountingAlloc};
 use rigscript::runtime::log::LogFormat;
@@ -228,7 +228,7 @@ fn a_script_that_grows_memory_without_end_is_stopped_at_its_line() {
         .arg(&script)
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{err}");
     let line = err
         .lines()
@@ -330,7 +330,7 @@ fn json_logs_are_one_object_a_line() {
         .arg(&script)
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = stderr(&out);
     assert_eq!(out.status.code(), Some(0), "{err}");
     let lines: Vec<serde_json::Value> = err
         .lines()
@@ -352,7 +352,7 @@ fn json_logs_are_one_object_a_line() {
         .arg(&script)
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&bad.stderr);
+    let err = stderr(&bad);
     assert_eq!(bad.status.code(), Some(2), "{err}");
     assert!(err.contains("[possible values: text, json]"), "{err}");
 }
@@ -370,7 +370,7 @@ fn bad_limit_flags_say_what_is_accepted() {
             .args(["run", "--sim", flag, value, "x.rhai"])
             .output()
             .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
+        let err = stderr(&out);
         assert_eq!(out.status.code(), Some(2), "{flag} {value}: {err}");
         assert!(err.contains(says), "{flag} {value}: {err}");
     }

@@ -3,7 +3,7 @@
 //! which times the line at the module's baud and drops (and counts) every request that starts
 //! less than t3.5 after the frame before it ended, as a module on a shared RS-485 line would.
 
-use crate::common::{rigscript, run, SimProcess, TempDir};
+use crate::common::{rigscript, run, stderr, stdout, SimProcess, TempDir};
 use rigscript::device::c29u::{share, C29u, C29uError, C29uOptions};
 use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;
@@ -100,10 +100,10 @@ fn run_polls_back_to_back_at_9600_and_115200_without_an_early_frame() {
                 "off",
             ],
         );
-        let err = String::from_utf8_lossy(&out.stderr);
+        let err = stderr(&out);
         assert_eq!(out.status.code(), Some(0), "at {baud} baud: {err}");
         assert!(!err.contains("no answer"), "a request was lost: {err}");
-        let stats = String::from_utf8_lossy(&out.stdout);
+        let stats = stdout(&out);
         let ticks: u64 = stats
             .lines()
             .find_map(|l| l.strip_prefix("ticks: "))
@@ -143,7 +143,7 @@ fn a_master_that_keeps_no_silence_loses_its_requests() {
     // The driver, keeping the silence, gets every answer from the same simulator.
     let out = run(rigscript(), &["c29", "--port", &sim.path, "status"]);
     assert_eq!(out.status.code(), Some(0), "{out:?}");
-    assert!(String::from_utf8_lossy(&out.stdout).contains("DI    0x0A"));
+    assert!(stdout(&out).contains("DI    0x0A"));
     assert_eq!(early_frames(&mut sim), early);
 }
 

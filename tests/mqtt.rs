@@ -17,7 +17,7 @@
 //! `$STATE_DIRECTORY` without a home, and where it cannot be written the error names the key;
 //! `lab` writes a retained ESC out; TLS to the plain port says the peer did not speak TLS.
 
-use crate::common::{require_tool, rigscript, until, TempDir};
+use crate::common::{require_tool, rigscript, stderr, stdout, until, TempDir};
 use serde_json::Value;
 use std::fs::File;
 use std::net::TcpListener;
@@ -60,11 +60,7 @@ fn free_port() -> u16 {
 
 fn run_ok(cmd: &mut Command) {
     let out = cmd.output().expect("start a tool");
-    assert!(
-        out.status.success(),
-        "{cmd:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{cmd:?} failed: {}", stderr(&out));
 }
 
 /// A CA and a certificate it signs for 127.0.0.1, made with the openssl CLI.
@@ -248,7 +244,7 @@ impl Broker {
             .ok()?;
         out.status
             .success()
-            .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+            .then(|| stdout(&out).trim().to_string())
     }
 
     /// Polls until the retained message on `topic` satisfies `ok` (10 s at most).
@@ -311,11 +307,7 @@ impl Broker {
             .env("TEST_MQTT_PW", "viewer-pw")
             .output()
             .expect("run rigscript lab");
-        assert!(
-            out.status.success(),
-            "rigscript lab: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        assert!(out.status.success(), "rigscript lab: {}", stderr(&out));
         serde_json::from_slice(&out.stdout).expect("lab's JSON")
     }
 
@@ -746,9 +738,7 @@ fn status(dir: &TempDir, name: &str, json: bool) -> Option<String> {
         .env_remove("RUNTIME_DIRECTORY")
         .output()
         .expect("run rigscript status");
-    out.status
-        .success()
-        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+    out.status.success().then(|| stdout(&out))
 }
 
 #[test]
@@ -1414,7 +1404,7 @@ fn every_command_of_a_flood_gets_a_reply_and_an_mqtt5_request_gets_it_where_it_a
         .args(["-D", "publish", "correlation-data", "req-42"])
         .output()
         .expect("run mosquitto_rr");
-    let answer = String::from_utf8_lossy(&rr.stdout);
+    let answer = stdout(&rr);
     assert!(rr.status.success(), "mosquitto_rr: {answer} {rr:?}");
     let answer: Value = serde_json::from_str(answer.trim()).unwrap();
     assert_eq!(
@@ -1701,7 +1691,7 @@ fn lab_writes_out_the_control_characters_of_a_retained_status() {
         .env("TEST_MQTT_PW", "viewer-pw")
         .output()
         .expect("run rigscript lab");
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = stdout(&out);
     assert!(out.status.success(), "{text}");
     assert!(
         !text.chars().any(|c| c.is_control() && c != '\n'),

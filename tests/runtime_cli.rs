@@ -125,11 +125,7 @@ fn a_script_check_rejects_does_not_run() {
     );
     let checked = run(&["check", &s]);
     assert_eq!(checked.status.code(), Some(1));
-    let problem = String::from_utf8_lossy(&checked.stdout)
-        .lines()
-        .next()
-        .unwrap()
-        .to_string();
+    let problem = stdout(&checked).lines().next().unwrap().to_string();
     assert_eq!(
         problem,
         format!(

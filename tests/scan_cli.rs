@@ -2,7 +2,7 @@
 //! several modules on one line, a checksum-only ASCII module, a pty given by symlink; and a
 //! machine without USB lists no boards without failing.
 
-use crate::common::{rigscript, SimProcess, TempDir};
+use crate::common::{rigscript, stderr, stdout, SimProcess, TempDir};
 use serde_json::Value;
 use std::process::{Command, Output};
 
@@ -18,11 +18,11 @@ fn scan_json(args: &[&str]) -> Value {
     let mut all = vec!["--json"];
     all.extend_from_slice(args);
     let out = scan(&all);
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert!(
         out.status.success(),
         "scan failed: {stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
+        stderr(&out)
     );
     assert_eq!(stdout.lines().count(), 1, "one JSON document: {stdout}");
     serde_json::from_str(&stdout).unwrap()
@@ -71,7 +71,7 @@ fn finds_an_ascii_module_that_wants_checksums_and_lists_it_for_people() {
         "30",
     ]);
     assert!(out.status.success());
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     let line = format!(
         "  {}  ascii  9600  ID 7  name TRPC29  firmware C29M090703  checksum on",
         sim.path
@@ -85,7 +85,7 @@ fn finds_an_ascii_module_that_wants_checksums_and_lists_it_for_people() {
         "says how to talk to it: {stdout}"
     );
     assert!(stdout.starts_with("TRC1000 boards:"), "{stdout}");
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert!(
         stderr.contains(&format!(
             "probing {} ascii at 9600 baud, IDs 6-8, 30 ms each",
@@ -165,7 +165,7 @@ fn a_given_port_that_does_not_exist_exits_3_after_the_rest_is_scanned() {
         "modbus",
     ]);
     assert_eq!(out.status.code(), Some(3));
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert_eq!(
         stdout.lines().count(),
         1,
@@ -178,7 +178,7 @@ fn a_given_port_that_does_not_exist_exits_3_after_the_rest_is_scanned() {
         .as_str()
         .unwrap()
         .contains("not found"));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert!(stderr.contains("/dev/nonexistent"), "{stderr}");
 }
 
@@ -187,11 +187,11 @@ fn nothing_found_is_not_an_error() {
     let sim = SimProcess::start(&["--protocol", "modbus", "--id", "9"]);
     let out = scan(&["--ports", &sim.path, "--ids", "1-2", "--timeout", "20"]);
     assert!(out.status.success());
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert!(
         stdout.contains("TRP-C29U modules:\n  none found"),
         "{stdout}"
     );
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert!(stderr.contains("hint:"), "says what to try: {stderr}");
 }

@@ -7,7 +7,7 @@
 
 use crate::common;
 
-use crate::common::{both, kill, rigscript, wait_at_most, SimProcess, TempDir};
+use crate::common::{both, kill, rigscript, stderr, wait_at_most, SimProcess, TempDir};
 use std::io::{BufRead, BufReader, Read};
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::process::{Child, Command, Stdio};
@@ -205,7 +205,7 @@ fn a_script_nested_deep_enough_to_overflow_the_stack_is_a_script_error_in_run_te
             .unwrap()
     };
     let o = run(&deep);
-    let log = String::from_utf8_lossy(&o.stderr);
+    let log = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{log}");
     assert!(
         log.contains("deep.rhai:3:") && log.contains("nested more than 48 deep"),
@@ -213,7 +213,7 @@ fn a_script_nested_deep_enough_to_overflow_the_stack_is_a_script_error_in_run_te
     );
     assert!(log.contains("safe state (script error)"), "{log}");
     let o = run(&uncalled);
-    let log = String::from_utf8_lossy(&o.stderr);
+    let log = stderr(&o);
     assert_eq!(o.status.code(), Some(0), "{log}");
     assert!(log.contains("built"), "{log}");
     // The same scripts in a scenario test and under verify.
@@ -302,7 +302,7 @@ fn a_stop_is_bounded_however_its_on_stop_handlers_behave() {
         .args(["run", "--sim", &many])
         .output()
         .unwrap();
-    let log = String::from_utf8_lossy(&o.stderr);
+    let log = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{log}");
     assert!(
         log.contains("many.rhai:2:") && log.contains("too many on_stop handlers (at most 100"),

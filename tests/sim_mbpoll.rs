@@ -2,7 +2,7 @@
 //! over a real pty: reads DO and DI coils, counters as input and holding registers, and writes a
 //! coil and multiple coils.
 
-use crate::common::{require_tool, run, SimProcess};
+use crate::common::{require_tool, run, stderr, stdout, SimProcess};
 
 /// Runs mbpoll once against `path` for slave 1 and returns the `[ref]: value` pairs it printed.
 fn mbpoll(path: &str, args: &[&str]) -> Vec<(u16, i64)> {
@@ -12,11 +12,11 @@ fn mbpoll(path: &str, args: &[&str]) -> Vec<(u16, i64)> {
     all.extend_from_slice(args);
     all.push(path);
     let out = run("mbpoll", &all);
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = stdout(&out);
     assert!(
         out.status.success(),
         "mbpoll {args:?} failed: {text}{}",
-        String::from_utf8_lossy(&out.stderr)
+        stderr(&out)
     );
     text.lines()
         .filter_map(|line| {
@@ -37,8 +37,8 @@ fn mbpoll_write(path: &str, args: &[&str], values: &[&str]) {
     assert!(
         out.status.success(),
         "mbpoll write {args:?} {values:?} failed: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
+        stdout(&out),
+        stderr(&out)
     );
 }
 
@@ -101,11 +101,7 @@ fn mbpoll_reads_and_writes_the_simulated_module() {
             "-r", "0", "-c", "8", &path,
         ],
     );
-    let all = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let all = format!("{}{}", stdout(&out), stderr(&out));
     assert!(
         all.contains("timed out"),
         "an absent ID gets no answer: {all}"

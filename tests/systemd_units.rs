@@ -4,7 +4,7 @@
 //! its `WatchdogSec=` needs, the timer's check leaves its records and JUnit report in its
 //! working directory.
 
-use crate::common::{assert_systemd_accepts, receive_notifications, rigscript, TempDir};
+use crate::common::{assert_systemd_accepts, receive_notifications, rigscript, stderr, TempDir};
 use std::collections::BTreeMap;
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
@@ -161,12 +161,7 @@ fn the_interlock_unit_runs_as_written_and_notifies_as_its_type_asks() {
         .map(|n| n.text)
         .collect();
     let out = child.wait_with_output().unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(got[0].starts_with("READY=1\n"), "{got:?}");
     assert!(got.iter().any(|m| m == "WATCHDOG=1"), "{got:?}");
     assert!(got.last().unwrap().starts_with("STOPPING=1\n"), "{got:?}");
@@ -195,12 +190,7 @@ fn the_check_unit_leaves_records_and_a_report_in_its_working_directory() {
         .output()
         .unwrap();
     // Nothing answers the trigger on the simulator: the count is out of its limits.
-    assert_eq!(
-        out.status.code(),
-        Some(4),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.status.code(), Some(4), "{}", stderr(&out));
     let records = std::fs::read_to_string(work.join("records.jsonl")).unwrap();
     assert!(
         records.contains("\"name\":\"response_pulses\""),

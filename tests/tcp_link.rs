@@ -1,7 +1,7 @@
 //! The TCP link end to end: `rigscript c29 --port tcp://...` through a local relay (what a
 //! serial device server or ser2net does) to `rigscript sim c29u` on a real pty.
 
-use crate::common::{lose_a_module, rigscript, start_relay, Cut, SimProcess};
+use crate::common::{lose_a_module, rigscript, start_relay, stderr, stdout, Cut, SimProcess};
 use serde_json::Value;
 use std::net::TcpListener;
 use std::process::{Command, Output};
@@ -13,12 +13,8 @@ fn rigscript_run(args: &[&str]) -> Output {
 
 fn ok_json(args: &[&str]) -> Value {
     let out = rigscript_run(args);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{args:?}: {stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = stdout(&out);
+    assert!(out.status.success(), "{args:?}: {stdout}{}", stderr(&out));
     serde_json::from_str(&stdout).unwrap()
 }
 
@@ -30,7 +26,7 @@ fn c29_commands_reach_the_module_through_a_tcp_serial_server() {
         let base = ["c29", "--port", &address, "--protocol", protocol];
 
         let out = rigscript_run(&[&base[..], &["status"]].concat());
-        let stdout = String::from_utf8_lossy(&out.stdout);
+        let stdout = stdout(&out);
         assert!(out.status.success(), "{stdout}");
         assert!(
             stdout.contains("DI    0x05  00000101  energized: DI0 DI2"),
@@ -73,7 +69,7 @@ fn a_server_that_is_not_there_exits_3_with_a_hint() {
     let address = format!("tcp://127.0.0.1:{port}");
     let out = rigscript_run(&["c29", "--port", &address, "status"]);
     assert_eq!(out.status.code(), Some(3));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert!(stderr.contains(&format!("127.0.0.1:{port}")), "{stderr}");
     assert!(stderr.contains("server is running"), "{stderr}");
 }

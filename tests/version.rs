@@ -5,7 +5,7 @@
 #[path = "../build/commit.rs"]
 mod commit;
 
-use crate::common::{require_tool, rigscript, TempDir};
+use crate::common::{require_tool, rigscript, stderr, stdout, TempDir};
 use std::path::Path;
 use std::process::Command;
 
@@ -17,12 +17,8 @@ fn git(dir: &Path, args: &[&str]) -> String {
         .args(args)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "git {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).trim().to_string()
+    assert!(out.status.success(), "git {args:?}: {}", stderr(&out));
+    stdout(&out).trim().to_string()
 }
 
 /// A repository in `dir` with one commit holding src/lib.rs and README.

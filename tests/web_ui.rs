@@ -10,7 +10,7 @@
 
 use crate::common;
 
-use crate::common::{rigscript, until, TempDir};
+use crate::common::{rigscript, stderr, stdout, until, TempDir};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -285,7 +285,7 @@ fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2), "{out:?}");
-    let said = String::from_utf8_lossy(&out.stderr);
+    let said = stderr(&out);
     assert!(
         said.contains("only with a token: set ui_token in rig.toml or RIGSCRIPT_UI_TOKEN"),
         "{said}"
@@ -299,7 +299,7 @@ fn a_non_loopback_address_or_one_in_use_is_refused_before_anything_starts() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(3), "{out:?}");
-    let said = String::from_utf8_lossy(&out.stderr);
+    let said = stderr(&out);
     assert!(said.contains("cannot serve the web page on"), "{said}");
     assert!(!said.contains("interlock ready"), "{said}");
 }
@@ -745,11 +745,7 @@ impl Served {
             .env_remove("RUNTIME_DIRECTORY")
             .output()
             .unwrap();
-        (
-            out.status.code().unwrap_or(-1),
-            String::from_utf8_lossy(&out.stdout).to_string(),
-            String::from_utf8_lossy(&out.stderr).to_string(),
-        )
+        (out.status.code().unwrap_or(-1), stdout(&out), stderr(&out))
     }
 
     /// Waits (at most 10 s) for a log line containing `text`.
@@ -1225,10 +1221,7 @@ fn another_user_changes_nothing_over_http_while_the_owner_does_with_the_run_s_ke
         req = request("").replace("\r\n", "\\r\\n"),
     )],
     );
-    let (out, err) = (
-        String::from_utf8_lossy(&theirs.stdout).to_string(),
-        String::from_utf8_lossy(&theirs.stderr).to_string(),
-    );
+    let (out, err) = (stdout(&theirs), stderr(&theirs));
     assert!(err.contains("Permission denied"), "{err}");
     assert!(!out.contains(&run.key), "another user read the key");
     assert!(
@@ -1272,7 +1265,7 @@ fn the_environment_s_token_is_checked_as_rig_toml_s_is() {
             .env("XDG_RUNTIME_DIR", dir.root())
             .output()
             .unwrap();
-        let said = String::from_utf8_lossy(&out.stderr).to_string();
+        let said = stderr(&out);
         assert_eq!(out.status.code(), Some(2), "{token:?} was taken: {said}");
         assert!(said.contains("RIGSCRIPT_UI_TOKEN is not a token"), "{said}");
         assert!(

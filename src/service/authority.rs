@@ -76,8 +76,7 @@ impl From<Untrusted> for io::Error {
 
 /// This process's user.
 pub fn me() -> u32 {
-    // SAFETY: geteuid has no preconditions and cannot fail.
-    unsafe { libc::geteuid() }
+    rustix::process::geteuid().as_raw()
 }
 
 /// Whether `path` is a directory a rig of this user's may live in: a real directory this user
@@ -176,6 +175,8 @@ pub struct Peer {
 
 /// Who is at the other end of `stream`.
 pub fn peer(stream: &UnixStream) -> Option<Peer> {
+    // libc, not rustix's `socket_peercred`: the kernel reports pid 0 for a peer outside this
+    // pid namespace, and rustix's `UCred` holds a non-zero `Pid`.
     let mut cred = libc::ucred {
         pid: 0,
         uid: 0,

@@ -198,15 +198,7 @@ impl Drop for Serving {
 
 /// Waits up to `ACCEPT_SLICE` for a connection; true if one waits.
 fn connection_waiting(fd: RawFd) -> bool {
-    let mut poll = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    let ms = libc::c_int::try_from(ACCEPT_SLICE.as_millis()).unwrap_or(100);
-    // SAFETY: one valid pollfd for the listener's own descriptor.
-    let ready = unsafe { libc::poll(&mut poll, 1, ms) };
-    ready > 0 && poll.revents & libc::POLLIN != 0
+    crate::link::fd::wait_readable(&[fd], ACCEPT_SLICE).is_ok_and(|ready| ready[0])
 }
 
 /// Lets the client that has waited longest go (its reads end, and its place is free at once):
