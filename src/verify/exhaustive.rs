@@ -135,6 +135,8 @@ struct Vocabulary {
     /// States may be merged (off when two devices share a kind: a script's handle to one
     /// shows as the kind's name only).
     merge: bool,
+    /// The script has a cron schedule (wall-clock steps are worth a choice).
+    cron: bool,
 }
 
 impl Vocabulary {
@@ -189,6 +191,7 @@ impl Vocabulary {
             period: profile.period,
             grace: profile.grace,
             merge: modules <= 1 && panels <= 1,
+            cron: !profile.crons.is_empty(),
         }
     }
 
@@ -225,6 +228,8 @@ impl Vocabulary {
         }
         if self.faults {
             out.push("host stalled past the grace time or a watchdog".into());
+        }
+        if self.faults && self.cron {
             out.push("wall clock to the next cron time or back by its period".into());
         }
         out.push("wait: a scan, each timer's next firing, a lost device's grace time".into());
@@ -393,6 +398,11 @@ impl Vocabulary {
         }
         // Waits: a scan, each timer's next firing, past each lost device's grace time.
         let mut waits: Vec<(Duration, String)> = vec![(tick, "a scan".into())];
+        // The runner's own next wake-up (an idle loop sleeps to its timers and device checks).
+        let wake = p.rig.runner.next_deadline();
+        if wake > tick {
+            waits.push((wake, "the runner's next tick".into()));
+        }
         let seen = p.timers_seen.as_ref();
         for r in rt.handlers().list() {
             let Source::Timer(id) = r.source else {
@@ -633,6 +643,7 @@ fn play_level(
     opts: &Options,
 ) -> Vec<Option<Result<Played, ExecError>>> {
     let next = AtomicUsize::new(0);
+    let lowest_failure = AtomicUsize::new(usize::MAX);
     let results: Mutex<Vec<Option<Result<Played, ExecError>>>> =
         Mutex::new((0..level.len()).map(|_| None).collect());
     let stopped = || {
@@ -645,10 +656,13 @@ fn play_level(
         let Some(choices) = level.get(i) else {
             break;
         };
-        if stopped() {
+        if stopped() || i > lowest_failure.load(Ordering::SeqCst) {
             break;
         }
         let r = play(target, start, vocabulary, choices);
+        if matches!(r, Ok(Played::Failed(_)) | Err(_)) {
+            lowest_failure.fetch_min(i, Ordering::SeqCst);
+        }
         if let Some(slot) = crate::sync::lock(&results).get_mut(i) {
             *slot = Some(r);
         }
@@ -698,19 +712,22 @@ pub fn explore(
     let mut seen: HashSet<u128> = HashSet::new();
     let mut level: Vec<Vec<Choice>> = vec![Vec::new()];
     for depth in 0..=opts.depth {
+        // Fewest events first, so that the first violation of this depth has the fewest.
+        level.sort_by_key(|l| l.iter().filter(|c| c.action.is_some()).count());
         let results = play_level(target, &start, &vocabulary, &level, opts);
         let mut next_level = Vec::new();
+        let mut found: Option<Found> = None;
         for (choices, r) in level.iter().zip(results) {
             let Some(r) = r else {
-                summary.interrupted = true;
+                // Not played: after a violation of this depth, or stopped by a signal.
+                summary.interrupted = found.is_none();
                 break;
             };
             summary.sequences += 1;
             match r? {
-                Played::Failed(found) => {
-                    summary.found = Some(found);
-                    summary.time = began.elapsed();
-                    return Ok(summary);
+                Played::Failed(f) => {
+                    found = Some(f);
+                    break;
                 }
                 Played::State(fp, next) => {
                     if !seen.insert(fp) {
@@ -727,6 +744,11 @@ pub fn explore(
                     }
                 }
             }
+        }
+        if found.is_some() {
+            summary.found = found;
+            summary.time = began.elapsed();
+            return Ok(summary);
         }
         if summary.interrupted {
             break;
