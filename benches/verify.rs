@@ -140,6 +140,42 @@ fn search_planted(sizes: &Sizes, file: &str) {
     );
 }
 
+/// The exhaustive mode: interlock.rhai proved to `depth`, and each planted bug found.
+fn exhaustive(depth: usize, planted: &[&str]) {
+    use rigscript::verify::exhaustive::{explore, result_line, Options};
+    let opts = |depth| Options {
+        depth,
+        jobs: jobs(),
+        faults: true,
+        interrupt: None,
+    };
+    let t = target("scripts/interlock.rhai", Duration::from_secs(60));
+    let s = explore(&t, &opts(depth), |_, _| {}).expect("interlock runs");
+    println!(
+        "exhaustive: interlock.rhai: {} in {:.1} s ({} sequences, {} job(s); target depth >= 4 \
+         within 60 s on 2 cores)",
+        result_line(&s),
+        s.time.as_secs_f64(),
+        s.sequences,
+        jobs()
+    );
+    for file in planted {
+        let t = target(file, Duration::from_secs(60));
+        let s = explore(&t, &opts(4), |_, _| {}).expect("runs");
+        let f = s
+            .found
+            .as_ref()
+            .unwrap_or_else(|| panic!("{file}: nothing found"));
+        println!(
+            "exhaustive: {file}: {} choice(s), {} event(s), {} states, {:.1} s",
+            f.choices.len(),
+            f.events.len(),
+            s.states,
+            s.time.as_secs_f64()
+        );
+    }
+}
+
 fn main() {
     let args = BenchArgs::from_env();
     let sizes = if args.full { &FULL } else { &SMOKE };
@@ -147,6 +183,26 @@ fn main() {
     if wanted("throughput") {
         throughput(sizes, true);
         throughput(sizes, false);
+    }
+    if wanted("exhaustive") {
+        if args.full {
+            exhaustive(
+                4,
+                &[
+                    "tests/verify/interlock_guard_mask.rhai",
+                    "tests/verify/interlock_trusts_a_lost_panel.rhai",
+                    "tests/verify/rotary_reset_keeps_count.rhai",
+                    "tests/verify/counter_ack_keeps_waiting.rhai",
+                    "tests/verify/two_hand_counts_scans_as_time.rhai",
+                    "tests/verify/lubrication_trusts_the_wall_clock.rhai",
+                    "tests/verify/tool_life_steps_over_the_limit.rhai",
+                    "tests/verify/tool_life_misses_the_last_stroke.rhai",
+                    "tests/verify/cure_cycle_end_leaves_heater_on.rhai",
+                ],
+            );
+        } else {
+            exhaustive(1, &["tests/verify/tool_life_misses_the_last_stroke.rhai"]);
+        }
     }
     if wanted("search") {
         search_planted(sizes, "tests/verify/interlock_guard_mask.rhai");

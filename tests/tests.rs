@@ -32,5 +32,6 @@ mod systemd_units;
 mod tcp_link;
 mod trc_umockdev;
 mod verify_cli;
+mod verify_exhaustive;
 mod version;
 mod web_ui;

@@ -20,6 +20,7 @@ pub mod status;
 pub mod test;
 pub mod trc;
 pub mod verify;
+pub mod verify_exhaustive;
 
 /// What `rigscript --version` prints after the name: the version and the commit built from
 /// (build.rs asks git; `unknown commit` outside a checkout).

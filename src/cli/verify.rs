@@ -62,6 +62,14 @@ pub struct VerifyArgs {
     /// `[limits]` in rig.toml, else 1000000). The other limits are rig.toml's.
     #[arg(long)]
     pub budget: Option<u64>,
+    /// Explore every sequence of up to `--depth` choices (field events, faults, waits to the
+    /// script's timer boundaries) instead of random runs: a shortest counterexample, or a
+    /// bounded proof. Deterministic: no seed.
+    #[arg(long, conflicts_with_all = ["runs", "seed", "run_for"])]
+    pub exhaustive: bool,
+    /// With `--exhaustive`: the most choices in a sequence (default 4).
+    #[arg(long, requires = "exhaustive", value_parser = clap::value_parser!(u64).range(0..=32))]
+    pub depth: Option<u64>,
 }
 
 fn run_for(text: &str) -> Result<Duration, String> {
@@ -87,13 +95,13 @@ fn command(args: &VerifyArgs, seed: u64) -> String {
 }
 
 /// Prints a line on standard output; a reader that went away (`| head`) is no error.
-fn say(line: &str) {
+pub(super) fn say(line: &str) {
     let _ = writeln!(std::io::stdout().lock(), "{line}");
 }
 
 /// Makes SIGINT and SIGTERM set `interrupt` to their number, so that the search stops and
 /// reports; a second one while it is set ends the process at once (128 + its number).
-fn watch_signals(interrupt: &Arc<AtomicUsize>) -> std::io::Result<()> {
+pub(super) fn watch_signals(interrupt: &Arc<AtomicUsize>) -> std::io::Result<()> {
     use signal_hook::consts::{SIGINT, SIGTERM};
     let asked = Arc::new(AtomicBool::new(false));
     for signal in [SIGINT, SIGTERM] {
@@ -142,6 +150,9 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
     let checked = (&config, Some(config.period));
     if !fit_to_run("verify", &file, &source, checked, args.config.as_deref()) {
         return 2;
+    }
+    if args.exhaustive {
+        return super::verify_exhaustive::run(&args, config, source);
     }
     let seed = args.seed.unwrap_or_else(|| fastrand::u64(..));
     let jobs = args.jobs.map_or_else(

@@ -91,15 +91,20 @@ pub struct Keep {
     pub observe: bool,
 }
 
-struct Player<'a> {
-    rig: Rig,
-    clock: VirtualClock,
+/// A run being played: the rig, its clock and what is watched (the exhaustive mode drives one
+/// choice at a time through it, `exhaustive`).
+pub(super) struct Player<'a> {
+    pub(super) rig: Rig,
+    pub(super) clock: VirtualClock,
     watch: Watch,
     steps: Vec<Step>,
     coverage: Option<Coverage>,
     observed: Observed,
     keep: Keep,
     target: &'a Target,
+    /// Handler id of each timer → the instant after the tick it was first seen in (kept when
+    /// `Some`: its deadlines follow from it and its kind).
+    pub(super) timers_seen: Option<BTreeMap<u64, Duration>>,
 }
 
 /// The zone a plan names, read as the test file's `rig_at` reads it.
@@ -108,9 +113,23 @@ pub fn zone_of(name: &str) -> Result<Zone, ExecError> {
 }
 
 impl Player<'_> {
+    /// Notes the timers the rig has now that were not seen before (`timers_seen`).
+    fn note_timers(&mut self) {
+        let Some(seen) = self.timers_seen.as_mut() else {
+            return;
+        };
+        let now = self.clock.now();
+        let rt = self.rig.runner.runtime().borrow();
+        for r in rt.handlers().list() {
+            if matches!(r.source, crate::runtime::handlers::Source::Timer(_)) {
+                seen.entry(r.id).or_insert(now);
+            }
+        }
+    }
+
     /// Runs the ticks due up to `target` (`Runner::step_toward`, as `Runner::advance`), watching each; the finding,
     /// if one comes.
-    fn advance_to(&mut self, target: Duration) -> Option<Finding> {
+    pub(super) fn advance_to(&mut self, target: Duration) -> Option<Finding> {
         let from = self.clock.now();
         let mut ticked = false;
         while let Some(deadline) = self.rig.runner.step_toward(target) {
@@ -121,6 +140,7 @@ impl Player<'_> {
             if self.keep.observe {
                 self.observed.look(&self.rig);
             }
+            self.note_timers();
             let now = self.clock.now();
             let found = self.watch.after_tick(&self.rig, now);
             let ended = self.rig.runner.status().is_some();
@@ -140,7 +160,7 @@ impl Player<'_> {
         None
     }
 
-    fn apply(&mut self, action: &Action) -> Result<(), FieldError> {
+    pub(super) fn apply(&mut self, action: &Action) -> Result<(), FieldError> {
         let sim = &self.rig.sim;
         let step = match action {
             Action::Input { dev, ch, on } => sim.set_input(dev, *ch, *on).map(|()| true),
@@ -204,7 +224,7 @@ impl Player<'_> {
         Ok(())
     }
 
-    fn finish(mut self, finding: Option<Finding>, played: usize) -> Outcome {
+    pub(super) fn finish(mut self, finding: Option<Finding>, played: usize) -> Outcome {
         if let Some(c) = self.coverage.as_mut() {
             c.finish(&self.rig);
         }
@@ -225,11 +245,15 @@ impl Player<'_> {
     }
 }
 
-/// Plays `plan` on a fresh rig for `target.run_for`; stops at the first finding.
-pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, ExecError> {
-    let _ends = crate::guardian::pulse::EndsLoop;
-    let zone = zone_of(&plan.start.zone)?;
-    let clock = VirtualClock::new(plan.start.wall.with_timezone(&Utc));
+/// A fresh rig for `target` started where `start` says, its first tick (the baseline
+/// reading) not yet run.
+pub(super) fn begin<'a>(
+    target: &'a Target,
+    start: &super::plan::StartPoint,
+    keep: Keep,
+) -> Result<Player<'a>, ExecError> {
+    let zone = zone_of(&start.zone)?;
+    let clock = VirtualClock::new(start.wall.with_timezone(&Utc));
     let rig = RigBuilder::from_config(target.config.clone())
         .simulated()
         .clock(Arc::new(clock.clone()))
@@ -251,10 +275,38 @@ pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, Exec
         observed: Observed::default(),
         keep,
         target,
+        timers_seen: None,
     };
     player.observed.look(&player.rig);
-    let now = player.clock.now();
-    if let Some(f) = player.watch.after_tick(&player.rig, now) {
+    Ok(player)
+}
+
+impl Player<'_> {
+    /// What the top level found, before any tick.
+    pub(super) fn first_finding(&mut self) -> Option<Finding> {
+        let now = self.clock.now();
+        self.watch.after_tick(&self.rig, now)
+    }
+
+    /// Ends the run here (as at `--for`) and checks what must hold after the end.
+    pub(super) fn end(mut self) -> Outcome {
+        if self.rig.runner.status().is_none() {
+            self.rig
+                .runner
+                .finish(EndReason::Finished("verify: end of the run".into()));
+            self.steps.push(Step::End);
+        }
+        let now = self.clock.now();
+        let f = self.watch.after_end(&self.rig, now);
+        self.finish(f, 0)
+    }
+}
+
+/// Plays `plan` on a fresh rig for `target.run_for`; stops at the first finding.
+pub fn execute(target: &Target, plan: &Plan, keep: Keep) -> Result<Outcome, ExecError> {
+    let _ends = crate::guardian::pulse::EndsLoop;
+    let mut player = begin(target, &plan.start, keep)?;
+    if let Some(f) = player.first_finding() {
         return Ok(player.finish(Some(f), 0));
     }
     let end = player.target.run_for;

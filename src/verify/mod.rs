@@ -14,12 +14,14 @@
 pub mod checks;
 pub mod coverage;
 pub mod exec;
+pub mod exhaustive;
 pub mod facts;
 pub mod faults;
 pub mod field;
 pub mod horizon;
 pub mod plan;
 pub mod profile;
+pub mod proof_report;
 pub mod report;
 pub mod reproduce;
 pub mod shrink;
