@@ -27,6 +27,7 @@ pub mod requests;
 pub mod runner;
 pub mod safety;
 pub mod schedule;
+pub mod script_context;
 pub mod signals;
 pub mod snapshot;
 pub mod state;

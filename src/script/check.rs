@@ -31,6 +31,7 @@ use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::log::Logger;
 use crate::runtime::records::Records;
 use crate::runtime::schedule::validate_cron;
+use crate::runtime::script_context::ScriptContext;
 use crate::runtime::state::Runtime;
 use crate::suggest::closest;
 use crate::time::clock::SystemClock;
@@ -153,7 +154,7 @@ impl Registry {
         );
         register(
             &mut engine,
-            &Rc::new(RefCell::new(runtime)),
+            &ScriptContext::new(&Rc::new(RefCell::new(runtime))),
             &Arities::default(),
             &ReadTracker::default(),
             "",

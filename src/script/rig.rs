@@ -13,6 +13,7 @@ use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::runner::{panic_message, safe_after_panic, RunOptions, Runner};
 use crate::runtime::safety::Unavailable;
+use crate::runtime::script_context::ScriptContext;
 use crate::runtime::state::Runtime;
 use crate::runtime::{exit, signals};
 use std::cell::RefCell;
@@ -190,7 +191,7 @@ impl RigBuilder {
         for attach in setup.attached {
             attach(&events);
         }
-        let mut program = ScriptProgram::new(&rt, ast, file, limits);
+        let mut program = ScriptProgram::new(&ScriptContext::new(&rt), ast, file, limits);
         if let Some(prepare) = setup.prepare {
             prepare(&mut program);
         }
