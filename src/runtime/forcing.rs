@@ -359,7 +359,7 @@ impl<H: Clone> Runtime<H> {
         if !self.forces.allowed {
             return Err(ForceError::NotAllowed);
         }
-        if self.held_safe {
+        if self.safety.held() {
             return Err(ForceError::Safe(
                 "every output is held at its safe state (a device was lost past its grace time)"
                     .into(),
@@ -706,10 +706,10 @@ mod tests {
         r.sim.set_gone("panel", true).unwrap();
         r.next_tick(Duration::from_millis(10));
         r.rt.switches(PANEL);
-        assert!(!r.rt.online(PANEL));
+        assert!(!r.rt.devices.online(PANEL));
         r.clock.advance(Duration::from_millis(1500));
         r.rt.supervise();
-        assert!(r.rt.held_safe);
+        assert!(r.rt.held_safe());
         r.rt.flush_outputs();
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
         assert!(r.rt.forces_shown().is_empty());

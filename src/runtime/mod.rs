@@ -21,7 +21,7 @@ mod recording;
 pub mod records;
 mod records_file;
 mod registrations;
-mod registry;
+pub mod registry;
 pub mod remote;
 pub mod requests;
 pub mod runner;

@@ -52,12 +52,12 @@ impl<H: Clone> ScriptContext<H> {
     /// The counter of requests sent on all links (an exchange takes time: the script's
     /// limits read the clock again after each new one).
     pub fn transaction_counter(&self) -> TransactionCounter {
-        Arc::clone(self.0.borrow().transaction_counter())
+        Arc::clone(self.0.borrow().devices.transaction_counter())
     }
 
     /// The index of the device called `name`.
     pub fn device_index(&self, name: &str) -> Option<usize> {
-        self.0.borrow().device_index(name)
+        self.0.borrow().devices.index(name)
     }
 
     /// The name and kind of the device at `idx`.
@@ -79,17 +79,21 @@ impl<H: Clone> ScriptContext<H> {
 
     /// The device names, for messages.
     pub fn device_names(&self) -> String {
-        self.0.borrow().device_names()
+        self.0.borrow().devices.names()
     }
 
     /// Whether the device at `idx` answers.
     pub fn online(&self, idx: usize) -> bool {
-        self.0.borrow().online(idx)
+        self.0.borrow().devices.online(idx)
     }
 
     /// The relay the script wants on the TRC1000 at `idx` (0 if there is none).
     pub fn wanted_relay(&self, idx: usize) -> u8 {
-        self.0.borrow_mut().trc(idx).map_or(0, |d| d.wanted_relay())
+        self.0
+            .borrow_mut()
+            .devices
+            .trc(idx)
+            .map_or(0, |d| d.wanted_relay())
     }
 
     /// Selects `relay` on the TRC1000 at `idx` at the end of the tick.
@@ -101,6 +105,7 @@ impl<H: Clone> ScriptContext<H> {
     pub fn wanted_outputs(&self, idx: usize) -> u8 {
         self.0
             .borrow_mut()
+            .devices
             .c29u(idx)
             .map_or(0, |c| c.wanted_outputs())
     }
@@ -113,7 +118,7 @@ impl<H: Clone> ScriptContext<H> {
     /// Turns output `ch` of the TRP-C29U at `idx` on or off in what the script wants.
     pub fn set_output(&self, idx: usize, ch: u8, on: bool) {
         let mut rt = self.0.borrow_mut();
-        let v = rt.c29u(idx).map_or(0, |c| c.wanted_outputs());
+        let v = rt.devices.c29u(idx).map_or(0, |c| c.wanted_outputs());
         rt.set_outputs(idx, if on { v | (1 << ch) } else { v & !(1 << ch) });
     }
 

@@ -105,7 +105,7 @@ impl TestRig {
 
     /// Requests sent so far on all links.
     pub fn requests(&self) -> u64 {
-        self.rt.transaction_count()
+        self.rt.devices.transaction_count()
     }
 
     /// The log so far, one line each.

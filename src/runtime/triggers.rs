@@ -93,7 +93,7 @@ impl<H: Clone> Runtime<H> {
         if calls.len() == before {
             return;
         }
-        let name = source_device(event).map_or(String::new(), |dev| self.device_name(dev));
+        let name = source_device(event).map_or(String::new(), |dev| self.devices.name(dev));
         if let Some(line) = event_line(&name, event, args) {
             self.log_mut().activity(&line);
         }
@@ -428,7 +428,12 @@ mod tests {
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])]);
         r.sim.pulse("io", 2, 5).unwrap();
         assert!(tick(&mut r).is_empty(), "once");
-        r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .clear_counter(2)
+            .unwrap();
         assert_eq!(
             tick(&mut r),
             [("zero", vec![Arg::Int(0)])],
@@ -458,7 +463,7 @@ mod tests {
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(5)])]);
         // The script clears it (as `io.clear_counter(2)` does), and four strokes come before
         // the next reading: the batch is not missed.
-        r.rt.c29u(IO).unwrap().clear_counter(2).unwrap();
+        r.rt.devices.c29u(IO).unwrap().clear_counter(2).unwrap();
         r.sim.pulse("io", 2, 4).unwrap();
         assert_eq!(
             tick(&mut r),
@@ -469,7 +474,12 @@ mod tests {
         // down, 4 -> 0 -> 3 between two readings.
         r.sim.pulse("io", 2, 4).unwrap();
         assert!(tick(&mut r).is_empty(), "8: still the same batch");
-        r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .clear_counter(2)
+            .unwrap();
         r.sim.pulse("io", 2, 3).unwrap();
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])], "went down");
         assert!(tick(&mut r).is_empty(), "once a batch");
