@@ -348,11 +348,6 @@ impl<H: Clone> Runtime<H> {
         self.forces.allowed = allowed;
     }
 
-    /// The forces of the run.
-    pub fn forces(&self) -> &Forces {
-        &self.forces
-    }
-
     /// Sets or changes a force asked by `by`; the outputs are written by the caller (between
     /// ticks, or at the tick's end).
     pub fn force(&mut self, order: &ForceOrder, by: &str) -> Result<(), ForceError> {

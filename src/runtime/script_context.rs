@@ -6,7 +6,7 @@
 
 use super::devices::links::TransactionCounter;
 use super::devices::{C29uDevice, Device, DeviceError};
-use super::handlers::{Source, TooManyStopHandlers, MAX_STOP_HANDLERS};
+use super::handlers::{Source, TooManyStopHandlers};
 use super::invariants::InvariantError;
 use super::observe::RunEvent;
 use super::records::Limits;
@@ -173,44 +173,32 @@ impl<H: Clone> ScriptContext<H> {
 
     /// Adds a handler; returns its id.
     pub fn subscribe(&self, source: Source, handler: H, label: String) -> u64 {
-        let mut rt = self.0.borrow_mut();
-        rt.program_mut().handlers_mut().add(source, handler, label)
+        self.0.borrow_mut().subscribe(source, handler, label)
     }
 
     /// `every(period, fn)`.
     pub fn every(&self, period: Duration, handler: H) -> Result<u64, ScheduleError> {
-        let mut rt = self.0.borrow_mut();
-        let now = rt.now();
-        rt.program_mut().handlers_mut().every(period, now, handler)
+        self.0.borrow_mut().every(period, handler)
     }
 
     /// `after(delay, fn)`.
     pub fn after(&self, delay: Duration, handler: H) -> Result<u64, ScheduleError> {
-        let mut rt = self.0.borrow_mut();
-        let now = rt.now();
-        rt.program_mut().handlers_mut().after(delay, now, handler)
+        self.0.borrow_mut().after(delay, handler)
     }
 
     /// `cron(expr, fn)`.
     pub fn cron(&self, expr: &str, handler: H) -> Result<u64, ScheduleError> {
-        let mut rt = self.0.borrow_mut();
-        let wall = rt.cycle().wall();
-        rt.program_mut().handlers_mut().cron(expr, wall, handler)
+        self.0.borrow_mut().cron(expr, handler)
     }
 
     /// Removes a handler or timer; false if there is none with that id.
     pub fn cancel(&self, id: u64) -> bool {
-        self.0.borrow_mut().program_mut().handlers_mut().cancel(id)
+        self.0.borrow_mut().cancel(id)
     }
 
     /// `on_stop(fn)`; refused past `MAX_STOP_HANDLERS`.
     pub fn on_stop(&self, handler: H) -> Result<u64, TooManyStopHandlers> {
-        let mut rt = self.0.borrow_mut();
-        let handlers = rt.program_mut().handlers_mut();
-        if handlers.stop_count() >= MAX_STOP_HANDLERS {
-            return Err(TooManyStopHandlers);
-        }
-        Ok(handlers.add(Source::Stop, handler, "on_stop".into()))
+        self.0.borrow_mut().on_stop(handler)
     }
 
     /// States an invariant (checked from the next tick on), stated at `at`.
@@ -220,15 +208,12 @@ impl<H: Clone> ScriptContext<H> {
         handler: H,
         at: Option<String>,
     ) -> Result<(), InvariantError> {
-        self.0
-            .borrow_mut()
-            .program_mut()
-            .add_invariant(name, handler, at)
+        self.0.borrow_mut().program.add_invariant(name, handler, at)
     }
 
     /// `stop(code)`: the run ends at the end of this tick; the first request stands.
     pub fn request_stop(&self, code: i64) {
-        self.0.borrow_mut().program_mut().request_stop(code);
+        self.0.borrow_mut().program.request_stop(code);
     }
 
     /// The wall time now, as text in the run's zone.

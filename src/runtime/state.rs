@@ -27,13 +27,13 @@ use std::time::Duration;
 /// The state of one run.
 pub struct Runtime<H> {
     /// The clock and the tick.
-    cycle: Cycle,
+    pub(super) cycle: Cycle,
     /// The devices, in name order, and what reads them (`registry`).
     pub(super) devices: Devices,
     /// What the script set up: handlers, timers, invariants, its stop request.
-    program: ProgramState<H>,
+    pub(super) program: ProgramState<H>,
     /// The log, the records and the event stream.
-    figures: Figures,
+    pub(super) figures: Figures,
     /// Held safe, the grace time, the stop's cancel, the link watch (`safety`).
     pub(super) safety: Safety,
     /// The operator's forces (`forcing`), when rig.toml allows them.
@@ -71,18 +71,6 @@ impl<H: Clone> Runtime<H> {
     /// The run's clock and tick.
     pub fn cycle(&self) -> &Cycle {
         &self.cycle
-    }
-
-    /// Starts the next tick, for the period boundary `boundary` (the runner, as each tick
-    /// begins).
-    pub(super) fn begin_tick(&mut self, boundary: Duration) {
-        self.cycle.begin_tick(boundary);
-    }
-
-    /// The clock and tick, for a test that drives the parts by hand.
-    #[cfg(test)]
-    pub(super) fn cycle_mut(&mut self) -> &mut Cycle {
-        &mut self.cycle
     }
 
     /// The devices, in name order, and what reads them.
@@ -145,16 +133,6 @@ impl<H: Clone> Runtime<H> {
         self.figures.events()
     }
 
-    /// The log, the records and the event stream.
-    pub fn figures(&self) -> &Figures {
-        &self.figures
-    }
-
-    /// The log, the records and the event stream, to add to or close.
-    pub fn figures_mut(&mut self) -> &mut Figures {
-        &mut self.figures
-    }
-
     /// The log lines kept (by a run that keeps them: tests, the JUnit report), oldest first.
     pub fn log_lines(&self) -> &[String] {
         self.figures.log().lines()
@@ -173,16 +151,6 @@ impl<H: Clone> Runtime<H> {
     /// What the script set up.
     pub fn program(&self) -> &ProgramState<H> {
         &self.program
-    }
-
-    /// What the script set up, to change.
-    pub(super) fn program_mut(&mut self) -> &mut ProgramState<H> {
-        &mut self.program
-    }
-
-    /// What the script set up, to change, with the clock (timers fall due by it).
-    pub(super) fn program_on_time(&mut self) -> (&mut ProgramState<H>, &Cycle) {
-        (&mut self.program, &self.cycle)
     }
 
     /// The handler about to run is `label` (its buffer kept: this is every call).
@@ -261,7 +229,7 @@ mod tests {
         );
         r.rt.reset_program();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.switches(PANEL);
         let lost_at = r.rt.now();
         assert_eq!(

@@ -41,6 +41,24 @@ pub fn fail<T>(message: impl Into<String>) -> R<T> {
     Err(message.into().into())
 }
 
+/// Handler-taking calls: (name, index of the handler argument, the parameters it gets); the
+/// bindings (`Arities::check`) and `check` both read it.
+pub(super) const HANDLERS: &[(&str, usize, &[&str])] = &[
+    ("on_press", 1, &["switch name"]),
+    ("on_release", 1, &["switch name"]),
+    ("on_turn", 1, &["delta", "value"]),
+    ("on_rise", 1, &["channel"]),
+    ("on_fall", 1, &["channel"]),
+    ("on_counter", 2, &["count"]),
+    ("every", 1, &["missed"]),
+    ("cron", 1, &["missed"]),
+    ("after", 1, &[]),
+    ("on_stop", 0, &[]),
+    ("invariant", 1, &[]),
+    ("on_command", 1, &["payload"]),
+    ("on_message", 1, &["topic", "payload"]),
+];
+
 /// How many parameters each function of the script takes, by name (filled after compiling,
 /// so handlers get only the arguments they take, and too many parameters are an error).
 #[derive(Clone, Default)]
@@ -86,8 +104,13 @@ impl Arities {
         ))
     }
 
-    /// An error if `f` cannot be a handler for `what`, which passes `params`.
-    pub fn check(&self, f: &FnPtr, what: &str, params: &[&str]) -> R<()> {
+    /// An error if `f` cannot be a handler for `what` (named in `HANDLERS`, with the
+    /// parameters it passes).
+    pub fn check(&self, f: &FnPtr, what: &str) -> R<()> {
+        let params = HANDLERS
+            .iter()
+            .find(|(name, ..)| *name == what)
+            .map_or(&[][..], |(.., params)| *params);
         let Some(counts) = self.of(f) else {
             return Ok(());
         };
@@ -381,7 +404,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
             method,
             move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
                 let s = switch(&p.name, name)?;
-                a.check(&f, method, &["switch name"])?;
+                a.check(&f, method)?;
                 p.read(Item::Switch(s).mask());
                 let source = if pressed {
                     Source::Press {
@@ -405,7 +428,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
         "on_turn",
         move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
             let r = rotary(&p.name, name)?;
-            a.check(&f, "on_turn", &["delta", "value"])?;
+            a.check(&f, "on_turn")?;
             p.read(Item::Rotary(r).mask());
             let label = format!("{}.on_turn {}", p.name, r.name());
             let source = Source::Turn {
@@ -558,7 +581,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         let a = arities.clone();
         engine.register_fn(method, move |d: &mut Io, ch: i64, f: FnPtr| -> R<i64> {
             let c = channel(&d.name, ch)?;
-            a.check(&f, method, &["channel"])?;
+            a.check(&f, method)?;
             d.read(Item::Input(c).mask());
             let source = if rise {
                 Source::Rise { dev: d.idx, ch: c }
@@ -579,7 +602,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                     "counter threshold {threshold} is not possible: the counters count 0-65535"
                 ));
             };
-            a.check(&f, "on_counter", &["count"])?;
+            a.check(&f, "on_counter")?;
             d.read(Item::Counter(c).mask());
             let label = format!("{}.on_counter DI{c} >= {t}", d.name);
             let source = Source::Counter {
@@ -621,20 +644,20 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("every", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
-        a.check(&f, "every", &["missed"])?;
+        a.check(&f, "every")?;
         let id = r.every(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
-        a.check(&f, "after", &[])?;
+        a.check(&f, "after")?;
         let id = r.after(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {
-        a.check(&f, "cron", &["missed"])?;
+        a.check(&f, "cron")?;
         let id = r.cron(expr, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
@@ -644,7 +667,7 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     });
     let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("on_stop", move |f: FnPtr| -> R<i64> {
-        a.check(&f, "on_stop", &[])?;
+        a.check(&f, "on_stop")?;
         let id = r.on_stop(Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
@@ -697,7 +720,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
                  without '/', '+' or '#'"
             ));
         }
-        a.check(&f, "on_command", &["payload"])?;
+        a.check(&f, "on_command")?;
         let label = format!("on_command {name}");
         Ok(id_value(r.subscribe(
             Source::Command(name.to_string()),
@@ -708,7 +731,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("on_message", move |filter: &str, f: FnPtr| -> R<i64> {
         check_filter(filter).or_else(|e| fail(format!("on_message: {e}")))?;
-        a.check(&f, "on_message", &["topic", "payload"])?;
+        a.check(&f, "on_message")?;
         let label = format!("on_message {filter}");
         Ok(id_value(r.subscribe(
             Source::Message(filter.to_string()),
@@ -746,7 +769,7 @@ fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &st
     engine.register_fn(
         "invariant",
         move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
-            a.check(&f, "invariant", &[])?;
+            a.check(&f, "invariant")?;
             let at = super::error::location(&file, ctx.call_position());
             let added = r.add_invariant(name, Rc::new(f), at);
             added.or_else(|e| fail(e.to_string()))

@@ -83,14 +83,14 @@ impl<P: Program> Runner<P> {
             held_safe: rt.held_safe(),
             ticks: TickFigures::of(&self.stats, self.options.period),
             dropped: self.events.dropped(),
-            log_dropped: rt.figures().log().dropped(),
-            forcing: rt.forces().allowed(),
+            log_dropped: rt.figures.log().dropped(),
+            forcing: rt.forces.allowed(),
             forces: rt.forces_shown(),
             // Counted as it happens; the end's count takes in what was queued too.
             records_lost: self
                 .trouble
                 .records_lost
-                .max(rt.figures().records().lost_so_far()),
+                .max(rt.figures.records().lost_so_far()),
             dropped_in_all: self.events.dropped_in_all(),
             mqtt: self
                 .served

@@ -34,6 +34,7 @@ impl<P: Program> Runner<P> {
         {
             self.rt
                 .borrow_mut()
+                .cycle
                 .begin_tick(self.next_deadline.min(start));
         }
         if self.ended_by_signal() {
@@ -224,7 +225,7 @@ impl<P: Program> Runner<P> {
         }
         let mut rt = self.rt.borrow_mut();
         let read = rt.devices.input_accesses() != accesses;
-        rt.program_mut().note_invariants_read_inputs(read);
+        rt.program.note_invariants_read_inputs(read);
         true
     }
 }

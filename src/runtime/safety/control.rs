@@ -438,7 +438,7 @@ mod tests {
     fn a_different_module_back_after_a_loss_is_named_with_what_differs() {
         let mut r = TestRig::started();
         r.sim.set_gone("io", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.inputs(IO);
         assert!(!r.rt.devices.online(IO));
         let other = crate::runtime::devices::SwappedModule {

@@ -218,7 +218,7 @@ mod tests {
         for _ in 0..100 {
             r.next_tick(Duration::from_millis(20));
             let now = r.rt.now();
-            r.rt.cycle_mut().set_boundary(now);
+            r.rt.cycle.set_boundary(now);
             let before = r.requests();
             r.rt.switches(PANEL);
             let now = r.rt.now();
@@ -234,7 +234,7 @@ mod tests {
         let mut r = TestRig::started();
         r.next_tick(Duration::from_millis(20));
         let read_at = r.rt.now();
-        r.rt.cycle_mut().set_boundary(read_at);
+        r.rt.cycle.set_boundary(read_at);
         r.rt.switches(PANEL);
         r.clock.advance(Duration::from_millis(300));
         r.rt.feed_watchdogs();

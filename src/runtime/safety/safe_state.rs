@@ -359,7 +359,7 @@ mod tests {
         r.rt.set_relay(PANEL, 6);
         r.rt.flush_outputs();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.switches(PANEL);
         r.rt.write_safe_state("signal");
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
@@ -413,7 +413,7 @@ mod tests {
         r.rt.flush_outputs();
         // Lost (say while the runner tried to reconnect), and answering again by the end.
         r.sim.set_gone("io", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.inputs(IO);
         assert!(!r.rt.devices.online(IO));
         r.sim.set_gone("io", false).unwrap();
