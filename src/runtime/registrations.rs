@@ -1,5 +1,6 @@
 //! The script's side of its handlers: what `on`, `every`, `after`, `cron`, `on_stop` and
-//! `cancel` do to the run (the handlers themselves are kept in `subscriptions`).
+//! `cancel` do to the run (the handlers themselves are kept in `handlers`; the script asks
+//! through `script_context`).
 
 use super::handlers::{Call, Source, TooManyStopHandlers, MAX_STOP_HANDLERS};
 use super::schedule::ScheduleError;

@@ -1,9 +1,9 @@
-//! The state of one run that scripts act on: the clock, the devices, the handlers, records,
-//! the log and the stop request. Its jobs live beside it: `registry` (devices by name and
-//! index), `inputs` (lazy reads), `outputs` (what the script wants written), `safety`
-//! (supervision), `registrations` and `events` (handlers and what fires them),
-//! `invariant_checks`. The types it holds come from modules below it (`subscriptions`,
-//! `invariants`), which never import it back.
+//! The state of one run, composed of parts that keep their fields private: `Cycle` (the clock
+//! and the tick), `Devices` (`registry`), `ProgramState` (what the script set up), `Figures`
+//! (log, records, events), `Safety` (`safety::hold`) and `Forces` (`forcing`). Within
+//! runtime/ the parts are reached as fields; the jobs that span them live beside this file
+//! (`inputs`, `outputs`, `safety`, `triggers`, `registrations`, `invariant_checks`). The
+//! script reaches it only through `script_context`.
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
