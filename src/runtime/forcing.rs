@@ -348,18 +348,13 @@ impl<H: Clone> Runtime<H> {
         self.forces.allowed = allowed;
     }
 
-    /// The forces of the run.
-    pub fn forces(&self) -> &Forces {
-        &self.forces
-    }
-
     /// Sets or changes a force asked by `by`; the outputs are written by the caller (between
     /// ticks, or at the tick's end).
     pub fn force(&mut self, order: &ForceOrder, by: &str) -> Result<(), ForceError> {
         if !self.forces.allowed {
             return Err(ForceError::NotAllowed);
         }
-        if self.held_safe {
+        if self.safety.held() {
             return Err(ForceError::Safe(
                 "every output is held at its safe state (a device was lost past its grace time)"
                     .into(),
@@ -706,10 +701,10 @@ mod tests {
         r.sim.set_gone("panel", true).unwrap();
         r.next_tick(Duration::from_millis(10));
         r.rt.switches(PANEL);
-        assert!(!r.rt.online(PANEL));
+        assert!(!r.rt.devices.online(PANEL));
         r.clock.advance(Duration::from_millis(1500));
         r.rt.supervise();
-        assert!(r.rt.held_safe);
+        assert!(r.rt.held_safe());
         r.rt.flush_outputs();
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
         assert!(r.rt.forces_shown().is_empty());

@@ -65,7 +65,7 @@ impl<H: Clone> Runtime<H> {
         idx: usize,
         input: &Input<D, T>,
     ) -> Option<T> {
-        self.input_accesses = self.input_accesses.wrapping_add(1);
+        self.devices.note_access();
         let tick = self.cycle().tick();
         let d = self.devices.get_mut(idx).and_then(input.device)?;
         if !(input.snapshot)(d).fresh(tick) && self.ready_for_exchange(idx) {
@@ -128,7 +128,8 @@ impl<H: Clone> Runtime<H> {
     pub fn turned(&mut self, idx: usize, rotary: Rotary) -> i64 {
         self.rotaries(idx);
         let tick = self.cycle().tick();
-        self.trc(idx)
+        self.devices
+            .trc(idx)
             .and_then(|d| d.rotaries().change_at(tick))
             .map_or(0, |(old, new)| {
                 i64::from(rotary_delta(old.get(rotary), new.get(rotary)))
@@ -230,7 +231,7 @@ mod tests {
             0x81,
             "the failed read leaves the last reading"
         );
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         let before = r.requests();
         r.next_tick(TICK);
         assert_eq!(r.rt.inputs(IO), 0x81);

@@ -15,7 +15,7 @@ impl<H: Clone> Runtime<H> {
         handler: H,
         at: Option<String>,
     ) -> Result<(), InvariantError> {
-        self.program_mut().add_invariant(name, handler, at)
+        self.program.add_invariant(name, handler, at)
     }
 
     /// How to evaluate each invariant, in the order they were stated: the list itself, shared
@@ -52,7 +52,7 @@ impl<H: Clone> Runtime<H> {
             "{v}; the outputs of this tick are not written, the safe state is"
         ));
         let time = self.cycle().wall_text();
-        self.figures_mut()
+        self.figures
             .record(&time, "invariant_violated", v.to_json());
     }
 }

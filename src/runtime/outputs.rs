@@ -15,7 +15,7 @@ impl<H: Clone> Runtime<H> {
     /// tick).
     pub fn set_outputs(&mut self, idx: usize, value: u8) {
         let cause = self.program().cause().to_string();
-        if let Some(d) = self.c29u(idx) {
+        if let Some(d) = self.devices.c29u(idx) {
             d.want_outputs(value, cause);
         }
     }
@@ -24,7 +24,7 @@ impl<H: Clone> Runtime<H> {
     /// tick).
     pub fn set_relay(&mut self, idx: usize, relay: u8) {
         let cause = self.program().cause().to_string();
-        if let Some(d) = self.trc(idx) {
+        if let Some(d) = self.devices.trc(idx) {
             d.want_relay(relay, cause);
         }
     }
@@ -32,7 +32,7 @@ impl<H: Clone> Runtime<H> {
     /// Puts what the script wants back to the safe values (a restarted script starts from
     /// them); a TRC1000 without a safe relay keeps its relay.
     pub fn reset_outputs(&mut self) {
-        for d in &mut self.devices {
+        for d in self.devices.iter_mut() {
             d.want_safe_state();
         }
     }
@@ -40,7 +40,7 @@ impl<H: Clone> Runtime<H> {
     /// Whether a device that answers still has outputs to be written (a refused write, one
     /// not yet made): the loop ticks again at the next period boundary for it.
     pub fn outputs_pending(&self) -> bool {
-        let held = self.held_safe;
+        let held = self.safety.held();
         let forces = &self.forces;
         self.devices.iter().enumerate().any(|(idx, d)| {
             d.health().online()
@@ -69,7 +69,7 @@ impl<H: Clone> Runtime<H> {
             if !self.ready_for_exchange(idx) {
                 continue;
             }
-            let held = self.held_safe;
+            let held = self.safety.held();
             // Built only for a watched run: writes are on the tick's path.
             let watch = self
                 .events()
@@ -139,20 +139,23 @@ impl<H: Clone> Runtime<H> {
             match result {
                 Ok(Some(line)) => {
                     self.log_mut().activity(&line);
-                    let name = self.device_name(idx);
+                    let name = self.devices.name(idx);
                     self.log_mut()
                         .settled(&refusal(&name), &format!("{name}: outputs written again"));
                 }
                 Ok(None) => {}
                 // A module that refused even with its watchdog off is not in safe mode: its
                 // refusals are refusals until a write gets through.
-                Err(e) if e.is_safe_mode() && !self.c29u(idx).is_some_and(|d| d.refusing()) => {
+                Err(e)
+                    if e.is_safe_mode()
+                        && !self.devices.c29u(idx).is_some_and(|d| d.refusing()) =>
+                {
                     self.regain_control(idx);
                 }
                 Err(e) => {
                     if !e.is_comm_failure() && !e.is_cancelled() {
-                        let name = self.device_name(idx);
-                        if let Some(d) = self.c29u(idx) {
+                        let name = self.devices.name(idx);
+                        if let Some(d) = self.devices.c29u(idx) {
                             // Unconfirmed: what the module drives is not known.
                             d.note_refused();
                         }
@@ -218,7 +221,7 @@ mod tests {
         r.rt.set_outputs(IO, 0xF0);
         r.rt.set_relay(PANEL, 7);
         r.rt.flush_outputs();
-        r.rt.held_safe = true;
+        r.rt.safety.set_held(true);
         r.rt.set_outputs(IO, 0xF1);
         r.rt.flush_outputs();
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
@@ -228,7 +231,7 @@ mod tests {
             "{}",
             r.log()
         );
-        r.rt.held_safe = false;
+        r.rt.safety.set_held(false);
         r.rt.flush_outputs();
         assert_eq!(
             r.sim.outputs("io").unwrap(),
@@ -243,7 +246,7 @@ mod tests {
         let mut r = TestRig::started();
         // Someone else sets a 0.1 s watchdog behind the runner's back; it fires although the
         // runner fed on time (a stall is caught before this: see upkeep).
-        let io = r.rt.c29u(IO).unwrap();
+        let io = r.rt.devices.c29u(IO).unwrap();
         io.driver()
             .set_watchdog(Some(Duration::from_millis(100)))
             .unwrap();
@@ -257,7 +260,7 @@ mod tests {
             r.sim.watchdog("io").unwrap().enabled,
             "the watchdog is on again"
         );
-        assert!(r.rt.online(IO));
+        assert!(r.rt.devices.online(IO));
         let log = r.log();
         assert!(log.contains("io: the module is in safe mode"), "{log}");
         assert!(log.contains("io: was in safe mode"), "{log}");
@@ -269,12 +272,12 @@ mod tests {
         r.sim.set_gone("io", true).unwrap();
         r.rt.set_outputs(IO, 0x33);
         r.rt.flush_outputs();
-        assert!(!r.rt.online(IO), "the failed write loses it");
+        assert!(!r.rt.devices.online(IO), "the failed write loses it");
         let before = r.requests();
         r.rt.flush_outputs();
         assert_eq!(r.requests(), before, "a lost device is not written");
         assert_eq!(
-            r.rt.c29u(IO).unwrap().wanted_outputs(),
+            r.rt.devices.c29u(IO).unwrap().wanted_outputs(),
             0x33,
             "what the script wants is kept"
         );
@@ -286,8 +289,8 @@ mod tests {
         r.rt.set_outputs(IO, 0x77);
         r.rt.set_relay(PANEL, 1);
         r.rt.reset_outputs();
-        assert_eq!(r.rt.c29u(IO).unwrap().wanted_outputs(), 0x05);
-        assert_eq!(r.rt.trc(PANEL).unwrap().wanted_relay(), 3);
+        assert_eq!(r.rt.devices.c29u(IO).unwrap().wanted_outputs(), 0x05);
+        assert_eq!(r.rt.devices.trc(PANEL).unwrap().wanted_relay(), 3);
     }
 
     #[test]
@@ -297,7 +300,7 @@ mod tests {
         let lines = r.rt.log_lines().len();
         for _ in 0..10 {
             // What the periodic check does: the board may have forgotten its relay.
-            r.rt.trc(PANEL).unwrap().forget_relay_written();
+            r.rt.devices.trc(PANEL).unwrap().forget_relay_written();
             let before = r.requests();
             r.rt.flush_outputs();
             assert_eq!(r.requests(), before + 1, "selected again");

@@ -10,18 +10,18 @@ impl<H: Clone> Runtime<H> {
     /// `record(name, value)`: one record, stamped now.
     pub fn record(&mut self, name: &str, value: Value) {
         let time = self.cycle().wall_text();
-        self.figures_mut().record(&time, name, value);
+        self.figures.record(&time, name, value);
     }
 
     /// `measure(name, value, limits)`: one measurement, stamped now and logged with its
     /// limits; whether it is within them.
     pub fn measure(&mut self, name: &str, value: f64, limits: &Limits) -> bool {
         let time = self.cycle().wall_text();
-        self.figures_mut().measure(&time, name, value, limits)
+        self.figures.measure(&time, name, value, limits)
     }
 
     /// The records and measurements kept so far, oldest first, as JSON objects.
     pub fn records_kept(&self) -> &[Value] {
-        self.figures().records().kept()
+        self.figures.records().kept()
     }
 }

@@ -1,5 +1,6 @@
 //! The script's side of its handlers: what `on`, `every`, `after`, `cron`, `on_stop` and
-//! `cancel` do to the run (the handlers themselves are kept in `subscriptions`).
+//! `cancel` do to the run (the handlers themselves are kept in `handlers`; the script asks
+//! through `script_context`).
 
 use super::handlers::{Call, Source, TooManyStopHandlers, MAX_STOP_HANDLERS};
 use super::schedule::ScheduleError;
@@ -14,41 +15,37 @@ impl<H: Clone> Runtime<H> {
             return Err(TooManyStopHandlers);
         }
         Ok(self
-            .program_mut()
+            .program
             .handlers_mut()
             .add(Source::Stop, handler, "on_stop".into()))
     }
 
     /// Adds a handler; returns its id.
     pub fn subscribe(&mut self, source: Source, handler: H, label: String) -> u64 {
-        self.program_mut()
-            .handlers_mut()
-            .add(source, handler, label)
+        self.program.handlers_mut().add(source, handler, label)
     }
 
     /// `every(period, fn)`.
     pub fn every(&mut self, period: Duration, handler: H) -> Result<u64, ScheduleError> {
         let now = self.now();
-        self.program_mut()
-            .handlers_mut()
-            .every(period, now, handler)
+        self.program.handlers_mut().every(period, now, handler)
     }
 
     /// `after(delay, fn)`.
     pub fn after(&mut self, delay: Duration, handler: H) -> Result<u64, ScheduleError> {
         let now = self.now();
-        self.program_mut().handlers_mut().after(delay, now, handler)
+        self.program.handlers_mut().after(delay, now, handler)
     }
 
     /// `cron(expr, fn)`.
     pub fn cron(&mut self, expr: &str, handler: H) -> Result<u64, ScheduleError> {
         let wall = self.cycle().wall();
-        self.program_mut().handlers_mut().cron(expr, wall, handler)
+        self.program.handlers_mut().cron(expr, wall, handler)
     }
 
     /// Removes a handler or timer; false if there is none with that id.
     pub fn cancel(&mut self, id: u64) -> bool {
-        self.program_mut().handlers_mut().cancel(id)
+        self.program.handlers_mut().cancel(id)
     }
 
     /// Whether the script still waits for anything (handlers other than `on_stop`, timers).

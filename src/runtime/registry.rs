@@ -1,65 +1,135 @@
-//! The rig's devices by name and index: lookups, whether one answers, and running an
-//! operation the script asked for on one (refused while it is lost).
+//! The rig's devices as a part of `Runtime`: each by name and index, whether one answers,
+//! the count of input accesses and of requests sent; and running an operation the script
+//! asked for on one (refused while it is lost).
 
+use super::devices::links::TransactionCounter;
 use super::devices::{C29uDevice, Device, DeviceError, TrcDevice};
 use super::state::Runtime;
 use crate::device::cancel::Cancel;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-impl<H: Clone> Runtime<H> {
-    /// The index of the device called `name`.
-    pub fn device_index(&self, name: &str) -> Option<usize> {
-        self.devices.iter().position(|d| d.name() == name)
+/// The rig's devices, in name order (a part of `Runtime`).
+pub struct Devices {
+    /// The devices.
+    list: Vec<Device>,
+    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
+    input_accesses: u64,
+    /// Requests sent on all links.
+    transactions: TransactionCounter,
+}
+
+impl Devices {
+    /// `list` (already opened, in name order), counting requests in `transactions`.
+    pub fn new(list: Vec<Device>, transactions: TransactionCounter) -> Self {
+        Self {
+            list,
+            input_accesses: 0,
+            transactions,
+        }
     }
 
-    /// The devices, in name order, to look at.
-    pub fn devices(&self) -> &[Device] {
-        &self.devices
+    /// The devices, in name order.
+    pub fn iter(&self) -> std::slice::Iter<'_, Device> {
+        self.list.iter()
+    }
+
+    /// The devices, to change.
+    pub(super) fn iter_mut(&mut self) -> std::slice::IterMut<'_, Device> {
+        self.list.iter_mut()
+    }
+
+    /// How many there are.
+    pub fn len(&self) -> usize {
+        self.list.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.list.is_empty()
+    }
+
+    /// The device at `idx`.
+    pub fn get(&self, idx: usize) -> Option<&Device> {
+        self.list.get(idx)
+    }
+
+    /// The device at `idx`, to change.
+    pub(super) fn get_mut(&mut self, idx: usize) -> Option<&mut Device> {
+        self.list.get_mut(idx)
+    }
+
+    /// The index of the device called `name`.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.list.iter().position(|d| d.name() == name)
+    }
+
+    /// The device names, for messages.
+    pub fn names(&self) -> String {
+        let names: Vec<&str> = self.list.iter().map(Device::name).collect();
+        names.join(", ")
+    }
+
+    /// The name of the device at `idx` ("" if there is none), for log lines.
+    pub fn name(&self, idx: usize) -> String {
+        self.list.get(idx).map_or("", Device::name).to_string()
+    }
+
+    /// The TRC1000 at `idx`.
+    pub fn trc(&mut self, idx: usize) -> Option<&mut TrcDevice> {
+        self.list.get_mut(idx).and_then(Device::as_trc)
+    }
+
+    /// The TRP-C29U at `idx`.
+    pub fn c29u(&mut self, idx: usize) -> Option<&mut C29uDevice> {
+        self.list.get_mut(idx).and_then(Device::as_c29u)
+    }
+
+    /// Whether the device at `idx` answers.
+    pub fn online(&self, idx: usize) -> bool {
+        self.list.get(idx).is_some_and(|d| d.health().online())
     }
 
     /// Takes the modules not under control yet out of the run (a stop during the start): the
     /// end then neither writes them nor waits out their timeouts.
     pub fn take_out_uncontrolled(&mut self) -> Vec<Device> {
-        let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut self.devices)
+        let (untaken, taken): (Vec<Device>, Vec<Device>) = std::mem::take(&mut self.list)
             .into_iter()
             .partition(|d| matches!(d, Device::C29u(c) if !c.controlled()));
-        self.devices = taken;
+        self.list = taken;
         untaken
     }
 
-    /// The device names, for messages.
-    pub fn device_names(&self) -> String {
-        let names: Vec<&str> = self.devices.iter().map(Device::name).collect();
-        names.join(", ")
+    /// Counts one access to a device's inputs.
+    pub(super) fn note_access(&mut self) {
+        self.input_accesses = self.input_accesses.wrapping_add(1);
     }
 
-    /// The name of the device at `idx` ("" if there is none), for log lines.
-    pub fn device_name(&self, idx: usize) -> String {
-        self.devices.get(idx).map_or("", Device::name).to_string()
+    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
+    pub fn input_accesses(&self) -> u64 {
+        self.input_accesses
     }
 
-    /// The TRC1000 at `idx`.
-    pub fn trc(&mut self, idx: usize) -> Option<&mut TrcDevice> {
-        self.devices.get_mut(idx).and_then(Device::as_trc)
+    /// Requests sent so far on all links.
+    pub fn transaction_count(&self) -> u64 {
+        self.transactions.load(Ordering::Relaxed)
     }
 
-    /// The TRP-C29U at `idx`.
-    pub fn c29u(&mut self, idx: usize) -> Option<&mut C29uDevice> {
-        self.devices.get_mut(idx).and_then(Device::as_c29u)
+    /// The counter of requests sent on all links, shared with what watches it (the script's
+    /// limits read the clock again after each new request: an exchange takes time).
+    pub fn transaction_counter(&self) -> &TransactionCounter {
+        &self.transactions
     }
+}
 
+impl<H: Clone> Runtime<H> {
     /// Cuts every device's exchanges short once `cancel` is set (the run's stop flag);
     /// `Cancel::never()` lets them run their course (the end's writes).
     pub fn set_cancel(&mut self, cancel: &Cancel) {
-        self.cancel = cancel.clone();
-        for d in &mut self.devices {
+        self.safety.set_cancel(cancel);
+        for d in self.devices.iter_mut() {
             d.set_cancel(cancel);
         }
-    }
-
-    /// Whether the device at `idx` answers.
-    pub fn online(&self, idx: usize) -> bool {
-        self.devices.get(idx).is_some_and(|d| d.health().online())
     }
 
     /// Gets ready to talk to the device at `idx`: feeds every watchdog that is due first (a
@@ -67,7 +137,7 @@ impl<H: Clone> Runtime<H> {
     /// the device answers, so the exchange is worth making.
     pub fn ready_for_exchange(&mut self, idx: usize) -> bool {
         self.feed_watchdogs();
-        self.online(idx)
+        self.devices.online(idx)
     }
 
     /// Runs an operation the script asked for on the device at `idx`: refused while it is
@@ -108,17 +178,17 @@ mod tests {
     fn devices_are_found_by_name_and_index_in_name_order() {
         let mut r = TestRig::started();
         let rt = &mut r.rt;
-        assert_eq!(rt.device_index("io"), Some(IO));
-        assert_eq!(rt.device_index("panel"), Some(PANEL));
-        assert_eq!(rt.device_index("nope"), None);
-        assert_eq!(rt.device_names(), "io, panel");
-        assert_eq!(rt.device_name(PANEL), "panel");
-        assert_eq!(rt.device_name(7), "");
-        assert!(rt.c29u(IO).is_some() && rt.trc(IO).is_none());
-        assert!(rt.trc(PANEL).is_some() && rt.c29u(PANEL).is_none());
-        assert!(rt.c29u(7).is_none() && rt.trc(7).is_none());
-        assert!(rt.online(IO) && rt.online(PANEL));
-        assert!(!rt.online(7));
+        assert_eq!(rt.devices.index("io"), Some(IO));
+        assert_eq!(rt.devices.index("panel"), Some(PANEL));
+        assert_eq!(rt.devices.index("nope"), None);
+        assert_eq!(rt.devices.names(), "io, panel");
+        assert_eq!(rt.devices.name(PANEL), "panel");
+        assert_eq!(rt.devices.name(7), "");
+        assert!(rt.devices.c29u(IO).is_some() && rt.devices.trc(IO).is_none());
+        assert!(rt.devices.trc(PANEL).is_some() && rt.devices.c29u(PANEL).is_none());
+        assert!(rt.devices.c29u(7).is_none() && rt.devices.trc(7).is_none());
+        assert!(rt.devices.online(IO) && rt.devices.online(PANEL));
+        assert!(!rt.devices.online(7));
     }
 
     #[test]
@@ -131,8 +201,8 @@ mod tests {
         };
         let e = r.rt.command(IO, read).unwrap_err();
         assert!(e.is_comm_failure(), "{e}");
-        assert!(!r.rt.online(IO));
-        assert!(r.rt.online(PANEL), "the other device goes on");
+        assert!(!r.rt.devices.online(IO));
+        assert!(r.rt.devices.online(PANEL), "the other device goes on");
         assert!(r.log().contains("io: lost: "), "{}", r.log());
         let before = r.requests();
         r.clock.advance(Duration::from_millis(300));
@@ -154,7 +224,7 @@ mod tests {
             })
         });
         assert!(refused.is_err());
-        assert!(r.rt.online(IO));
+        assert!(r.rt.devices.online(IO));
     }
 
     #[test]

@@ -1,9 +1,9 @@
-//! The state of one run that scripts act on: the clock, the devices, the handlers, records,
-//! the log and the stop request. Its jobs live beside it: `registry` (devices by name and
-//! index), `inputs` (lazy reads), `outputs` (what the script wants written), `safety`
-//! (supervision), `registrations` and `events` (handlers and what fires them),
-//! `invariant_checks`. The types it holds come from modules below it (`subscriptions`,
-//! `invariants`), which never import it back.
+//! The state of one run, composed of parts that keep their fields private: `Cycle` (the clock
+//! and the tick), `Devices` (`registry`), `ProgramState` (what the script set up), `Figures`
+//! (log, records, events), `Safety` (`safety::hold`) and `Forces` (`forcing`). Within
+//! runtime/ the parts are reached as fields; the jobs that span them live beside this file
+//! (`inputs`, `outputs`, `safety`, `triggers`, `registrations`, `invariant_checks`). The
+//! script reaches it only through `script_context`.
 //!
 //! `H` is the script layer's handler type (a Rhai function pointer); nothing here knows Rhai.
 
@@ -18,41 +18,26 @@ use super::log::Logger;
 use super::observe::Events;
 use super::program_state::ProgramState;
 use super::records::Records;
-use crate::device::cancel::Cancel;
+use super::registry::Devices;
+use super::safety::Safety;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
-use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 /// The state of one run.
 pub struct Runtime<H> {
     /// The clock and the tick.
-    cycle: Cycle,
-    /// The devices, in name order.
-    pub(super) devices: Vec<Device>,
+    pub(super) cycle: Cycle,
+    /// The devices, in name order, and what reads them (`registry`).
+    pub(super) devices: Devices,
     /// What the script set up: handlers, timers, invariants, its stop request.
-    program: ProgramState<H>,
-    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
-    pub(super) input_accesses: u64,
+    pub(super) program: ProgramState<H>,
     /// The log, the records and the event stream.
-    figures: Figures,
-    /// A device has been lost for longer than its grace time: every device is held at its
-    /// safe state until all are back.
-    pub(super) held_safe: bool,
-    /// Requests sent on all links.
-    pub(super) transactions: TransactionCounter,
-    /// How long a device may be lost before everything goes safe.
-    pub(super) grace: Duration,
-    /// What cuts the devices' exchanges short (`set_cancel`): the run's stop flag while it
-    /// runs; supervision also stops trying lost devices once it is set.
-    pub(super) cancel: Cancel,
+    pub(super) figures: Figures,
+    /// Held safe, the grace time, the stop's cancel, the link watch (`safety`).
+    pub(super) safety: Safety,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
-    /// When the links are next asked whether they ended (`safety::liveness`).
-    pub(super) next_link_watch: Duration,
-    /// Whether a device's link has a descriptor the OS tells its end on (until the first
-    /// look, assumed so).
-    pub(super) has_link_watch: bool,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -70,17 +55,11 @@ impl<H: Clone> Runtime<H> {
         let started = cycle.started();
         Self {
             cycle,
-            devices,
+            devices: Devices::new(devices, transactions),
             program: ProgramState::new(zone),
-            input_accesses: 0,
             figures: Figures::new(records, log),
-            held_safe: false,
-            transactions,
-            grace,
-            cancel: Cancel::never(),
+            safety: Safety::new(grace, started),
             forces: Forces::default(),
-            next_link_watch: started,
-            has_link_watch: true,
         }
     }
 
@@ -94,38 +73,20 @@ impl<H: Clone> Runtime<H> {
         &self.cycle
     }
 
-    /// Starts the next tick, for the period boundary `boundary` (the runner, as each tick
-    /// begins).
-    pub(super) fn begin_tick(&mut self, boundary: Duration) {
-        self.cycle.begin_tick(boundary);
+    /// The devices, in name order, and what reads them.
+    pub fn devices(&self) -> &Devices {
+        &self.devices
     }
 
-    /// The clock and tick, for a test that drives the parts by hand.
-    #[cfg(test)]
-    pub(super) fn cycle_mut(&mut self) -> &mut Cycle {
-        &mut self.cycle
-    }
-
-    /// Accesses to device inputs so far (fresh readings or not), to tell what reads them.
-    pub fn input_accesses(&self) -> u64 {
-        self.input_accesses
-    }
-
-    /// Requests sent so far on all links.
-    pub fn transaction_count(&self) -> u64 {
-        self.transactions.load(Ordering::Relaxed)
-    }
-
-    /// The counter of requests sent on all links, shared with what watches it (the script's
-    /// limits read the clock again after each new request: an exchange takes time).
-    pub fn transaction_counter(&self) -> &TransactionCounter {
-        &self.transactions
+    /// Takes the modules not under control yet out of the run (`Devices::take_out_uncontrolled`).
+    pub fn take_out_uncontrolled(&mut self) -> Vec<Device> {
+        self.devices.take_out_uncontrolled()
     }
 
     /// Whether every device is held at its safe state: one has been lost for longer than its
     /// grace time and not all are back.
     pub fn held_safe(&self) -> bool {
-        self.held_safe
+        self.safety.held()
     }
 
     /// When the next tick has something to do, if no handler polls inputs: the earliest
@@ -172,16 +133,6 @@ impl<H: Clone> Runtime<H> {
         self.figures.events()
     }
 
-    /// The log, the records and the event stream.
-    pub fn figures(&self) -> &Figures {
-        &self.figures
-    }
-
-    /// The log, the records and the event stream, to add to or close.
-    pub fn figures_mut(&mut self) -> &mut Figures {
-        &mut self.figures
-    }
-
     /// The log lines kept (by a run that keeps them: tests, the JUnit report), oldest first.
     pub fn log_lines(&self) -> &[String] {
         self.figures.log().lines()
@@ -200,16 +151,6 @@ impl<H: Clone> Runtime<H> {
     /// What the script set up.
     pub fn program(&self) -> &ProgramState<H> {
         &self.program
-    }
-
-    /// What the script set up, to change.
-    pub(super) fn program_mut(&mut self) -> &mut ProgramState<H> {
-        &mut self.program
-    }
-
-    /// What the script set up, to change, with the clock (timers fall due by it).
-    pub(super) fn program_on_time(&mut self) -> (&mut ProgramState<H>, &Cycle) {
-        (&mut self.program, &self.cycle)
     }
 
     /// The handler about to run is `label` (its buffer kept: this is every call).
@@ -288,7 +229,7 @@ mod tests {
         );
         r.rt.reset_program();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.switches(PANEL);
         let lost_at = r.rt.now();
         assert_eq!(
@@ -339,8 +280,8 @@ mod tests {
         assert!(r.rt.handlers().is_empty());
         assert!(!r.rt.has_work());
         assert_eq!(r.rt.stop_requested(), None);
-        assert_eq!(r.rt.c29u(IO).unwrap().wanted_outputs(), 0x05);
-        assert_eq!(r.rt.trc(PANEL).unwrap().wanted_relay(), 3);
+        assert_eq!(r.rt.devices.c29u(IO).unwrap().wanted_outputs(), 0x05);
+        assert_eq!(r.rt.devices.trc(PANEL).unwrap().wanted_relay(), 3);
     }
 
     #[test]

@@ -100,12 +100,12 @@ impl TestRig {
     /// Moves virtual time on by `by` and starts the next tick (as the scan loop does).
     pub fn next_tick(&mut self, by: Duration) {
         self.clock.advance(by);
-        self.rt.cycle_mut().next_tick();
+        self.rt.cycle.next_tick();
     }
 
     /// Requests sent so far on all links.
     pub fn requests(&self) -> u64 {
-        self.rt.transaction_count()
+        self.rt.devices.transaction_count()
     }
 
     /// The log so far, one line each.

@@ -32,7 +32,7 @@ impl<H: Clone> Runtime<H> {
     /// due, into handler calls, in order: device events (by device, then switch, rotary,
     /// input, counter), then timers (deadline order). Logs one line per event handled.
     pub fn collect_calls(&mut self) -> Vec<Call<H>> {
-        let (mut needs, mut calls) = self.program_mut().take_buffers();
+        let (mut needs, mut calls) = self.program.take_buffers();
         needs.clear();
         needs.resize(self.devices.len(), Needs::default());
         for s in &self.handlers().events {
@@ -69,7 +69,7 @@ impl<H: Clone> Runtime<H> {
                 self.dispatch(&event, &args, &mut calls);
             }
         }
-        self.program_mut().keep_needs(needs);
+        self.program.keep_needs(needs);
         self.counter_calls(&mut calls);
         self.timer_calls(&mut calls);
         calls
@@ -77,7 +77,7 @@ impl<H: Clone> Runtime<H> {
 
     /// Takes back the list `collect_calls` gave, once its calls are made, for the next tick.
     pub fn reuse_calls(&mut self, calls: Vec<Call<H>>) {
-        self.program_mut().keep_calls(calls);
+        self.program.keep_calls(calls);
     }
 
     /// Adds the calls of the handlers waiting for `event`, logging it once if any.
@@ -93,7 +93,7 @@ impl<H: Clone> Runtime<H> {
         if calls.len() == before {
             return;
         }
-        let name = source_device(event).map_or(String::new(), |dev| self.device_name(dev));
+        let name = source_device(event).map_or(String::new(), |dev| self.devices.name(dev));
         if let Some(line) = event_line(&name, event, args) {
             self.log_mut().activity(&line);
         }
@@ -123,7 +123,7 @@ impl<H: Clone> Runtime<H> {
                 _ => None,
             })
             .collect();
-        for s in &mut self.program_mut().handlers_mut().events {
+        for s in &mut self.program.handlers_mut().events {
             let Source::Counter {
                 dev,
                 ch,
@@ -165,7 +165,7 @@ impl<H: Clone> Runtime<H> {
     fn timer_calls(&mut self, calls: &mut Vec<Call<H>>) {
         let now = self.now();
         let boundary = self.cycle().boundary().unwrap_or(now);
-        let (program, cycle) = self.program_on_time();
+        let (program, cycle) = (&mut self.program, &self.cycle);
         let handlers = program.handlers_mut();
         let fired = handlers
             .schedule
@@ -428,7 +428,12 @@ mod tests {
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])]);
         r.sim.pulse("io", 2, 5).unwrap();
         assert!(tick(&mut r).is_empty(), "once");
-        r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .clear_counter(2)
+            .unwrap();
         assert_eq!(
             tick(&mut r),
             [("zero", vec![Arg::Int(0)])],
@@ -458,7 +463,7 @@ mod tests {
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(5)])]);
         // The script clears it (as `io.clear_counter(2)` does), and four strokes come before
         // the next reading: the batch is not missed.
-        r.rt.c29u(IO).unwrap().clear_counter(2).unwrap();
+        r.rt.devices.c29u(IO).unwrap().clear_counter(2).unwrap();
         r.sim.pulse("io", 2, 4).unwrap();
         assert_eq!(
             tick(&mut r),
@@ -469,7 +474,12 @@ mod tests {
         // down, 4 -> 0 -> 3 between two readings.
         r.sim.pulse("io", 2, 4).unwrap();
         assert!(tick(&mut r).is_empty(), "8: still the same batch");
-        r.rt.c29u(IO).unwrap().driver().clear_counter(2).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .clear_counter(2)
+            .unwrap();
         r.sim.pulse("io", 2, 3).unwrap();
         assert_eq!(tick(&mut r), [("three", vec![Arg::Int(3)])], "went down");
         assert!(tick(&mut r).is_empty(), "once a batch");
@@ -496,7 +506,7 @@ mod tests {
             "press",
         );
         sub(&mut r, Source::Rise { dev: IO, ch: 0 }, "rise");
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.collect_calls();
         r.sim.set_switch("panel", "S1", true).unwrap();
         r.sim.pulse("io", 0, 1).unwrap();

@@ -15,10 +15,10 @@ use super::reads::{Item, ReadTracker, ALL_COUNTERS, ALL_INPUTS, ALL_SWITCHES};
 use super::values::to_json;
 use crate::device::c29u::{C29uError, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
-use crate::runtime::devices::{Device, DeviceError};
+use crate::runtime::devices::DeviceError;
 use crate::runtime::handlers::Source;
 use crate::runtime::records::Limits;
-use crate::runtime::runner::Shared;
+use crate::runtime::script_context::{DeviceKind, ScriptContext};
 use crate::time::duration::{duration_from_millis_f64, duration_from_millis_i64, parse_duration};
 use rhai::{Array, Dynamic, Engine, EvalAltResult, FnPtr, Map, NativeCallContext, Position, AST};
 use std::cell::RefCell;
@@ -26,8 +26,8 @@ use std::collections::HashMap;
 use std::rc::Rc;
 use std::time::Duration;
 
-/// The runtime as the bindings hold it.
-pub type Rt = Shared<Handler>;
+/// The run as the bindings hold it: requests, never its state.
+pub type Rt = ScriptContext<Handler>;
 
 /// A script function the runtime calls (a handler, a timer's, an invariant's): shared, so a
 /// tick's call of it copies no captured values.
@@ -40,6 +40,24 @@ pub type R<T> = Result<T, Box<EvalAltResult>>;
 pub fn fail<T>(message: impl Into<String>) -> R<T> {
     Err(message.into().into())
 }
+
+/// Handler-taking calls: (name, index of the handler argument, the parameters it gets); the
+/// bindings (`Arities::check`) and `check` both read it.
+pub(super) const HANDLERS: &[(&str, usize, &[&str])] = &[
+    ("on_press", 1, &["switch name"]),
+    ("on_release", 1, &["switch name"]),
+    ("on_turn", 1, &["delta", "value"]),
+    ("on_rise", 1, &["channel"]),
+    ("on_fall", 1, &["channel"]),
+    ("on_counter", 2, &["count"]),
+    ("every", 1, &["missed"]),
+    ("cron", 1, &["missed"]),
+    ("after", 1, &[]),
+    ("on_stop", 0, &[]),
+    ("invariant", 1, &[]),
+    ("on_command", 1, &["payload"]),
+    ("on_message", 1, &["topic", "payload"]),
+];
 
 /// How many parameters each function of the script takes, by name (filled after compiling,
 /// so handlers get only the arguments they take, and too many parameters are an error).
@@ -86,8 +104,13 @@ impl Arities {
         ))
     }
 
-    /// An error if `f` cannot be a handler for `what`, which passes `params`.
-    pub fn check(&self, f: &FnPtr, what: &str, params: &[&str]) -> R<()> {
+    /// An error if `f` cannot be a handler for `what` (named in `HANDLERS`, with the
+    /// parameters it passes).
+    pub fn check(&self, f: &FnPtr, what: &str) -> R<()> {
+        let params = HANDLERS
+            .iter()
+            .find(|(name, ..)| *name == what)
+            .map_or(&[][..], |(.., params)| *params);
         let Some(counts) = self.of(f) else {
             return Ok(());
         };
@@ -228,19 +251,12 @@ fn device_error<T>(dev: &str, e: &DeviceError) -> R<T> {
     }
 }
 
-/// Runs a TRP-C29U operation at once (refused while the device is lost).
+/// Runs a TRP-C29U operation at once, given the time now (refused while the device is lost).
 fn c29u_op<T>(
     io: &Io,
-    op: impl FnOnce(&mut crate::runtime::devices::C29uDevice) -> Result<T, DeviceError>,
+    op: impl FnOnce(&mut crate::runtime::devices::C29uDevice, Duration) -> Result<T, DeviceError>,
 ) -> R<T> {
-    let r = io.rt.borrow_mut().command(io.idx, |d| match d {
-        Device::C29u(c) => op(c),
-        Device::Trc(_) => Err(DeviceError::Offline {
-            device: "not a TRP-C29U".into(),
-            ago: Duration::ZERO,
-            cause: String::new(),
-        }),
-    });
+    let r = io.rt.on_module(io.idx, op);
     r.or_else(|e| device_error(&io.name, &e))
 }
 
@@ -271,19 +287,17 @@ fn setter<T: rhai::Variant + Clone>(
 
 /// The handle of the device at `idx`.
 fn handle(rt: &Rt, idx: usize, reads: &ReadTracker) -> Option<Dynamic> {
-    let r = rt.borrow();
-    let d = r.devices().get(idx)?;
-    let name: Rc<str> = Rc::from(d.name());
-    let reads = reads.clone();
-    Some(match d {
-        Device::Trc(_) => Dynamic::from(Panel {
-            rt: Rc::clone(rt),
+    let (name, kind) = rt.device(idx)?;
+    let (rt, reads) = (rt.clone(), reads.clone());
+    Some(match kind {
+        DeviceKind::Trc1000 => Dynamic::from(Panel {
+            rt,
             idx,
             name,
             reads,
         }),
-        Device::C29u(_) => Dynamic::from(Io {
-            rt: Rc::clone(rt),
+        DeviceKind::C29u => Dynamic::from(Io {
+            rt,
             idx,
             name,
             reads,
@@ -292,14 +306,14 @@ fn handle(rt: &Rt, idx: usize, reads: &ReadTracker) -> Option<Dynamic> {
 }
 
 fn register_device(engine: &mut Engine, rt: &Rt, reads: &ReadTracker) {
-    let (r, t) = (Rc::clone(rt), reads.clone());
+    let (r, t) = (rt.clone(), reads.clone());
     engine.register_fn("device", move |name: &str| -> R<Dynamic> {
-        let idx = r.borrow().device_index(name);
+        let idx = r.device_index(name);
         match idx.and_then(|i| handle(&r, i, &t)) {
             Some(h) => Ok(h),
             None => fail(format!(
                 "no device called {name:?} in this rig (devices: {})",
-                r.borrow().device_names()
+                r.device_names()
             )),
         }
     });
@@ -315,15 +329,8 @@ pub fn resolve_variables(engine: &mut Engine, rt: &Rt, guard: &Rc<Guard>, reads:
     // locks while `io.on_rise` runs; the copy keeps Rhai's data-race check from refusing that
     // (and a constant's from refusing its methods). A plain one (a function's parameter) is
     // used in place: a copy is an allocation, and a tick reads handles many times.
-    let (r, t) = (Rc::clone(rt), reads.clone());
-    let names: Vec<(String, usize)> = {
-        let b = rt.borrow();
-        b.devices()
-            .iter()
-            .enumerate()
-            .map(|(i, d)| (d.name().to_string(), i))
-            .collect()
-    };
+    let (r, t) = (rt.clone(), reads.clone());
+    let names: Vec<(String, usize)> = rt.names().into_iter().zip(0..).collect();
     let guard = Rc::clone(guard);
     // Rhai marks on_var "volatile" (it may change in a later release), not deprecated.
     #[allow(deprecated)]
@@ -353,18 +360,16 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     engine.register_fn("to_debug", |p: &mut Panel| format!("TRC1000 {}", p.name));
     engine.register_get("online", |p: &mut Panel| {
         p.read(Item::Online.mask());
-        p.rt.borrow().online(p.idx)
+        p.rt.online(p.idx)
     });
     engine.register_get("relay", |p: &mut Panel| {
         p.read(Item::Relay.mask());
-        p.rt.borrow_mut()
-            .trc(p.idx)
-            .map_or(0, |d| i64::from(d.wanted_relay()))
+        i64::from(p.rt.wanted_relay(p.idx))
     });
     setter(engine, "relay", |p: &mut Panel, v: i64| -> R<()> {
         match u8::try_from(v) {
             Ok(r) if r < 8 => {
-                p.rt.borrow_mut().set_relay(p.idx, r);
+                p.rt.set_relay(p.idx, r);
                 Ok(())
             }
             _ => fail(no_relay(&p.name, v)),
@@ -373,11 +378,11 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     engine.register_fn("pressed", |p: &mut Panel, name: &str| -> R<bool> {
         let s = switch(&p.name, name)?;
         p.read(Item::Switch(s).mask());
-        Ok(p.rt.borrow_mut().switches(p.idx).is_pressed(s))
+        Ok(p.rt.switches(p.idx).is_pressed(s))
     });
     engine.register_fn("pressed", |p: &mut Panel| -> Array {
         p.read(ALL_SWITCHES);
-        let set = p.rt.borrow_mut().switches(p.idx);
+        let set = p.rt.switches(p.idx);
         set.pressed_names()
             .into_iter()
             .map(|n| Dynamic::from(n.to_string()))
@@ -386,12 +391,12 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     engine.register_fn("rotary", |p: &mut Panel, name: &str| -> R<i64> {
         let r = rotary(&p.name, name)?;
         p.read(Item::Rotary(r).mask());
-        Ok(i64::from(p.rt.borrow_mut().rotaries(p.idx).get(r)))
+        Ok(i64::from(p.rt.rotaries(p.idx).get(r)))
     });
     engine.register_fn("turned", |p: &mut Panel, name: &str| -> R<i64> {
         let r = rotary(&p.name, name)?;
         p.read(Item::Rotary(r).mask());
-        Ok(p.rt.borrow_mut().turned(p.idx, r))
+        Ok(p.rt.turned(p.idx, r))
     });
     for (method, pressed) in [("on_press", true), ("on_release", false)] {
         let a = arities.clone();
@@ -399,7 +404,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
             method,
             move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
                 let s = switch(&p.name, name)?;
-                a.check(&f, method, &["switch name"])?;
+                a.check(&f, method)?;
                 p.read(Item::Switch(s).mask());
                 let source = if pressed {
                     Source::Press {
@@ -413,7 +418,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                     }
                 };
                 let label = format!("{}.{method} {s}", p.name);
-                let id = p.rt.borrow_mut().subscribe(source, Rc::new(f), label);
+                let id = p.rt.subscribe(source, Rc::new(f), label);
                 Ok(id_value(id))
             },
         );
@@ -423,18 +428,14 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
         "on_turn",
         move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
             let r = rotary(&p.name, name)?;
-            a.check(&f, "on_turn", &["delta", "value"])?;
+            a.check(&f, "on_turn")?;
             p.read(Item::Rotary(r).mask());
             let label = format!("{}.on_turn {}", p.name, r.name());
             let source = Source::Turn {
                 dev: p.idx,
                 rotary: r,
             };
-            Ok(id_value(p.rt.borrow_mut().subscribe(
-                source,
-                Rc::new(f),
-                label,
-            )))
+            Ok(id_value(p.rt.subscribe(source, Rc::new(f), label)))
         },
     );
 }
@@ -449,54 +450,45 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     engine.register_fn("to_debug", |d: &mut Io| format!("TRP-C29U {}", d.name));
     engine.register_get("online", |d: &mut Io| {
         d.read(Item::Online.mask());
-        d.rt.borrow().online(d.idx)
+        d.rt.online(d.idx)
     });
     engine.register_get("outputs", |d: &mut Io| {
         d.read(Item::Outputs.mask());
-        d.rt.borrow_mut()
-            .c29u(d.idx)
-            .map_or(0, |c| i64::from(c.wanted_outputs()))
+        i64::from(d.rt.wanted_outputs(d.idx))
     });
     setter(engine, "outputs", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("DO byte", v)?;
-        d.rt.borrow_mut().set_outputs(d.idx, v);
+        d.rt.set_outputs(d.idx, v);
         Ok(())
     });
     engine.register_fn("output", |d: &mut Io, ch: i64| -> R<bool> {
         let c = channel(&d.name, ch)?;
         d.read(Item::Outputs.mask());
-        let v =
-            d.rt.borrow_mut()
-                .c29u(d.idx)
-                .map_or(0, |c| c.wanted_outputs());
-        Ok(v & (1 << c) != 0)
+        Ok(d.rt.wanted_outputs(d.idx) & (1 << c) != 0)
     });
     engine.register_fn("set_output", |d: &mut Io, ch: i64, on: bool| -> R<()> {
         let c = channel(&d.name, ch)?;
-        let mut rt = d.rt.borrow_mut();
-        let v = rt.c29u(d.idx).map_or(0, |c| c.wanted_outputs());
-        let v = if on { v | (1 << c) } else { v & !(1 << c) };
-        rt.set_outputs(d.idx, v);
+        d.rt.set_output(d.idx, c, on);
         Ok(())
     });
     engine.register_get("inputs", |d: &mut Io| {
         d.read(ALL_INPUTS);
-        i64::from(d.rt.borrow_mut().inputs(d.idx))
+        i64::from(d.rt.inputs(d.idx))
     });
     engine.register_fn("input", |d: &mut Io, ch: i64| -> R<bool> {
         let c = channel(&d.name, ch)?;
         d.read(Item::Input(c).mask());
-        Ok(d.rt.borrow_mut().inputs(d.idx) & (1 << c) != 0)
+        Ok(d.rt.inputs(d.idx) & (1 << c) != 0)
     });
     engine.register_fn("counter", |d: &mut Io, ch: i64| -> R<i64> {
         let c = channel(&d.name, ch)?;
         d.read(Item::Counter(c).mask());
-        let counts = d.rt.borrow_mut().counters(d.idx);
+        let counts = d.rt.counters(d.idx);
         Ok(counts.get(usize::from(c)).map_or(0, |v| i64::from(*v)))
     });
     engine.register_fn("counters", |d: &mut Io| -> Array {
         d.read(ALL_COUNTERS);
-        let counts = d.rt.borrow_mut().counters(d.idx);
+        let counts = d.rt.counters(d.idx);
         counts
             .iter()
             .map(|v| Dynamic::from(i64::from(*v)))
@@ -504,17 +496,17 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     });
     engine.register_fn("clear_counter", |d: &mut Io, ch: i64| -> R<()> {
         let c = channel(&d.name, ch)?;
-        c29u_op(d, |m| m.clear_counter(c))
+        c29u_op(d, |m, _| m.clear_counter(c))
     });
     engine.register_fn("clear_counters", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| m.clear_counters())
+        c29u_op(d, |m, _| m.clear_counters())
     });
     engine.register_fn("save_counters", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| Ok(m.driver().save_counters()?))
+        c29u_op(d, |m, _| Ok(m.driver().save_counters()?))
     });
     engine.register_fn("latched", |d: &mut Io| -> Map {
         d.read(Item::Latches.mask());
-        let l = d.rt.borrow_mut().latches(d.idx);
+        let l = d.rt.latches(d.idx);
         // "on": channels energized since the last clear; "off": released since then.
         let mut m = Map::new();
         m.insert("on".into(), Dynamic::from(i64::from(l.energized)));
@@ -522,7 +514,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         m
     });
     engine.register_fn("clear_latch", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| m.clear_latches())
+        c29u_op(d, |m, _| m.clear_latches())
     });
     engine.register_fn("watchdog", |d: &mut Io, seconds: i64| -> R<()> {
         set_watchdog(d, seconds as f64)
@@ -531,7 +523,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         set_watchdog(d, seconds)
     });
     engine.register_fn("watchdog", |d: &mut Io| -> R<Map> {
-        let info = c29u_op(d, |m| Ok(m.driver().watchdog()?))?;
+        let info = c29u_op(d, |m, _| Ok(m.driver().watchdog()?))?;
         let mut map = Map::new();
         map.insert("enabled".into(), Dynamic::from(info.enabled));
         map.insert(
@@ -545,34 +537,33 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         Ok(map)
     });
     engine.register_fn("watchdog_off", |d: &mut Io| -> R<()> {
-        let now = d.rt.borrow().now();
-        c29u_op(d, |m| m.change_watchdog(None, now))
+        c29u_op(d, |m, now| m.change_watchdog(None, now))
     });
     engine.register_get("safe_value", |d: &mut Io| -> R<i64> {
-        c29u_op(d, |m| Ok(i64::from(m.driver().safe_value()?)))
+        c29u_op(d, |m, _| Ok(i64::from(m.driver().safe_value()?)))
     });
     setter(engine, "safe_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("safe value", v)?;
-        c29u_op(d, |m| m.change_safe_value(v))
+        c29u_op(d, |m, _| m.change_safe_value(v))
     });
     engine.register_get("power_on_value", |d: &mut Io| -> R<i64> {
-        c29u_op(d, |m| Ok(i64::from(m.driver().power_on_value()?)))
+        c29u_op(d, |m, _| Ok(i64::from(m.driver().power_on_value()?)))
     });
     setter(engine, "power_on_value", |d: &mut Io, v: i64| -> R<()> {
         let v = byte("power-on value", v)?;
-        c29u_op(d, |m| m.change_power_on_value(v))
+        c29u_op(d, |m, _| m.change_power_on_value(v))
     });
     engine.register_get("name", |d: &mut Io| -> R<String> {
-        c29u_op(d, |m| Ok(m.driver().name()?))
+        c29u_op(d, |m, _| Ok(m.driver().name()?))
     });
     engine.register_get("firmware", |d: &mut Io| -> R<String> {
-        c29u_op(d, |m| Ok(m.driver().firmware()?.text))
+        c29u_op(d, |m, _| Ok(m.driver().firmware()?.text))
     });
     engine.register_fn("reset", |d: &mut Io| -> R<()> {
-        c29u_op(d, |m| m.reset_module())
+        c29u_op(d, |m, _| m.reset_module())
     });
     engine.register_get("in_safe_mode", |d: &mut Io| -> R<bool> {
-        c29u_op(d, |m| {
+        c29u_op(d, |m, _| {
             if let Some(expired) = m.driver().watchdog()?.expired {
                 return Ok(expired);
             }
@@ -590,7 +581,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         let a = arities.clone();
         engine.register_fn(method, move |d: &mut Io, ch: i64, f: FnPtr| -> R<i64> {
             let c = channel(&d.name, ch)?;
-            a.check(&f, method, &["channel"])?;
+            a.check(&f, method)?;
             d.read(Item::Input(c).mask());
             let source = if rise {
                 Source::Rise { dev: d.idx, ch: c }
@@ -598,11 +589,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 Source::Fall { dev: d.idx, ch: c }
             };
             let label = format!("{}.{method} DI{c}", d.name);
-            Ok(id_value(d.rt.borrow_mut().subscribe(
-                source,
-                Rc::new(f),
-                label,
-            )))
+            Ok(id_value(d.rt.subscribe(source, Rc::new(f), label)))
         });
     }
     let a = arities.clone();
@@ -615,7 +602,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                     "counter threshold {threshold} is not possible: the counters count 0-65535"
                 ));
             };
-            a.check(&f, "on_counter", &["count"])?;
+            a.check(&f, "on_counter")?;
             d.read(Item::Counter(c).mask());
             let label = format!("{}.on_counter DI{c} >= {t}", d.name);
             let source = Source::Counter {
@@ -624,11 +611,7 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
                 threshold: t,
                 armed: true,
             };
-            Ok(id_value(d.rt.borrow_mut().subscribe(
-                source,
-                Rc::new(f),
-                label,
-            )))
+            Ok(id_value(d.rt.subscribe(source, Rc::new(f), label)))
         },
     );
 }
@@ -654,68 +637,67 @@ fn watchdog_timeout(seconds: f64) -> R<WatchdogTimeout> {
 
 fn set_watchdog(d: &Io, seconds: f64) -> R<()> {
     let t = watchdog_timeout(seconds)?;
-    let now = d.rt.borrow().now();
-    c29u_op(d, |m| m.change_watchdog(Some(t), now))
+    c29u_op(d, |m, now| m.change_watchdog(Some(t), now))
 }
 
 fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
-    let (r, a) = (Rc::clone(rt), arities.clone());
+    let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("every", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
-        a.check(&f, "every", &["missed"])?;
-        let id = r.borrow_mut().every(d, Rc::new(f));
+        a.check(&f, "every")?;
+        let id = r.every(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
-    let (r, a) = (Rc::clone(rt), arities.clone());
+    let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("after", move |d: Dynamic, f: FnPtr| -> R<i64> {
         let d = duration(&d)?;
-        a.check(&f, "after", &[])?;
-        let id = r.borrow_mut().after(d, Rc::new(f));
+        a.check(&f, "after")?;
+        let id = r.after(d, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
-    let (r, a) = (Rc::clone(rt), arities.clone());
+    let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("cron", move |expr: &str, f: FnPtr| -> R<i64> {
-        a.check(&f, "cron", &["missed"])?;
-        let id = r.borrow_mut().cron(expr, Rc::new(f));
+        a.check(&f, "cron")?;
+        let id = r.cron(expr, Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn("cancel", move |id: i64| -> bool {
-        u64::try_from(id).is_ok_and(|id| r.borrow_mut().cancel(id))
+        u64::try_from(id).is_ok_and(|id| r.cancel(id))
     });
-    let (r, a) = (Rc::clone(rt), arities.clone());
+    let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("on_stop", move |f: FnPtr| -> R<i64> {
-        a.check(&f, "on_stop", &[])?;
-        let id = r.borrow_mut().on_stop(Rc::new(f));
+        a.check(&f, "on_stop")?;
+        let id = r.on_stop(Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
     register_remote(engine, rt, arities);
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn("stop", move || -> R<()> { stop(&r, 0) });
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn("stop", move |code: i64| -> R<()> {
         if !(0..=255).contains(&code) {
             return fail(format!("stop({code}): an exit status is 0-255"));
         }
         stop(&r, code)
     });
-    let r = Rc::clone(rt);
-    engine.register_fn("now", move || r.borrow().cycle().wall_text());
-    let r = Rc::clone(rt);
+    let r = rt.clone();
+    engine.register_fn("now", move || r.wall_text());
+    let r = rt.clone();
     engine.register_fn("uptime", move || {
-        i64::try_from(r.borrow().cycle().uptime().as_millis()).unwrap_or(i64::MAX)
+        i64::try_from(r.uptime().as_millis()).unwrap_or(i64::MAX)
     });
-    let r = Rc::clone(rt);
-    engine.on_print(move |s| r.borrow_mut().log_mut().info(&format!("script: {s}")));
-    let r = Rc::clone(rt);
-    engine.on_debug(move |s, _, _| r.borrow_mut().log_mut().info(&format!("script: {s}")));
-    let r = Rc::clone(rt);
+    let r = rt.clone();
+    engine.on_print(move |s| r.info(&format!("script: {s}")));
+    let r = rt.clone();
+    engine.on_debug(move |s, _, _| r.info(&format!("script: {s}")));
+    let r = rt.clone();
     engine.register_fn("log", move |m: Dynamic| {
-        r.borrow_mut().log_mut().info(&format!("script: {m}"));
+        r.info(&format!("script: {m}"));
     });
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn("warn", move |m: Dynamic| {
-        r.borrow_mut().log_mut().warn(&format!("script: {m}"));
+        r.warn(&format!("script: {m}"));
     });
 }
 
@@ -726,9 +708,8 @@ const MAX_COMMAND_NAME: usize = 64;
 /// (`service::mqtt` carries them; without `[mqtt]` nothing arrives and nothing goes).
 fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
     use crate::runtime::handlers::Source;
-    use crate::runtime::observe::RunEvent;
     use crate::runtime::topic_filter::{check_filter, check_topic};
-    let (r, a) = (Rc::clone(rt), arities.clone());
+    let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("on_command", move |name: &str, f: FnPtr| -> R<i64> {
         let fits = !name.is_empty()
             && name.len() <= MAX_COMMAND_NAME
@@ -739,26 +720,26 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
                  without '/', '+' or '#'"
             ));
         }
-        a.check(&f, "on_command", &["payload"])?;
+        a.check(&f, "on_command")?;
         let label = format!("on_command {name}");
-        Ok(id_value(r.borrow_mut().subscribe(
+        Ok(id_value(r.subscribe(
             Source::Command(name.to_string()),
             Rc::new(f),
             label,
         )))
     });
-    let (r, a) = (Rc::clone(rt), arities.clone());
+    let (r, a) = (rt.clone(), arities.clone());
     engine.register_fn("on_message", move |filter: &str, f: FnPtr| -> R<i64> {
         check_filter(filter).or_else(|e| fail(format!("on_message: {e}")))?;
-        a.check(&f, "on_message", &["topic", "payload"])?;
+        a.check(&f, "on_message")?;
         let label = format!("on_message {filter}");
-        Ok(id_value(r.borrow_mut().subscribe(
+        Ok(id_value(r.subscribe(
             Source::Message(filter.to_string()),
             Rc::new(f),
             label,
         )))
     });
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn(
         "mqtt_publish",
         move |topic: &str, value: Dynamic| -> R<()> {
@@ -776,10 +757,7 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
                 ));
             }
             let topic = topic.to_string();
-            r.borrow_mut()
-                .log_mut()
-                .events()
-                .publish(|| RunEvent::Published { topic, payload });
+            r.publish(topic, payload);
             Ok(())
         },
     );
@@ -787,13 +765,13 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
 
 /// `invariant(name, || bool)`: states what must hold after every tick's handlers.
 fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &str) {
-    let (r, a, file) = (Rc::clone(rt), arities.clone(), file.to_string());
+    let (r, a, file) = (rt.clone(), arities.clone(), file.to_string());
     engine.register_fn(
         "invariant",
         move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
-            a.check(&f, "invariant", &[])?;
+            a.check(&f, "invariant")?;
             let at = super::error::location(&file, ctx.call_position());
-            let added = r.borrow_mut().add_invariant(name, Rc::new(f), at);
+            let added = r.add_invariant(name, Rc::new(f), at);
             added.or_else(|e| fail(e.to_string()))
         },
     );
@@ -808,7 +786,7 @@ fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &st
 
 /// `stop(code)`: asks the runner to stop, and ends the handler at once.
 fn stop(rt: &Rt, code: i64) -> R<()> {
-    rt.borrow_mut().request_stop(code);
+    rt.request_stop(code);
     end_handler()
 }
 
@@ -848,23 +826,23 @@ fn limits(map: &Map) -> R<Limits> {
 }
 
 fn register_records(engine: &mut Engine, rt: &Rt) {
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn("record", move |name: &str, value: Dynamic| -> R<()> {
-        r.borrow_mut().record(name, to_json(&value));
+        r.record(name, to_json(&value));
         Ok(())
     });
     let measure = move |rt: &Rt, name: &str, value: &Dynamic, l: &Limits| -> R<bool> {
         let v = number(value, "a measured value")?;
-        Ok(rt.borrow_mut().measure(name, v, l))
+        Ok(rt.measure(name, v, l))
     };
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn(
         "measure",
         move |name: &str, value: Dynamic, l: Map| -> R<bool> {
             measure(&r, name, &value, &limits(&l)?)
         },
     );
-    let r = Rc::clone(rt);
+    let r = rt.clone();
     engine.register_fn("measure", move |name: &str, value: Dynamic| -> R<bool> {
         measure(&r, name, &value, &Limits::default())
     });

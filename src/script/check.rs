@@ -20,7 +20,7 @@
 //! the script ran (`ScriptProgram` asks it), instead of Rhai's "Function not found: ..".
 
 use super::api::{
-    no_relay, not_a_byte, register, takes_words, Arities, Io, Panel, BYTE_PROPERTIES,
+    no_relay, not_a_byte, register, takes_words, Arities, Io, Panel, BYTE_PROPERTIES, HANDLERS,
 };
 use super::engine::{sandboxed, DEFAULT_BUDGET};
 use super::error::parse_position;
@@ -31,6 +31,7 @@ use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::log::Logger;
 use crate::runtime::records::Records;
 use crate::runtime::schedule::validate_cron;
+use crate::runtime::script_context::ScriptContext;
 use crate::runtime::state::Runtime;
 use crate::suggest::closest;
 use crate::time::clock::SystemClock;
@@ -98,23 +99,6 @@ impl Kind {
     }
 }
 
-/// Handler-taking calls: (name, index of the handler argument, the parameters it gets).
-pub(super) const HANDLERS: &[(&str, usize, &[&str])] = &[
-    ("on_press", 1, &["switch name"]),
-    ("on_release", 1, &["switch name"]),
-    ("on_turn", 1, &["delta", "value"]),
-    ("on_rise", 1, &["channel"]),
-    ("on_fall", 1, &["channel"]),
-    ("on_counter", 2, &["count"]),
-    ("every", 1, &["missed"]),
-    ("cron", 1, &["missed"]),
-    ("after", 1, &[]),
-    ("on_stop", 0, &[]),
-    ("invariant", 1, &[]),
-    ("on_command", 1, &["payload"]),
-    ("on_message", 1, &["topic", "payload"]),
-];
-
 /// Functions Rhai's evaluator handles itself, never registered: (name, the argument counts
 /// they take in function-call style; `None` for any number from the first).
 const SYNTACTIC: &[(&str, &[usize], Option<usize>)] = &[
@@ -153,7 +137,7 @@ impl Registry {
         );
         register(
             &mut engine,
-            &Rc::new(RefCell::new(runtime)),
+            &ScriptContext::new(&Rc::new(RefCell::new(runtime))),
             &Arities::default(),
             &ReadTracker::default(),
             "",

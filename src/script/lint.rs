@@ -3,7 +3,8 @@
 //! period, and counts the rest as missed), and a script with nothing to run (empty, or no
 //! handler, timer or invariant: a run does its top level and ends).
 
-use super::check::{only_function, HANDLERS};
+use super::api::HANDLERS;
+use super::check::only_function;
 use super::engine::{sandboxed, DEFAULT_BUDGET};
 use crate::time::duration::{format_duration, parse_duration};
 use rhai::{ASTNode, Expr, Position, AST};

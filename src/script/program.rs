@@ -14,7 +14,6 @@ use crate::runtime::runner::{HandlerFault, Program, StopLimit};
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, Position, Scope, AST};
 use std::collections::BTreeMap;
 use std::rc::Rc;
-use std::sync::Arc;
 
 /// A script bound to a runtime.
 pub struct ScriptProgram {
@@ -42,18 +41,11 @@ pub struct Coverage {
 }
 
 impl ScriptProgram {
-    /// Binds compiled `ast` (from the file called `file` in messages) to `rt`, watched by
+    /// Binds compiled `ast` (from the file called `file` in messages) to the run through `rt`, watched by
     /// `limits` (operations and time per call on the runtime's clock, memory, sizes).
     pub fn new(rt: &Rt, ast: AST, file: &str, limits: ScriptLimits) -> Self {
         let mut engine = sandboxed(limits.operations);
-        let (clock, transactions) = {
-            let r = rt.borrow();
-            (
-                Arc::clone(r.cycle().clock()),
-                Arc::clone(r.transaction_counter()),
-            )
-        };
-        let guard = Guard::install(&mut engine, limits, clock, transactions);
+        let guard = Guard::install(&mut engine, limits, rt.clock(), rt.transaction_counter());
         let arities = Arities::default();
         let reads = ReadTracker::default();
         register(&mut engine, rt, &arities, &reads, file);

@@ -13,6 +13,7 @@ use crate::runtime::log::Logger;
 use crate::runtime::records::{RecordError, Records};
 use crate::runtime::runner::{panic_message, safe_after_panic, RunOptions, Runner};
 use crate::runtime::safety::Unavailable;
+use crate::runtime::script_context::ScriptContext;
 use crate::runtime::state::Runtime;
 use crate::runtime::{exit, signals};
 use std::cell::RefCell;
@@ -190,7 +191,7 @@ impl RigBuilder {
         for attach in setup.attached {
             attach(&events);
         }
-        let mut program = ScriptProgram::new(&rt, ast, file, limits);
+        let mut program = ScriptProgram::new(&ScriptContext::new(&rt), ast, file, limits);
         if let Some(prepare) = setup.prepare {
             prepare(&mut program);
         }
@@ -313,9 +314,9 @@ mod tests {
         let mut rig = start(script, "t.rhai", setup(&clock)).unwrap();
         rig.runner.advance(Duration::from_millis(100));
         assert_eq!(rig.sim.safe_value("io").unwrap(), 0x05);
-        let before = rig.runner.runtime().borrow().transaction_count();
+        let before = rig.runner.runtime().borrow().devices().transaction_count();
         rig.runner.advance(Duration::from_secs(10));
-        let spent = rig.runner.runtime().borrow().transaction_count() - before;
+        let spent = rig.runner.runtime().borrow().devices().transaction_count() - before;
         // 500 assignments of each: only the watchdog feeds (every 500 ms: 20) and the device
         // checks (every 5 s: the module's reset flag, outputs, watchdog and one stored item,
         // the panel's relay selected and confirmed, 6 a check) and the panel nobody reads, asked

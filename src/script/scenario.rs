@@ -572,11 +572,11 @@ fn register_observations(engine: &mut Engine) {
     engine.register_fn("online", |r: &mut RigHandle, dev: &str| -> R<bool> {
         let s = r.0.borrow();
         let rt = s.rig.runner.runtime().borrow();
-        match rt.device_index(dev) {
-            Some(i) => Ok(rt.online(i)),
+        match rt.devices().index(dev) {
+            Some(i) => Ok(rt.devices().online(i)),
             None => fail(format!(
                 "no device called {dev:?} (devices: {})",
-                rt.device_names()
+                rt.devices().names()
             )),
         }
     });

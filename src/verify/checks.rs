@@ -262,7 +262,11 @@ impl Watch {
         let rt = rig.runner.runtime().borrow();
         self.safe
             .iter()
-            .filter(|(name, _)| rt.device_index(name).is_some_and(|i| rt.online(i)))
+            .filter(|(name, _)| {
+                rt.devices()
+                    .index(name)
+                    .is_some_and(|i| rt.devices().online(i))
+            })
             .filter(|(name, _)| rig.sim.answers(name).unwrap_or(false))
             .filter_map(|(name, safe)| {
                 unsafe_device(&rig.sim, name, safe).map(|seen| (name.clone(), seen))

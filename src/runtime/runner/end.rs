@@ -109,8 +109,8 @@ impl<P: Program> Runner<P> {
             .collect();
         // After the safe state: the records file gets a bounded wait for what is queued.
         let r = &mut *rt;
-        self.trouble.records_lost = r.figures_mut().close_records();
-        let failed = rt.figures().records().failed();
+        self.trouble.records_lost = r.figures.close_records();
+        let failed = rt.figures.records().failed();
         let (status, because) = match reason {
             EndReason::Error(_) | EndReason::Violated(_) => (exit::ERROR, None),
             EndReason::Stopped(code) if code != 0 => (

@@ -80,17 +80,17 @@ impl<P: Program> Runner<P> {
                     (d.name().to_string(), DeviceState::of(d, sim, now))
                 })
                 .collect(),
-            held_safe: rt.held_safe,
+            held_safe: rt.held_safe(),
             ticks: TickFigures::of(&self.stats, self.options.period),
             dropped: self.events.dropped(),
-            log_dropped: rt.figures().log().dropped(),
-            forcing: rt.forces().allowed(),
+            log_dropped: rt.figures.log().dropped(),
+            forcing: rt.forces.allowed(),
             forces: rt.forces_shown(),
             // Counted as it happens; the end's count takes in what was queued too.
             records_lost: self
                 .trouble
                 .records_lost
-                .max(rt.figures().records().lost_so_far()),
+                .max(rt.figures.records().lost_so_far()),
             dropped_in_all: self.events.dropped_in_all(),
             mqtt: self
                 .served
@@ -116,7 +116,10 @@ impl<P: Program> Runner<P> {
                     // Between ticks only the devices' upkeep (feeds, retries) changes what is
                     // shown, and each of its exchanges counts: a snapshot stands until the
                     // next tick or exchange.
-                    let at = (self.stats.ticks, self.rt.borrow().transaction_count());
+                    let at = (
+                        self.stats.ticks,
+                        self.rt.borrow().devices.transaction_count(),
+                    );
                     match &served.made {
                         Some((when, s)) if *when == at => (at, Arc::clone(s)),
                         _ => (at, Arc::new(self.snapshot())),

@@ -467,7 +467,12 @@ fn a_lost_devices_grace_end_holds_every_output_safe_at_once_whatever_the_period(
             runner.advance(step);
         }
         let held_at = r.clock.now();
-        let lost_at = runner.runtime().borrow().devices[crate::runtime::testing::IO]
+        let lost_at = runner
+            .runtime()
+            .borrow()
+            .devices
+            .get(crate::runtime::testing::IO)
+            .unwrap()
             .health()
             .lost_at
             .expect("io is lost");

@@ -26,7 +26,7 @@ impl<P: Program> Runner<P> {
         }
         pulse::enter(Phase::Tick);
         let start = self.clock.now();
-        let transactions_before = self.rt.borrow().transaction_count();
+        let transactions_before = self.rt.borrow().devices.transaction_count();
         self.stats.ticks = self.stats.ticks.saturating_add(1);
         self.stats
             .jitter
@@ -34,6 +34,7 @@ impl<P: Program> Runner<P> {
         {
             self.rt
                 .borrow_mut()
+                .cycle
                 .begin_tick(self.next_deadline.min(start));
         }
         if self.ended_by_signal() {
@@ -91,6 +92,7 @@ impl<P: Program> Runner<P> {
         let spent = self
             .rt
             .borrow()
+            .devices
             .transaction_count()
             .saturating_sub(transactions_before);
         self.stats.transactions = self.stats.transactions.saturating_add(spent);
@@ -192,7 +194,7 @@ impl<P: Program> Runner<P> {
     /// script error that is never skipped or restarted: it could not vouch for the outputs).
     fn check_invariants(&mut self) -> bool {
         let checks = self.rt.borrow().invariant_checks();
-        let accesses = self.rt.borrow().input_accesses();
+        let accesses = self.rt.borrow().devices.input_accesses();
         for check in checks.iter() {
             self.rt.borrow_mut().set_cause(&check.call.label);
             match self.program.holds(check) {
@@ -222,8 +224,8 @@ impl<P: Program> Runner<P> {
             }
         }
         let mut rt = self.rt.borrow_mut();
-        let read = rt.input_accesses() != accesses;
-        rt.program_mut().note_invariants_read_inputs(read);
+        let read = rt.devices.input_accesses() != accesses;
+        rt.program.note_invariants_read_inputs(read);
         true
     }
 }

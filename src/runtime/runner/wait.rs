@@ -121,7 +121,7 @@ impl<P: Program> Runner<P> {
                     rt.next_feed(),
                     rt.next_retry().filter(|&due| due > now),
                     rt.grace_ends(),
-                    rt.held_safe,
+                    rt.held_safe(),
                     rt.next_force_expiry(),
                     rt.next_liveness(self.next_deadline),
                 )

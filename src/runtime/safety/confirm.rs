@@ -149,7 +149,7 @@ mod tests {
     use crate::sim::c29u::OutputFault;
 
     fn confirm_io(r: &mut TestRig, tries: u32) -> Result<SafeReading, Unconfirmed> {
-        let driver = r.rt.c29u(IO).unwrap().driver();
+        let driver = r.rt.devices.c29u(IO).unwrap().driver();
         confirm_safe_state(
             SafeDriver::C29u {
                 driver,
@@ -162,10 +162,20 @@ mod tests {
     #[test]
     fn a_safe_value_counts_only_when_the_outputs_read_it_back() {
         let mut r = TestRig::started();
-        r.rt.c29u(IO).unwrap().driver().write_outputs(0x1F).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .write_outputs(0x1F)
+            .unwrap();
         assert_eq!(confirm_io(&mut r, 1).unwrap(), SafeReading::Outputs(0x05));
 
-        r.rt.c29u(IO).unwrap().driver().write_outputs(0x1F).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .write_outputs(0x1F)
+            .unwrap();
         r.sim
             .set_output_fault("io", Some(OutputFault::Ignore))
             .unwrap();
@@ -198,7 +208,7 @@ mod tests {
     fn a_relay_counts_only_when_a_request_after_the_selection_is_answered() {
         let mut r = TestRig::started();
         let confirm = |r: &mut TestRig| {
-            let driver = r.rt.trc(PANEL).unwrap().driver();
+            let driver = r.rt.devices.trc(PANEL).unwrap().driver();
             confirm_safe_state(SafeDriver::Trc1000 { driver, relay: 3 }, 1)
         };
         assert_eq!(confirm(&mut r).unwrap(), SafeReading::Relay(3));

@@ -33,7 +33,7 @@ impl<H: Clone> Runtime<H> {
     /// unavailable and ends the start.
     pub fn start_devices(&mut self) -> Result<(), Unavailable> {
         for idx in 0..self.devices.len() {
-            let name = self.device_name(idx);
+            let name = self.devices.name(idx);
             match self.try_take_control(idx) {
                 Ok(found) => {
                     for line in found {
@@ -78,7 +78,7 @@ impl<H: Clone> Runtime<H> {
     /// The TRP-C29U at `idx` refused a write because its watchdog has fired (the runner was
     /// too late to feed it): take control of it again as when it comes back after a loss.
     pub fn regain_control(&mut self, idx: usize) {
-        let name = self.device_name(idx);
+        let name = self.devices.name(idx);
         // Once, then counted: a module that stays in safe mode refuses every tick's write.
         self.log_mut().repeating(
             &safe_mode_key(&name),
@@ -95,14 +95,14 @@ impl<H: Clone> Runtime<H> {
     /// safe: as `try_take_control`, with what it found logged; a failure loses the device.
     /// False if it failed.
     pub fn take_control(&mut self, idx: usize) -> bool {
-        let before = self.c29u(idx).and_then(|d| d.expected());
+        let before = self.devices.c29u(idx).and_then(|d| d.expected());
         match self.try_take_control(idx) {
             Ok(found) => {
                 self.heard(idx, self.now());
                 for line in found {
                     self.log_mut().notice(&line);
                 }
-                let name = self.device_name(idx);
+                let name = self.devices.name(idx);
                 let done = format!("{name}: taken control of");
                 self.log_mut().settled(&takeover_key(&name), &done);
                 self.log_mut().settled(&safe_mode_key(&name), &done);
@@ -114,7 +114,7 @@ impl<H: Clone> Runtime<H> {
                 // the end to write its safe state. A refusal is logged once, then counted:
                 // a device that keeps refusing is tried again and again.
                 if !e.is_comm_failure() && !e.is_cancelled() {
-                    let name = self.device_name(idx);
+                    let name = self.devices.name(idx);
                     self.log_mut().repeating(
                         &takeover_key(&name),
                         Level::Error,
@@ -135,7 +135,7 @@ impl<H: Clone> Runtime<H> {
     /// and its rotaries rebased (a power cycle's reset of its counts is no turn). Returns what
     /// it found, in log lines.
     pub fn try_take_control(&mut self, idx: usize) -> Result<Vec<String>, DeviceError> {
-        let held = self.held_safe;
+        let held = self.safety.held();
         let forces = &self.forces;
         let mut takeover = match self.devices.get_mut(idx) {
             Some(Device::C29u(d)) => {
@@ -158,14 +158,14 @@ impl<H: Clone> Runtime<H> {
         loop {
             self.feed_watchdogs_except(Some(idx));
             let now = self.now();
-            let Some(d) = self.c29u(idx) else {
+            let Some(d) = self.devices.c29u(idx) else {
                 return Ok(Vec::new());
             };
             if takeover.step(d, now)? {
                 break;
             }
         }
-        if let (Some(v), Some(d)) = (takeover.notes().power_on_unsafe, self.c29u(idx)) {
+        if let (Some(v), Some(d)) = (takeover.notes().power_on_unsafe, self.devices.c29u(idx)) {
             let line = format!(
                 "{}: its power-on value {v:#04x} is not its safe value {:#04x}, and rig.toml \
                  sets none: after a power cycle it drives {v:#04x} until the runner notices \
@@ -182,7 +182,7 @@ impl<H: Clone> Runtime<H> {
     /// module behind the same link, or one reset or changed behind the runner's back): taken
     /// control of as a new one (`take_control` logs what differs from the one before).
     pub fn take_control_as_new(&mut self, idx: usize, why: &str) {
-        let name = self.device_name(idx);
+        let name = self.devices.name(idx);
         self.log_mut().warn(&format!(
             "{name}: {why}; taking control of it as a new module"
         ));
@@ -192,7 +192,9 @@ impl<H: Clone> Runtime<H> {
     /// Logs how the module at `idx` just taken control of differs from the one the runner
     /// expected there (`before`): another module, or one changed behind its back.
     fn log_differences(&mut self, idx: usize, before: Option<&Found>) {
-        let Some(d) = self.c29u(idx) else { return };
+        let Some(d) = self.devices.c29u(idx) else {
+            return;
+        };
         let (Some(before), Some(found)) = (before, d.found()) else {
             return;
         };
@@ -209,7 +211,7 @@ impl<H: Clone> Runtime<H> {
 
     /// What taking control of the module at `idx` found, in log lines.
     fn describe_findings(&mut self, idx: usize, notes: &ControlNotes) -> Vec<String> {
-        let Some(d) = self.c29u(idx) else {
+        let Some(d) = self.devices.c29u(idx) else {
             return Vec::new();
         };
         let name = &d.name();
@@ -266,7 +268,8 @@ mod tests {
     fn output_writes(r: &mut TestRig) -> Arc<Mutex<Vec<u8>>> {
         let writes = Arc::new(Mutex::new(Vec::new()));
         let seen = Arc::clone(&writes);
-        r.rt.c29u(IO)
+        r.rt.devices
+            .c29u(IO)
             .unwrap()
             .driver()
             .set_tracer(Some(Box::new(move |dir, frame| {
@@ -299,7 +302,7 @@ mod tests {
         // rig.toml refuses it first (config::device); taking control refuses it too, for a
         // configuration made some other way.
         let mut r = ascii_rig(0x05);
-        r.rt.c29u(IO).unwrap().config_mut().power_on_value = Some(0x11);
+        r.rt.devices.c29u(IO).unwrap().config_mut().power_on_value = Some(0x11);
         let writes = output_writes(&mut r);
         let e = r.rt.start_devices().unwrap_err().to_string();
         assert!(e.contains("would drive its outputs to 0x11"), "{e}");
@@ -334,7 +337,7 @@ mod tests {
     fn stored_values_are_set_again_only_where_they_differ() {
         let mut r = TestRig::started();
         let at_start = r.log().matches("stored").count();
-        let io = r.rt.c29u(IO).unwrap();
+        let io = r.rt.devices.c29u(IO).unwrap();
         io.driver().set_safe_value(0x09).unwrap();
         io.driver().set_power_on_value(0x11).unwrap();
         assert!(r.rt.take_control(IO));
@@ -355,7 +358,7 @@ mod tests {
     fn what_taking_control_at_start_finds_is_logged() {
         let rig = RIG.replace("watchdog = \"1s\"\n", "");
         let mut r = TestRig::new(&rig);
-        let io = r.rt.c29u(IO).unwrap();
+        let io = r.rt.devices.c29u(IO).unwrap();
         io.driver().set_safe_value(0x0A).unwrap();
         io.driver()
             .set_watchdog(Some(Duration::from_millis(500)))
@@ -390,7 +393,7 @@ mod tests {
         );
         let mut r = TestRig::new(&rig);
         r.rt.start_devices().unwrap();
-        let slow = r.rt.device_index("slow").unwrap();
+        let slow = r.rt.devices.index("slow").unwrap();
         r.sim
             .set_answer_delay("slow", Duration::from_millis(290))
             .unwrap();
@@ -421,7 +424,8 @@ mod tests {
             r.log()
         );
         let mut r = TestRig::new(&rig);
-        r.rt.c29u(IO)
+        r.rt.devices
+            .c29u(IO)
             .unwrap()
             .driver()
             .set_power_on_value(0x05)
@@ -434,9 +438,9 @@ mod tests {
     fn a_different_module_back_after_a_loss_is_named_with_what_differs() {
         let mut r = TestRig::started();
         r.sim.set_gone("io", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.inputs(IO);
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         let other = crate::runtime::devices::SwappedModule {
             safe_value: 0x0F,
             ..Default::default()
@@ -445,7 +449,7 @@ mod tests {
         r.sim.set_gone("io", false).unwrap();
         r.clock.advance(Duration::from_secs(1));
         r.rt.supervise();
-        assert!(r.rt.online(IO));
+        assert!(r.rt.devices.online(IO));
         let log = r.log();
         assert!(
             log.contains("io: the module taken control of differs from the one before: ")
@@ -488,7 +492,7 @@ mod tests {
     fn taking_control_while_held_safe_writes_the_safe_value() {
         let mut r = TestRig::started();
         r.rt.set_outputs(IO, 0x60);
-        r.rt.held_safe = true;
+        r.rt.safety.set_held(true);
         assert!(r.rt.take_control(IO));
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
     }
@@ -512,7 +516,7 @@ mod tests {
         let mut r = TestRig::started();
         r.sim.set_gone("io", true).unwrap();
         assert!(!r.rt.take_control(IO));
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
     }
 }
 

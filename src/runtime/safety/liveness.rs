@@ -22,14 +22,6 @@ pub const LINK_WATCH_INTERVAL: Duration = Duration::from_millis(100);
 pub const LEAST_PROBE_INTERVAL: Duration = Duration::from_millis(50);
 
 impl<H: Clone> Runtime<H> {
-    /// How long a device may go without an answer before it is asked one: a quarter of the
-    /// grace time, so that a device lost while idle is noticed within half of it even when
-    /// the question takes its retries (three tries of a 100 ms timeout, with the silence after
-    /// each, take half a second: grace 1 s then holds the rest safe within 2 s of the loss).
-    pub fn probe_interval(&self) -> Duration {
-        (self.grace / 4).max(LEAST_PROBE_INTERVAL)
-    }
-
     /// Notes that the device at `idx` answered at `at` (it needs no probe for a while).
     pub fn heard(&mut self, idx: usize, at: Duration) {
         if let Some(d) = self.devices.get_mut(idx) {
@@ -47,10 +39,10 @@ impl<H: Clone> Runtime<H> {
             return None;
         }
         let read_now = h.read_in(self.cycle().tick());
-        if read_now && next_tick <= h.heard_at().saturating_add(self.grace / 2) {
+        if read_now && next_tick <= h.heard_at().saturating_add(self.safety.grace() / 2) {
             return None;
         }
-        Some(h.heard_at().saturating_add(self.probe_interval()))
+        Some(h.heard_at().saturating_add(self.safety.probe_interval()))
     }
 
     /// When the loop next has to look at the links or probe a device (`None`: no device has
@@ -59,7 +51,7 @@ impl<H: Clone> Runtime<H> {
         let probes = (0..self.devices.len())
             .filter_map(|idx| self.probe_due(idx, next_tick))
             .min();
-        let watch = self.has_link_watch.then_some(self.next_link_watch);
+        let watch = self.safety.next_link_watch();
         match (probes, watch) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
@@ -70,13 +62,12 @@ impl<H: Clone> Runtime<H> {
     /// (`probe_due`, with the next tick at `next_tick`); a device found lost is marked lost at
     /// once (its grace time runs from now), with the OS's reason.
     pub fn watch_liveness(&mut self, now: Duration, next_tick: Duration) {
-        if now >= self.next_link_watch {
-            self.next_link_watch = now.saturating_add(LINK_WATCH_INTERVAL);
+        if self.safety.link_watch_due(now) {
             self.watch_links();
         }
         for idx in 0..self.devices.len() {
             let due = self.probe_due(idx, next_tick).is_some_and(|at| now >= at);
-            if due && !self.cancel.is_cancelled() {
+            if due && !self.safety.stopping() {
                 self.probe_idle(idx);
             }
         }
@@ -92,7 +83,8 @@ impl<H: Clone> Runtime<H> {
             .filter(|(_, d)| d.health().online())
             .filter_map(|(idx, d)| link_watch(d).map(|w| (idx, w)))
             .collect();
-        self.has_link_watch = !watched.is_empty() || self.devices.iter().any(has_watch);
+        let has = !watched.is_empty() || self.devices.iter().any(has_watch);
+        self.safety.note_link_watch(has);
         if watched.is_empty() {
             return;
         }
@@ -186,12 +178,13 @@ mod tests {
     fn an_idle_device_is_asked_every_quarter_grace_and_one_gone_silent_is_lost_then() {
         let mut r = TestRig::started();
         assert_eq!(
-            r.rt.probe_interval(),
+            r.rt.safety.probe_interval(),
             Duration::from_millis(250),
             "grace 1 s"
         );
         // Nobody reads the panel; the module is heard at each feed of its watchdog.
-        let due = r.rt.devices[PANEL].health().heard_at() + r.rt.probe_interval();
+        let due =
+            r.rt.devices.get(PANEL).unwrap().health().heard_at() + r.rt.safety.probe_interval();
         assert!(r
             .rt
             .next_liveness(Duration::MAX)
@@ -207,16 +200,16 @@ mod tests {
         let now = r.rt.now();
         r.rt.watch_liveness(now, Duration::MAX);
         assert_eq!(r.requests(), before + 1, "one question to the panel");
-        assert_eq!(r.rt.devices[PANEL].health().heard_at(), now);
+        assert_eq!(r.rt.devices.get(PANEL).unwrap().health().heard_at(), now);
         // It goes silent: asked again a quarter of the grace time on, and lost then, not at the next
         // device check.
         r.sim.set_gone("panel", true).unwrap();
-        r.clock.advance(r.rt.probe_interval());
+        r.clock.advance(r.rt.safety.probe_interval());
         let now = r.rt.now();
         r.rt.watch_liveness(now, Duration::MAX);
-        assert!(!r.rt.online(PANEL));
+        assert!(!r.rt.devices.online(PANEL));
         assert!(r.log().contains("panel: lost: "), "{}", r.log());
-        assert!(r.rt.online(IO));
+        assert!(r.rt.devices.online(IO));
     }
 
     #[test]
@@ -225,14 +218,14 @@ mod tests {
         for _ in 0..100 {
             r.next_tick(Duration::from_millis(20));
             let now = r.rt.now();
-            r.rt.cycle_mut().set_boundary(now);
+            r.rt.cycle.set_boundary(now);
             let before = r.requests();
             r.rt.switches(PANEL);
             let now = r.rt.now();
             r.rt.watch_liveness(now, Duration::MAX);
             // The read, and the module's feed when it falls due: never a probe of the panel.
             assert!(r.requests() - before <= 2);
-            assert!(r.rt.devices[PANEL].health().heard_at() == now);
+            assert!(r.rt.devices.get(PANEL).unwrap().health().heard_at() == now);
         }
     }
 
@@ -241,7 +234,7 @@ mod tests {
         let mut r = TestRig::started();
         r.next_tick(Duration::from_millis(20));
         let read_at = r.rt.now();
-        r.rt.cycle_mut().set_boundary(read_at);
+        r.rt.cycle.set_boundary(read_at);
         r.rt.switches(PANEL);
         r.clock.advance(Duration::from_millis(300));
         r.rt.feed_watchdogs();

@@ -77,7 +77,7 @@ impl<H: Clone> Runtime<H> {
     /// cost a reconnection (up to its timeout), and the end tries them all anyway.
     pub fn supervise(&mut self) {
         for idx in 0..self.devices.len() {
-            if self.cancel.is_cancelled() {
+            if self.safety.stopping() {
                 break;
             }
             let now = self.now();
@@ -135,7 +135,7 @@ impl<H: Clone> Runtime<H> {
     /// not held yet: the moment its grace time is over (the loop wakes for it between ticks,
     /// whatever the period and the timers).
     pub fn grace_ends(&self) -> Option<Duration> {
-        if self.held_safe {
+        if self.safety.held() {
             return None;
         }
         let first_lost = self
@@ -146,7 +146,7 @@ impl<H: Clone> Runtime<H> {
         // Held once lost for longer than the grace time, as `check_grace` has it.
         Some(
             first_lost
-                .saturating_add(self.grace)
+                .saturating_add(self.safety.grace())
                 .saturating_add(Duration::from_nanos(1)),
         )
     }
@@ -156,7 +156,7 @@ impl<H: Clone> Runtime<H> {
     /// at the next tick. `was_held`: whether they were held before supervision looked.
     pub fn hold_safe_between_ticks(&mut self, was_held: bool) {
         self.check_grace();
-        if self.held_safe && !was_held {
+        if self.safety.held() && !was_held {
             self.flush_outputs();
         }
     }
@@ -168,21 +168,22 @@ impl<H: Clone> Runtime<H> {
         let beyond: Vec<String> = self
             .devices
             .iter()
-            .filter(|d| d.health().lost_for(now) > self.grace)
+            .filter(|d| d.health().lost_for(now) > self.safety.grace())
             .map(|d| d.name().to_string())
             .collect();
         let all_back = self.devices.iter().all(|d| d.health().online());
-        if !self.held_safe && !beyond.is_empty() {
-            self.held_safe = true;
+        let held = self.safety.held();
+        if !held && !beyond.is_empty() {
+            self.safety.set_held(true);
             self.cancel_forces(&format!("{} lost past its grace time", beyond.join(", ")));
-            let grace = format_duration(self.grace);
+            let grace = format_duration(self.safety.grace());
             self.log_mut().warn(&format!(
                 "{} lost for longer than the grace time ({grace}): every output is held at \
                  its safe state until it is back",
                 beyond.join(", "),
             ));
-        } else if self.held_safe && all_back {
-            self.held_safe = false;
+        } else if held && all_back {
+            self.safety.set_held(false);
             self.log_mut()
                 .notice("every device is back: the script's outputs apply again");
         }
@@ -207,14 +208,14 @@ mod tests {
     #[test]
     fn a_lost_device_is_tried_before_its_watchdog_is_due_then_once_a_second() {
         let mut r = TestRig::started();
-        let feed = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        let feed = r.rt.devices.c29u(IO).unwrap().feed_interval().unwrap();
         assert!(
             feed < RETRY_INTERVAL,
             "the rig's watchdog is fed more often"
         );
         r.sim.set_gone("io", true).unwrap();
         poll(&mut r);
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         assert_eq!(r.log().matches("io: lost: ").count(), 1);
         assert!(
             r.log().contains("then every 1s"),
@@ -229,7 +230,7 @@ mod tests {
         let tried_at = r.rt.now();
         r.rt.supervise();
         assert_eq!(r.requests(), before + 1, "one try, no retries");
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         assert_eq!(
             r.rt.next_retry(),
             Some(tried_at + RETRY_INTERVAL),
@@ -239,13 +240,13 @@ mod tests {
         r.clock.advance(tried_at + RETRY_INTERVAL - r.rt.now());
         r.rt.supervise();
         assert_eq!(r.requests(), before + 1, "one try, no retries");
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         r.sim.set_gone("io", false).unwrap();
         r.rt.set_outputs(IO, 0x0C);
         r.clock.advance(RETRY_INTERVAL);
         r.rt.supervise();
-        assert!(r.rt.online(IO));
-        assert!(!r.rt.held_safe, "lost past the grace time, and now back");
+        assert!(r.rt.devices.online(IO));
+        assert!(!r.rt.held_safe(), "lost past the grace time, and now back");
         r.rt.flush_outputs();
         assert_eq!(
             r.sim.outputs("io").unwrap(),
@@ -266,10 +267,10 @@ mod tests {
         r.rt.switches(PANEL);
         r.clock.advance(Duration::from_millis(900));
         r.rt.supervise();
-        assert!(!r.rt.held_safe, "within the grace time");
+        assert!(!r.rt.held_safe(), "within the grace time");
         r.clock.advance(Duration::from_millis(200));
         r.rt.supervise();
-        assert!(r.rt.held_safe);
+        assert!(r.rt.held_safe());
         r.rt.flush_outputs();
         assert_eq!(
             r.sim.outputs("io").unwrap(),
@@ -282,7 +283,7 @@ mod tests {
         r.sim.set_gone("panel", false).unwrap();
         r.clock.advance(RETRY_INTERVAL);
         r.rt.supervise();
-        assert!(!r.rt.held_safe);
+        assert!(!r.rt.held_safe());
         r.rt.flush_outputs();
         assert_eq!(r.sim.outputs("io").unwrap(), 0x30);
         assert!(r.log().contains("every device is back"), "{}", r.log());
@@ -298,11 +299,11 @@ mod tests {
         r.rt.start_devices().unwrap();
         r.sim.set_gone("io", true).unwrap();
         poll(&mut r);
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         // It answers again, but every takeover is refused (here: a power-on value it cannot
         // store over ASCII without driving its outputs; a module answering with an exception
         // takes the same way).
-        r.rt.c29u(IO).unwrap().config_mut().power_on_value = Some(0x11);
+        r.rt.devices.c29u(IO).unwrap().config_mut().power_on_value = Some(0x11);
         r.sim.set_gone("io", false).unwrap();
         let before = r.requests();
         let minute = 60_000 / TICK.as_millis();
@@ -310,7 +311,7 @@ mod tests {
             r.next_tick(TICK);
             r.rt.supervise();
         }
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         let log = r.log();
         assert_eq!(log.matches("io: taking control failed").count(), 1, "{log}");
         let tries = r.requests() - before;
@@ -331,6 +332,6 @@ mod tests {
             cause: String::new(),
         };
         r.rt.note_failure(IO, &refused);
-        assert!(r.rt.online(IO));
+        assert!(r.rt.devices.online(IO));
     }
 }

@@ -1,10 +1,12 @@
 //! Fail-safe supervision, all in one place: taking control of every device (at start, when it
 //! comes back, when a module went safe), keeping it (host watchdogs fed, outputs read back),
-//! noticing a loss between exchanges, losing devices and trying them again, holding every output safe while one has been lost
-//! for longer than its grace time, and the safe state at the end.
+//! noticing a loss between exchanges, losing devices and trying them again, holding every output
+//! safe while one has been lost for longer than its grace time, and the safe state at the end.
+//! The state it keeps is the `Safety` part of `Runtime` (hold.rs).
 
 mod confirm;
 mod control;
+mod hold;
 mod liveness;
 mod loss;
 mod safe_state;
@@ -12,6 +14,7 @@ mod upkeep;
 
 pub use confirm::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed};
 pub use control::Unavailable;
+pub use hold::Safety;
 pub use liveness::{LEAST_PROBE_INTERVAL, LINK_WATCH_INTERVAL};
 pub use loss::RETRY_INTERVAL;
 pub use safe_state::{DeviceEnd, EndOutcome, END_TRIES};

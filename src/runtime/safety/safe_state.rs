@@ -54,7 +54,7 @@ impl<H: Clone> Runtime<H> {
         self.cancel_forces(why);
         let mut done = Vec::new();
         for idx in 0..self.devices.len() {
-            if !self.online(idx) {
+            if !self.devices.online(idx) {
                 if let Some(d) = self.devices.get(idx) {
                     done.push(format!("{} lost (its own watchdog, if on, acts)", d.name()));
                 }
@@ -98,8 +98,8 @@ impl<H: Clone> Runtime<H> {
         let mut done = Vec::new();
         let mut ends = Vec::new();
         for idx in 0..self.devices.len() {
-            let was_lost = !self.online(idx);
-            let name = self.device_name(idx);
+            let was_lost = !self.devices.online(idx);
+            let name = self.devices.name(idx);
             let outcome = self.write_safe_at_end(idx, was_lost);
             let mut watchdog_released = false;
             match &outcome {
@@ -173,7 +173,7 @@ impl<H: Clone> Runtime<H> {
 
     /// What happens to the device at `idx` when the safe state did not reach it.
     fn unreached_note(&mut self, idx: usize) -> String {
-        match self.c29u(idx) {
+        match self.devices.c29u(idx) {
             Some(d) => match d.watchdog() {
                 Some(t) => format!(
                     "its host watchdog is left on: it drives its outputs to {:#04x} within {} \
@@ -190,7 +190,7 @@ impl<H: Clone> Runtime<H> {
     /// Turns off the host watchdog of the module at `idx` if the runner turned it on; true
     /// if it did.
     fn release_watchdog(&mut self, idx: usize) -> bool {
-        let Some(d) = self.c29u(idx) else {
+        let Some(d) = self.devices.c29u(idx) else {
             return false;
         };
         let ours = d.watchdog_turned_on().is_some();
@@ -359,7 +359,7 @@ mod tests {
         r.rt.set_relay(PANEL, 6);
         r.rt.flush_outputs();
         r.sim.set_gone("panel", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.switches(PANEL);
         r.rt.write_safe_state("signal");
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
@@ -377,7 +377,7 @@ mod tests {
         let mut r = TestRig::started();
         r.clock.advance(Duration::from_secs(2));
         r.rt.write_safe_state("end of run");
-        assert!(r.rt.online(IO));
+        assert!(r.rt.devices.online(IO));
         assert!(!r.log().contains("failed"), "{}", r.log());
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);
     }
@@ -391,7 +391,12 @@ mod tests {
         let rig = RIG.replace("watchdog = \"1s\"\n", "");
         let mut r = TestRig::new(&rig);
         let own = Some(Duration::from_secs(3));
-        r.rt.c29u(IO).unwrap().driver().set_watchdog(own).unwrap();
+        r.rt.devices
+            .c29u(IO)
+            .unwrap()
+            .driver()
+            .set_watchdog(own)
+            .unwrap();
         r.rt.start_devices().unwrap();
         assert!(r.log().contains("host watchdog 3s"), "{}", r.log());
         r.rt.end_safe("end of run", true);
@@ -408,9 +413,9 @@ mod tests {
         r.rt.flush_outputs();
         // Lost (say while the runner tried to reconnect), and answering again by the end.
         r.sim.set_gone("io", true).unwrap();
-        r.rt.cycle_mut().next_tick();
+        r.rt.cycle.next_tick();
         r.rt.inputs(IO);
-        assert!(!r.rt.online(IO));
+        assert!(!r.rt.devices.online(IO));
         r.sim.set_gone("io", false).unwrap();
         r.rt.end_safe("signal", true);
         assert_eq!(r.sim.outputs("io").unwrap(), 0x05);

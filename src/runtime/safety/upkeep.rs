@@ -19,10 +19,12 @@ impl<H: Clone> Runtime<H> {
     pub fn feed_watchdogs_except(&mut self, skip: Option<usize>) {
         let now = self.now();
         for idx in 0..self.devices.len() {
-            if !self.online(idx) || skip == Some(idx) {
+            if !self.devices.online(idx) || skip == Some(idx) {
                 continue;
             }
-            let Some(d) = self.c29u(idx) else { continue };
+            let Some(d) = self.devices.c29u(idx) else {
+                continue;
+            };
             if let (Some(stall), None) = (d.stalled(now), skip) {
                 self.after_stall(idx, stall);
                 continue;
@@ -41,7 +43,7 @@ impl<H: Clone> Runtime<H> {
     /// outputs the runner wants are written: a module in safe mode refuses, and is taken
     /// control of again at once, with the cause in the log; one that takes them is fed.
     fn after_stall(&mut self, idx: usize, stall: Duration) {
-        let held = self.held_safe;
+        let held = self.safety.held();
         let now = self.now();
         let forces = &self.forces;
         let Some(Device::C29u(d)) = self.devices.get_mut(idx) else {
@@ -118,7 +120,9 @@ impl<H: Clone> Runtime<H> {
             if !self.ready_for_exchange(idx) {
                 return;
             }
-            let Some(d) = self.c29u(idx) else { return };
+            let Some(d) = self.devices.c29u(idx) else {
+                return;
+            };
             match check.step(d) {
                 Ok(Some(finding)) => break finding,
                 Ok(None) => {}
@@ -128,14 +132,14 @@ impl<H: Clone> Runtime<H> {
                 }
             }
         };
-        let name = self.device_name(idx);
+        let name = self.devices.name(idx);
         let key = format!("{name}/read-back");
         match finding {
             CheckFinding::Same => self
                 .log_mut()
                 .settled(&key, &format!("{name}: outputs as written")),
             CheckFinding::Outputs { read, written } => {
-                if let Some(d) = self.c29u(idx) {
+                if let Some(d) = self.devices.c29u(idx) {
                     d.forget_outputs_written();
                 }
                 self.log_mut().repeating(
@@ -181,7 +185,7 @@ mod tests {
         let mut r = TestRig::started();
         // The rig's 1 s watchdog: a feed may be 778 ms late (config::feeding), so every
         // 221.7 ms rather than every quarter.
-        let interval = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        let interval = r.rt.devices.c29u(IO).unwrap().feed_interval().unwrap();
         assert_eq!(interval.as_micros(), 221_666);
         let before = r.requests();
         for _ in 0..500 {
@@ -196,7 +200,7 @@ mod tests {
     #[test]
     fn next_feed_and_next_retry() {
         let mut r = TestRig::started();
-        let interval = r.rt.c29u(IO).unwrap().feed_interval().unwrap();
+        let interval = r.rt.devices.c29u(IO).unwrap().feed_interval().unwrap();
         assert_eq!(r.rt.next_feed(), Some(interval));
         assert_eq!(r.rt.next_retry(), None);
         r.sim.set_gone("panel", true).unwrap();
@@ -360,7 +364,7 @@ mod tests {
     #[test]
     fn the_scripts_own_reset_is_no_news() {
         let mut r = TestRig::started();
-        let io = r.rt.c29u(IO).unwrap();
+        let io = r.rt.devices.c29u(IO).unwrap();
         io.reset_module().unwrap();
         r.rt.check_devices();
         assert!(!r.log().contains("reset or power cycled"), "{}", r.log());
