@@ -122,6 +122,15 @@ impl Devices {
     }
 }
 
+impl<'a> IntoIterator for &'a Devices {
+    type Item = &'a Device;
+    type IntoIter = std::slice::Iter<'a, Device>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter()
+    }
+}
+
 impl<H: Clone> Runtime<H> {
     /// Cuts every device's exchanges short once `cancel` is set (the run's stop flag);
     /// `Cancel::never()` lets them run their course (the end's writes).
