@@ -49,23 +49,50 @@
 //! tests). See DESIGN.md for the whole picture.
 #![deny(missing_docs)]
 
-pub mod cli;
+/// Declares modules that are the crate's own: public only with the feature `internals`, which
+/// nothing but this package's tests, benchmarks and examples turn on (through their
+/// dev-dependency on the package itself). A build without it sees them as private, so the
+/// compiler reports what nothing uses, and the library's users see only the facade below.
+macro_rules! internal {
+    ($($(#[$attr:meta])* mod $name:ident;)*) => {$(
+        $(#[$attr])*
+        #[cfg(feature = "internals")]
+        pub mod $name;
+        $(#[$attr])*
+        #[cfg(not(feature = "internals"))]
+        #[allow(unreachable_pub)]
+        pub(crate) mod $name;
+    )*};
+}
+
 pub mod config;
 pub mod device;
-pub(crate) mod guardian;
 pub mod heap;
 pub mod link;
 pub mod protocol;
 pub mod report;
-pub mod runtime;
-pub mod script;
-pub(crate) mod service;
 pub mod sim;
-pub(crate) mod suggest;
-pub(crate) mod sync;
-pub(crate) mod text_file;
 pub mod time;
-pub mod verify;
 
+internal! {
+    mod cli;
+    mod guardian;
+    mod runtime;
+    mod script;
+    mod service;
+    mod suggest;
+    mod sync;
+    mod text_file;
+    mod verify;
+}
+
+/// The `rigscript` command: parses `std::env::args` and runs it; the process's exit status.
+pub use cli::main;
+/// The exit statuses a run ends with.
+pub use runtime::exit;
+/// The run's typed event stream, for a program that watches a rig it built.
+pub use runtime::observe as events;
+/// The scan loop a [`Rig`] runs.
+pub use runtime::runner::Runner;
 pub use script::builder::RigBuilder;
 pub use script::rig::{Rig, RigError};

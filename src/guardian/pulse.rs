@@ -3,7 +3,7 @@
 //! doing last, at the cost of a few stores and no system call.
 //!
 //! What counts as alive: the loop thread beats when a tick begins, at every slice of its wait
-//! between ticks (`runner::SLEEP_SLICE`), at every slice of a device exchange's waits
+//! between ticks (`runner::wait::SLEEP_SLICE`), at every slice of a device exchange's waits
 //! (`device::exchange`, at most `CANCEL_SLICE`), and every few dozen operations of the script
 //! (where the guard reads the clock for the handler's time). Each of these ends within its own
 //! bound (a tick's exchanges and a handler's operations and time have limits of their own), so

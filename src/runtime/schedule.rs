@@ -238,6 +238,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
         self.max_timers = max;
     }
 
+    #[cfg(test)]
     /// The most timers that may be armed at once.
     pub fn max_timers(&self) -> usize {
         self.max_timers
@@ -301,6 +302,7 @@ impl<Tz: TimeZone> Schedule<Tz> {
         }
     }
 
+    #[cfg(test)]
     /// Whether a timer is still armed.
     pub fn contains(&self, id: TimerId) -> bool {
         self.timers.contains_key(&id)
@@ -311,21 +313,25 @@ impl<Tz: TimeZone> Schedule<Tz> {
         self.timers.get(&id).map(|t| &t.kind)
     }
 
+    #[cfg(test)]
     /// How many timers are armed.
     pub fn len(&self) -> usize {
         self.timers.len()
     }
 
+    #[cfg(test)]
     /// Whether no timer is armed.
     pub fn is_empty(&self) -> bool {
         self.timers.is_empty()
     }
 
+    #[cfg(test)]
     /// All deadlines skipped so far (the sum of every `Fired::missed`).
     pub fn missed_total(&self) -> u64 {
         self.missed_total
     }
 
+    #[cfg(test)]
     /// The timers due at this tick, earliest deadline first (ties in creation order), each
     /// once. Repeating timers are re-armed; spent ones (`Fired::last`) removed. The wall clock
     /// is read only while cron timers are (or were) armed: most ticks of most scripts have none.

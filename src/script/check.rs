@@ -194,6 +194,7 @@ impl Registry {
 
 /// The script API as `check` knows it, by name: what the engine of a run registers beyond
 /// Rhai's standard library (the user guide's reference is tested against it).
+#[cfg(any(test, feature = "internals"))]
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct ScriptApi {
     /// Functions called on their own (`every`, `device`, ...).
@@ -205,6 +206,7 @@ pub struct ScriptApi {
 }
 
 /// The script API's names, from the engine a run uses.
+#[cfg(any(test, feature = "internals"))]
 pub fn script_api() -> ScriptApi {
     let api = Registry::of_the_api();
     let library = Registry::of(&sandboxed(DEFAULT_BUDGET));

@@ -40,6 +40,7 @@ const RELAY: u32 = OUTPUTS + 1;
 /// Every switch.
 pub const ALL_SWITCHES: u128 = ((1u128 << Switch::COUNT) - 1) << SWITCHES;
 /// Every rotary.
+#[cfg(test)]
 pub const ALL_ROTARIES: u128 = ((1u128 << Rotary::COUNT) - 1) << ROTARIES;
 /// Every input channel.
 pub const ALL_INPUTS: u128 = 0xFF << INPUTS;
@@ -172,11 +173,6 @@ impl ReadTracker {
         if t.is_none() {
             *t = Some(ReadSet::default());
         }
-    }
-
-    /// Whether it tracks.
-    pub fn enabled(&self) -> bool {
-        self.0.borrow().is_some()
     }
 
     /// Notes that the items of `mask` on device `dev` were read.

@@ -4,7 +4,7 @@
 
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::time::duration::format_duration;
-use chrono::{DateTime, FixedOffset, TimeDelta};
+use chrono::{DateTime, FixedOffset};
 use std::fmt;
 use std::sync::Arc;
 use std::time::Duration;
@@ -347,14 +347,6 @@ impl StartPoint {
     pub fn wall_text(&self) -> String {
         self.wall
             .to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
-    }
-
-    /// The wall time moved by `by`.
-    pub fn shifted(&self, by: TimeDelta) -> Self {
-        Self {
-            wall: self.wall.checked_add_signed(by).unwrap_or(self.wall),
-            zone: self.zone.clone(),
-        }
     }
 }
 

@@ -13,9 +13,12 @@ mod trc;
 pub mod links;
 
 /// Where callers not yet composing their own run find the opener of a (partly) simulated rig.
-pub use c29u::{C29uDevice, Stored};
-pub use identity::{watchdog_words, CheckFinding, Found, ModuleCheck};
-pub use open::{c29u_options, open_devices_with, OpenError, Opened, SimLinks};
+pub use c29u::C29uDevice;
+pub use identity::{CheckFinding, Found, ModuleCheck};
+/// The driver options a rig.toml module gets, for the fault search's harness (tests/).
+#[cfg(feature = "internals")]
+pub use open::c29u_options;
+pub use open::{open_devices_with, OpenError, Opened, SimLinks};
 pub use settings::SettingRefused;
 pub use sim::{FieldError, SimDevice, SimRig, SwappedModule};
 pub use takeover::{ControlNotes, Takeover};

@@ -22,9 +22,6 @@ mod wait;
 
 pub use contract::{EndReason, HandlerFault, Program, RunOptions, Shared, StopLimit};
 pub use end::{panic_message, safe_after_panic, Trouble};
-pub use restart::{BACKOFF_RESET, FIRST_BACKOFF, MAX_BACKOFF};
-pub use tick::CHECK_INTERVAL;
-pub use wait::SLEEP_SLICE;
 
 use crate::device::cancel::Cancel;
 use crate::runtime::error_log::ErrorLog;

@@ -2,6 +2,7 @@
 
 use super::contract::describe;
 use super::tick::boundary_at_or_after;
+use super::wait::SLEEP_SLICE;
 use super::*;
 use crate::config::{ErrorPolicy, WakeLatency};
 use crate::device::cancel::CANCEL_SLICE;

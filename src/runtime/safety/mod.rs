@@ -15,6 +15,4 @@ mod upkeep;
 pub use confirm::{confirm_safe_state, SafeDriver, SafeReading, Unconfirmed};
 pub use control::Unavailable;
 pub use hold::Safety;
-pub use liveness::{LEAST_PROBE_INTERVAL, LINK_WATCH_INTERVAL};
-pub use loss::RETRY_INTERVAL;
-pub use safe_state::{DeviceEnd, EndOutcome, END_TRIES};
+pub use safe_state::{DeviceEnd, END_TRIES};
