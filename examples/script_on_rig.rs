@@ -10,8 +10,8 @@
 
 use clap::Parser;
 use rigscript::config::{C29uConfig, Port, Trc1000Address, Trc1000Config, WatchdogTimeout};
-use rigscript::runtime::devices::SimRig;
 use rigscript::time::duration::parse_duration;
+use rigscript::SimRig;
 use rigscript::{Rig, RigBuilder};
 use std::error::Error;
 use std::path::PathBuf;

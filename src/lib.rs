@@ -88,6 +88,8 @@ internal! {
 
 /// The `rigscript` command: parses `std::env::args` and runs it; the process's exit status.
 pub use cli::main;
+/// The simulated side of a [`Rig`]: its simulators' fields, by device name.
+pub use runtime::devices::SimRig;
 /// The exit statuses a run ends with.
 pub use runtime::exit;
 /// The run's typed event stream, for a program that watches a rig it built.
