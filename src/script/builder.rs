@@ -310,6 +310,7 @@ mod tests {
                 Trc1000Config {
                     address: Trc1000Address::Unit(0),
                     safe_relay: Some(2),
+                    names: Default::default(),
                 },
             )
             .simulated()
