@@ -1437,3 +1437,29 @@ fn a_browser_shows_each_point_s_name_beside_it() {
         "an unnamed point has no name"
     );
 }
+
+#[test]
+fn the_page_s_log_starts_at_the_run_s_first_line() {
+    let run = serve("web-first-line", &["scripts/interlock.rhai", "--sim"]);
+    // The take-over lines come before the page attaches to the run; its log has them.
+    let first = run.logged("io: TRP-C29U ID 1 on simulated");
+    let (status, body) = get(run.addr, "/api/history");
+    assert_eq!(status, 200, "{body}");
+    let history: Value = serde_json::from_str(&body).unwrap();
+    let lines: Vec<&str> = history["log"]
+        .as_array()
+        .expect("a log")
+        .iter()
+        .filter_map(|l| l["message"].as_str())
+        .collect();
+    assert!(
+        first.ends_with(lines.first().copied().unwrap_or("nothing")),
+        "the page's first line is the run's ({first}): {lines:?}"
+    );
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("panel: simulated TRC1000 panel")),
+        "{lines:?}"
+    );
+}
