@@ -70,6 +70,7 @@ fn rig(real: bool, port: PathBuf) -> RigBuilder {
     let panel = Trc1000Config {
         address: Trc1000Address::Unit(0),
         safe_relay: Some(0),
+        names: Default::default(),
     };
     let builder = RigBuilder::new().c29u("io", io).trc1000("panel", panel);
     if real {

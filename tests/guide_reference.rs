@@ -370,3 +370,48 @@ fn the_guide_s_scenario_tests_pass() {
         stderr(&out)
     );
 }
+
+/// The rig.toml of chapter 5's "When rig.toml is wrong": a slip on each of five lines.
+const BAD_TOML: &str = "period = 20\ngrce = \"1s\"\n\n[devices.io]\nkind = \"trp-c29u\"\n\
+                        protocol = \"modbsu\"\nwatchdog = \"0.2s\"\nbaud = 9601\n\
+                        port = \"/dev/ttyUSB0\"\n";
+
+#[test]
+fn the_rig_toml_errors_chapter_5_shows_are_the_ones_printed() {
+    let text = page("05-rig-toml.md");
+    let lines: Vec<&str> = text
+        .lines()
+        .skip_while(|l| !l.contains("--config bad.toml"))
+        .take_while(|l| !l.starts_with("```"))
+        .collect();
+    let printed = match RigConfig::parse(BAD_TOML, "bad.toml") {
+        Err(e) => format!("rigscript check: {e}"),
+        Ok(_) => panic!("bad.toml was read"),
+    };
+    // Between the command and its exit status: exactly what check prints, every key listed
+    // as the code lists it.
+    let (Some(first), Some(last)) = (lines.first(), lines.last()) else {
+        panic!("an empty block")
+    };
+    assert!(first.starts_with("$ rigscript check"), "{first}");
+    assert_eq!(*last, "exit 2");
+    assert_eq!(lines[1..lines.len() - 1].join("\n"), printed);
+}
+
+#[test]
+fn every_fence_of_the_guide_stands_alone() {
+    // A fence with text after it (```` ``` At most ````) opens a block where one should
+    // close, and swallows the sections that follow.
+    for (name, text) in pages() {
+        for (i, line) in text.lines().enumerate() {
+            let Some(rest) = line.trim_start().strip_prefix("```") else {
+                continue;
+            };
+            assert!(
+                rest.chars().all(|c| c.is_ascii_alphanumeric()),
+                "{name}:{}: a fence with text after it: {line:?}",
+                i + 1
+            );
+        }
+    }
+}

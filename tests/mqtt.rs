@@ -456,7 +456,11 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
     let broker = Broker::start("mqtt-state");
     let dir = TempDir::new("mqtt-state-run");
     let script = "io.on_rise(0, || { io.outputs = 0x80; });\n";
-    let mqtt = format!("{}ha_discovery = true\n", broker.mqtt_table("state", "10s"));
+    // The names table comes before its device's table (TOML allows it): run_rig writes that.
+    let mqtt = format!(
+        "{}ha_discovery = true\n\n[devices.io.names]\nDI0 = \"guard door\"\n",
+        broker.mqtt_table("state", "10s")
+    );
     let mut rig = run_rig(&dir, "state", &mqtt, script);
     let state = |m: &str| serde_json::from_str::<Value>(m).unwrap_or(Value::Null);
     broker.retained_until("rigscript/state/state/io", |m| state(m)["inputs"] == 0);
@@ -478,6 +482,7 @@ fn retained_state_follows_the_simulated_inputs_and_a_normal_stop_says_offline() 
     assert_eq!(v["online"], true);
     assert_eq!(v["kind"], "trp-c29u");
     assert_eq!(v["outputs"], 0x80, "the handler's outputs: {v}");
+    assert_eq!(v["names"]["DI0"], "guard door", "rig.toml's names: {v}");
     // One screen for the lab, from the retained topics alone.
     let lab = broker.lab();
     let mine = lab_rig(&lab, "state");

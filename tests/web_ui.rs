@@ -560,6 +560,13 @@ impl Browser {
         from_base64(text)
     }
 
+    /// The text of what `css` finds.
+    fn text(&self, css: &str) -> Option<String> {
+        let e = self.find(css)?;
+        let got = self.session("GET", &format!("/element/{e}/text"), None);
+        got["value"].as_str().map(String::from)
+    }
+
     /// Whether what `css` finds has class `class`.
     fn has_class(&self, css: &str, class: &str) -> Option<bool> {
         let e = self.find(css)?;
@@ -1273,4 +1280,179 @@ fn the_environment_s_token_is_checked_as_rig_toml_s_is() {
             "the token is never shown: {said}"
         );
     }
+}
+
+/// A rig whose points have names (rig.toml's `names`), forcing allowed, under `--sim`: the
+/// guard door's rise starts the motor, its fall stops it.
+fn named_rig(tag: &str) -> Served {
+    let dir = TempDir::new(tag);
+    let records = dir.path("records.jsonl");
+    dir.file(
+        "rig.toml",
+        &format!(
+            "name = \"{tag}\"\nperiod = \"50ms\"\nforce = true\nrecords = \"{}\"\n\n\
+             [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\n\
+             [devices.io.names]\nDI0 = \"guard door\"\nDO0 = \"motor\"\nDO1 = \"lamp\"\n\n\
+             [devices.panel]\nkind = \"trc1000\"\n\n\
+             [devices.panel.names]\nS12 = \"cycle start\"\nS41A = \"die selector\"\n\
+             relay0 = \"no die\"\n",
+            records.display()
+        ),
+    );
+    let script = dir.file(
+        "press.rhai",
+        "io.on_rise(\"guard door\", || io.set_output(\"motor\", true));\n\
+         io.on_fall(\"guard door\", || io.set_output(\"motor\", false));\n\
+         panel.on_press(\"cycle start\", || {});\n\
+         panel.on_turn(\"die selector\", |d, v| {});\n",
+    );
+    let config = dir.path("rig.toml").display().to_string();
+    serve_in(dir, &[&script, "--config", &config, "--sim"])
+}
+
+#[test]
+fn names_are_shown_in_the_state_status_the_log_and_force_records_and_the_cli_says_what_it_did() {
+    let run = named_rig("named");
+    let a = run.addr;
+    let s = state(a);
+    assert_eq!(s["devices"]["io"]["names"]["DI0"], "guard door", "{s}");
+    assert_eq!(s["devices"]["panel"]["names"]["S12"], "cycle start", "{s}");
+    // drive, force and unforce print what they did, the point with its name.
+    let (code, out, err) = run.cli(&["drive", "named", "set-input", "io", "0", "on"]);
+    assert_eq!(
+        (code, out.trim()),
+        (0, "named: io: DI0 \"guard door\" set on"),
+        "{err}"
+    );
+    state_until(a, "the motor runs", |s| {
+        s["devices"]["io"]["outputs_written"] == 1
+    });
+    run.logged("io: DI0 \"guard door\" on");
+    run.logged("io: outputs 0x00 -> 0x01: DO0 \"motor\" on (io.on_rise DI0 \"guard door\")");
+    let (code, out, err) = run.cli(&["drive", "named", "press", "S12"]);
+    assert_eq!(
+        (code, out.trim()),
+        (0, "named: panel: S12 \"cycle start\" pressed"),
+        "{err}"
+    );
+    run.logged("panel: S12 \"cycle start\" pressed");
+    let (code, out, err) = run.cli(&["status", "named"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("DI0 \"guard door\" on"), "{out}");
+    assert!(out.contains("DO0 \"motor\" on, DO1 \"lamp\" off"), "{out}");
+    assert!(out.contains("relay: 0 \"no die\""), "{out}");
+    let (code, out, err) = run.cli(&["force", "named", "io.DO1", "on", "--for", "5m"]);
+    assert_eq!(
+        (code, out.trim()),
+        (0, "named: io.DO1 \"lamp\" forced on for 5m"),
+        "{err}"
+    );
+    run.logged("force: io.DO1 \"lamp\" forced on for 5m");
+    let (code, out, err) = run.cli(&["unforce", "named", "io.DO1"]);
+    assert_eq!(
+        (code, out.trim()),
+        (
+            0,
+            "named: io.DO1 \"lamp\" unforced: the script's value applies again"
+        ),
+        "{err}"
+    );
+    let records = until(Duration::from_secs(10), || {
+        let r = run.force_records();
+        (r.len() == 2).then_some(r)
+    })
+    .expect("two force records");
+    assert!(
+        records.iter().all(|r| r["point_name"] == "lamp"),
+        "{records:?}"
+    );
+}
+
+#[test]
+fn an_unknown_point_in_names_is_refused_at_start_and_check_refuses_an_unknown_name() {
+    let dir = TempDir::new("names-refused");
+    let config = dir.file(
+        "rig.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
+         [devices.io.names]\nDI0 = \"guard door\"\nDI9 = \"ghost\"\n",
+    );
+    let script = dir.file("s.rhai", "print(io.input(\"guard door\"));\n");
+    let out = Command::new(rigscript())
+        .args(["run", "--sim", "--config", &config, &script])
+        .env("XDG_RUNTIME_DIR", dir.root())
+        .output()
+        .unwrap();
+    let err = common::stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("rig.toml:6: devices.io.names.DI9: not a point of a TRP-C29U"),
+        "{err}"
+    );
+    let config = dir.file(
+        "good.toml",
+        "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
+         [devices.io.names]\nDI0 = \"guard door\"\n",
+    );
+    let script = dir.file("typo.rhai", "print(io.input(\"gaurd door\"));\n");
+    let out = Command::new(rigscript())
+        .args(["check", &script, "--config", &config])
+        .output()
+        .unwrap();
+    let said = format!("{}{}", common::stdout(&out), common::stderr(&out));
+    assert_ne!(out.status.code(), Some(0), "{said}");
+    assert!(
+        said.contains("typo.rhai:1:16: no channel called \"gaurd door\" on a TRP-C29U (did you mean \"guard door\"?)"),
+        "{said}"
+    );
+}
+
+#[test]
+#[ignore = "needs chromium and chromium-driver (tier 2: .ci/run installs them)"]
+fn a_browser_shows_each_point_s_name_beside_it() {
+    let run = named_rig("web-names");
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/#key={}", run.key));
+    let named = |css: &str| {
+        until(Duration::from_secs(20), || {
+            browser.text(css).filter(|t| !t.is_empty())
+        })
+        .unwrap_or_else(|| panic!("no name at {css}"))
+    };
+    assert_eq!(named("#name-di-io-0"), "guard door");
+    assert_eq!(named("#name-do-io-0"), "motor");
+    assert_eq!(named("#name-do-io-1"), "lamp");
+    assert_eq!(named("#name-sw-panel-S12"), "cycle start");
+    assert_eq!(named("#name-rot-panel-S41A"), "die selector");
+    assert!(named("#relay-panel").contains("\"no die\""));
+    assert!(
+        browser.find("#name-di-io-1").is_none(),
+        "an unnamed point has no name"
+    );
+}
+
+#[test]
+fn the_page_s_log_starts_at_the_run_s_first_line() {
+    let run = serve("web-first-line", &["scripts/interlock.rhai", "--sim"]);
+    // The take-over lines come before the page attaches to the run; its log has them.
+    let first = run.logged("io: TRP-C29U ID 1 on simulated");
+    let (status, body) = get(run.addr, "/api/history");
+    assert_eq!(status, 200, "{body}");
+    let history: Value = serde_json::from_str(&body).unwrap();
+    let lines: Vec<&str> = history["log"]
+        .as_array()
+        .expect("a log")
+        .iter()
+        .filter_map(|l| l["message"].as_str())
+        .collect();
+    assert!(
+        first.ends_with(lines.first().copied().unwrap_or("nothing")),
+        "the page's first line is the run's ({first}): {lines:?}"
+    );
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("panel: simulated TRC1000 panel")),
+        "{lines:?}"
+    );
 }

@@ -6,12 +6,14 @@
 //! Exit statuses: 0 done; 1 refused (the message says why: a real device, a bad name); 2 usage;
 //! 3 no such rig running.
 
+use super::force::{point_shown, print_done};
 use super::output::say;
 use super::sim::parse_byte;
 use super::status::find;
 use crate::runtime::exit;
 use crate::runtime::requests::{Drive, FieldAction};
 use crate::runtime::snapshot::DeviceState;
+use crate::service::control_client::Connection;
 use crate::service::control_protocol::ClientRequest;
 use clap::{Args, Subcommand, ValueEnum};
 
@@ -192,11 +194,41 @@ pub fn run(args: DriveArgs) -> i32 {
             return exit::ERROR;
         }
     };
+    let done = done(&mut c, &drive);
     match c.ask(&ClientRequest::Drive(drive)) {
-        Ok(_) => exit::OK,
+        Ok(_) => {
+            print_done(&format!("{}: {done}", args.rig));
+            exit::OK
+        }
         Err(e) => {
             say(&format!("rigscript drive: {}: {e}", args.rig));
             exit::ERROR
         }
+    }
+}
+
+/// What `drive` did, as a person reads it: `panel: S12 "cycle start" pressed`.
+fn done(c: &mut Connection, drive: &Drive) -> String {
+    let d = &drive.device;
+    let mut point = |p: &str| point_shown(c, d, p);
+    match &drive.action {
+        FieldAction::Press { name } => format!("{d}: {} pressed", point(name)),
+        FieldAction::Release { name } => format!("{d}: {} released", point(name)),
+        FieldAction::Turn { name, half_turns } => {
+            format!("{d}: {} turned {half_turns:+} half-turns", point(name))
+        }
+        FieldAction::SetInputs { value } => format!("{d}: inputs set to {value:#04x}"),
+        FieldAction::SetInput { channel, on } => format!(
+            "{d}: {} set {}",
+            point(&format!("DI{channel}")),
+            if *on { "on" } else { "off" }
+        ),
+        FieldAction::Pulse { channel, count } => format!(
+            "{d}: {} pulsed {count} time{}",
+            point(&format!("DI{channel}")),
+            if *count == 1 { "" } else { "s" }
+        ),
+        FieldAction::Fail => format!("{d}: failed (it answers nothing until restored)"),
+        FieldAction::Restore => format!("{d}: restored"),
     }
 }

@@ -11,6 +11,8 @@ use super::sim::parse_byte;
 use super::status::find;
 use crate::runtime::exit;
 use crate::runtime::forcing::{parse_for, ForceOrder, ForceValue};
+use crate::runtime::snapshot::DeviceState;
+use crate::service::control_client::Connection;
 use crate::service::control_protocol::ClientRequest;
 use clap::Args;
 
@@ -59,30 +61,74 @@ fn check_for(text: &str) -> Result<String, String> {
 
 /// Runs `rigscript force`.
 pub fn force(args: ForceArgs) -> i32 {
+    let done = format!("forced {} for {}", args.value.text(), args.duration.trim());
     let order = ForceOrder {
-        point: args.point,
+        point: args.point.clone(),
         value: args.value,
         duration: args.duration,
     };
-    ask(&args.rig, "force", &ClientRequest::Force(order))
+    ask(
+        &args.rig,
+        "force",
+        &ClientRequest::Force(order),
+        &args.point,
+        &done,
+    )
 }
 
 /// Runs `rigscript unforce`.
 pub fn unforce(args: UnforceArgs) -> i32 {
-    let request = ClientRequest::Unforce { point: args.point };
-    ask(&args.rig, "unforce", &request)
+    let request = ClientRequest::Unforce {
+        point: args.point.clone(),
+    };
+    ask(
+        &args.rig,
+        "unforce",
+        &request,
+        &args.point,
+        "unforced: the script's value applies again",
+    )
 }
 
-fn ask(rig: &str, command: &str, request: &ClientRequest) -> i32 {
+/// Asks the rig `rig` for `request` on `point`; done, prints what was `done` to it
+/// (`bench: io.DO0 "motor" forced on for 5m`).
+fn ask(rig: &str, command: &str, request: &ClientRequest, point: &str, done: &str) -> i32 {
     let mut c = match find(Some(rig), None) {
         Ok(c) => c,
         Err(e) => return e.say(command),
     };
     match c.ask(request) {
-        Ok(_) => exit::OK,
+        Ok(_) => {
+            let (device, on_device) = point.split_once('.').unwrap_or((point, ""));
+            let shown = format!("{device}.{}", point_shown(&mut c, device, on_device));
+            print_done(&format!("{rig}: {shown} {done}"));
+            exit::OK
+        }
         Err(e) => {
             say(&format!("rigscript {command}: {rig}: {e}"));
             exit::ERROR
         }
     }
+}
+
+/// `point` of `device` as a person reads it, with the name rig.toml gives it
+/// (`DO0 "motor"`), asked of the rig; as given when the rig does not say.
+pub(super) fn point_shown(c: &mut Connection, device: &str, point: &str) -> String {
+    let upper = point.to_ascii_uppercase();
+    let name = c.status().ok().and_then(|s| {
+        let names = match s.devices.get(device)? {
+            DeviceState::C29u { names, .. } | DeviceState::Trc { names, .. } => names.clone(),
+        };
+        names.get(point).or_else(|| names.get(&upper)).cloned()
+    });
+    match name {
+        Some(name) => format!("{point} \"{name}\""),
+        None => point.to_string(),
+    }
+}
+
+/// Tells on standard output what a command did; a closed standard output loses the line.
+pub(super) fn print_done(line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stdout(), "{line}");
 }

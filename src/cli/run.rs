@@ -27,6 +27,7 @@ use crate::script::stack;
 use crate::service::authority;
 use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
 use crate::service::control_socket::{self, Claim, ClaimError, Naming};
+use crate::service::http::history::History;
 use crate::service::http::{self, BindError};
 use crate::service::mqtt;
 use crate::service::rig_dir;
@@ -487,7 +488,20 @@ fn run_started(
     let (setup, notifying) = attach(setup, notifier, move |n, events| n.attach(events, status));
     let ui = web.as_ref().map(|w| w.addr());
     let asker = requester.clone();
-    let (setup, page) = attach(setup, web, move |w, events| w.serve(asker, events));
+    // The page's history follows the run from its first line, so its log has the take-over
+    // lines and each module's identity.
+    let early = Arc::new(Mutex::new(None));
+    let setup = match web.is_some() {
+        true => {
+            let early = Arc::clone(&early);
+            setup.watch_from_start(move |events| *lock(&early) = Some(History::follow(events)))
+        }
+        false => setup,
+    };
+    let (setup, page) = attach(setup, web, move |w, events| {
+        let history = lock(&early).take();
+        w.serve(asker, events, history)
+    });
     let (setup, server) = attach(setup, claim, move |c, events| {
         c.serve(requester, events.clone())
     });

@@ -458,6 +458,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
             watchdog_ms,
             safe_value,
             safe_mode,
+            names,
         } => {
             let mut lines = vec![format!(
                 "{name} (TRP-C29U{}): {}",
@@ -473,7 +474,13 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
                 Some(w) => format!(" (module holds {w:#04x})"),
                 None => " (not written yet)".to_string(),
             };
+            if let Some(named) = named_channels(names, "DI", *inputs) {
+                lines.push(format!("    {named}"));
+            }
             lines.push(format!("  DO 0-7: {}{written}", bits(*outputs)));
+            if let Some(named) = named_channels(names, "DO", Some(*outputs)) {
+                lines.push(format!("    {named}"));
+            }
             if let Some(c) = counters {
                 let c: Vec<String> = c.iter().map(u16::to_string).collect();
                 lines.push(format!("  counters: {}", c.join(" ")));
@@ -503,6 +510,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
             relay_written,
             pressed,
             rotaries,
+            names,
         } => {
             let mut lines = vec![format!(
                 "{name} (TRC1000{}): {}",
@@ -514,22 +522,47 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
                 Some(w) => format!(" (board holds {w})"),
                 None => " (not selected yet)".to_string(),
             };
-            lines.push(format!("  relay: {relay}{written}"));
+            let relay_name = names
+                .get(&format!("relay{relay}"))
+                .map_or(String::new(), |n| format!(" \"{n}\""));
+            lines.push(format!("  relay: {relay}{relay_name}{written}"));
+            let shown = |point: &str| match names.get(point) {
+                Some(n) => format!("{point} \"{n}\""),
+                None => point.to_string(),
+            };
             lines.push(format!(
                 "  pressed: {}",
                 match pressed {
                     None => "not read by the script".to_string(),
                     Some(p) if p.is_empty() => "none".to_string(),
-                    Some(p) => p.join(" "),
+                    Some(p) => p.iter().map(|s| shown(s)).collect::<Vec<_>>().join(" "),
                 }
             ));
             if let Some(r) = rotaries {
-                let r: Vec<String> = r.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                let r: Vec<String> = r.iter().map(|(k, v)| format!("{}={v}", shown(k))).collect();
                 lines.push(format!("  rotaries: {}", r.join(" ")));
             }
             lines
         }
     }
+}
+
+/// The named channels of `prefix` (`DI`, `DO`) with their state in `value`:
+/// `DI0 "guard door" on, DI3 "parts" off` (`?` where not read); `None` if none is named.
+fn named_channels(
+    names: &std::collections::BTreeMap<String, String>,
+    prefix: &str,
+    value: Option<u8>,
+) -> Option<String> {
+    let each: Vec<String> = (0..8u8)
+        .filter_map(|ch| {
+            let point = format!("{prefix}{ch}");
+            let name = names.get(&point)?;
+            let state = value.map_or("?", |v| if v & (1 << ch) != 0 { "on" } else { "off" });
+            Some(format!("{point} \"{name}\" {state}"))
+        })
+        .collect();
+    (!each.is_empty()).then(|| each.join(", "))
 }
 
 /// A byte as its eight channels, channel 0 first, and in hex.

@@ -1,6 +1,7 @@
 //! The `[devices.NAME]` tables of rig.toml: one typed configuration per kind of device.
 
 use super::error::ProblemKind;
+use super::names::{self, PointNames, Points};
 use super::reader::{bad, boolean, duration, integer_in, string, Reader, TableRef};
 use super::script_may_change::{self, ScriptMayChange};
 pub use crate::link::line::FrameGap;
@@ -44,6 +45,8 @@ pub struct Trc1000Config {
     /// Relay position written when outputs must go safe; `None` (the default) leaves the
     /// selector where it is, since every position selects something.
     pub safe_relay: Option<u8>,
+    /// What rig.toml calls its switches, rotaries and relay positions (`names`).
+    pub names: PointNames,
 }
 
 /// How to find a TRC1000 on the USB.
@@ -91,6 +94,8 @@ pub struct C29uConfig {
     pub frame_gap: FrameGap,
     /// Which of the fail-safe settings given here the script may change (`script_may_change`).
     pub script_may_change: ScriptMayChange,
+    /// What rig.toml calls its channels (`names`).
+    pub names: PointNames,
 }
 
 /// The answer timeouts rig.toml accepts: an answer at 1200 baud with its request takes a
@@ -116,6 +121,7 @@ impl C29uConfig {
             di_active_low: true,
             frame_gap: FrameGap::Auto,
             script_may_change: ScriptMayChange::ALL,
+            names: PointNames::default(),
         }
     }
 }
@@ -147,7 +153,7 @@ impl fmt::Display for Port {
     }
 }
 
-const DEVICE_KEYS_TRC1000: &[&str] = &["kind", "unit", "device", "safe_relay", "sim"];
+const DEVICE_KEYS_TRC1000: &[&str] = &["kind", "unit", "device", "safe_relay", "sim", names::KEY];
 const DEVICE_KEYS_C29U: &[&str] = &[
     "kind",
     "port",
@@ -164,6 +170,7 @@ const DEVICE_KEYS_C29U: &[&str] = &[
     "frame_gap",
     script_may_change::KEY,
     "sim",
+    names::KEY,
 ];
 
 /// Whether `name` can name a device: an identifier of ASCII letters, digits and `_`.
@@ -274,6 +281,7 @@ fn read_trc1000(r: &mut Reader<'_>, t: &TableRef<'_, '_>) -> Trc1000Config {
     Trc1000Config {
         address,
         safe_relay,
+        names: names::read(r, t, Points::Trc1000),
     }
 }
 
@@ -375,6 +383,7 @@ fn read_c29u(r: &mut Reader<'_>, t: &TableRef<'_, '_>, sim: bool) -> Option<C29u
     c.frame_gap = r.read(t, "frame_gap", frame_gap).unwrap_or(c.frame_gap);
     let listed = r.read(t, script_may_change::KEY, script_may_change::read);
     c.script_may_change = ScriptMayChange::of(t, &listed.unwrap_or_default());
+    c.names = names::read(r, t, Points::C29u);
     let port = if sim {
         Some(port.unwrap_or(Port::Simulated))
     } else {

@@ -113,6 +113,15 @@ pub enum ProblemKind {
         /// The other key.
         other: &'static str,
     },
+    /// A key of a device's `names` table that is no point of the device.
+    UnknownPoint {
+        /// The kind of device, with its article ("a TRP-C29U").
+        device: &'static str,
+        /// Its points, as people are told them ("DI0-DI7 and DO0-DO7").
+        points: &'static str,
+        /// The point nearest to the key, when it looks like a slip of the keyboard.
+        near: Option<String>,
+    },
     /// Two entries that would reach the same device (or share a line at two speeds).
     Clash {
         /// How this entry stands to the other: "is the same module as".
@@ -143,6 +152,17 @@ impl fmt::Display for ProblemKind {
             ProblemKind::BadValue { value, reason } => write!(f, "{value} {reason}"),
             ProblemKind::Conflict { other } => {
                 write!(f, "cannot be given together with {other}; use one of them")
+            }
+            ProblemKind::UnknownPoint {
+                device,
+                points,
+                near,
+            } => {
+                write!(f, "not a point of {device}")?;
+                if let Some(near) = near {
+                    write!(f, " (did you mean `{near}`?)")?;
+                }
+                write!(f, "; its points are {points}")
             }
             ProblemKind::Clash {
                 relation,

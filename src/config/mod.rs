@@ -12,6 +12,7 @@ mod error;
 pub mod feeding;
 mod limits;
 pub mod mqtt;
+mod names;
 mod reader;
 pub mod script_may_change;
 #[cfg(test)]
@@ -27,6 +28,7 @@ pub use limits::{
     parse_memory_limit, parse_size, ScriptLimits, SizeError, DEFAULT_HANDLER_TIME, DEFAULT_MEMORY,
     DEFAULT_OPERATIONS, DEFAULT_TIMERS, MIN_MEMORY, SIZE_FORMS,
 };
+pub use names::{PointNames, Points, MAX_NAME};
 pub use script_may_change::ScriptMayChange;
 pub use wake_latency::WakeLatency;
 
@@ -462,6 +464,7 @@ impl RigConfig {
             DeviceConfig::Trc1000(Trc1000Config {
                 address: Trc1000Address::Unit(0),
                 safe_relay: Some(0),
+                names: Default::default(),
             }),
         );
         devices.insert(

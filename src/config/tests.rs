@@ -86,6 +86,7 @@ fn the_example_reads_as_written() {
         DeviceConfig::Trc1000(Trc1000Config {
             address: Trc1000Address::Unit(0),
             safe_relay: Some(0),
+            names: Default::default(),
         }),
     );
     devices.insert(
@@ -108,6 +109,7 @@ fn the_example_reads_as_written() {
                 power_on_value: false,
                 watchdog: false,
             },
+            names: Default::default(),
         }),
     );
     assert_eq!(
@@ -150,7 +152,8 @@ fn device_defaults() {
         trc("").unwrap(),
         Trc1000Config {
             address: Trc1000Address::Unit(0),
-            safe_relay: None
+            safe_relay: None,
+            names: Default::default(),
         }
     );
     let io = c29u("").unwrap();
@@ -651,7 +654,8 @@ fn inline_tables_work_too() {
         c.devices.get("panel"),
         Some(&DeviceConfig::Trc1000(Trc1000Config {
             address: Trc1000Address::Unit(2),
-            safe_relay: None
+            safe_relay: None,
+            names: Default::default(),
         }))
     );
     assert_eq!(

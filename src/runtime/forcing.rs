@@ -397,12 +397,13 @@ impl<H: Clone> Runtime<H> {
         } else {
             "changed to"
         };
+        let shown = self.point_shown(device, &point);
         self.log_mut().warn(&format!(
-            "force: {point} {verb} {} for {} (by {by})",
+            "force: {shown} {verb} {} for {} (by {by})",
             value.text(),
             format_duration(held_for)
         ));
-        self.record_force(&point, event, Some(value), Some(held_for), by);
+        self.record_force(device, &point, event, Some(value), Some(held_for), by);
         self.reread_forced(device);
         Ok(())
     }
@@ -416,11 +417,11 @@ impl<H: Clone> Runtime<H> {
             return Err(ForceError::NotForced(point.to_string()));
         };
         let f = self.forces.held.remove(i);
+        let shown = self.point_shown(f.device, &f.point);
         self.log_mut().warn(&format!(
-            "force: {} removed (by {by}): the script's value applies again",
-            f.point
+            "force: {shown} removed (by {by}): the script's value applies again"
         ));
-        self.record_force(&f.point, "removed", None, None, by);
+        self.record_force(f.device, &f.point, "removed", None, None, by);
         self.ended(&f, "removed");
         Ok(())
     }
@@ -433,12 +434,12 @@ impl<H: Clone> Runtime<H> {
             .partition(|f| now >= f.until);
         self.forces.held = kept;
         for f in &over {
+            let shown = self.point_shown(f.device, &f.point);
             self.log_mut().warn(&format!(
-                "force: {} expired after {}: the script's value applies again",
-                f.point,
+                "force: {shown} expired after {}: the script's value applies again",
                 format_duration(f.held_for)
             ));
-            self.record_force(&f.point, "expired", None, None, "expiry");
+            self.record_force(f.device, &f.point, "expired", None, None, "expiry");
             self.ended(f, "expired");
         }
         !over.is_empty()
@@ -447,11 +448,11 @@ impl<H: Clone> Runtime<H> {
     /// Cancels every force because the outputs go to their safe state (`why`).
     pub fn cancel_forces(&mut self, why: &str) {
         for f in std::mem::take(&mut self.forces.held) {
+            let shown = self.point_shown(f.device, &f.point);
             self.log_mut().warn(&format!(
-                "force: {} cancelled: the safe state wins ({why})",
-                f.point
+                "force: {shown} cancelled: the safe state wins ({why})"
             ));
-            self.record_force(&f.point, "cancelled", None, None, why);
+            self.record_force(f.device, &f.point, "cancelled", None, None, why);
             self.reread_forced(f.device);
         }
     }
@@ -498,9 +499,26 @@ impl<H: Clone> Runtime<H> {
         self.reread_forced(f.device);
     }
 
-    /// One record line of a force's life (`{"name":"force","value":{...}}`).
+    /// The name rig.toml gives `point` (`io.DO0`) of the device at `device`, if any.
+    fn point_name(&self, device: usize, point: &str) -> Option<String> {
+        let (_, on_device) = point.split_once('.')?;
+        let names = self.devices.get(device)?.names();
+        names.name_of(on_device).map(str::to_string)
+    }
+
+    /// `point` as a person reads it: `io.DO0 "motor"`, or `io.DO0` without a name.
+    fn point_shown(&self, device: usize, point: &str) -> String {
+        match self.point_name(device, point) {
+            Some(name) => format!("{point} \"{name}\""),
+            None => point.to_string(),
+        }
+    }
+
+    /// One record line of a force's life (`{"name":"force","value":{...}}`), with the
+    /// point's name (`point_name`) when rig.toml gives it one.
     fn record_force(
         &mut self,
+        device: usize,
         point: &str,
         event: &str,
         value: Option<ForceValue>,
@@ -508,6 +526,9 @@ impl<H: Clone> Runtime<H> {
         by: &str,
     ) {
         let mut v = json!({ "point": point, "event": event, "by": by });
+        if let Some(name) = self.point_name(device, point) {
+            v["point_name"] = json!(name);
+        }
         if let Some(value) = value {
             v["value"] = json!(value);
         }

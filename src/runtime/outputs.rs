@@ -93,10 +93,12 @@ impl<H: Clone> Runtime<H> {
                                 (false, cause) => cause,
                             };
                             let line = (before != Some(relay)).then(|| {
+                                let named = d.config().names.name_of(&format!("relay{relay}"));
                                 format!(
-                                    "{}: relay {} -> {relay} ({cause})",
+                                    "{}: relay {} -> {relay}{} ({cause})",
                                     d.name(),
                                     before.map_or("?".to_string(), |r| r.to_string()),
+                                    named.map_or(String::new(), |n| format!(" \"{n}\"")),
                                 )
                             });
                             let told = watch.map(|e| (e, d.name().to_string(), cause.to_string()));
@@ -121,9 +123,10 @@ impl<H: Clone> Runtime<H> {
                             false => d.outputs_cause(),
                         };
                         let line = format!(
-                            "{}: outputs {} -> {target:#04x} ({cause})",
+                            "{}: outputs {} -> {target:#04x}{} ({cause})",
                             d.name(),
                             before.map_or("?".to_string(), |v| format!("{v:#04x}")),
+                            named_changes(&d.config().names, before, target),
                         );
                         let told = watch.map(|e| (e, d.name().to_string(), cause.to_string()));
                         d.write_outputs(target).map(|()| {
@@ -180,6 +183,27 @@ fn tell_written(told: Option<(Events, String, String)>, value: u8) {
             value,
             cause,
         });
+    }
+}
+
+/// The channels an output write changes, with their names, when rig.toml names any of the
+/// module's outputs (`: DO0 "motor" on, DO2 off`); nothing otherwise, the byte says it all.
+fn named_changes(names: &crate::config::PointNames, before: Option<u8>, after: u8) -> String {
+    if !names.iter().any(|(p, _)| p.starts_with("DO")) {
+        return String::new();
+    }
+    let changed = before.map_or(after, |b| b ^ after);
+    let each: Vec<String> = (0..8u8)
+        .filter(|ch| changed & (1 << ch) != 0)
+        .map(|ch| {
+            let on = if after & (1 << ch) != 0 { "on" } else { "off" };
+            format!("{} {on}", names.shown(&format!("DO{ch}")))
+        })
+        .collect();
+    if each.is_empty() {
+        String::new()
+    } else {
+        format!(": {}", each.join(", "))
     }
 }
 

@@ -4,6 +4,7 @@
 //! these requests, never the runtime's state, and each borrows the runtime only for itself
 //! (a handler runs while the loop holds no borrow).
 
+use crate::config::PointNames;
 use super::devices::links::TransactionCounter;
 use super::devices::{C29uDevice, Device, DeviceError};
 use super::handlers::{Source, TooManyStopHandlers};
@@ -69,6 +70,13 @@ impl<H: Clone> ScriptContext<H> {
             Device::C29u(_) => DeviceKind::C29u,
         };
         Some((Rc::from(d.name()), kind))
+    }
+
+    /// The names rig.toml gives the points of the device at `idx` (none if there is no such
+    /// device): fixed for the run, so a handle keeps its own.
+    pub fn point_names(&self, idx: usize) -> Rc<PointNames> {
+        let rt = self.0.borrow();
+        Rc::new(rt.devices().get(idx).map(Device::names).cloned().unwrap_or_default())
     }
 
     /// The device names in index order.

@@ -340,6 +340,9 @@ pub enum DeviceState {
         safe_value: u8,
         /// Whether it refuses output writes (its safe mode, after a watchdog timeout).
         safe_mode: bool,
+        /// What rig.toml calls its channels, by point (`"DI0": "guard door"`).
+        #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+        names: BTreeMap<String, String>,
     },
     /// A TRC1000 panel.
     #[serde(rename = "trc1000")]
@@ -358,6 +361,10 @@ pub enum DeviceState {
         pressed: Option<Vec<String>>,
         /// The rotaries' counts at the last reading, by name.
         rotaries: Option<BTreeMap<String, u8>>,
+        /// What rig.toml calls its switches, rotaries and relay positions, by point
+        /// (`"S12": "cycle start"`, `"relay2": "die B"`).
+        #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+        names: BTreeMap<String, String>,
     },
 }
 
@@ -388,6 +395,7 @@ impl DeviceState {
                     watchdog_ms: c.watchdog_turned_on().map(|w| u64::from(w.tenths()) * 100),
                     safe_value: c.config().safe_value,
                     safe_mode: c.refusing(),
+                    names: device.names().to_map(),
                 }
             }
             Device::Trc(t) => {
@@ -406,6 +414,7 @@ impl DeviceState {
                             .map(|(rotary, value)| (rotary.name().to_string(), value))
                             .collect()
                     }),
+                    names: device.names().to_map(),
                 }
             }
         }

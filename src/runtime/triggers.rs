@@ -8,6 +8,7 @@ use super::devices::Device;
 use super::handlers::{Arg, Call, Firings, Source};
 use super::schedule::Fired;
 use super::state::Runtime;
+use crate::config::PointNames;
 use crate::device::trc1000::rotary_changes;
 use crate::time::duration::format_duration;
 use std::time::Duration;
@@ -94,7 +95,10 @@ impl<H: Clone> Runtime<H> {
             return;
         }
         let name = source_device(event).map_or(String::new(), |dev| self.devices.name(dev));
-        if let Some(line) = event_line(&name, event, args) {
+        let names = source_device(event)
+            .and_then(|dev| self.devices.get(dev))
+            .map(Device::names);
+        if let Some(line) = event_line(&name, names, event, args) {
             self.log_mut().activity(&line);
         }
     }
@@ -154,8 +158,10 @@ impl<H: Clone> Runtime<H> {
             }
         }
         for (dev, ch, count, threshold) in fired {
-            let name = self.devices.get(dev).map_or("", Device::name);
-            let line = format!("{name}: counter DI{ch} at {count} (threshold {threshold})");
+            let device = self.devices.get(dev);
+            let name = device.map_or("", Device::name);
+            let point = shown(device.map(Device::names), &format!("DI{ch}"));
+            let line = format!("{name}: counter {point} at {count} (threshold {threshold})");
             self.log_mut().activity(&line);
         }
     }
@@ -296,16 +302,33 @@ fn device_events(idx: usize, device: &Device, tick: u64) -> Vec<(Source, Vec<Arg
     events
 }
 
-/// The log line of a device event on the device called `name`.
-fn event_line(name: &str, event: &Source, args: &[Arg]) -> Option<String> {
+/// `point` with the name rig.toml gives it, if the device has `names`.
+fn shown(names: Option<&PointNames>, point: &str) -> String {
+    names.map_or_else(|| point.to_string(), |n| n.shown(point))
+}
+
+/// The log line of a device event on the device called `name`, its point shown with its
+/// name (`io: DI0 "guard door" on`).
+fn event_line(
+    name: &str,
+    names: Option<&PointNames>,
+    event: &Source,
+    args: &[Arg],
+) -> Option<String> {
+    let point = |p: &str| shown(names, p);
     Some(match (event, args) {
-        (Source::Press { switch, .. }, _) => format!("{name}: {switch} pressed"),
-        (Source::Release { switch, .. }, _) => format!("{name}: {switch} released"),
-        (Source::Turn { rotary, .. }, [Arg::Int(delta), Arg::Int(value)]) => {
-            format!("{name}: {} turned {delta:+} (now {value})", rotary.name())
+        (Source::Press { switch, .. }, _) => format!("{name}: {} pressed", point(switch.name())),
+        (Source::Release { switch, .. }, _) => {
+            format!("{name}: {} released", point(switch.name()))
         }
-        (Source::Rise { ch, .. }, _) => format!("{name}: DI{ch} on"),
-        (Source::Fall { ch, .. }, _) => format!("{name}: DI{ch} off"),
+        (Source::Turn { rotary, .. }, [Arg::Int(delta), Arg::Int(value)]) => {
+            format!(
+                "{name}: {} turned {delta:+} (now {value})",
+                point(rotary.name())
+            )
+        }
+        (Source::Rise { ch, .. }, _) => format!("{name}: {} on", point(&format!("DI{ch}"))),
+        (Source::Fall { ch, .. }, _) => format!("{name}: {} off", point(&format!("DI{ch}"))),
         _ => return None,
     })
 }

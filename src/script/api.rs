@@ -11,8 +11,10 @@
 
 use super::engine::Guard;
 use super::error::STOP_MARKER;
+use super::point_names::{channel_named, rotary_named, switch_named, Way};
 use super::reads::{Item, ReadTracker, ALL_COUNTERS, ALL_INPUTS, ALL_SWITCHES};
 use super::values::to_json;
+use crate::config::PointNames;
 use crate::device::c29u::{C29uError, WatchdogTimeout};
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::DeviceError;
@@ -144,6 +146,7 @@ pub struct Panel {
     rt: Rt,
     idx: usize,
     name: Rc<str>,
+    names: Rc<PointNames>,
     reads: ReadTracker,
 }
 
@@ -153,6 +156,7 @@ pub struct Io {
     rt: Rt,
     idx: usize,
     name: Rc<str>,
+    names: Rc<PointNames>,
     reads: ReadTracker,
 }
 
@@ -185,13 +189,25 @@ pub fn duration(v: &Dynamic) -> R<Duration> {
     r.or_else(|e| fail(e.to_string()))
 }
 
-fn channel(dev: &str, ch: i64) -> R<u8> {
-    match u8::try_from(ch) {
-        Ok(c) if c < 8 => Ok(c),
-        _ => fail(format!(
-            "channel {ch} does not exist on {dev} (TRP-C29U): use 0-7"
-        )),
+/// The channel `ch` of module `d`: a number 0-7, or a name rig.toml gives one of its
+/// channels of `way` (`"guard door"`).
+fn channel(d: &Io, ch: &Dynamic, way: Way) -> R<u8> {
+    if let Ok(n) = ch.as_int() {
+        return match u8::try_from(n) {
+            Ok(c) if c < 8 => Ok(c),
+            _ => fail(format!(
+                "channel {n} does not exist on {} (TRP-C29U): use 0-7",
+                d.name
+            )),
+        };
     }
+    let Some(text) = ch.read_lock::<rhai::ImmutableString>() else {
+        return fail(format!(
+            "{} is not a channel: use 0-7 or a name rig.toml gives one",
+            ch.type_name()
+        ));
+    };
+    channel_named(&d.names, &format!("{} (TRP-C29U)", d.name), &text, way).or_else(fail)
 }
 
 fn byte(what: &str, v: i64) -> R<u8> {
@@ -215,26 +231,14 @@ pub(super) const BYTE_PROPERTIES: &[(&str, &str)] = &[
     ("power_on_value", "power-on value"),
 ];
 
-fn switch(dev: &str, name: &str) -> R<Switch> {
-    Switch::from_name(name).map_or_else(
-        || {
-            fail(format!(
-                "no switch called {name:?} on {dev} (TRC1000): use S1-S45"
-            ))
-        },
-        Ok,
-    )
+/// The switch `name` of panel `p`: `S12`, or a name rig.toml gives one.
+fn switch(p: &Panel, name: &str) -> R<Switch> {
+    switch_named(&p.names, &format!("{} (TRC1000)", p.name), name).or_else(fail)
 }
 
-fn rotary(dev: &str, name: &str) -> R<Rotary> {
-    Rotary::from_name(name).map_or_else(
-        || {
-            fail(format!(
-                "no rotary called {name:?} on {dev} (TRC1000): use S37-S40 or S41A/B-S45A/B"
-            ))
-        },
-        Ok,
-    )
+/// The rotary `name` of panel `p`: `S41A`, or a name rig.toml gives one.
+fn rotary(p: &Panel, name: &str) -> R<Rotary> {
+    rotary_named(&p.names, &format!("{} (TRC1000)", p.name), name).or_else(fail)
 }
 
 /// A device operation's failure as a script error; one that a stop cut short ends the handler
@@ -288,18 +292,21 @@ fn setter<T: rhai::Variant + Clone>(
 /// The handle of the device at `idx`.
 fn handle(rt: &Rt, idx: usize, reads: &ReadTracker) -> Option<Dynamic> {
     let (name, kind) = rt.device(idx)?;
+    let names = rt.point_names(idx);
     let (rt, reads) = (rt.clone(), reads.clone());
     Some(match kind {
         DeviceKind::Trc1000 => Dynamic::from(Panel {
             rt,
             idx,
             name,
+            names,
             reads,
         }),
         DeviceKind::C29u => Dynamic::from(Io {
             rt,
             idx,
             name,
+            names,
             reads,
         }),
     })
@@ -376,7 +383,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
         }
     });
     engine.register_fn("pressed", |p: &mut Panel, name: &str| -> R<bool> {
-        let s = switch(&p.name, name)?;
+        let s = switch(p, name)?;
         p.read(Item::Switch(s).mask());
         Ok(p.rt.switches(p.idx).is_pressed(s))
     });
@@ -389,12 +396,12 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
             .collect()
     });
     engine.register_fn("rotary", |p: &mut Panel, name: &str| -> R<i64> {
-        let r = rotary(&p.name, name)?;
+        let r = rotary(p, name)?;
         p.read(Item::Rotary(r).mask());
         Ok(i64::from(p.rt.rotaries(p.idx).get(r)))
     });
     engine.register_fn("turned", |p: &mut Panel, name: &str| -> R<i64> {
-        let r = rotary(&p.name, name)?;
+        let r = rotary(p, name)?;
         p.read(Item::Rotary(r).mask());
         Ok(p.rt.turned(p.idx, r))
     });
@@ -403,7 +410,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
         engine.register_fn(
             method,
             move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
-                let s = switch(&p.name, name)?;
+                let s = switch(p, name)?;
                 a.check(&f, method)?;
                 p.read(Item::Switch(s).mask());
                 let source = if pressed {
@@ -417,7 +424,7 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
                         switch: s,
                     }
                 };
-                let label = format!("{}.{method} {s}", p.name);
+                let label = format!("{}.{method} {}", p.name, p.names.shown(s.name()));
                 let id = p.rt.subscribe(source, Rc::new(f), label);
                 Ok(id_value(id))
             },
@@ -427,10 +434,10 @@ fn register_panel(engine: &mut Engine, arities: &Arities) {
     engine.register_fn(
         "on_turn",
         move |p: &mut Panel, name: &str, f: FnPtr| -> R<i64> {
-            let r = rotary(&p.name, name)?;
+            let r = rotary(p, name)?;
             a.check(&f, "on_turn")?;
             p.read(Item::Rotary(r).mask());
-            let label = format!("{}.on_turn {}", p.name, r.name());
+            let label = format!("{}.on_turn {}", p.name, p.names.shown(r.name()));
             let source = Source::Turn {
                 dev: p.idx,
                 rotary: r,
@@ -461,13 +468,13 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         d.rt.set_outputs(d.idx, v);
         Ok(())
     });
-    engine.register_fn("output", |d: &mut Io, ch: i64| -> R<bool> {
-        let c = channel(&d.name, ch)?;
+    engine.register_fn("output", |d: &mut Io, ch: Dynamic| -> R<bool> {
+        let c = channel(d, &ch, Way::Output)?;
         d.read(Item::Outputs.mask());
         Ok(d.rt.wanted_outputs(d.idx) & (1 << c) != 0)
     });
-    engine.register_fn("set_output", |d: &mut Io, ch: i64, on: bool| -> R<()> {
-        let c = channel(&d.name, ch)?;
+    engine.register_fn("set_output", |d: &mut Io, ch: Dynamic, on: bool| -> R<()> {
+        let c = channel(d, &ch, Way::Output)?;
         d.rt.set_output(d.idx, c, on);
         Ok(())
     });
@@ -475,13 +482,13 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
         d.read(ALL_INPUTS);
         i64::from(d.rt.inputs(d.idx))
     });
-    engine.register_fn("input", |d: &mut Io, ch: i64| -> R<bool> {
-        let c = channel(&d.name, ch)?;
+    engine.register_fn("input", |d: &mut Io, ch: Dynamic| -> R<bool> {
+        let c = channel(d, &ch, Way::Input)?;
         d.read(Item::Input(c).mask());
         Ok(d.rt.inputs(d.idx) & (1 << c) != 0)
     });
-    engine.register_fn("counter", |d: &mut Io, ch: i64| -> R<i64> {
-        let c = channel(&d.name, ch)?;
+    engine.register_fn("counter", |d: &mut Io, ch: Dynamic| -> R<i64> {
+        let c = channel(d, &ch, Way::Input)?;
         d.read(Item::Counter(c).mask());
         let counts = d.rt.counters(d.idx);
         Ok(counts.get(usize::from(c)).map_or(0, |v| i64::from(*v)))
@@ -494,8 +501,8 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
             .map(|v| Dynamic::from(i64::from(*v)))
             .collect()
     });
-    engine.register_fn("clear_counter", |d: &mut Io, ch: i64| -> R<()> {
-        let c = channel(&d.name, ch)?;
+    engine.register_fn("clear_counter", |d: &mut Io, ch: Dynamic| -> R<()> {
+        let c = channel(d, &ch, Way::Input)?;
         c29u_op(d, |m, _| m.clear_counter(c))
     });
     engine.register_fn("clear_counters", |d: &mut Io| -> R<()> {
@@ -579,8 +586,8 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
     });
     for (method, rise) in [("on_rise", true), ("on_fall", false)] {
         let a = arities.clone();
-        engine.register_fn(method, move |d: &mut Io, ch: i64, f: FnPtr| -> R<i64> {
-            let c = channel(&d.name, ch)?;
+        engine.register_fn(method, move |d: &mut Io, ch: Dynamic, f: FnPtr| -> R<i64> {
+            let c = channel(d, &ch, Way::Input)?;
             a.check(&f, method)?;
             d.read(Item::Input(c).mask());
             let source = if rise {
@@ -588,15 +595,19 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
             } else {
                 Source::Fall { dev: d.idx, ch: c }
             };
-            let label = format!("{}.{method} DI{c}", d.name);
+            let label = format!(
+                "{}.{method} {}",
+                d.name,
+                d.names.shown(&format!("DI{c}"))
+            );
             Ok(id_value(d.rt.subscribe(source, Rc::new(f), label)))
         });
     }
     let a = arities.clone();
     engine.register_fn(
         "on_counter",
-        move |d: &mut Io, ch: i64, threshold: i64, f: FnPtr| -> R<i64> {
-            let c = channel(&d.name, ch)?;
+        move |d: &mut Io, ch: Dynamic, threshold: i64, f: FnPtr| -> R<i64> {
+            let c = channel(d, &ch, Way::Input)?;
             let Ok(t) = u16::try_from(threshold) else {
                 return fail(format!(
                     "counter threshold {threshold} is not possible: the counters count 0-65535"
@@ -604,7 +615,11 @@ fn register_io(engine: &mut Engine, arities: &Arities) {
             };
             a.check(&f, "on_counter")?;
             d.read(Item::Counter(c).mask());
-            let label = format!("{}.on_counter DI{c} >= {t}", d.name);
+            let label = format!(
+                "{}.on_counter {} >= {t}",
+                d.name,
+                d.names.shown(&format!("DI{c}"))
+            );
             let source = Source::Counter {
                 dev: d.idx,
                 ch: c,

@@ -70,6 +70,8 @@ pub struct RigBuilder {
     pub(super) open: Opener,
     pub(super) prepare: Option<Prepare>,
     pub(super) attached: Vec<Attach>,
+    /// Consumers given the run's events as soon as they exist (`watch_from_start`).
+    pub(super) watching: Vec<Attach>,
 }
 
 impl Default for RigBuilder {
@@ -102,6 +104,7 @@ impl RigBuilder {
             open: Box::new(open_devices),
             prepare: None,
             attached: Vec::new(),
+            watching: Vec::new(),
         }
     }
 
@@ -239,6 +242,15 @@ impl RigBuilder {
         self
     }
 
+    /// Gives `watch` the run's event stream as soon as it exists, before any device is
+    /// opened: for a consumer that shows the log from the run's first line (the web page's
+    /// history keeps the take-over lines and each module's identity). What asks the loop
+    /// anything attaches with `attach`.
+    pub fn watch_from_start(mut self, watch: impl FnOnce(&Events) + Send + 'static) -> Self {
+        self.watching.push(Box::new(watch));
+        self
+    }
+
     /// The rig's config, with what was set in code.
     pub fn config(&self) -> &RigConfig {
         &self.config
@@ -310,6 +322,7 @@ mod tests {
                 Trc1000Config {
                     address: Trc1000Address::Unit(0),
                     safe_relay: Some(2),
+                    names: Default::default(),
                 },
             )
             .simulated()

@@ -24,9 +24,10 @@ use super::api::{
 };
 use super::engine::{sandboxed, DEFAULT_BUDGET};
 use super::error::parse_position;
+use super::point_names::{channel_named, rotary_named, switch_named, Way};
 use super::reads::ReadTracker;
+use crate::config::PointNames;
 use crate::config::{DeviceConfig, RigConfig};
-use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::links::TransactionCounter;
 use crate::runtime::log::Logger;
 use crate::runtime::records::Records;
@@ -267,6 +268,8 @@ struct Checker<'a> {
     script_fns: Vec<ScriptFn>,
     closures: HashMap<String, ClosureSite>,
     devices: HashMap<String, Kind>,
+    /// What rig.toml calls each device's points (`names`), by device.
+    point_names: HashMap<String, PointNames>,
     device_names: String,
     bound: HashMap<String, Kind>,
     /// Names of the function being walked that hide a device variable of the same name.
@@ -471,6 +474,17 @@ impl<'a> Checker<'a> {
                 (n.clone(), k)
             })
             .collect();
+        let point_names = config
+            .devices
+            .iter()
+            .map(|(n, d)| {
+                let names = match d {
+                    DeviceConfig::Trc1000(t) => t.names.clone(),
+                    DeviceConfig::C29u(c) => c.names.clone(),
+                };
+                (n.clone(), names)
+            })
+            .collect();
         let device_names = config
             .devices
             .keys()
@@ -490,6 +504,7 @@ impl<'a> Checker<'a> {
             script_fns,
             closures: HashMap::new(),
             devices,
+            point_names,
             device_names,
             bound: HashMap::new(),
             shadowed: HashSet::new(),
@@ -754,17 +769,17 @@ impl Checker<'_> {
             // A call as a statement is a statement of its own, with the same shape.
             Some(ASTNode::Stmt(Stmt::FnCall(call, pos))) => {
                 self.check_device_name(call);
-                self.check_call(call, *pos, false);
+                self.check_call(call, *pos, None);
                 self.check_exists(call, *pos, None);
             }
             Some(ASTNode::Expr(Expr::FnCall(call, pos))) => {
                 self.check_device_name(call);
-                self.check_call(call, *pos, false);
+                self.check_call(call, *pos, None);
                 self.check_exists(call, *pos, None);
             }
             Some(ASTNode::Expr(Expr::MethodCall(call, pos))) => {
                 let object = Self::receiver(path).and_then(|o| self.kind_of(o));
-                self.check_call(call, *pos, true);
+                self.check_call(call, *pos, Some(object.as_ref()));
                 self.check_exists(call, *pos, Some(object));
             }
             Some(ASTNode::Expr(Expr::Property(p, pos))) => {
@@ -1075,26 +1090,60 @@ impl Checker<'_> {
         self.report(pos, message);
     }
 
-    /// Checks the literal arguments of a call and the parameters of the handler it is given.
-    fn check_call(&mut self, call: &FnCallExpr, pos: Position, is_method: bool) {
+    /// The names rig.toml gives the points of the device a method is called on: that
+    /// device's when the receiver is one by name, else those of every device of `kind`.
+    fn names_on(&self, object: Option<&(Kind, String)>, kind: Kind) -> PointNames {
+        if let Some(names) = object.and_then(|(_, var)| self.point_names.get(var)) {
+            return names.clone();
+        }
+        PointNames::from_pairs(
+            self.point_names
+                .iter()
+                .filter(|(dev, _)| self.devices.get(*dev) == Some(&kind))
+                .flat_map(|(_, names)| names.iter()),
+        )
+    }
+
+    /// Checks the literal arguments of a call and the parameters of the handler it is given;
+    /// `method` holds the device a method is called on, when it is known.
+    fn check_call(
+        &mut self,
+        call: &FnCallExpr,
+        pos: Position,
+        method: Option<Option<&(Kind, String)>>,
+    ) {
+        let is_method = method.is_some();
+        let object = method.flatten();
         let name = call.name.as_str();
         let args = call.args.as_slice();
+        let on_trc = "a TRC1000";
         match (name, args.first()) {
-            ("pressed" | "on_press" | "on_release", Some(Expr::StringConstant(s, at)))
-                if Switch::from_name(s).is_none() =>
-            {
-                self.report(
-                    *at,
-                    format!("no switch called {s:?} on a TRC1000: use S1-S45"),
-                );
+            ("pressed" | "on_press" | "on_release", Some(Expr::StringConstant(s, at))) => {
+                let names = self.names_on(object, Kind::Trc);
+                if let Err(e) = switch_named(&names, on_trc, s) {
+                    self.report(*at, e);
+                }
             }
-            ("rotary" | "turned" | "on_turn", Some(Expr::StringConstant(s, at)))
-                if Rotary::from_name(s).is_none() =>
-            {
-                self.report(
-                    *at,
-                    format!("no rotary called {s:?} on a TRC1000: use S37-S40 or S41A/B-S45A/B"),
-                );
+            ("rotary" | "turned" | "on_turn", Some(Expr::StringConstant(s, at))) => {
+                let names = self.names_on(object, Kind::Trc);
+                if let Err(e) = rotary_named(&names, on_trc, s) {
+                    self.report(*at, e);
+                }
+            }
+            (
+                "output" | "set_output" | "input" | "counter" | "clear_counter" | "on_rise"
+                | "on_fall" | "on_counter",
+                Some(Expr::StringConstant(s, at)),
+            ) if is_method => {
+                let way = if matches!(name, "output" | "set_output") {
+                    Way::Output
+                } else {
+                    Way::Input
+                };
+                let names = self.names_on(object, Kind::C29u);
+                if let Err(e) = channel_named(&names, "a TRP-C29U", s, way) {
+                    self.report(*at, e);
+                }
             }
             (
                 "output" | "set_output" | "input" | "counter" | "clear_counter" | "on_rise"
@@ -1228,6 +1277,40 @@ mod tests {
             .iter()
             .map(ToString::to_string)
             .collect()
+    }
+
+    #[test]
+    fn names_rig_toml_gives_are_taken_and_others_refused_with_the_nearest() {
+        let config = RigConfig::parse(
+            "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
+             [devices.io.names]\nDI0 = \"guard door\"\nDO0 = \"motor\"\n\
+             [devices.panel]\nkind = \"trc1000\"\n\
+             [devices.panel.names]\nS12 = \"cycle start\"\nS41A = \"die selector\"\n",
+            "rig.toml",
+        )
+        .unwrap();
+        let good = "io.on_rise(\"guard door\", |ch| io.set_output(\"motor\", true));\n\
+                    panel.on_press(\"cycle start\", |s| print(panel.rotary(\"die selector\")));\n\
+                    let d = device(\"io\"); print(d.input(\"guard door\"));\n";
+        assert_eq!(check(good, &config), vec![]);
+        let bad = "print(io.input(\"gaurd door\"));\nprint(io.input(\"motor\"));\n\
+                   panel.on_press(\"cycle strat\", || 1);\n";
+        let p: Vec<String> = check(bad, &config)
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        assert_eq!(p.len(), 3, "{p:?}");
+        assert!(
+            p[0].starts_with(
+                "1:16: no channel called \"gaurd door\" on a TRP-C29U (did you mean \"guard door\"?)"
+            ),
+            "{p:?}"
+        );
+        assert!(p[1].contains("\"motor\" names DO0"), "{p:?}");
+        assert!(p[2].contains("(did you mean \"cycle start\"?)"), "{p:?}");
+        // Without names in rig.toml, a name is no channel.
+        let p = problems("print(io.input(\"guard door\"));");
+        assert!(p[0].contains("no channel called \"guard door\""), "{p:?}");
     }
 
     #[test]

@@ -11,6 +11,7 @@ mod fn_scope;
 #[cfg(test)]
 mod invariant_tests;
 pub mod lint;
+pub mod point_names;
 pub mod program;
 pub mod reads;
 pub mod rig;

@@ -134,6 +134,9 @@ impl RigBuilder {
             Some(path) => Records::to_file(path, log.events())?,
             None => Records::in_memory(),
         };
+        for watch in setup.watching {
+            watch(log.events());
+        }
         let count = TransactionCounter::default();
         let opened = (setup.open)(&setup.config, &clock, setup.simulate, &count)?;
         let mut runtime = Runtime::new(

@@ -272,6 +272,14 @@ impl Device {
         }
     }
 
+    /// What rig.toml calls the device's points (`[devices.NAME.names]`).
+    pub fn names(&self) -> &crate::config::PointNames {
+        match self {
+            Device::Trc(d) => &d.config.names,
+            Device::C29u(d) => &d.config.names,
+        }
+    }
+
     /// The TRC1000, if this is one.
     pub fn as_trc(&mut self) -> Option<&mut TrcDevice> {
         match self {

@@ -285,6 +285,7 @@ mod tests {
             watchdog_ms: None,
             safe_value: 0,
             safe_mode: false,
+            names: BTreeMap::new(),
         };
         let panel = DeviceState::Trc {
             online: false,
@@ -294,6 +295,7 @@ mod tests {
             relay_written: None,
             pressed: None,
             rotaries: None,
+            names: BTreeMap::new(),
         };
         RigSnapshot {
             version: SNAPSHOT_VERSION,

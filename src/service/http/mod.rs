@@ -104,10 +104,11 @@ impl Binding {
         self.addr
     }
 
-    /// Serves the page from now on: requests through `ask`, the stream and the plots'
-    /// history from `events`.
-    pub fn serve(self, ask: Requester, events: &Events) -> Server {
-        let history = History::follow(events);
+    /// Serves the page from now on: requests through `ask`, the stream from `events`, the
+    /// plots' history and the log from `early` (following `events` from the run's first
+    /// line: `History::follow` given to `RigBuilder::watch_from_start`), else from now.
+    pub fn serve(self, ask: Requester, events: &Events, early: Option<History>) -> Server {
+        let history = early.unwrap_or_else(|| History::follow(events));
         let closing = Arc::new(Closing::default());
         let shared = Arc::new(Shared {
             addr: self.addr,
