@@ -54,6 +54,7 @@ pub mod config;
 pub mod device;
 pub(crate) mod guardian;
 pub mod heap;
+pub mod journal;
 pub mod link;
 pub mod protocol;
 pub mod report;
