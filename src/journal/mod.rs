@@ -60,6 +60,46 @@ pub struct Header {
     pub run: String,
 }
 
+impl Header {
+    /// The first part's header of a run of `script` (its text `source`) on the rig of
+    /// `config_file` (its text `config`, none under `--sim` alone).
+    pub fn first(
+        script: &str,
+        source: &str,
+        config_file: Option<&std::path::Path>,
+        rig: &crate::config::RigConfig,
+        period: std::time::Duration,
+        run_for: Option<std::time::Duration>,
+    ) -> std::io::Result<Self> {
+        let config = config_file.map(std::fs::read_to_string).transpose()?;
+        let now = chrono::Utc::now();
+        Ok(Self {
+            script_file: script.into(),
+            script: source.into(),
+            hash: hash(source),
+            config_file: config_file.map(|p| p.display().to_string()),
+            config,
+            simulated: rig
+                .devices
+                .keys()
+                .filter(|d| rig.is_simulated(d))
+                .cloned()
+                .collect(),
+            period_us: u64::try_from(period.as_micros()).unwrap_or(u64::MAX),
+            run_for_ms: run_for.map(|d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX)),
+            operations: rig.limits.operations,
+            zone: local_zone_name(),
+            part: 0,
+            from_tick: 0,
+            run: format!(
+                "{}-{}",
+                now.format("%Y%m%dT%H%M%S%.3fZ"),
+                std::process::id()
+            ),
+        })
+    }
+}
+
 /// SHA-256 of `text` in hex.
 pub fn hash(text: &str) -> String {
     let digest = ring::digest::digest(&ring::digest::SHA256, text.as_bytes());

@@ -25,6 +25,8 @@ pub const KINDS: [EventKind; 8] = [
 pub struct Tally {
     /// The last tick told (`None` before the first).
     told: Option<u64>,
+    /// The top level has run: what comes before the first tick told is the first tick's.
+    started: bool,
     /// The last reading of each device's inputs, by kind.
     readings: Vec<Entry>,
 }
@@ -32,7 +34,10 @@ pub struct Tally {
 impl Tally {
     /// The tick what comes now belongs to.
     pub fn tick(&self) -> u64 {
-        self.told.map_or(0, |t| t + 1)
+        match self.told {
+            Some(t) => t + 1,
+            None => u64::from(self.started),
+        }
     }
 
     /// The entry `event` makes, if any.
@@ -59,10 +64,13 @@ impl Tally {
             }
             RunEvent::ScriptStarted {
                 restarts, since, ..
-            } => What::Started {
-                restarts: *restarts,
-                since: *since,
-            },
+            } => {
+                self.started = true;
+                What::Started {
+                    restarts: *restarts,
+                    since: *since,
+                }
+            }
             RunEvent::ScriptFailed { message } => What::Failed {
                 message: message.clone(),
             },

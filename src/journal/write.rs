@@ -9,7 +9,7 @@ use super::entry::Entry;
 use super::read::older_part;
 use super::tally::{Tally, KINDS};
 use super::{Header, MAGIC, VERSION};
-use crate::runtime::observe::{Bound, Events, Kinds, Next, RunEvent, Subscription};
+use crate::runtime::observe::{Bound, Detacher, Events, Kinds, Next, RunEvent, Subscription};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
@@ -119,6 +119,11 @@ impl Prepared {
         })
     }
 
+    /// The file.
+    pub fn path(&self) -> &std::path::Path {
+        &self.settings.path
+    }
+
     /// Attaches to the run's events and writes on a thread of its own.
     pub fn start(self, events: &Events) -> Result<Running, WriteError> {
         let sub = events
@@ -127,6 +132,7 @@ impl Prepared {
                 path: self.settings.path.display().to_string(),
                 source: std::io::Error::other(e),
             })?;
+        let detacher = sub.detacher();
         let thread = std::thread::Builder::new()
             .name("journal".into())
             .spawn(move || self.write_all(sub))
@@ -134,7 +140,7 @@ impl Prepared {
                 path: String::new(),
                 source,
             })?;
-        Ok(Running { thread })
+        Ok(Running { thread, detacher })
     }
 
     fn write_all(mut self, mut sub: Subscription) -> Report {
@@ -223,12 +229,14 @@ impl Prepared {
 /// The writer at work.
 pub struct Running {
     thread: JoinHandle<Report>,
+    detacher: Detacher,
 }
 
 impl Running {
-    /// Waits for the writer to write the run's end (the run must have ended) and says what
-    /// it did.
+    /// Waits for the writer to write what the run told (its end included, once it ended)
+    /// and says what it did.
     pub fn finish(self) -> Report {
+        self.detacher.detach();
         self.thread.join().unwrap_or_else(|_| Report {
             failed: Some("the journal's thread panicked".into()),
             ..Report::default()
