@@ -204,6 +204,13 @@ fn set_at_start(sim: &SimRig, action: &Action) -> Result<(), FieldError> {
     }
 }
 
+/// A tick's field entries in the order they are played: counters last, so the edges that
+/// inputs set make are in the count before the pulses that bring it to the reading.
+fn field_order(mut entries: Vec<&Entry>) -> Vec<&Entry> {
+    entries.sort_by_key(|e| matches!(e.what, What::Counters { .. }));
+    entries
+}
+
 /// The rig a journal's header describes, every device simulated.
 fn rig_config(journal: &Journal) -> Result<RigConfig, ReplayError> {
     let h = &journal.header;
@@ -308,7 +315,7 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
             let opened: Opened = open_devices(config, clock, simulate, count)?;
             let mut f = Field::default();
             let set = (|| {
-                for e in &at_start {
+                for e in field_order(at_start.iter().collect()) {
                     for a in f.actions(&opened.sim, &e.what)? {
                         set_at_start(&opened.sim, &a)?;
                     }
@@ -348,15 +355,15 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         if next > until {
             break;
         }
-        let mut acts = Vec::new();
-        if let Some(entries) = field.remove(&next) {
-            for e in entries {
-                acts.extend(f.actions(&rig.sim, &e.what)?);
-            }
-        }
         let mut took = Vec::new();
-        for a in &acts {
-            act(&mut rig, &clock, a, &mut took)?;
+        if let Some(entries) = field.remove(&next) {
+            for e in field_order(entries) {
+                // One entry at a time: an input's edge counts on its counter, so a counter's
+                // pulses are reckoned from the simulator as the entries before left it.
+                for a in f.actions(&rig.sim, &e.what)? {
+                    act(&mut rig, &clock, &a, &mut took)?;
+                }
+            }
         }
         if keep_steps && !took.is_empty() {
             steps.extend(took.into_iter().map(|s| (s, Vec::new())));
