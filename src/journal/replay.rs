@@ -181,7 +181,7 @@ impl Field {
             }
             What::Lost { dev: d, .. } => vec![Action::Fail { dev: dev(d) }],
             What::Back { dev: d } => vec![Action::Restore { dev: dev(d) }],
-            What::Ended { status, .. } if *status > 128 => vec![Action::Stop],
+            What::Ended { reason, .. } if stopped_from_outside(reason) => vec![Action::Stop],
             _ => Vec::new(),
         })
     }
@@ -202,6 +202,14 @@ fn set_at_start(sim: &SimRig, action: &Action) -> Result<(), FieldError> {
         } => sim.turn(dev, rotary.name(), *half_turns),
         _ => Ok(()),
     }
+}
+
+/// Whether a run's end came from outside it (a signal, a stop asked through the control
+/// socket), by the words `EndReason` ends it with: the replay stops there too. Every other
+/// end is the script's or the runner's own, which the replay must come to by itself.
+fn stopped_from_outside(reason: &str) -> bool {
+    (reason.starts_with("SIG") && reason.ends_with(" received"))
+        || reason.starts_with("stop asked by")
 }
 
 /// A tick's field entries in the order they are played: counters last, so the edges that
@@ -258,7 +266,9 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
             _ => None,
         })
         .ok_or(ReplayError::NoStart)?;
-    let until = options.until.unwrap_or(u64::MAX);
+    // No further than the journal goes: past its last entry nothing is known.
+    let last = journal.entries.last().map_or(0, |e| e.tick);
+    let until = options.until.unwrap_or(last).min(last);
     let mut notes = journal.notes.clone();
     // The field each tick took in, by tick.
     let mut field: BTreeMap<u64, Vec<&Entry>> = BTreeMap::new();
@@ -532,4 +542,28 @@ fn unrecorded_reads(journal: &Journal, rig: &Rig, names: &[String]) -> Vec<Unrec
         }
     }
     out.into_iter().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::stopped_from_outside;
+    use crate::runtime::runner::EndReason;
+
+    #[test]
+    fn only_a_signal_or_a_stop_asked_is_an_end_from_outside() {
+        assert!(stopped_from_outside(
+            &EndReason::Signal(libc::SIGTERM).to_string()
+        ));
+        assert!(stopped_from_outside(
+            &EndReason::Requested("rigscript stop".into()).to_string()
+        ));
+        for own in [
+            EndReason::Finished("ran for 3s".into()),
+            EndReason::Stopped(1),
+            EndReason::Error("x".into()),
+            EndReason::Violated("invariant \"a\" is false".into()),
+        ] {
+            assert!(!stopped_from_outside(&own.to_string()), "{own}");
+        }
+    }
 }
