@@ -333,10 +333,15 @@ pub fn run(args: RunArgs) -> i32 {
             &mut outputs,
             guardian,
             stats,
-            control,
-            journal,
+            Attached { control, journal },
         )
     })
+}
+
+/// The services prepared before any device is touched that attach to the run.
+struct Attached {
+    control: ControlSetup,
+    journal: Option<journal::write::Prepared>,
 }
 
 /// The journal's file as the log names it.
@@ -442,9 +447,9 @@ fn run_started(
     outputs: &mut RunOutputs,
     guardian: Option<Confirmation>,
     stats: bool,
-    control: ControlSetup,
-    journal: Option<journal::write::Prepared>,
+    attached: Attached,
 ) -> i32 {
+    let Attached { control, journal } = attached;
     let claim = match control.claim(file) {
         Ok(c) if c.hello().rig != control.rig => {
             say(&format!(

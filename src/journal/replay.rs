@@ -22,6 +22,7 @@ use crate::time::clock::{Clock, VirtualClock};
 use crate::time::zone::Zone;
 use crate::verify::exec::{act, Step};
 use crate::verify::plan::Action;
+use crate::verify::testfile::AssertedStep;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -78,7 +79,7 @@ pub struct Outcome {
     pub unrecorded: Vec<Unrecorded>,
     /// Steps a test file takes to the same effect (with `Options::steps_from`), and after
     /// each advance the outputs the run had written by then.
-    pub steps: Vec<(Step, Vec<(String, &'static str, u8)>)>,
+    pub steps: Vec<AssertedStep>,
     /// The wall time and zone the run began at.
     pub start: (chrono::DateTime<chrono::Utc>, String),
     /// What reading the journal noticed, and what the replay could not do exactly.
@@ -354,7 +355,7 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
     let mut replayed = Vec::new();
     drain(&mut sub, &mut tally, &mut replayed);
     let keep_steps = options.steps_from.is_some();
-    let mut steps: Vec<(Step, Vec<(String, &'static str, u8)>)> = Vec::new();
+    let mut steps: Vec<AssertedStep> = Vec::new();
     // The outputs the run had written by each tick, for the test file's assertions.
     let mut outputs_so_far: BTreeMap<String, u8> = BTreeMap::new();
     let mut rec_i = 0;

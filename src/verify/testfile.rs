@@ -191,6 +191,10 @@ impl TestFile<'_> {
     }
 }
 
+/// A step of a regression test and the outputs it asserts after it: (device, `"outputs"`
+/// or `"relay"`, value).
+pub type AssertedStep = (Step, Vec<(String, &'static str, u8)>);
+
 /// A field run as a regression test (`rigscript replay --to-test`): the rig started where the
 /// run started, the field's events through the scenario API, and after a wait the outputs
 /// the rig had written by then asserted, so the test passes while the script writes what it
@@ -203,9 +207,8 @@ pub struct RegressionTest<'a> {
     pub config: Option<&'a Path>,
     /// Where the run started.
     pub start: &'a StartPoint,
-    /// The steps, each with the outputs to assert after it: (device, `"outputs"` or
-    /// `"relay"`, value).
-    pub steps: &'a [(Step, Vec<(String, &'static str, u8)>)],
+    /// The steps, each with the outputs to assert after it.
+    pub steps: &'a [AssertedStep],
     /// The test's name (a slug).
     pub name: &'a str,
     /// Comment lines at the top.
