@@ -241,3 +241,27 @@ fn the_hash_is_sha256() {
         "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
     );
 }
+
+#[test]
+fn an_edit_that_reads_what_the_run_never_read_is_told_what_was_assumed() {
+    let d = dir();
+    let path = d.path().join("j");
+    let (file, source) = SCRIPTS[0];
+    journaled_run(source, file, &path, Duration::from_secs(20), 9);
+    let journal = read_journal(&path).unwrap();
+    let edited = format!("{source}\nevery(\"1s\", || {{ let parts = io.counter(2); }});\n");
+    let options = Options {
+        script: Some((edited, "edited.rhai".into())),
+        ..Options::default()
+    };
+    let outcome = replay(&journal, &options).unwrap();
+    assert_eq!(
+        outcome.unrecorded,
+        [super::replay::Unrecorded {
+            dev: "io".into(),
+            item: "counter DI2".into(),
+            assumed: "0".into(),
+        }]
+    );
+    assert_eq!(outcome.divergence, None, "reading a counter writes nothing");
+}
