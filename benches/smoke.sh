@@ -41,6 +41,7 @@ bench mqtt_tick sh benches/mqtt_tick.sh scripts/interlock.rhai 2s 1
 bench mqtt_lab env RIGS=2 SAMPLES=3 BASELINE=1 sh benches/mqtt_lab.sh
 # The tick's instruction count needs symbols to find the loop's thread: the debug build has them.
 bench tick_instructions env SHORT=10ms LONG=1s sh benches/tick_instructions.sh target/debug/rigscript
+bench tick_journal env JOURNAL=1 SHORT=10ms LONG=1s sh benches/tick_instructions.sh target/debug/rigscript
 bench stall sh benches/stall.sh "$RIGSCRIPT" 2
 bench verify_seeds env SEEDS=1 PAR=1 SCRIPTS=tests/verify/counter_ack_keeps_waiting.rhai \
     sh benches/verify_seeds.sh

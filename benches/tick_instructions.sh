@@ -16,6 +16,10 @@
 # one 6 s) and both must have connected (the broker's log is checked). Without MQTT=1 the same
 # durations are had with SHORT=2s LONG=6s, for a like-for-like pair.
 #
+# With JOURNAL=1 the run writes a journal (`run --journal`): the inputs do not change, so what
+# it adds to the loop's thread is each tick's event to the journal's queue (its own thread's
+# writes count among the other threads). Compare with a run without it.
+#
 # Besides all threads' count it prints the scan loop's thread alone (callgrind
 # --separate-threads; the thread that runs `Runner::run`, kept out of line (#[inline(never)])
 # so that its symbol survives a build of one codegen unit: the ticks and the requests served
@@ -72,7 +76,7 @@ count() {
     XDG_RUNTIME_DIR="$dir" valgrind --tool=callgrind --separate-threads=yes \
         --callgrind-out-file="$dir/cg.%p" "$binary" run "$dir/poll.rhai" \
         --config "$dir/rig.toml" --period 1us --wake-latency off --quiet --stats --for "$1" \
-        $no_guardian 2>&1 |
+        $no_guardian $journal 2>&1 |
         awk '/^ticks:/ { t = $2 } /Collected :/ { gsub(",", "", $NF); i = $NF } END { printf "%s %s ", t, i }'
     # The loop's thread: its file names Runner::run.
     loop=
@@ -94,6 +98,8 @@ watch_rig() {
 }
 mode=
 [ "${WATCHERS:-0}" = 1 ] && mode=watch
+journal=
+[ "${JOURNAL:-0}" = 1 ] && journal="--journal $dir/journal"
 set -- $(count "$short") $(count "$long" $mode)
 if [ -n "$broker" ]; then
     connected=$(grep -c 'New client connected' "$dir/mosquitto.log" || true)

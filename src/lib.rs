@@ -77,6 +77,7 @@ pub mod time;
 internal! {
     mod cli;
     mod guardian;
+    mod journal;
     mod runtime;
     mod script;
     mod service;

@@ -11,6 +11,7 @@ pub mod force;
 pub mod lab;
 pub mod man;
 pub mod output;
+pub mod replay;
 pub mod run;
 pub mod run_outputs;
 pub mod safe;
@@ -70,6 +71,8 @@ pub enum Command {
     Test(test::TestArgs),
     /// Search a script for events that break its invariants, on the simulators in virtual time
     Verify(verify::VerifyArgs),
+    /// Replay a run's journal in virtual time against its script or an edited one; the first tick whose outputs differ
+    Replay(replay::ReplayArgs),
     /// Find TRC1000 boards and TRP-C29U modules on this machine
     Scan(scan::ScanArgs),
     /// Talk to a TRP-C29U module: I/O, counters, latches, watchdog, presets, identity, config
@@ -146,6 +149,10 @@ pub fn main() -> i32 {
             || crate::guardian::lone::watched("rigscript test", || test::run(args)),
         ),
         Command::Verify(args) => verify::run(args),
+        Command::Replay(args) => crate::script::stack::on_script_stack(
+            crate::config::ScriptLimits::default().memory,
+            || crate::guardian::lone::watched("rigscript replay", || replay::run(args)),
+        ),
         Command::Scan(args) => scan::run(args),
         Command::C29(args) => c29::run(args),
         Command::Trc(args) => trc::run(args),

@@ -17,6 +17,7 @@ use crate::config::{check_period, parse_memory_limit, RigConfig, WakeLatency, DE
 use crate::guardian::lone::{Ending, LoneWatch};
 use crate::guardian::pulse::{self, Phase};
 use crate::guardian::{guard, Confirmation, Guarded, GuardianLog};
+use crate::journal;
 use crate::runtime::log::LogFormat;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{self, Requester, Requests};
@@ -118,6 +119,15 @@ pub struct RunArgs {
     /// (`ui_token` in rig.toml or RIGSCRIPT_UI_TOKEN).
     #[arg(long, value_name = "ADDR", num_args = 0..=1)]
     pub ui: Option<Option<SocketAddr>>,
+    /// Journal what the scan loop takes in (inputs read that changed, device losses and
+    /// returns, overruns, the stop) and the outputs it writes to FILE, with the rig, the
+    /// script's text and its hash, for `rigscript replay`. Written off the loop.
+    #[arg(long, value_name = "FILE")]
+    pub journal: Option<PathBuf>,
+    /// The journal's bound ("64MiB" by default): a part that reaches half of it is moved to
+    /// FILE.1 and a new one begins.
+    #[arg(long, value_name = "SIZE", value_parser = memory_limit, requires = "journal")]
+    pub journal_size: Option<u64>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -249,6 +259,33 @@ pub fn run(args: RunArgs) -> i32 {
     if let Some(records) = &args.records {
         setup = setup.records(records);
     }
+    // Before any device is touched: a journal that cannot be written refuses the run.
+    let journal = match &args.journal {
+        None => None,
+        Some(path) => {
+            let size = args.journal_size.unwrap_or(journal::write::DEFAULT_SIZE);
+            let prepared = journal::Header::first(
+                &file,
+                &source,
+                args.config.as_deref(),
+                setup.config(),
+                setup.scan_period(),
+                args.run_for,
+            )
+            .map_err(|e| format!("journal: cannot read the rig.toml to keep: {e}"))
+            .and_then(|header| {
+                journal::write::Prepared::new(journal::write::Settings::new(path, size), header)
+                    .map_err(|e| e.to_string())
+            });
+            match prepared {
+                Ok(p) => Some(p),
+                Err(e) => {
+                    say(&format!("rigscript run: {e}"));
+                    return exit::USAGE;
+                }
+            }
+        }
+    };
     let log = GuardianLog {
         format: args.log_format,
         zone: Zone::Local,
@@ -297,9 +334,23 @@ pub fn run(args: RunArgs) -> i32 {
             &mut outputs,
             guardian,
             stats,
-            control,
+            Attached { control, journal },
         )
     })
+}
+
+/// The services prepared before any device is touched that attach to the run.
+struct Attached {
+    control: ControlSetup,
+    journal: Option<journal::write::Prepared>,
+}
+
+/// The journal's file as the log names it.
+fn setup_journal_name(journal: &Option<journal::write::Prepared>) -> String {
+    journal
+        .as_ref()
+        .map(|j| j.path().display().to_string())
+        .unwrap_or_default()
 }
 
 /// What the run's control socket needs (`service::control_socket`).
@@ -397,8 +448,9 @@ fn run_started(
     outputs: &mut RunOutputs,
     guardian: Option<Confirmation>,
     stats: bool,
-    control: ControlSetup,
+    attached: Attached,
 ) -> i32 {
+    let Attached { control, journal } = attached;
     let claim = match control.claim(file) {
         Ok(c) if c.hello().rig != control.rig => {
             say(&format!(
@@ -505,6 +557,8 @@ fn run_started(
     let (setup, server) = attach(setup, claim, move |c, events| {
         c.serve(requester, events.clone())
     });
+    let journal_path = setup_journal_name(&journal);
+    let (setup, journaling) = attach(setup, journal, |j, events| j.start(events));
     // `check`'s warnings go to the run's log, in its format, once it has started.
     let warned = warnings(source, setup.scan_period());
     let started = setup.start(source, file);
@@ -537,6 +591,18 @@ fn run_started(
             .log_mut()
             .warn(&w.in_file(file));
     }
+    let journaling = match taken(journaling) {
+        Some(Ok(j)) => Some(j),
+        Some(Err(e)) => {
+            rig.runner
+                .runtime()
+                .borrow_mut()
+                .log_mut()
+                .warn(&format!("{e}; the run goes on without its journal"));
+            None
+        }
+        None => None,
+    };
     let client = match taken(client) {
         Some(Err(e)) => {
             say(&format!(
@@ -567,6 +633,9 @@ fn run_started(
     }
     if let (Some(g), true) = (guardian, ended_safe(&rig, status)) {
         g.confirm();
+    }
+    if let Some(warning) = journaling.and_then(|j| j.finish().warning(&journal_path)) {
+        rig.runner.runtime().borrow_mut().log_mut().warn(&warning);
     }
     if let Some(report) = notifying.and_then(|n| n.finish(status)) {
         rig.runner.runtime().borrow_mut().log_mut().warn(&report);

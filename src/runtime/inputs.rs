@@ -13,7 +13,7 @@ struct Input<D, T> {
     device: fn(&mut Device) -> Option<&mut D>,
     snapshot: fn(&D) -> &Snapshot<T>,
     read: fn(&mut D, u64) -> Result<T, DeviceError>,
-    /// The reading as an event (`None`: not told; rotaries, latches).
+    /// The reading as an event (`None`: not told; latches).
     event: fn(&T) -> Option<Reading>,
 }
 
@@ -32,7 +32,11 @@ const ROTARIES: Input<TrcDevice, RotaryValues> = Input {
     device: Device::as_trc,
     snapshot: |d| d.rotaries(),
     read: TrcDevice::read_rotaries,
-    event: |_| None,
+    event: |r| {
+        Some(Reading::Rotaries {
+            values: r.to_array(),
+        })
+    },
 };
 
 const INPUTS: Input<C29uDevice, u8> = Input {

@@ -57,6 +57,10 @@ pub enum RunEvent {
         script: String,
         /// Starts before this one (0 at the first).
         restarts: u64,
+        /// The wall time the run's clock read when the run began (its uptime 0): what a
+        /// replay starts its virtual clock at.
+        #[serde(serialize_with = "rfc3339")]
+        since: DateTime<Utc>,
     },
     /// A handler or the top level failed (`message` carries file:line:column).
     ScriptFailed {
@@ -163,6 +167,11 @@ pub enum Reading {
     Switches {
         /// The switches pressed, by name.
         pressed: Vec<&'static str>,
+    },
+    /// A TRC1000's fourteen rotary counters (half-turns, 8 bits, as the script sees them).
+    Rotaries {
+        /// The counts, in `Rotary::ALL`'s order.
+        values: [u8; 14],
     },
 }
 

@@ -161,67 +161,7 @@ impl Player<'_> {
     }
 
     pub(super) fn apply(&mut self, action: &Action) -> Result<(), FieldError> {
-        let sim = &self.rig.sim;
-        let step = match action {
-            Action::Input { dev, ch, on } => sim.set_input(dev, *ch, *on).map(|()| true),
-            Action::Inputs { dev, byte } => sim.set_inputs(dev, *byte).map(|()| true),
-            Action::Pulse { dev, ch, n } => sim.pulse(dev, *ch, *n).map(|()| true),
-            Action::CounterTo { dev, ch, value } => {
-                let now = sim.counter(dev, *ch)?;
-                let n = u32::from(value.saturating_sub(now));
-                if n > 0 {
-                    sim.pulse(dev, *ch, n)?;
-                    self.steps.push(Step::Act(Action::Pulse {
-                        dev: dev.clone(),
-                        ch: *ch,
-                        n,
-                    }));
-                }
-                Ok(false)
-            }
-            Action::Press { dev, switch } => {
-                sim.set_switch(dev, switch.name(), true).map(|()| true)
-            }
-            Action::Release { dev, switch } => {
-                sim.set_switch(dev, switch.name(), false).map(|()| true)
-            }
-            Action::Turn {
-                dev,
-                rotary,
-                half_turns,
-            } => sim.turn(dev, rotary.name(), *half_turns).map(|()| true),
-            Action::Fail { dev } => sim.set_gone(dev, true).map(|()| true),
-            Action::Restore { dev } => sim.set_gone(dev, false).map(|()| true),
-            Action::DropAnswers { dev, n } => sim
-                .fault_answers(dev, AnswerFault::Drop, *n as usize)
-                .map(|_| true),
-            Action::GarbleAnswers { dev, n } => sim
-                .fault_answers(dev, AnswerFault::Garble, *n as usize)
-                .map(|_| true),
-            Action::LateAnswers { dev, n, by } => sim
-                .fault_answers(dev, AnswerFault::Late(*by), *n as usize)
-                .map(|_| true),
-            Action::DuplicateAnswers { dev, n } => sim
-                .fault_answers(dev, AnswerFault::Duplicate, *n as usize)
-                .map(|_| true),
-            Action::PowerCycle { dev } => sim.power_cycle(dev).map(|()| true),
-            Action::Stall { by } => {
-                self.clock.advance(*by);
-                Ok(true)
-            }
-            Action::WallStep { seconds } => {
-                self.clock.step_wall(TimeDelta::seconds(*seconds));
-                Ok(true)
-            }
-            Action::Stop => {
-                self.rig.runner.signal_stop();
-                Ok(true)
-            }
-        }?;
-        if step {
-            self.steps.push(Step::Act(action.clone()));
-        }
-        Ok(())
+        act(&mut self.rig, &self.clock, action, &mut self.steps)
     }
 
     pub(super) fn finish(mut self, finding: Option<Finding>, played: usize) -> Outcome {
@@ -243,6 +183,73 @@ impl Player<'_> {
             observed: self.observed,
         }
     }
+}
+
+/// Plays `action` on `rig`'s simulated field (or its clock, or its runner), adding to `steps`
+/// what a test file does to the same effect: the one way `verify` and `replay` act on a rig.
+pub fn act(
+    rig: &mut Rig,
+    clock: &VirtualClock,
+    action: &Action,
+    steps: &mut Vec<Step>,
+) -> Result<(), FieldError> {
+    let sim = &rig.sim;
+    let step = match action {
+        Action::Input { dev, ch, on } => sim.set_input(dev, *ch, *on).map(|()| true),
+        Action::Inputs { dev, byte } => sim.set_inputs(dev, *byte).map(|()| true),
+        Action::Pulse { dev, ch, n } => sim.pulse(dev, *ch, *n).map(|()| true),
+        Action::CounterTo { dev, ch, value } => {
+            let now = sim.counter(dev, *ch)?;
+            let n = u32::from(value.saturating_sub(now));
+            if n > 0 {
+                sim.pulse(dev, *ch, n)?;
+                steps.push(Step::Act(Action::Pulse {
+                    dev: dev.clone(),
+                    ch: *ch,
+                    n,
+                }));
+            }
+            Ok(false)
+        }
+        Action::Press { dev, switch } => sim.set_switch(dev, switch.name(), true).map(|()| true),
+        Action::Release { dev, switch } => sim.set_switch(dev, switch.name(), false).map(|()| true),
+        Action::Turn {
+            dev,
+            rotary,
+            half_turns,
+        } => sim.turn(dev, rotary.name(), *half_turns).map(|()| true),
+        Action::Fail { dev } => sim.set_gone(dev, true).map(|()| true),
+        Action::Restore { dev } => sim.set_gone(dev, false).map(|()| true),
+        Action::DropAnswers { dev, n } => sim
+            .fault_answers(dev, AnswerFault::Drop, *n as usize)
+            .map(|_| true),
+        Action::GarbleAnswers { dev, n } => sim
+            .fault_answers(dev, AnswerFault::Garble, *n as usize)
+            .map(|_| true),
+        Action::LateAnswers { dev, n, by } => sim
+            .fault_answers(dev, AnswerFault::Late(*by), *n as usize)
+            .map(|_| true),
+        Action::DuplicateAnswers { dev, n } => sim
+            .fault_answers(dev, AnswerFault::Duplicate, *n as usize)
+            .map(|_| true),
+        Action::PowerCycle { dev } => sim.power_cycle(dev).map(|()| true),
+        Action::Stall { by } => {
+            clock.advance(*by);
+            Ok(true)
+        }
+        Action::WallStep { seconds } => {
+            clock.step_wall(TimeDelta::seconds(*seconds));
+            Ok(true)
+        }
+        Action::Stop => {
+            rig.runner.signal_stop();
+            Ok(true)
+        }
+    }?;
+    if step {
+        steps.push(Step::Act(action.clone()));
+    }
+    Ok(())
 }
 
 /// A fresh rig for `target` started where `start` says, its first tick (the baseline

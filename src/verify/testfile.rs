@@ -191,6 +191,72 @@ impl TestFile<'_> {
     }
 }
 
+/// A step of a regression test and the outputs it asserts after it: (device, `"outputs"`
+/// or `"relay"`, value).
+pub type AssertedStep = (Step, Vec<(String, &'static str, u8)>);
+
+/// A field run as a regression test (`rigscript replay --to-test`): the rig started where the
+/// run started, the field's events through the scenario API, and after a wait the outputs
+/// the rig had written by then asserted, so the test passes while the script writes what it
+/// wrote in the field and fails where it writes otherwise.
+#[derive(Debug, Clone)]
+pub struct RegressionTest<'a> {
+    /// The script, relative to the test file's directory.
+    pub script: &'a Path,
+    /// The rig.toml, relative to the test file's directory, if the run had one.
+    pub config: Option<&'a Path>,
+    /// Where the run started.
+    pub start: &'a StartPoint,
+    /// The steps, each with the outputs to assert after it.
+    pub steps: &'a [AssertedStep],
+    /// The test's name (a slug).
+    pub name: &'a str,
+    /// Comment lines at the top.
+    pub header: &'a [String],
+}
+
+impl RegressionTest<'_> {
+    /// The file's text.
+    pub fn render(&self) -> String {
+        let mut out = String::new();
+        for line in self.header {
+            let _ = writeln!(out, "// {line}");
+        }
+        let _ = writeln!(out);
+        let _ = writeln!(out, "fn test_{}() {{", self.name);
+        let script = quoted(&self.script.to_string_lossy());
+        let wall = quoted(&self.start.wall_text());
+        let zone = quoted(&self.start.zone);
+        match self.config {
+            Some(c) => {
+                let c = quoted(&c.to_string_lossy());
+                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone}, {c});");
+            }
+            None => {
+                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone});");
+            }
+        }
+        for (step, asserts) in self.steps {
+            let line = match step {
+                Step::Advance(d) => format!("r.advance({});", quoted(&format_duration_exact(*d))),
+                Step::Act(a) => action_line(a),
+                Step::End => "r.end();".into(),
+            };
+            let _ = writeln!(out, "    {line}");
+            for (dev, kind, value) in asserts {
+                let _ = writeln!(
+                    out,
+                    "    assert_eq(r.{kind}({d}), {value}, {m});",
+                    d = quoted(dev),
+                    m = quoted(&format!("{dev} as the run wrote it")),
+                );
+            }
+        }
+        let _ = writeln!(out, "}}");
+        out
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -168,6 +168,12 @@ impl<P: Program> Runner<P> {
                 .as_ref()
                 .map_or_else(String::new, |s| s.script.clone()),
             restarts,
+            since: {
+                let rt = self.rt.borrow();
+                let cycle = rt.cycle();
+                let up = chrono::TimeDelta::from_std(cycle.uptime()).unwrap_or_default();
+                cycle.wall() - up
+            },
         });
     }
 

@@ -70,7 +70,7 @@ impl Kept {
                         self.point(t, device, format!("counter{n}"), u32::from(*v));
                     }
                 }
-                Reading::Switches { .. } => {}
+                Reading::Switches { .. } | Reading::Rotaries { .. } => {}
             },
             RunEvent::Outputs { device, value, .. } => {
                 self.point(t, device, "outputs".into(), u32::from(*value));

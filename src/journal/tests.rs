@@ -1,0 +1,267 @@
+//! A journal written by its real writer from a run in virtual time on a random field, read
+//! back and replayed: every script of scripts/ comes out as it ran, an edited one at the tick
+//! it first writes otherwise, a journal cut anywhere replays up to the cut.
+
+use super::replay::{replay, Options};
+use super::write::{Prepared, Settings};
+use super::{read_journal, Header, What};
+use crate::config::RigConfig;
+use crate::runtime::observe::Bound;
+use crate::script::builder::RigBuilder;
+use crate::time::clock::{Clock, VirtualClock};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+const SCRIPTS: [(&str, &str); 5] = [
+    (
+        "interlock.rhai",
+        include_str!("../../scripts/interlock.rhai"),
+    ),
+    (
+        "counter_threshold.rhai",
+        include_str!("../../scripts/counter_threshold.rhai"),
+    ),
+    ("cron_rig.rhai", include_str!("../../scripts/cron_rig.rhai")),
+    (
+        "rotary_relay.rhai",
+        include_str!("../../scripts/rotary_relay.rhai"),
+    ),
+    (
+        "safe_values.rhai",
+        include_str!("../../scripts/safe_values.rhai"),
+    ),
+];
+
+/// Runs `source` for `length` of virtual time on a field that changes at random (seeded),
+/// journaled to `path`.
+fn journaled_run(source: &str, file: &str, path: &Path, length: Duration, seed: u64) {
+    let config = RigConfig::simulated_default();
+    let period = config.period;
+    let mut header = Header::first(file, source, None, &config, period, None).unwrap();
+    header.zone = "UTC".into();
+    let mut settings = Settings::new(path, 1 << 30);
+    // The run in virtual time outpaces any disk: a queue that holds all of it.
+    settings.bound = Bound::events(1 << 20);
+    let prepared = Prepared::new(settings, header).unwrap();
+    let running = Arc::new(Mutex::new(None));
+    let slot = Arc::clone(&running);
+    let wall = chrono::DateTime::parse_from_rfc3339("2026-03-28T11:58:00.013Z")
+        .unwrap()
+        .to_utc();
+    let clock = VirtualClock::new(wall);
+    let mut rig = RigBuilder::from_config(config)
+        .simulated()
+        .clock(Arc::new(clock.clone()))
+        .log_to_stderr(false)
+        .quiet()
+        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
+        .start(source, file)
+        .unwrap();
+    let mut rng = fastrand::Rng::with_seed(seed);
+    while clock.now() < length && rig.runner.status().is_none() {
+        rig.runner.advance(Duration::from_millis(rng.u64(10..400)));
+        let sim = &rig.sim;
+        let _ = match rng.u8(0..8) {
+            0 => sim.set_inputs("io", rng.u8(..) | 0x0F),
+            1 => sim.set_inputs("io", rng.u8(..)),
+            2 => sim.set_switch(
+                "panel",
+                ["S1", "S10", "S11", "S12"][rng.usize(0..4)],
+                rng.bool(),
+            ),
+            3 => sim.turn("panel", "S41A", rng.i32(-5..=5)),
+            4 => sim.pulse("io", rng.u8(0..3), rng.u32(1..40)),
+            5 => sim.set_input("io", 7, rng.bool()),
+            6 => sim.set_switch("panel", "S12", true),
+            _ => sim.set_switch("panel", "S12", false),
+        };
+    }
+    if rig.runner.status().is_none() {
+        rig.runner.signal_stop();
+    }
+    let running = running.lock().unwrap().take().unwrap();
+    let report = running.finish();
+    assert_eq!(report.lost, 0);
+    assert!(report.failed.is_none(), "{report:?}");
+}
+
+fn dir() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+#[test]
+fn a_replay_of_each_script_writes_exactly_what_the_run_wrote() {
+    let d = dir();
+    for (i, (file, source)) in SCRIPTS.iter().enumerate() {
+        let path = d.path().join(format!("{file}.journal"));
+        // Long enough for cron_rig's first run (at 12:00:00, two minutes in) and its answer.
+        let length = if *file == "cron_rig.rhai" { 150 } else { 60 };
+        journaled_run(source, file, &path, Duration::from_secs(length), i as u64);
+        let journal = read_journal(&path).unwrap();
+        assert!(journal.notes.is_empty(), "{:?}", journal.notes);
+        let outcome = replay(&journal, &Options::default()).unwrap();
+        assert!(outcome.same_script);
+        assert!(
+            outcome.recorded.len() >= 2,
+            "{file}: the run wrote too little to tell: {:?}",
+            outcome.recorded
+        );
+        assert_eq!(outcome.divergence, None, "{file}");
+        assert_eq!(outcome.recorded, outcome.replayed, "{file}");
+        assert!(
+            outcome.unrecorded.is_empty(),
+            "{file}: {:?}",
+            outcome.unrecorded
+        );
+    }
+}
+
+#[test]
+fn an_edited_script_diverges_at_the_first_tick_it_writes_otherwise() {
+    let d = dir();
+    let path = d.path().join("j");
+    let (file, source) = SCRIPTS[0];
+    journaled_run(source, file, &path, Duration::from_secs(120), 7);
+    let journal = read_journal(&path).unwrap();
+    // Armed power is DO0-DO2 only in the edit: the first arming differs, nothing before it.
+    let edited = source.replace("const POWER = 0x0F;", "const POWER = 0x07;");
+    let first_armed = journal
+        .entries
+        .iter()
+        .find(|e| matches!(&e.what, What::Outputs { value: 0x0F, .. }))
+        .expect("the random field armed the interlock")
+        .tick;
+    let options = Options {
+        script: Some((edited, "edited.rhai".into())),
+        ..Options::default()
+    };
+    let outcome = replay(&journal, &options).unwrap();
+    assert!(!outcome.same_script);
+    let d = outcome.divergence.expect("the edit writes otherwise");
+    assert_eq!(d.tick, first_armed);
+    assert!(matches!(
+        d.replayed.map(|e| e.what),
+        Some(What::Outputs { value: 0x07, .. })
+    ));
+    assert!(!d.around.is_empty(), "the field around it is shown");
+}
+
+#[test]
+fn a_journal_cut_at_any_byte_replays_up_to_the_cut() {
+    let d = dir();
+    let path = d.path().join("j");
+    let (file, source) = SCRIPTS[0];
+    journaled_run(source, file, &path, Duration::from_secs(60), 3);
+    let whole = std::fs::read(&path).unwrap();
+    let header_end = whole
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| **b == b'\n')
+        .nth(1)
+        .unwrap()
+        .0;
+    let mut rng = fastrand::Rng::with_seed(11);
+    let cut_path = d.path().join("cut");
+    for _ in 0..5 {
+        let cut = rng.usize(header_end + 1..whole.len());
+        std::fs::write(&cut_path, &whole[..cut]).unwrap();
+        let journal = read_journal(&cut_path).unwrap();
+        let torn = whole[cut - 1] != b'\n';
+        assert_eq!(
+            journal.notes.len(),
+            usize::from(torn),
+            "{:?}",
+            journal.notes
+        );
+        let Some(last) = journal.entries.last().map(|e| e.tick) else {
+            continue;
+        };
+        let outcome = replay(
+            &journal,
+            &Options {
+                until: Some(last),
+                ..Options::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(outcome.divergence, None, "cut at byte {cut}");
+    }
+}
+
+#[test]
+fn a_window_becomes_a_test_that_passes_on_the_script_and_fails_on_an_edit() {
+    let d = dir();
+    let scripts = d.path().join("scripts");
+    std::fs::create_dir(&scripts).unwrap();
+    let (file, source) = SCRIPTS[0];
+    let script = scripts.join(file);
+    std::fs::write(&script, source).unwrap();
+    let path = d.path().join("j");
+    journaled_run(
+        source,
+        &script.display().to_string(),
+        &path,
+        Duration::from_secs(60),
+        5,
+    );
+    let journal = read_journal(&path).unwrap();
+    let outcome = replay(
+        &journal,
+        &Options {
+            steps_from: Some(0),
+            ..Options::default()
+        },
+    )
+    .unwrap();
+    let out: PathBuf = d.path().join("tests").join("night.test.rhai");
+    std::fs::create_dir(out.parent().unwrap()).unwrap();
+    let text = super::to_test::render(&outcome, &out, &script, None, (0, outcome.ticks));
+    assert!(text.contains("assert_eq(r.outputs(\"io\")"), "{text}");
+    std::fs::write(&out, &text).unwrap();
+    let run = |name: &str| {
+        crate::script::scenario::run_file(&out, name, |_| {})
+            .into_iter()
+            .map(|r| r.failure.is_none())
+            .collect::<Vec<bool>>()
+    };
+    assert_eq!(run("night.test.rhai"), [true], "{text}");
+    std::fs::write(
+        &script,
+        source.replace("const POWER = 0x0F;", "const POWER = 0x07;"),
+    )
+    .unwrap();
+    assert_eq!(run("night.test.rhai"), [false]);
+}
+
+#[test]
+fn the_hash_is_sha256() {
+    assert_eq!(
+        super::hash("abc"),
+        "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+    );
+}
+
+#[test]
+fn an_edit_that_reads_what_the_run_never_read_is_told_what_was_assumed() {
+    let d = dir();
+    let path = d.path().join("j");
+    let (file, source) = SCRIPTS[0];
+    journaled_run(source, file, &path, Duration::from_secs(20), 9);
+    let journal = read_journal(&path).unwrap();
+    let edited = format!("{source}\nevery(\"1s\", || {{ let parts = io.counter(2); }});\n");
+    let options = Options {
+        script: Some((edited, "edited.rhai".into())),
+        ..Options::default()
+    };
+    let outcome = replay(&journal, &options).unwrap();
+    assert_eq!(
+        outcome.unrecorded,
+        [super::replay::Unrecorded {
+            dev: "io".into(),
+            item: "counter DI2".into(),
+            assumed: "0".into(),
+        }]
+    );
+    assert_eq!(outcome.divergence, None, "reading a counter writes nothing");
+}
