@@ -51,6 +51,7 @@
 
 pub mod cli;
 pub mod config;
+pub mod content_hash;
 pub mod device;
 pub(crate) mod guardian;
 pub mod heap;

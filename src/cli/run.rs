@@ -29,6 +29,7 @@ use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
 use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::http::{self, BindError};
 use crate::service::mqtt;
+use crate::service::reload::Reloader;
 use crate::service::rig_dir;
 use crate::sync::lock;
 use crate::text_file::{read_text, TextKind};
@@ -117,6 +118,10 @@ pub struct RunArgs {
     /// (`ui_token` in rig.toml or RIGSCRIPT_UI_TOKEN).
     #[arg(long, value_name = "ADDR", num_args = 0..=1)]
     pub ui: Option<Option<SocketAddr>>,
+    /// The scenario tests a reload runs before it swaps the script in (default:
+    /// tests/NAME.test.rhai beside the script, if there is one)
+    #[arg(long, value_name = "PATH")]
+    pub reload_tests: Option<PathBuf>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -222,6 +227,11 @@ pub fn run(args: RunArgs) -> i32 {
         return exit::ERROR;
     }
     let control = ControlSetup {
+        reloader: Reloader {
+            script: args.script.clone(),
+            config: config.clone(),
+            tests: args.reload_tests.clone(),
+        },
         queue: requests::queue(&stop_flag),
         rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
         named: config.name.is_some(),
@@ -303,6 +313,8 @@ pub fn run(args: RunArgs) -> i32 {
 
 /// What the run's control socket needs (`service::control_socket`).
 struct ControlSetup {
+    /// How a reload through the socket is made ready.
+    reloader: Reloader,
     queue: (Requester, Requests),
     rig: String,
     /// Whether rig.toml gave the name (else it came from a file's stem).
@@ -430,6 +442,9 @@ fn run_started(
         }
     };
     let mut claim = claim;
+    if let Some(c) = claim.as_mut() {
+        c.reloads(control.reloader.clone());
+    }
     let key_file = match (claim.as_mut(), key.as_ref()) {
         (Some(c), Some(k)) => c
             .keep_key(k)

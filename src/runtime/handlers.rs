@@ -286,6 +286,28 @@ impl<H: Clone> Handlers<H> {
         self.schedule.clear();
     }
 
+    /// Takes every handler and timer out, leaving none, with ids going on (a reload keeps the
+    /// old script's aside until the new one has started).
+    pub fn take(&mut self) -> Self {
+        let schedule = self.schedule.take();
+        Self {
+            events: std::mem::take(&mut self.events),
+            stops: std::mem::take(&mut self.stops),
+            remote: std::mem::take(&mut self.remote),
+            timers: std::mem::take(&mut self.timers),
+            timer_of: std::mem::take(&mut self.timer_of),
+            every_periods: std::mem::take(&mut self.every_periods),
+            next_id: self.next_id,
+            schedule,
+        }
+    }
+
+    /// Puts back what `take` took (the new script failed to start), ids going on.
+    pub fn put_back(&mut self, mut old: Self) {
+        old.next_id = old.next_id.max(self.next_id);
+        *self = old;
+    }
+
     /// The period of the fastest `every` timer, if there is one.
     pub fn fastest_every(&self) -> Option<Duration> {
         self.every_periods.keys().next().copied()

@@ -54,6 +54,7 @@ pub(super) const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("cron", 1, &["missed"]),
     ("after", 1, &[]),
     ("on_stop", 0, &[]),
+    ("on_reload", 0, &[]),
     ("invariant", 1, &[]),
     ("on_command", 1, &["payload"]),
     ("on_message", 1, &["topic", "payload"]),
@@ -671,6 +672,14 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let id = r.on_stop(Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
+    let (r, a) = (rt.clone(), arities.clone());
+    engine.register_fn("on_reload", move |f: FnPtr| -> R<()> {
+        a.check(&f, "on_reload")?;
+        r.on_reload(Rc::new(f));
+        Ok(())
+    });
+    let r = rt.clone();
+    engine.register_fn("is_reload", move || r.is_reload());
     register_remote(engine, rt, arities);
     let r = rt.clone();
     engine.register_fn("stop", move || -> R<()> { stop(&r, 0) });

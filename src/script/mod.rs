@@ -13,6 +13,8 @@ mod invariant_tests;
 pub mod lint;
 pub mod program;
 pub mod reads;
+#[cfg(test)]
+mod reload_tests;
 pub mod rig;
 pub mod scenario;
 pub mod stack;

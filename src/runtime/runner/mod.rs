@@ -12,6 +12,7 @@
 mod contract;
 mod end;
 mod force;
+mod reload;
 mod remote;
 mod restart;
 mod serve;
@@ -76,6 +77,8 @@ pub struct Runner<P: Program> {
     served: Option<serve::Served>,
     /// Times the script was started again.
     restarts: u64,
+    /// Which script runs, and its reloads.
+    identity: reload::ScriptIdentity,
 }
 
 impl<P: Program> Runner<P> {
@@ -106,6 +109,7 @@ impl<P: Program> Runner<P> {
             events,
             served: None,
             restarts: 0,
+            identity: reload::ScriptIdentity::default(),
         }
     }
 

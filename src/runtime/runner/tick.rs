@@ -47,9 +47,12 @@ impl<P: Program> Runner<P> {
         if self.ended_by_signal() {
             return;
         }
+        // A reload swaps at this tick boundary (refused unless the script runs); the new
+        // script's handlers run at once.
+        self.reload_waiting();
         match self.state {
             State::Restarting { at } if start >= at => self.restart(),
-            State::Running => self.run_handlers(),
+            State::Running if self.status().is_none() => self.run_handlers(),
             _ => {}
         }
         // A command or a watched message waiting from outside runs after the tick's own
