@@ -17,7 +17,9 @@ use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_RE
 use super::reload::Reloader;
 use super::rig_dir::{self, Knock};
 use super::serving::{self, Bounds, Closing, Place, Serving};
+use crate::runtime::log::Level;
 use crate::runtime::observe::{Events, Next, DEFAULT_QUEUE};
+use crate::runtime::remote::Remote;
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
@@ -444,7 +446,16 @@ fn reload(shared: &Shared, script: Option<&str>, by: String) -> Reply {
             },
             RELOAD_WAIT,
         )),
-        Err(why) => Reply::refused(format!("reload refused: {why}; the old script runs on")),
+        Err(why) => {
+            let why = format!("reload refused: {why}; the old script runs on");
+            // The run's log tells it too (a refusal made off the loop never reaches it else).
+            let line = Remote::Log {
+                level: Level::Error,
+                message: format!("{why} (asked by {by})"),
+            };
+            let _ = shared.ask.ask(Request::Remote(line), ANSWER_WAIT);
+            Reply::refused(why)
+        }
     }
 }
 
