@@ -142,3 +142,39 @@ fn reloads_keep_the_outputs_carry_the_variables_and_refuse_a_bad_script() {
     let until_stop = reloading.split("stopping").next().unwrap_or_default();
     assert!(!until_stop.contains("-> 0x40"), "{log}");
 }
+
+#[test]
+fn run_watch_reloads_the_script_once_its_file_has_settled() {
+    let rig = Rig {
+        dir: TempDir::new("reload-watch"),
+    };
+    let script = rig.dir.file("watched.rhai", V1);
+    let mut run = Run(rig
+        .command(&["run", "--sim", "--watch", &script])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap());
+    let status_of = |rig: &Rig| {
+        let out = rig.output(&["status", "watched", "--json"]);
+        out.status
+            .success()
+            .then(|| serde_json::from_slice::<Value>(&out.stdout).unwrap())
+    };
+    let first = until(Duration::from_secs(10), || status_of(&rig)).expect("the run answers");
+    assert_eq!(first["script"]["reloads"], 0);
+    rig.dir.file("watched.rhai", V2);
+    let reloaded = until(Duration::from_secs(20), || {
+        status_of(&rig).filter(|s| s["script"]["reloads"] == 1)
+    })
+    .expect("the change was reloaded");
+    assert_ne!(reloaded["script"]["hash"], first["script"]["hash"]);
+    let stop = rig.output(&["stop", "watched"]);
+    assert!(stop.status.success(), "{stop:?}");
+    let _ = until(Duration::from_secs(20), || run.0.try_wait().unwrap());
+    let log = crate::common::read_stderr(&mut run.0);
+    assert!(
+        log.contains("asked by run --watch; variables carried: n"),
+        "{log}"
+    );
+}

@@ -29,7 +29,7 @@ use crate::service::control_protocol::{Hello, PROTOCOL_VERSION};
 use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::http::{self, BindError};
 use crate::service::mqtt;
-use crate::service::reload::Reloader;
+use crate::service::reload::{Reloader, Watcher};
 use crate::service::rig_dir;
 use crate::sync::lock;
 use crate::text_file::{read_text, TextKind};
@@ -122,6 +122,10 @@ pub struct RunArgs {
     /// tests/NAME.test.rhai beside the script, if there is one)
     #[arg(long, value_name = "PATH")]
     pub reload_tests: Option<PathBuf>,
+    /// Reload the script whenever its file changes (once it has been unchanged for 300 ms),
+    /// as `rigscript reload` does: checked and tested first, the outputs kept
+    #[arg(long)]
+    pub watch: bool,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -232,6 +236,7 @@ pub fn run(args: RunArgs) -> i32 {
             config: config.clone(),
             tests: args.reload_tests.clone(),
         },
+        watch: args.watch,
         queue: requests::queue(&stop_flag),
         rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
         named: config.name.is_some(),
@@ -315,6 +320,8 @@ pub fn run(args: RunArgs) -> i32 {
 struct ControlSetup {
     /// How a reload through the socket is made ready.
     reloader: Reloader,
+    /// `--watch`: reload when the script file changes.
+    watch: bool,
     queue: (Requester, Requests),
     rig: String,
     /// Whether rig.toml gave the name (else it came from a file's stem).
@@ -492,6 +499,9 @@ fn run_started(
         Some(Err(e)) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let (requester, requests) = control.queue;
+    let watcher = control
+        .watch
+        .then(|| (control.reloader.clone(), requester.clone()));
     // Every service attaches to the run's events before its top level runs: the MQTT client
     // and systemd's notifier must see the first start, and all attach the same way.
     let asker = requester.clone();
@@ -550,6 +560,11 @@ fn run_started(
     };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
+    let _watching = watcher.and_then(|(reloader, ask)| {
+        Watcher::start(reloader, ask, source.to_string())
+            .map_err(|e| say(&format!("rigscript run: warning: cannot watch {file}: {e}")))
+            .ok()
+    });
     if let Some(addr) = ui {
         say(&format!(
             "rigscript run: ui: {}",

@@ -17,9 +17,7 @@ use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_RE
 use super::reload::Reloader;
 use super::rig_dir::{self, Knock};
 use super::serving::{self, Bounds, Closing, Place, Serving};
-use crate::runtime::log::Level;
 use crate::runtime::observe::{Events, Next, DEFAULT_QUEUE};
-use crate::runtime::remote::Remote;
 use crate::runtime::requests::{Answer, AskError, Request, Requester};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
@@ -45,9 +43,6 @@ pub const WRITE_WAIT: Duration = Duration::from_secs(2);
 
 /// How long a request waits for the loop's answer.
 pub const ANSWER_WAIT: Duration = Duration::from_secs(2);
-
-/// How long a reload waits for the loop to swap the script in (the next tick boundary).
-pub const RELOAD_WAIT: Duration = Duration::from_secs(10);
 
 /// Why the rig's socket could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -437,25 +432,9 @@ fn reload(shared: &Shared, script: Option<&str>, by: String) -> Reply {
     let Some(reloader) = &shared.reloader else {
         return Reply::refused("this run cannot be reloaded");
     };
-    match reloader.prepare(script.map(Path::new)) {
-        Ok(ready) => done(shared.ask.ask(
-            Request::Reload {
-                source: ready.source,
-                file: ready.file,
-                by,
-            },
-            RELOAD_WAIT,
-        )),
-        Err(why) => {
-            let why = format!("reload refused: {why}; the old script runs on");
-            // The run's log tells it too (a refusal made off the loop never reaches it else).
-            let line = Remote::Log {
-                level: Level::Error,
-                message: format!("{why} (asked by {by})"),
-            };
-            let _ = shared.ask.ask(Request::Remote(line), ANSWER_WAIT);
-            Reply::refused(why)
-        }
+    match super::reload::reload(reloader, &shared.ask, script.map(Path::new), by) {
+        Ok(()) => Reply::done(),
+        Err(why) => Reply::refused(why),
     }
 }
 

@@ -5,11 +5,16 @@
 //! compiles it again and swaps it in at a tick boundary.
 
 use crate::config::RigConfig;
+use crate::runtime::log::Level;
+use crate::runtime::remote::Remote;
+use crate::runtime::requests::{Answer, Request, Requester};
 use crate::script::check::check;
 use crate::script::scenario::run_file;
 use crate::script::stack::on_script_stack;
 use crate::text_file::{read_text, TextKind};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// How long the file must stay unchanged before it is taken.
@@ -86,6 +91,94 @@ impl Reloader {
             }
         }
         Ok(Prepared { source, file })
+    }
+}
+
+/// How long the loop may take to swap a ready script in (the next tick boundary).
+pub const SWAP_WAIT: Duration = Duration::from_secs(10);
+
+/// How long a refusal's log line may wait for the loop.
+const LOG_WAIT: Duration = Duration::from_secs(2);
+
+/// A reload from start to end: made ready here (off the loop) by `reloader`, swapped in by
+/// the loop through `ask`; asked by `by`. A refusal made here is told to the run's log too.
+pub fn reload(
+    reloader: &Reloader,
+    ask: &Requester,
+    script: Option<&Path>,
+    by: String,
+) -> Result<(), String> {
+    let swapped = match reloader.prepare(script) {
+        Ok(ready) => {
+            let request = Request::Reload {
+                source: ready.source,
+                file: ready.file,
+                by,
+            };
+            return match ask.ask(request, SWAP_WAIT) {
+                Ok(Answer::Accepted) => Ok(()),
+                Ok(Answer::Refused(why)) => Err(why),
+                Ok(Answer::Snapshot(_)) => Err("the run answered with a snapshot".into()),
+                Err(e) => Err(e.to_string()),
+            };
+        }
+        Err(why) => format!("reload refused: {why}; the old script runs on"),
+    };
+    // The loop logs its own refusals; one made off the loop never reaches the log else.
+    let line = Remote::Log {
+        level: Level::Error,
+        message: format!("{swapped} (asked by {by})"),
+    };
+    let _ = ask.ask(Request::Remote(line), LOG_WAIT);
+    Err(swapped)
+}
+
+/// How often `run --watch` looks at the script file.
+pub const WATCH_EVERY: Duration = Duration::from_millis(250);
+
+/// `run --watch`: a thread that reloads the run's script whenever its file changes (once it
+/// has settled); told to stop when dropped (not waited for: a reload under way ends by
+/// itself, the run having ended).
+pub struct Watcher {
+    stop: Arc<AtomicBool>,
+}
+
+impl Watcher {
+    /// Watches `reloader.script`, whose text the run started with is `started`.
+    pub fn start(reloader: Reloader, ask: Requester, started: String) -> std::io::Result<Self> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopping = Arc::clone(&stop);
+        std::thread::Builder::new()
+            .name("rigscript-watch".into())
+            .spawn(move || watch(&reloader, &ask, started, &stopping))?;
+        Ok(Self { stop })
+    }
+}
+
+impl Drop for Watcher {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Reloads each new text of the script until `stop`; a version refused is not tried again
+/// until the file changes once more.
+fn watch(reloader: &Reloader, ask: &Requester, mut known: String, stop: &AtomicBool) {
+    while !stop.load(Ordering::SeqCst) {
+        std::thread::sleep(WATCH_EVERY);
+        // Unreadable for a moment (an editor replacing it): looked at again next time.
+        match read_text(&reloader.script, TextKind::Script) {
+            Ok(text) if text != known => known = text,
+            _ => continue,
+        }
+        if stop.load(Ordering::SeqCst) {
+            return;
+        }
+        // The text the reload took, settled, is the one known from now on.
+        if let Ok(settled) = settled(&reloader.script, SETTLE, SETTLE_LIMIT) {
+            known = settled;
+        }
+        let _ = reload(reloader, ask, None, "run --watch".into());
     }
 }
 
