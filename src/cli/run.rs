@@ -126,6 +126,10 @@ pub struct RunArgs {
     /// as `rigscript reload` does: checked and tested first, the outputs kept
     #[arg(long)]
     pub watch: bool,
+    /// After a reload, go back to the previous script (and the state it had) if the new one
+    /// raises an error or finds an invariant false within DURATION
+    #[arg(long, value_name = "DURATION", value_parser = time_limit)]
+    pub rollback: Option<Duration>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -237,6 +241,7 @@ pub fn run(args: RunArgs) -> i32 {
             tests: args.reload_tests.clone(),
         },
         watch: args.watch,
+        rollback: args.rollback,
         queue: requests::queue(&stop_flag),
         rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
         named: config.name.is_some(),
@@ -322,6 +327,8 @@ struct ControlSetup {
     reloader: Reloader,
     /// `--watch`: reload when the script file changes.
     watch: bool,
+    /// `--rollback`: how long a reload may still be undone.
+    rollback: Option<Duration>,
     queue: (Requester, Requests),
     rig: String,
     /// Whether rig.toml gave the name (else it came from a file's stem).
@@ -560,6 +567,7 @@ fn run_started(
     };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
+    rig.runner.set_rollback(control.rollback);
     let _watching = watcher.and_then(|(reloader, ask)| {
         Watcher::start(reloader, ask, source.to_string())
             .map_err(|e| say(&format!("rigscript run: warning: cannot watch {file}: {e}")))

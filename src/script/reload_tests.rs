@@ -148,3 +148,48 @@ fn a_script_that_does_not_compile_or_start_leaves_the_old_one_running() {
     assert!(!l.contains("0x77") && !l.contains("0x66"), "{l}");
     assert_eq!(r.runner.status(), None);
 }
+
+#[test]
+fn within_the_rollback_window_an_error_or_a_false_invariant_brings_the_old_script_back() {
+    let mut r = rig(TOGGLING);
+    r.runner.set_rollback(Some(Duration::from_secs(2)));
+    outputs_over(&mut r, 1000);
+    // Fails at its third timer, 300 ms after the swap: back to the toggling, n as it was.
+    let failing = r#"
+        let io = device("io");
+        let n = 0;
+        let fired = 0;
+        every(100, || { fired += 1; io.outputs = 0x30; if fired == 3 { throw "broken"; } });
+    "#;
+    r.runner.reload(failing, "b.rhai", "a test").unwrap();
+    let seen = outputs_over(&mut r, 1000);
+    assert!(seen.contains(&0x30), "the new script ran: {seen:?}");
+    let tail = &seen[seen.len() - 5..];
+    assert!(
+        tail.iter().all(|v| [1, 2].contains(v)),
+        "the old one again: {seen:?}"
+    );
+    let l = log(&r);
+    assert!(l.contains("rolling back to a.rhai ("), "{l}");
+    assert_eq!(r.runner.status(), None, "the run goes on");
+    // A false invariant within the window: the same.
+    let unsafe_ = r#"
+        let io = device("io");
+        let n = 0;
+        invariant("never 3", || io.outputs != 3);
+        every(100, || { io.outputs = 3; });
+    "#;
+    r.runner.reload(unsafe_, "c.rhai", "a test").unwrap();
+    let seen = outputs_over(&mut r, 500);
+    assert!(
+        seen.iter().all(|v| [1, 2].contains(v)),
+        "3 never written: {seen:?}"
+    );
+    assert_eq!(r.runner.status(), None, "{}", log(&r));
+    // Past the window the reload stands, and an error is an error under the policy.
+    let late = failing.replace("fired == 3", "fired == 30");
+    r.runner.reload(&late, "b.rhai", "a test").unwrap();
+    r.runner.advance(Duration::from_millis(3500));
+    assert!(log(&r).contains("the reload stands"), "{}", log(&r));
+    assert_eq!(r.runner.status(), Some(1), "policy stop after the window");
+}

@@ -79,6 +79,10 @@ pub struct Runner<P: Program> {
     restarts: u64,
     /// Which script runs, and its reloads.
     identity: reload::ScriptIdentity,
+    /// `--rollback`: how long a reload may still be undone.
+    rollback: Option<Duration>,
+    /// The way back from the last reload, within its rollback window.
+    undo: Option<reload::Undo<P::Handler>>,
 }
 
 impl<P: Program> Runner<P> {
@@ -110,6 +114,8 @@ impl<P: Program> Runner<P> {
             served: None,
             restarts: 0,
             identity: reload::ScriptIdentity::default(),
+            rollback: None,
+            undo: None,
         }
     }
 

@@ -9,31 +9,116 @@
 use super::contract::{describe, Program};
 use super::{Runner, State};
 use crate::content_hash::{content_hash, short};
+use crate::runtime::program_state::Setup;
 use crate::runtime::requests::{Answer, Request};
 use serde_json::json;
+use std::time::Duration;
+
+/// A swap done: the variables carried, the old script's setup, the outputs it wanted.
+type Swapped<H> = (Vec<String>, Setup<H>, Vec<u8>);
 
 /// What the run knows of the script it runs: for the log, the records and `status`.
 #[derive(Debug, Clone, Default)]
 pub(super) struct ScriptIdentity {
     /// The running script's content hash (`content_hash`).
     pub(super) hash: String,
+    /// Its file, as the log names it.
+    pub(super) file: String,
     /// Times it was reloaded.
     pub(super) reloads: u64,
     /// When last, on the run's wall clock.
     pub(super) reloaded: Option<String>,
 }
 
+/// A reload that may still be undone (`--rollback`): the old script's setup and the outputs
+/// it wanted at the swap, until when, and which script it was.
+pub(super) struct Undo<H> {
+    setup: Setup<H>,
+    wanted: Vec<u8>,
+    until: Duration,
+    hash: String,
+    file: String,
+}
+
 impl<P: Program> Runner<P> {
-    /// Names the running script by its text (its content hash, for `status` and reloads).
-    pub fn name_script(&mut self, source: &str) {
+    /// After each reload, goes back to the previous script (and the state it had at the swap)
+    /// if the new one raises an error or finds an invariant false within `window` (`run
+    /// --rollback`); `None`: a reload stands at once.
+    pub fn set_rollback(&mut self, window: Option<Duration>) {
+        self.rollback = window;
+    }
+
+    /// Lets a reload whose rollback window has passed stand; at every tick.
+    fn undo_expired(&mut self) {
+        let now = self.clock.now();
+        if self.undo.as_ref().is_some_and(|u| u.until <= now) {
+            let file = self
+                .undo
+                .as_ref()
+                .map(|u| u.file.clone())
+                .unwrap_or_default();
+            self.settle_undo();
+            self.rt.borrow_mut().log_mut().notice(&format!(
+                "the reload stands: no error within the rollback window (no way back to {file})"
+            ));
+        }
+    }
+
+    /// Drops the way back to the script before the last reload.
+    fn settle_undo(&mut self) {
+        if let Some(undo) = self.undo.take() {
+            // The old handlers (closures of the old script) go before the old script does.
+            drop(undo.setup);
+            self.program.settle();
+        }
+    }
+
+    /// Goes back to the script before the last reload, if it is still within its rollback
+    /// window, because of `why`; true if it did.
+    pub(super) fn roll_back(&mut self, why: &str) -> bool {
+        let Some(undo) = self.undo.take() else {
+            return false;
+        };
+        let from = std::mem::replace(&mut self.identity.hash, undo.hash.clone());
+        {
+            let mut rt = self.rt.borrow_mut();
+            rt.program.put_back(undo.setup);
+            rt.want_outputs(&undo.wanted);
+            rt.log_mut().error(&format!(
+                "rolling back to {} ({}): the reloaded script failed within the rollback \
+                 window: {why}",
+                undo.file,
+                short(&undo.hash)
+            ));
+            rt.record(
+                "rollback",
+                json!({"file": undo.file, "from": from, "to": undo.hash, "why": why}),
+            );
+        }
+        self.program.swap_back();
+        self.identity.file = undo.file.clone();
+        if let Some(served) = self.served.as_mut() {
+            served.script = undo.file;
+            served.made = None;
+        }
+        true
+    }
+
+    /// Names the running script: its text (by its content hash, for `status` and reloads)
+    /// and its file.
+    pub fn name_script(&mut self, source: &str, file: &str) {
         self.identity.hash = content_hash(source);
+        self.identity.file = file.to_string();
     }
 
     /// The reloads waiting, each done or refused and answered; before the tick's handlers.
     pub(super) fn reload_waiting(&mut self) {
         let waiting = match self.served.as_mut() {
             Some(served) if !served.reloads.is_empty() => std::mem::take(&mut served.reloads),
-            _ => return,
+            _ => {
+                self.undo_expired();
+                return;
+            }
         };
         for later in waiting {
             let answer = match &later.request {
@@ -51,8 +136,27 @@ impl<P: Program> Runner<P> {
     /// at a tick boundary); refused with why, the old script running on.
     pub fn reload(&mut self, source: &str, file: &str, by: &str) -> Result<(), String> {
         let old = self.identity.hash.clone();
+        let old_file = self.identity.file.clone();
         let new = content_hash(source);
-        let result = self.swap_in(source, file);
+        let result = self.swap_in(source, file).map(|(carried, setup, wanted)| {
+            match self.rollback {
+                Some(window) => {
+                    self.undo = Some(Undo {
+                        setup,
+                        wanted,
+                        until: self.clock.now().saturating_add(window),
+                        hash: old.clone(),
+                        file: old_file,
+                    });
+                }
+                None => {
+                    // The old handlers (closures of the old script) go before it does.
+                    drop(setup);
+                    self.program.settle();
+                }
+            }
+            carried
+        });
         let mut rt = self.rt.borrow_mut();
         let (from, to) = (short(&old), short(&new));
         match &result {
@@ -70,6 +174,7 @@ impl<P: Program> Runner<P> {
                     json!({"file": file, "from": old, "to": new, "by": by, "carried": carried}),
                 );
                 self.identity.hash = new;
+                self.identity.file = file.to_string();
                 self.identity.reloads = self.identity.reloads.saturating_add(1);
                 self.identity.reloaded = Some(rt.cycle().wall_text());
             }
@@ -94,8 +199,9 @@ impl<P: Program> Runner<P> {
         result.map(|_| ())
     }
 
-    /// The swap itself: the names of the variables carried, or why the old script runs on.
-    fn swap_in(&mut self, source: &str, file: &str) -> Result<Vec<String>, String> {
+    /// The swap itself: the names of the variables carried, the old script's setup and the
+    /// outputs it wanted (to drop, or keep for a rollback), or why the old script runs on.
+    fn swap_in(&mut self, source: &str, file: &str) -> Result<Swapped<P::Handler>, String> {
         if self.state != State::Running || self.status().is_some() {
             return Err(
                 "the script is not running (waiting to restart, or the run ending)".to_string(),
@@ -105,6 +211,8 @@ impl<P: Program> Runner<P> {
             return Err("the script is empty".into());
         }
         self.program.stage(source, file)?;
+        // A reload still within its rollback window stands once another comes.
+        self.settle_undo();
         let (wanted, setup) = {
             let mut rt = self.rt.borrow_mut();
             let setup = rt.program.take_setup();
@@ -128,18 +236,16 @@ impl<P: Program> Runner<P> {
         }
         let mut rt = self.rt.borrow_mut();
         rt.program.set_reloading(false);
-        if result.is_ok() {
-            // The old handlers (closures of the old script) go before the old script does.
-            drop(setup);
-            drop(rt);
-            self.program.settle();
-        } else {
-            // The new script's handlers go before it does; the old setup comes back.
-            rt.program.put_back(setup);
-            rt.want_outputs(&wanted);
-            drop(rt);
-            self.program.swap_back();
+        match result {
+            Ok(carried) => Ok((carried, setup, wanted)),
+            Err(why) => {
+                // The new script's handlers go before it does; the old setup comes back.
+                rt.program.put_back(setup);
+                rt.want_outputs(&wanted);
+                drop(rt);
+                self.program.swap_back();
+                Err(why)
+            }
         }
-        result
     }
 }

@@ -212,8 +212,13 @@ impl<P: Program> Runner<P> {
                             devices: rt.readings(),
                         }
                     };
-                    self.rt.borrow_mut().report_violation(&violation);
                     let message = violation.to_string();
+                    // Within a reload's rollback window: the old script, its invariants
+                    // checked instead, and the outputs it wanted.
+                    if self.roll_back(&message) {
+                        return self.check_invariants();
+                    }
+                    self.rt.borrow_mut().report_violation(&violation);
                     self.violation = Some(violation);
                     self.finish(EndReason::Violated(message));
                     return false;
@@ -221,6 +226,9 @@ impl<P: Program> Runner<P> {
                 Err(f) => {
                     let message = describe(&f, &check.call.label);
                     self.note_fault(&message, f.over_budget);
+                    if self.roll_back(&message) {
+                        return self.check_invariants();
+                    }
                     self.finish(EndReason::Error(message));
                     return false;
                 }
