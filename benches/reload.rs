@@ -13,12 +13,13 @@ use rigscript::config::RigConfig;
 use rigscript::RigBuilder;
 use std::time::{Duration, Instant};
 
-/// Reloads measured per script.
-const RELOADS: u32 = 50;
+/// Reloads measured per script (`--bench`: in full; else a smoke run).
+const RELOADS: (u32, u32) = (10, 100);
 
 fn main() {
     let args = BenchArgs::from_env();
-    println!("reload: wall time of the swap on the loop, {RELOADS} reloads each (target <= 40 ms)");
+    let reloads = if args.full { RELOADS.1 } else { RELOADS.0 };
+    println!("reload: wall time of the swap on the loop, {reloads} reloads each (target <= 40 ms)");
     for file in [
         "rotary_relay.rhai",
         "counter_threshold.rhai",
@@ -40,7 +41,7 @@ fn main() {
         rig.runner.advance(Duration::from_secs(1));
         let mut worst = Duration::ZERO;
         let mut total = Duration::ZERO;
-        for _ in 0..RELOADS {
+        for _ in 0..reloads {
             let start = Instant::now();
             rig.runner
                 .reload(&source, file, "bench")
@@ -52,7 +53,7 @@ fn main() {
         }
         println!(
             "  {file:24} mean {:7.3} ms, worst {:7.3} ms",
-            total.as_secs_f64() * 1e3 / f64::from(RELOADS),
+            total.as_secs_f64() * 1e3 / f64::from(reloads),
             worst.as_secs_f64() * 1e3
         );
     }
