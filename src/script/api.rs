@@ -263,8 +263,14 @@ fn c29u_op<T>(
 
 /// Registers the whole script API on `engine` over `rt` (with `resolve_variables` for a run),
 /// noting what the script reads from its devices in `reads` (when that tracks) and placing
-/// invariants in `file`.
-pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities, reads: &ReadTracker, file: &str) {
+/// invariants in `file` (shared: a reload names another file).
+pub fn register(
+    engine: &mut Engine,
+    rt: &Rt,
+    arities: &Arities,
+    reads: &ReadTracker,
+    file: &Rc<std::cell::RefCell<String>>,
+) {
     register_device(engine, rt, reads);
     register_panel(engine, arities);
     register_io(engine, arities);
@@ -773,13 +779,18 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
 }
 
 /// `invariant(name, || bool)`: states what must hold after every tick's handlers.
-fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &str) {
-    let (r, a, file) = (rt.clone(), arities.clone(), file.to_string());
+fn register_invariant(
+    engine: &mut Engine,
+    rt: &Rt,
+    arities: &Arities,
+    file: &Rc<std::cell::RefCell<String>>,
+) {
+    let (r, a, file) = (rt.clone(), arities.clone(), Rc::clone(file));
     engine.register_fn(
         "invariant",
         move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
             a.check(&f, "invariant")?;
-            let at = super::error::location(&file, ctx.call_position());
+            let at = super::error::location(&file.borrow(), ctx.call_position());
             let added = r.add_invariant(name, Rc::new(f), at);
             added.or_else(|e| fail(e.to_string()))
         },

@@ -28,6 +28,8 @@ pub struct ScriptProgram {
     not_found: std::cell::OnceCell<NotFound>,
     /// The top level's variables as it left them (a reload carries their values over).
     top: Scope<'static>,
+    /// The file's name as the bindings place invariants in it (changed by a swap).
+    placed: Rc<std::cell::RefCell<String>>,
     /// A script compiled to replace this one at the next swap, with its file's name.
     staged: Option<(AST, String)>,
     /// The script before the last swap, its variables and file, until the swap is settled.
@@ -54,7 +56,8 @@ impl ScriptProgram {
         let guard = Guard::install(&mut engine, limits, rt.clock(), rt.transaction_counter());
         let arities = Arities::default();
         let reads = ReadTracker::default();
-        register(&mut engine, rt, &arities, &reads, file);
+        let placed = Rc::new(std::cell::RefCell::new(file.to_string()));
+        register(&mut engine, rt, &arities, &reads, &placed);
         resolve_variables(&mut engine, rt, &guard, &reads);
         arities.learn(&ast);
         Self {
@@ -67,6 +70,7 @@ impl ScriptProgram {
             coverage: None,
             not_found: std::cell::OnceCell::new(),
             top: Scope::new(),
+            placed,
             staged: None,
             previous: None,
         }
@@ -284,6 +288,7 @@ impl Program for ScriptProgram {
             });
         };
         let old_ast = std::mem::replace(&mut self.ast, ast);
+        *self.placed.borrow_mut() = file.clone();
         let old_file = std::mem::replace(&mut self.file, file);
         let old_top = std::mem::take(&mut self.top);
         self.previous = Some((old_ast, old_top, old_file));
@@ -297,6 +302,7 @@ impl Program for ScriptProgram {
         if let Some((ast, top, file)) = self.previous.take() {
             self.ast = ast;
             self.top = top;
+            *self.placed.borrow_mut() = file.clone();
             self.file = file;
             self.arities.learn(&self.ast);
             self.not_found = std::cell::OnceCell::new();
