@@ -405,6 +405,29 @@ mod tests {
     }
 
     #[test]
+    fn taken_handlers_leave_none_ids_go_on_and_put_back_they_are_whole_again() {
+        let clock = VirtualClock::at_epoch();
+        let mut s = store();
+        s.set_max_timers(2);
+        s.every(Duration::from_secs(1), clock.now(), "a").unwrap();
+        s.add(Source::Stop, "d", "on_stop".into());
+        let old = s.take();
+        assert!(s.is_empty() && !s.has_work());
+        assert_eq!(s.next_timer(clock.now(), clock.wall()), None);
+        let e = s.after(Duration::from_secs(1), clock.now(), "e").unwrap();
+        assert_eq!(e, 3, "an id is never given twice");
+        s.every(Duration::from_secs(1), clock.now(), "f").unwrap();
+        assert!(
+            s.every(Duration::from_secs(1), clock.now(), "g").is_err(),
+            "the limit on timers stays"
+        );
+        s.put_back(old);
+        let labels: Vec<&str> = s.list().iter().map(|x| &*x.label).collect();
+        assert_eq!(labels, ["every 1s", "on_stop"]);
+        assert_eq!(s.signature().1, 5, "ids go on from the new ones");
+    }
+
+    #[test]
     fn ids_count_up_and_cancel_takes_a_timer_off_the_schedule() {
         let clock = VirtualClock::at_epoch();
         let mut s = store();

@@ -340,6 +340,34 @@ mod tests {
     }
 
     #[test]
+    fn a_request_left_for_later_is_answered_when_the_loop_gets_to_it() {
+        let stop = Arc::new(AtomicUsize::new(0));
+        let (ask, requests) = queue(&stop);
+        let asking = std::thread::spawn(move || {
+            let reload = Request::Reload {
+                source: "x".into(),
+                file: "a.rhai".into(),
+                by: "me".into(),
+            };
+            ask.ask(reload, Duration::from_secs(10))
+        });
+        let mut later = Vec::new();
+        while later.is_empty() {
+            requests.bell().wait(Duration::from_secs(10));
+            later = requests.drain(|r| match r {
+                Request::Reload { .. } => None,
+                _ => Some(Answer::Accepted),
+            });
+        }
+        assert!(matches!(later[0].request, Request::Reload { .. }));
+        later.remove(0).answer(Answer::Refused("not now".into()));
+        assert_eq!(
+            asking.join().unwrap(),
+            Ok(Answer::Refused("not now".into()))
+        );
+    }
+
+    #[test]
     fn a_full_queue_refuses_at_once_and_a_gone_loop_is_told() {
         let stop = Arc::new(AtomicUsize::new(0));
         let (ask, requests) = queue(&stop);
