@@ -76,6 +76,7 @@ pub mod time;
 
 internal! {
     mod cli;
+    mod content_hash;
     mod guardian;
     mod journal;
     mod runtime;

@@ -18,6 +18,7 @@ mod late_answers;
 mod line_timing;
 mod mqtt;
 mod port_in_use;
+mod reload;
 mod run_remote;
 mod run_seams;
 mod runtime_cli;

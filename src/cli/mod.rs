@@ -11,6 +11,7 @@ pub mod force;
 pub mod lab;
 pub mod man;
 pub mod output;
+pub mod reload;
 pub mod replay;
 pub mod run;
 pub mod run_outputs;
@@ -55,6 +56,8 @@ pub enum Command {
     List(status::ListArgs),
     /// Stop a running rig as SIGTERM would: on_stop, the safe state, exit status 143
     Stop(status::StopArgs),
+    /// Swap a running rig's script without dropping its outputs (checked and tested first; systemd's ExecReload=)
+    Reload(reload::ReloadArgs),
     /// Act on a running rig's simulated devices: press, turn, set inputs, pulse, fail, restore
     Drive(drive::DriveArgs),
     /// Show every rig an MQTT broker knows, from its retained topics: status, devices, last record
@@ -137,6 +140,7 @@ pub fn main() -> i32 {
         Command::Status(args) => status::status(args),
         Command::List(args) => status::list(&args),
         Command::Stop(args) => status::stop(&args),
+        Command::Reload(args) => reload::run(&args),
         Command::Drive(args) => drive::run(args),
         Command::Lab(args) => lab::run(args),
         Command::Force(args) => force::force(args),

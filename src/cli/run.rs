@@ -31,6 +31,7 @@ use crate::service::control_socket::{self, Claim, ClaimError, Naming};
 use crate::service::http::history::History;
 use crate::service::http::{self, BindError};
 use crate::service::mqtt;
+use crate::service::reload::{Reloader, Watcher};
 use crate::service::rig_dir;
 use crate::sync::lock;
 use crate::text_file::{read_text, TextKind};
@@ -128,6 +129,18 @@ pub struct RunArgs {
     /// FILE.1 and a new one begins.
     #[arg(long, value_name = "SIZE", value_parser = memory_limit, requires = "journal")]
     pub journal_size: Option<u64>,
+    /// The scenario tests a reload runs before it swaps the script in (default:
+    /// tests/NAME.test.rhai beside the script, if there is one)
+    #[arg(long, value_name = "PATH")]
+    pub reload_tests: Option<PathBuf>,
+    /// Reload the script whenever its file changes (once it has been unchanged for 300 ms),
+    /// as `rigscript reload` does: checked and tested first, the outputs kept
+    #[arg(long)]
+    pub watch: bool,
+    /// After a reload, go back to the previous script (and the state it had) if the new one
+    /// raises an error or finds an invariant false within DURATION
+    #[arg(long, value_name = "DURATION", value_parser = time_limit)]
+    pub rollback: Option<Duration>,
 }
 
 fn dur(text: &str) -> Result<Duration, String> {
@@ -233,6 +246,13 @@ pub fn run(args: RunArgs) -> i32 {
         return exit::ERROR;
     }
     let control = ControlSetup {
+        reloader: Reloader {
+            script: args.script.clone(),
+            config: config.clone(),
+            tests: args.reload_tests.clone(),
+        },
+        watch: args.watch,
+        rollback: args.rollback,
         queue: requests::queue(&stop_flag),
         rig: rig_dir::rig_name(config.name.as_deref(), args.config.as_deref(), &args.script),
         named: config.name.is_some(),
@@ -355,6 +375,12 @@ fn setup_journal_name(journal: &Option<journal::write::Prepared>) -> String {
 
 /// What the run's control socket needs (`service::control_socket`).
 struct ControlSetup {
+    /// How a reload through the socket is made ready.
+    reloader: Reloader,
+    /// `--watch`: reload when the script file changes.
+    watch: bool,
+    /// `--rollback`: how long a reload may still be undone.
+    rollback: Option<Duration>,
     queue: (Requester, Requests),
     rig: String,
     /// Whether rig.toml gave the name (else it came from a file's stem).
@@ -483,6 +509,9 @@ fn run_started(
         }
     };
     let mut claim = claim;
+    if let Some(c) = claim.as_mut() {
+        c.reloads(control.reloader.clone());
+    }
     let key_file = match (claim.as_mut(), key.as_ref()) {
         (Some(c), Some(k)) => c
             .keep_key(k)
@@ -530,6 +559,9 @@ fn run_started(
         Some(Err(e)) => return refused(&e.to_string(), exit::USAGE, guardian, outputs),
     };
     let (requester, requests) = control.queue;
+    let watcher = control
+        .watch
+        .then(|| (control.reloader.clone(), requester.clone()));
     // Every service attaches to the run's events before its top level runs: the MQTT client
     // and systemd's notifier must see the first start, and all attach the same way.
     let asker = requester.clone();
@@ -615,6 +647,12 @@ fn run_started(
     };
     let field = rig.sim.clone();
     rig.runner.serve(requests, file, field);
+    rig.runner.set_rollback(control.rollback);
+    let _watching = watcher.and_then(|(reloader, ask)| {
+        Watcher::start(reloader, ask, source.to_string())
+            .map_err(|e| say(&format!("rigscript run: warning: cannot watch {file}: {e}")))
+            .ok()
+    });
     if let Some(addr) = ui {
         say(&format!(
             "rigscript run: ui: {}",

@@ -355,6 +355,16 @@ pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
     if let Some(config) = &hello.config {
         out.push(format!("  config: {config}"));
     }
+    if !s.script.hash.is_empty() {
+        let reloaded = match &s.script.reloaded {
+            Some(at) => format!(", reloaded {} time(s), last {at}", s.script.reloads),
+            None => ", never reloaded".into(),
+        };
+        out.push(format!(
+            "  script sha256: {}{reloaded}",
+            crate::content_hash::short(&s.script.hash)
+        ));
+    }
     let mut errors = format!(
         "  script errors: {}, restarts: {}",
         s.script.errors, s.script.restarts

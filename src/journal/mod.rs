@@ -19,6 +19,7 @@ pub mod write;
 pub use entry::{Entry, What};
 pub use read::read_journal;
 
+use crate::content_hash::content_hash;
 use serde::{Deserialize, Serialize};
 
 /// The first line of every journal this version writes.
@@ -76,7 +77,7 @@ impl Header {
         Ok(Self {
             script_file: script.into(),
             script: source.into(),
-            hash: hash(source),
+            hash: content_hash(source),
             config_file: config_file.map(|p| p.display().to_string()),
             config,
             simulated: rig
@@ -98,12 +99,6 @@ impl Header {
             ),
         })
     }
-}
-
-/// SHA-256 of `text` in hex.
-pub fn hash(text: &str) -> String {
-    let digest = ring::digest::digest(&ring::digest::SHA256, text.as_bytes());
-    digest.as_ref().iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// The zone of the machine, named so a replay elsewhere reads cron the same (`TZ`, else

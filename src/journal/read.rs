@@ -170,7 +170,7 @@ mod tests {
         let h = Header {
             script_file: "t.rhai".into(),
             script: "let io = device(\"io\");\n".into(),
-            hash: super::super::hash("x"),
+            hash: crate::content_hash::content_hash("x"),
             config_file: None,
             config: None,
             simulated: vec![],

@@ -292,7 +292,7 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         .script
         .clone()
         .unwrap_or_else(|| (h.script.clone(), h.script_file.clone()));
-    let same_script = super::hash(&source) == h.hash;
+    let same_script = crate::content_hash::content_hash(&source) == h.hash;
     let clock = VirtualClock::new(since);
     let sub: Arc<Mutex<Option<Subscription>>> = Arc::default();
     let slot = Arc::clone(&sub);

@@ -235,14 +235,6 @@ fn a_window_becomes_a_test_that_passes_on_the_script_and_fails_on_an_edit() {
 }
 
 #[test]
-fn the_hash_is_sha256() {
-    assert_eq!(
-        super::hash("abc"),
-        "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
-    );
-}
-
-#[test]
 fn an_edit_that_reads_what_the_run_never_read_is_told_what_was_assumed() {
     let d = dir();
     let path = d.path().join("j");

@@ -286,6 +286,28 @@ impl<H: Clone> Handlers<H> {
         self.schedule.clear();
     }
 
+    /// Takes every handler and timer out, leaving none, with ids going on (a reload keeps the
+    /// old script's aside until the new one has started).
+    pub fn take(&mut self) -> Self {
+        let schedule = self.schedule.take();
+        Self {
+            events: std::mem::take(&mut self.events),
+            stops: std::mem::take(&mut self.stops),
+            remote: std::mem::take(&mut self.remote),
+            timers: std::mem::take(&mut self.timers),
+            timer_of: std::mem::take(&mut self.timer_of),
+            every_periods: std::mem::take(&mut self.every_periods),
+            next_id: self.next_id,
+            schedule,
+        }
+    }
+
+    /// Puts back what `take` took (the new script failed to start), ids going on.
+    pub fn put_back(&mut self, mut old: Self) {
+        old.next_id = old.next_id.max(self.next_id);
+        *self = old;
+    }
+
     /// The period of the fastest `every` timer, if there is one.
     pub fn fastest_every(&self) -> Option<Duration> {
         self.every_periods.keys().next().copied()
@@ -380,6 +402,29 @@ mod tests {
 
     fn store() -> Handlers<&'static str> {
         Handlers::new(Zone::utc())
+    }
+
+    #[test]
+    fn taken_handlers_leave_none_ids_go_on_and_put_back_they_are_whole_again() {
+        let clock = VirtualClock::at_epoch();
+        let mut s = store();
+        s.set_max_timers(2);
+        s.every(Duration::from_secs(1), clock.now(), "a").unwrap();
+        s.add(Source::Stop, "d", "on_stop".into());
+        let old = s.take();
+        assert!(s.is_empty() && !s.has_work());
+        assert_eq!(s.next_timer(clock.now(), clock.wall()), None);
+        let e = s.after(Duration::from_secs(1), clock.now(), "e").unwrap();
+        assert_eq!(e, 3, "an id is never given twice");
+        s.every(Duration::from_secs(1), clock.now(), "f").unwrap();
+        assert!(
+            s.every(Duration::from_secs(1), clock.now(), "g").is_err(),
+            "the limit on timers stays"
+        );
+        s.put_back(old);
+        let labels: Vec<&str> = s.list().iter().map(|x| &*x.label).collect();
+        assert_eq!(labels, ["every 1s", "on_stop"]);
+        assert_eq!(s.signature().1, 5, "ids go on from the new ones");
     }
 
     #[test]

@@ -25,6 +25,17 @@ pub struct ProgramState<H> {
     /// allocating the lists.
     needs: Vec<Needs>,
     calls: Vec<Call<H>>,
+    /// The top level runs for a reload (`is_reload()`).
+    reloading: bool,
+    /// The `on_reload` handlers the top level of a reload added, in that order.
+    on_reload: Vec<Call<H>>,
+}
+
+/// What a script set up, set aside while a reload starts its successor.
+pub struct Setup<H> {
+    handlers: Handlers<H>,
+    invariants: Rc<Vec<InvariantCheck<H>>>,
+    invariants_read_inputs: bool,
 }
 
 impl<H: Clone> ProgramState<H> {
@@ -38,7 +49,50 @@ impl<H: Clone> ProgramState<H> {
             cause: "top level".into(),
             needs: Vec::new(),
             calls: Vec::new(),
+            reloading: false,
+            on_reload: Vec::new(),
         }
+    }
+
+    /// Takes what the script set up out (a reload), leaving nothing set up.
+    pub fn take_setup(&mut self) -> Setup<H> {
+        Setup {
+            handlers: self.handlers.take(),
+            invariants: std::mem::take(&mut self.invariants),
+            invariants_read_inputs: std::mem::replace(&mut self.invariants_read_inputs, true),
+        }
+    }
+
+    /// Drops what is set up now and puts `setup` back (the reload failed).
+    pub fn put_back(&mut self, setup: Setup<H>) {
+        self.forget();
+        self.handlers.put_back(setup.handlers);
+        self.invariants = setup.invariants;
+        self.invariants_read_inputs = setup.invariants_read_inputs;
+    }
+
+    /// Whether the top level runs for a reload.
+    pub fn reloading(&self) -> bool {
+        self.reloading
+    }
+
+    /// Says whether the top level about to run is a reload's.
+    pub fn set_reloading(&mut self, reloading: bool) {
+        self.reloading = reloading;
+    }
+
+    /// `on_reload(fn)`: run once after a reload's top level, its variables carried.
+    pub fn on_reload(&mut self, handler: H) {
+        self.on_reload.push(Call {
+            handler,
+            args: Vec::new(),
+            label: "on_reload".into(),
+        });
+    }
+
+    /// The `on_reload` handlers to run now, taken (each runs once).
+    pub fn take_reload_calls(&mut self) -> Vec<Call<H>> {
+        std::mem::take(&mut self.on_reload)
     }
 
     /// The script's handlers and timers.
@@ -147,6 +201,7 @@ impl<H: Clone> ProgramState<H> {
     pub fn forget(&mut self) {
         self.handlers.clear();
         self.invariants = Rc::default();
+        self.on_reload.clear();
     }
 
     /// Forgets everything the script set up, before it is started again.

@@ -50,6 +50,17 @@ pub enum Request {
     },
     /// What a remote consumer (the MQTT client) asks: a log line, a command, a message.
     Remote(super::remote::Remote),
+    /// Replaces the script at a tick boundary, outputs and devices kept (`runner::reload`):
+    /// `source` was read from `file` and passed `check` (and the reload tests) off the loop.
+    /// Answered once the swap is done or refused.
+    Reload {
+        /// The new script's text.
+        source: String,
+        /// Its file, as the log and the snapshot name it.
+        file: String,
+        /// Who asks.
+        by: String,
+    },
 }
 
 /// The most pulses one `pulse` action gives (a counter counts to 65535 and wraps).
@@ -172,6 +183,20 @@ struct Envelope {
     reply: SyncSender<Answer>,
 }
 
+/// A request the loop answers later (a reload waits for the next tick).
+pub struct Later {
+    /// What was asked.
+    pub request: Request,
+    reply: SyncSender<Answer>,
+}
+
+impl Later {
+    /// Answers it (an asker that gave up is no concern of the loop's).
+    pub fn answer(self, answer: Answer) {
+        let _ = self.reply.try_send(answer);
+    }
+}
+
 /// What asks: cheap to clone, `Send`, one per service.
 #[derive(Clone)]
 pub struct Requester {
@@ -267,12 +292,23 @@ impl Requests {
         self.remote.get().map(Box::as_ref)
     }
 
-    /// Answers the requests waiting (at most `PER_TURN`), each with `answer`.
-    pub fn drain(&self, mut answer: impl FnMut(&Request) -> Answer) {
+    /// Answers the requests waiting (at most `PER_TURN`), each with `answer`; those it gives
+    /// no answer to yet (`None`) are returned, to be answered later (`Later::answer`).
+    pub fn drain(&self, mut answer: impl FnMut(&Request) -> Option<Answer>) -> Vec<Later> {
+        let mut later = Vec::new();
         for envelope in self.queue.try_iter().take(PER_TURN) {
-            // An asker that gave up is no concern of the loop's.
-            let _ = envelope.reply.try_send(answer(&envelope.request));
+            match answer(&envelope.request) {
+                // An asker that gave up is no concern of the loop's.
+                Some(a) => {
+                    let _ = envelope.reply.try_send(a);
+                }
+                None => later.push(Later {
+                    request: envelope.request,
+                    reply: envelope.reply,
+                }),
+            }
         }
+        later
     }
 
     /// Who asked for the stop under way, if it was asked for rather than signalled.
@@ -296,11 +332,39 @@ mod tests {
         let (ask, requests) = queue(&stop);
         let loop_side = std::thread::spawn(move || {
             while !requests.bell().wait(Duration::from_secs(10)) {}
-            requests.drain(|_| Answer::Refused("not today".into()));
+            requests.drain(|_| Some(Answer::Refused("not today".into())));
         });
         let answer = ask.ask(Request::Snapshot, Duration::from_secs(10));
         assert_eq!(answer, Ok(Answer::Refused("not today".into())));
         loop_side.join().unwrap();
+    }
+
+    #[test]
+    fn a_request_left_for_later_is_answered_when_the_loop_gets_to_it() {
+        let stop = Arc::new(AtomicUsize::new(0));
+        let (ask, requests) = queue(&stop);
+        let asking = std::thread::spawn(move || {
+            let reload = Request::Reload {
+                source: "x".into(),
+                file: "a.rhai".into(),
+                by: "me".into(),
+            };
+            ask.ask(reload, Duration::from_secs(10))
+        });
+        let mut later = Vec::new();
+        while later.is_empty() {
+            requests.bell().wait(Duration::from_secs(10));
+            later = requests.drain(|r| match r {
+                Request::Reload { .. } => None,
+                _ => Some(Answer::Accepted),
+            });
+        }
+        assert!(matches!(later[0].request, Request::Reload { .. }));
+        later.remove(0).answer(Answer::Refused("not now".into()));
+        assert_eq!(
+            asking.join().unwrap(),
+            Ok(Answer::Refused("not now".into()))
+        );
     }
 
     #[test]
@@ -318,7 +382,7 @@ mod tests {
             ask.ask(Request::Snapshot, Duration::from_secs(10)),
             Err(AskError::Busy)
         );
-        requests.drain(|_| Answer::Accepted);
+        requests.drain(|_| Some(Answer::Accepted));
         let waiting = {
             let ask = ask.clone();
             std::thread::spawn(move || ask.ask(Request::Snapshot, Duration::from_secs(10)))

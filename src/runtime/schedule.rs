@@ -238,6 +238,16 @@ impl<Tz: TimeZone> Schedule<Tz> {
         self.max_timers = max;
     }
 
+    /// Takes every timer out, leaving an empty schedule with the same zone, limit and ids
+    /// going on (a reload: the old script's timers kept aside, ids never given twice).
+    pub fn take(&mut self) -> Self {
+        let mut fresh = Self::with_time_zone(self.tz.clone());
+        fresh.max_timers = self.max_timers;
+        fresh.next_id = self.next_id;
+        fresh.missed_total = self.missed_total;
+        std::mem::replace(self, fresh)
+    }
+
     #[cfg(test)]
     /// The most timers that may be armed at once.
     pub fn max_timers(&self) -> usize {

@@ -209,6 +209,20 @@ impl<H: Clone> ScriptContext<H> {
         self.0.borrow_mut().on_stop(handler)
     }
 
+    /// Whether the top level runs for a reload (`is_reload()`).
+    pub fn is_reload(&self) -> bool {
+        self.0.borrow().program.reloading()
+    }
+
+    /// `on_reload(fn)`: runs once after this reload's top level, the variables carried; at a
+    /// first start it is never called.
+    pub fn on_reload(&self, handler: H) {
+        let mut rt = self.0.borrow_mut();
+        if rt.program.reloading() {
+            rt.program.on_reload(handler);
+        }
+    }
+
     /// States an invariant (checked from the next tick on), stated at `at`.
     pub fn add_invariant(
         &self,

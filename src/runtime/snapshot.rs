@@ -139,6 +139,15 @@ pub struct ScriptState {
     pub last_error: Option<String>,
     /// Times the script was started again (policy restart).
     pub restarts: u64,
+    /// The running script's content hash (SHA-256, hex; `script::content_hash`).
+    #[serde(default)]
+    pub hash: String,
+    /// Times the script was reloaded.
+    #[serde(default)]
+    pub reloads: u64,
+    /// When it was last reloaded (RFC 3339, the run's zone), if it was.
+    #[serde(default)]
+    pub reloaded: Option<String>,
 }
 
 /// The scan loop's figures so far.

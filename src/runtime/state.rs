@@ -192,6 +192,29 @@ impl<H: Clone> Runtime<H> {
         self.program.stop_requested()
     }
 
+    /// What the script wants of each device's outputs: a C29U's byte, a TRC1000's relay (a
+    /// reload that fails puts it back).
+    pub fn wanted_outputs(&self) -> Vec<u8> {
+        self.devices
+            .iter()
+            .map(|d| match d {
+                super::devices::Device::Trc(t) => t.wanted_relay(),
+                super::devices::Device::C29u(c) => c.wanted_outputs(),
+            })
+            .collect()
+    }
+
+    /// Wants `wanted` again (from `wanted_outputs`).
+    pub fn want_outputs(&mut self, wanted: &[u8]) {
+        for (idx, value) in wanted.iter().enumerate() {
+            match self.devices.get(idx) {
+                Some(super::devices::Device::Trc(_)) => self.set_relay(idx, *value),
+                Some(super::devices::Device::C29u(_)) => self.set_outputs(idx, *value),
+                None => {}
+            }
+        }
+    }
+
     /// Forgets every handler and timer and the script's outputs (back to the safe values),
     /// before the script is started again.
     pub fn reset_program(&mut self) {

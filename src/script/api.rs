@@ -56,6 +56,7 @@ pub(super) const HANDLERS: &[(&str, usize, &[&str])] = &[
     ("cron", 1, &["missed"]),
     ("after", 1, &[]),
     ("on_stop", 0, &[]),
+    ("on_reload", 0, &[]),
     ("invariant", 1, &[]),
     ("on_command", 1, &["payload"]),
     ("on_message", 1, &["topic", "payload"]),
@@ -266,8 +267,14 @@ fn c29u_op<T>(
 
 /// Registers the whole script API on `engine` over `rt` (with `resolve_variables` for a run),
 /// noting what the script reads from its devices in `reads` (when that tracks) and placing
-/// invariants in `file`.
-pub fn register(engine: &mut Engine, rt: &Rt, arities: &Arities, reads: &ReadTracker, file: &str) {
+/// invariants in `file` (shared: a reload names another file).
+pub fn register(
+    engine: &mut Engine,
+    rt: &Rt,
+    arities: &Arities,
+    reads: &ReadTracker,
+    file: &Rc<std::cell::RefCell<String>>,
+) {
     register_device(engine, rt, reads);
     register_panel(engine, arities);
     register_io(engine, arities);
@@ -686,6 +693,14 @@ fn register_flow(engine: &mut Engine, rt: &Rt, arities: &Arities) {
         let id = r.on_stop(Rc::new(f));
         id.map(id_value).or_else(|e| fail(e.to_string()))
     });
+    let (r, a) = (rt.clone(), arities.clone());
+    engine.register_fn("on_reload", move |f: FnPtr| -> R<()> {
+        a.check(&f, "on_reload")?;
+        r.on_reload(Rc::new(f));
+        Ok(())
+    });
+    let r = rt.clone();
+    engine.register_fn("is_reload", move || r.is_reload());
     register_remote(engine, rt, arities);
     let r = rt.clone();
     engine.register_fn("stop", move || -> R<()> { stop(&r, 0) });
@@ -779,13 +794,18 @@ fn register_remote(engine: &mut Engine, rt: &Rt, arities: &Arities) {
 }
 
 /// `invariant(name, || bool)`: states what must hold after every tick's handlers.
-fn register_invariant(engine: &mut Engine, rt: &Rt, arities: &Arities, file: &str) {
-    let (r, a, file) = (rt.clone(), arities.clone(), file.to_string());
+fn register_invariant(
+    engine: &mut Engine,
+    rt: &Rt,
+    arities: &Arities,
+    file: &Rc<std::cell::RefCell<String>>,
+) {
+    let (r, a, file) = (rt.clone(), arities.clone(), Rc::clone(file));
     engine.register_fn(
         "invariant",
         move |ctx: NativeCallContext, name: &str, f: FnPtr| -> R<()> {
             a.check(&f, "invariant")?;
-            let at = super::error::location(&file, ctx.call_position());
+            let at = super::error::location(&file.borrow(), ctx.call_position());
             let added = r.add_invariant(name, Rc::new(f), at);
             added.or_else(|e| fail(e.to_string()))
         },

@@ -141,7 +141,7 @@ impl Registry {
             &ScriptContext::new(&Rc::new(RefCell::new(runtime))),
             &Arities::default(),
             &ReadTracker::default(),
-            "",
+            &Rc::default(),
         );
         Self::of(&engine)
     }

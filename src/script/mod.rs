@@ -14,6 +14,8 @@ pub mod lint;
 pub mod point_names;
 pub mod program;
 pub mod reads;
+#[cfg(test)]
+mod reload_tests;
 pub mod rig;
 pub mod scenario;
 pub mod stack;

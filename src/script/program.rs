@@ -26,6 +26,14 @@ pub struct ScriptProgram {
     coverage: Option<Coverage>,
     /// `check`'s words for calls with no function, made at the first such error.
     not_found: std::cell::OnceCell<NotFound>,
+    /// The top level's variables as it left them (a reload carries their values over).
+    top: Scope<'static>,
+    /// The file's name as the bindings place invariants in it (changed by a swap).
+    placed: Rc<std::cell::RefCell<String>>,
+    /// A script compiled to replace this one at the next swap, with its file's name.
+    staged: Option<(AST, String)>,
+    /// The script before the last swap, its variables and file, until the swap is settled.
+    previous: Option<(AST, Scope<'static>, String)>,
 }
 
 /// What the script did, when asked to keep count (`verify`): how often each handler ran, what
@@ -48,7 +56,8 @@ impl ScriptProgram {
         let guard = Guard::install(&mut engine, limits, rt.clock(), rt.transaction_counter());
         let arities = Arities::default();
         let reads = ReadTracker::default();
-        register(&mut engine, rt, &arities, &reads, file);
+        let placed = Rc::new(std::cell::RefCell::new(file.to_string()));
+        register(&mut engine, rt, &arities, &reads, &placed);
         resolve_variables(&mut engine, rt, &guard, &reads);
         arities.learn(&ast);
         Self {
@@ -60,7 +69,47 @@ impl ScriptProgram {
             reads,
             coverage: None,
             not_found: std::cell::OnceCell::new(),
+            top: Scope::new(),
+            placed,
+            staged: None,
+            previous: None,
         }
+    }
+
+    /// Gives the top level's variables present in the script before the swap, with a value
+    /// of the same type, their old values, written through the shared value a closure may
+    /// hold (so the closures see them too). Constants are the new script's; function
+    /// pointers (closures) name functions of the old script and are not carried. Returns
+    /// the names carried.
+    fn carry(&mut self) -> Vec<String> {
+        let Some((_, old, _)) = &self.previous else {
+            return Vec::new();
+        };
+        let mut names: Vec<String> = self
+            .top
+            .iter_raw()
+            .filter(|(_, constant, _)| !constant)
+            .map(|(name, _, _)| name.to_string())
+            .collect();
+        names.sort();
+        names.dedup();
+        let mut carried = Vec::new();
+        for name in names {
+            let (Some(before), Some(now)) =
+                (old.get_value::<Dynamic>(&name), self.top.get_mut(&name))
+            else {
+                continue;
+            };
+            let now_type = now.flatten_clone().type_name();
+            if before.is::<FnPtr>() || before.type_name() != now_type {
+                continue;
+            }
+            if let Some(mut value) = now.write_lock::<Dynamic>() {
+                *value = before;
+                carried.push(name);
+            }
+        }
+        carried
     }
 
     /// Starts keeping count of what the script does (see `Coverage`).
@@ -214,9 +263,54 @@ impl Program for ScriptProgram {
 
     fn start(&mut self) -> Result<(), HandlerFault> {
         self.guard.begin_call();
-        let result = self.engine.run_ast_with_scope(&mut Scope::new(), &self.ast);
+        let mut top = Scope::new();
+        let result = self.engine.run_ast_with_scope(&mut top, &self.ast);
+        self.top = top;
         self.note_reads(None);
         self.outcome(result, || Position::NONE)
+    }
+
+    fn stage(&mut self, source: &str, file: &str) -> Result<(), String> {
+        let ast = self
+            .engine
+            .compile(source)
+            .map_err(|e| super::error::parse_error(file, source, &e))?;
+        self.staged = Some((ast, file.to_string()));
+        Ok(())
+    }
+
+    fn swap(&mut self) -> Result<Vec<String>, HandlerFault> {
+        let Some((ast, file)) = self.staged.take() else {
+            return Err(HandlerFault {
+                location: None,
+                cause: "no script staged to swap in".into(),
+                over_budget: false,
+            });
+        };
+        let old_ast = std::mem::replace(&mut self.ast, ast);
+        *self.placed.borrow_mut() = file.clone();
+        let old_file = std::mem::replace(&mut self.file, file);
+        let old_top = std::mem::take(&mut self.top);
+        self.previous = Some((old_ast, old_top, old_file));
+        self.arities.learn(&self.ast);
+        self.not_found = std::cell::OnceCell::new();
+        self.start()?;
+        Ok(self.carry())
+    }
+
+    fn swap_back(&mut self) {
+        if let Some((ast, top, file)) = self.previous.take() {
+            self.ast = ast;
+            self.top = top;
+            *self.placed.borrow_mut() = file.clone();
+            self.file = file;
+            self.arities.learn(&self.ast);
+            self.not_found = std::cell::OnceCell::new();
+        }
+    }
+
+    fn settle(&mut self) {
+        self.previous = None;
     }
 
     fn call(&mut self, call: &Call<Handler>) -> Result<(), HandlerFault> {

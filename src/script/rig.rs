@@ -207,6 +207,7 @@ impl RigBuilder {
             wake_latency: setup.config.wake_latency,
         };
         let mut runner = Runner::new(rt, program, options);
+        runner.name_script(source, file);
         runner.start();
         Ok(Rig {
             runner,

@@ -37,6 +37,14 @@ pub enum ClientRequest {
         /// `DEVICE.POINT`.
         point: String,
     },
+    /// Reload the script (`{"request":"reload"}`), or swap in another
+    /// (`{"request":"reload","script":"/abs/path.rhai"}`): read, checked and tested off the
+    /// loop, swapped at a tick boundary; answered done, or refused and why.
+    Reload {
+        /// The script to swap in, an absolute path (none: the run's own file again).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        script: Option<String>,
+    },
 }
 
 /// Who a run is: answered to `hello`, and what `rigscript list` shows.
@@ -107,7 +115,7 @@ pub fn parse_request(line: &str) -> Result<ClientRequest, String> {
     serde_json::from_str(line.trim()).map_err(|e| {
         format!(
             "not a request ({e}); send one JSON object a line: {{\"request\": \"hello\"}}, \
-             \"status\", \"stop\", \"subscribe\", \"drive\", \"force\" or \"unforce\""
+             \"status\", \"stop\", \"reload\", \"subscribe\", \"drive\", \"force\" or \"unforce\""
         )
     })
 }
@@ -166,6 +174,16 @@ mod tests {
             "{e}"
         );
         assert!(parse_request("\u{0}\u{1}garbage").is_err());
+        assert_eq!(
+            parse_request(r#"{"request":"reload"}"#),
+            Ok(ClientRequest::Reload { script: None })
+        );
+        assert_eq!(
+            parse_request(r#"{"request":"reload","script":"/r/b.rhai"}"#),
+            Ok(ClientRequest::Reload {
+                script: Some("/r/b.rhai".into())
+            })
+        );
     }
 
     #[test]

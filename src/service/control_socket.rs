@@ -1,5 +1,5 @@
 //! The run's control socket: a Unix socket in the rig directory (`rig_dir`) through which
-//! `rigscript status`, `list` and `stop` (and later the web page) see and drive a running rig.
+//! `rigscript status`, `list`, `stop` and `reload` (and later the web page) see and drive a running rig.
 //! It lives off the scan loop: an accept thread and one thread per client, each request
 //! answered through the control queue (`runtime::requests`) or from the event stream
 //! (`runtime::observe`), never by touching the runtime.
@@ -14,6 +14,7 @@
 
 use super::authority::{self, RunKey};
 use super::control_protocol::{parse_request, ClientRequest, Hello, Reply, MAX_REQUEST};
+use super::reload::Reloader;
 use super::rig_dir::{self, Knock};
 use super::serving::{self, Bounds, Closing, Place, Serving};
 use crate::runtime::observe::{Events, Next, DEFAULT_QUEUE};
@@ -93,6 +94,8 @@ pub struct Claim {
     hello: Hello,
     /// The run's key beside the socket, once kept.
     key: Option<PathBuf>,
+    /// How a reload is made ready, when this run can be reloaded.
+    reloader: Option<Reloader>,
 }
 
 /// Names a run may take when the one it was given is in use, besides that one: `NAME-2` to
@@ -185,6 +188,7 @@ fn claim_name(dir: &Path, hello: &Hello) -> Result<Claim, ClaimError> {
         inode: (meta.dev(), meta.ino()),
         hello: hello.clone(),
         key: None,
+        reloader: None,
     })
 }
 
@@ -208,12 +212,18 @@ impl Claim {
         Ok(path)
     }
 
+    /// Answers `reload` requests from now on, made ready by `reloader`.
+    pub fn reloads(&mut self, reloader: Reloader) {
+        self.reloader = Some(reloader);
+    }
+
     /// Serves the socket from now on: requests through `ask`, subscriptions from `events`.
     pub fn serve(self, ask: Requester, events: Events) -> Server {
         let shared = Arc::new(Shared {
             hello: self.hello.clone(),
             ask,
             events,
+            reloader: self.reloader.clone(),
         });
         let bounds = Bounds {
             clients: MAX_CLIENTS,
@@ -273,6 +283,7 @@ struct Shared {
     hello: Hello,
     ask: Requester,
     events: Events,
+    reloader: Option<Reloader>,
 }
 
 /// What a client's read gave.
@@ -408,6 +419,22 @@ fn answer(request: ClientRequest, shared: &Shared, client: &UnixStream) -> Reply
             let by = asker(client, "unforce");
             done(shared.ask.ask(Request::Unforce { point, by }, ANSWER_WAIT))
         }
+        ClientRequest::Reload { script } => {
+            let by = asker(client, "reload");
+            reload(shared, script.as_deref(), by)
+        }
+    }
+}
+
+/// A reload: made ready on this thread (read, `check`, the scenario tests), then swapped in
+/// by the loop at a tick boundary.
+fn reload(shared: &Shared, script: Option<&str>, by: String) -> Reply {
+    let Some(reloader) = &shared.reloader else {
+        return Reply::refused("this run cannot be reloaded");
+    };
+    match super::reload::reload(reloader, &shared.ask, script.map(Path::new), by) {
+        Ok(()) => Reply::done(),
+        Err(why) => Reply::refused(why),
     }
 }
 

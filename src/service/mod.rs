@@ -11,5 +11,6 @@ pub mod control_socket;
 pub mod http;
 pub mod mqtt;
 pub mod notify;
+pub mod reload;
 pub mod rig_dir;
 pub mod serving;

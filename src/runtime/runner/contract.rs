@@ -51,6 +51,26 @@ pub trait Program {
     fn answer(&mut self, call: &Call<Self::Handler>) -> Result<String, HandlerFault> {
         self.call(call).map(|()| "null".to_string())
     }
+    /// Compiles `source` (the file `file`) to replace the script at the next `swap` (a
+    /// reload); refused with why. A program that cannot be replaced refuses every one.
+    fn stage(&mut self, source: &str, file: &str) -> Result<(), String> {
+        let _ = (source, file);
+        Err("this run's program cannot be reloaded".into())
+    }
+    /// Runs the staged script's top level in place of the running one (whose handlers the
+    /// runtime has set aside) and gives its top-level variables the old values where they
+    /// match: the names carried.
+    fn swap(&mut self) -> Result<Vec<String>, HandlerFault> {
+        Err(HandlerFault {
+            location: None,
+            cause: "this run's program cannot be reloaded".into(),
+            over_budget: false,
+        })
+    }
+    /// Puts the script before the last `swap` back, its variables as they were.
+    fn swap_back(&mut self) {}
+    /// Forgets the script before the last `swap`: the swap stands.
+    fn settle(&mut self) {}
     /// Evaluates an invariant: whether it holds.
     fn holds(&mut self, check: &InvariantCheck<Self::Handler>) -> Result<bool, HandlerFault>;
     /// Runs an `on_stop` handler, stopped also once `limit` runs out or another signal

@@ -12,6 +12,7 @@
 mod contract;
 mod end;
 mod force;
+mod reload;
 mod remote;
 mod restart;
 mod serve;
@@ -73,6 +74,12 @@ pub struct Runner<P: Program> {
     served: Option<serve::Served>,
     /// Times the script was started again.
     restarts: u64,
+    /// Which script runs, and its reloads.
+    identity: reload::ScriptIdentity,
+    /// `--rollback`: how long a reload may still be undone.
+    rollback: Option<Duration>,
+    /// The way back from the last reload, within its rollback window.
+    undo: Option<reload::Undo<P::Handler>>,
 }
 
 impl<P: Program> Runner<P> {
@@ -103,6 +110,9 @@ impl<P: Program> Runner<P> {
             events,
             served: None,
             restarts: 0,
+            identity: reload::ScriptIdentity::default(),
+            rollback: None,
+            undo: None,
         }
     }
 

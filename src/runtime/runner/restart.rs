@@ -21,6 +21,11 @@ impl<P: Program> Runner<P> {
     pub(super) fn handle_fault(&mut self, fault: &HandlerFault, label: &str) -> bool {
         let message = describe(fault, label);
         self.note_fault(&message, fault.over_budget);
+        // Within a reload's rollback window, the old script takes over again; this tick's
+        // other calls were the failed script's.
+        if self.roll_back(&message) {
+            return false;
+        }
         let policy = match (self.options.policy, fault.over_budget) {
             // A runaway handler is never skipped: it would run away again.
             (ErrorPolicy::Skip, true) => ErrorPolicy::Stop,

@@ -7,7 +7,7 @@ use super::remote::Waiting;
 use super::{Runner, State};
 use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
-use crate::runtime::requests::{Answer, Request, Requests};
+use crate::runtime::requests::{Answer, Later, Request, Requests};
 use crate::runtime::snapshot::{
     DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
 };
@@ -24,6 +24,8 @@ pub(super) struct Served {
     pub(super) made: Option<((u64, u64), Arc<RigSnapshot>)>,
     /// The commands and messages waiting for a tick to run their handlers.
     pub(super) waiting: Waiting,
+    /// The reloads waiting for the next tick boundary, answered once done or refused.
+    pub(super) reloads: Vec<Later>,
 }
 
 impl<P: Program> Runner<P> {
@@ -36,6 +38,7 @@ impl<P: Program> Runner<P> {
             field,
             made: None,
             waiting: Waiting::default(),
+            reloads: Vec::new(),
         });
     }
 
@@ -71,6 +74,9 @@ impl<P: Program> Runner<P> {
                 errors: self.errors.total(),
                 last_error: self.errors.last().map(|e| e.message.clone()),
                 restarts: self.restarts,
+                hash: self.identity.hash.clone(),
+                reloads: self.identity.reloads,
+                reloaded: self.identity.reloaded.clone(),
             },
             devices: rt
                 .devices
@@ -110,7 +116,7 @@ impl<P: Program> Runner<P> {
         // Remote requests may run script handlers, which need the loop itself: after the drain.
         let mut remote = Vec::new();
         let mut forced = false;
-        served.requests.drain(|request| match request {
+        let later = served.requests.drain(|request| match request {
             Request::Snapshot => {
                 let (_, snapshot) = made.get_or_insert_with(|| {
                     // Between ticks only the devices' upkeep (feeds, retries) changes what is
@@ -125,21 +131,23 @@ impl<P: Program> Runner<P> {
                         _ => (at, Arc::new(self.snapshot())),
                     }
                 });
-                Answer::Snapshot(Arc::clone(snapshot))
+                Some(Answer::Snapshot(Arc::clone(snapshot)))
             }
-            Request::Drive(drive) => match drive.apply(&served.field) {
+            Request::Drive(drive) => Some(match drive.apply(&served.field) {
                 Ok(()) => Answer::Accepted,
                 Err(why) => Answer::Refused(why),
-            },
+            }),
             Request::Force { .. } | Request::Unforce { .. } => {
                 made = None;
                 forced = true;
-                answer_force(&self.rt, &self.state, request)
+                Some(answer_force(&self.rt, &self.state, request))
             }
             Request::Remote(r) => {
                 remote.push(r.clone());
-                Answer::Accepted
+                Some(Answer::Accepted)
             }
+            // At the next tick boundary, answered then.
+            Request::Reload { .. } => None,
         });
         if let (Some(made), Some(served)) = (made, &mut self.served) {
             served.made = Some(made);
@@ -148,8 +156,15 @@ impl<P: Program> Runner<P> {
             self.take_remote(r);
         }
         self.forces_changed(forced);
+        if let Some(served) = self.served.as_mut() {
+            served.reloads.extend(later);
+        }
         // What waits runs at the next period boundary, even when the loop was idle until later.
-        if self.served.as_ref().is_some_and(|s| !s.waiting.is_empty()) {
+        if self
+            .served
+            .as_ref()
+            .is_some_and(|s| !s.waiting.is_empty() || !s.reloads.is_empty())
+        {
             self.tick_soon();
         }
     }

@@ -47,9 +47,12 @@ impl<P: Program> Runner<P> {
         if self.ended_by_signal() {
             return;
         }
+        // A reload swaps at this tick boundary (refused unless the script runs); the new
+        // script's handlers run at once.
+        self.reload_waiting();
         match self.state {
             State::Restarting { at } if start >= at => self.restart(),
-            State::Running => self.run_handlers(),
+            State::Running if self.status().is_none() => self.run_handlers(),
             _ => {}
         }
         // A command or a watched message waiting from outside runs after the tick's own
@@ -209,8 +212,13 @@ impl<P: Program> Runner<P> {
                             devices: rt.readings(),
                         }
                     };
-                    self.rt.borrow_mut().report_violation(&violation);
                     let message = violation.to_string();
+                    // Within a reload's rollback window: the old script, its invariants
+                    // checked instead, and the outputs it wanted.
+                    if self.roll_back(&message) {
+                        return self.check_invariants();
+                    }
+                    self.rt.borrow_mut().report_violation(&violation);
                     self.violation = Some(violation);
                     self.finish(EndReason::Violated(message));
                     return false;
@@ -218,6 +226,9 @@ impl<P: Program> Runner<P> {
                 Err(f) => {
                     let message = describe(&f, &check.call.label);
                     self.note_fault(&message, f.over_budget);
+                    if self.roll_back(&message) {
+                        return self.check_invariants();
+                    }
                     self.finish(EndReason::Error(message));
                     return false;
                 }
