@@ -155,14 +155,8 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
         return super::verify_exhaustive::run(&args, config, source);
     }
     let seed = args.seed.unwrap_or_else(|| fastrand::u64(..));
-    let jobs = args.jobs.map_or_else(
-        || std::thread::available_parallelism().map_or(1, usize::from),
-        |j| usize::try_from(j).unwrap_or(1),
-    );
-    let interrupt = Arc::new(AtomicUsize::new(0));
-    if let Err(e) = watch_signals(&interrupt) {
-        eprintln!("rigscript verify: cannot watch for Ctrl-C: {e}");
-    }
+    let jobs = jobs(&args);
+    let interrupt = interrupt_flag();
     let opts = Options {
         runs: args.runs,
         seed,
@@ -173,16 +167,7 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
     };
     let facts = Facts::read(&source);
     let horizon = Horizon::of(&facts, args.run_for);
-    let target = Target {
-        source,
-        file: file.clone(),
-        script: args.script.clone(),
-        config_file: args.config.clone(),
-        budget: args.budget.unwrap_or(config.limits.operations),
-        config,
-        run_for: horizon.run_for,
-        compared: facts.compared,
-    };
+    let target = target(&args, config, source, facts, horizon.run_for);
     if !args.json {
         say(&format!(
             "verify {file}: seed {seed}, up to {} runs of {} at {} per tick, faults {}, {jobs} \
@@ -196,41 +181,22 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
             say(&line);
         }
     }
-    let show_progress = !args.json && std::io::stderr().is_terminal();
     let total = args.runs;
-    let summary = match search(&target, &opts, |done| {
-        if show_progress {
-            eprint!("\r{done}/{total} runs");
-        }
-    }) {
-        Ok(s) => s,
-        Err(e) => {
-            if show_progress {
-                eprintln!();
-            }
-            eprintln!("rigscript verify: {file} cannot run on the simulated rig: {e}");
-            return 2;
-        }
+    let searched = with_progress(&args, &file, |show| {
+        search(&target, &opts, |done| show(format!("{done}/{total} runs")))
+    });
+    let Ok(summary) = searched else {
+        return 2;
     };
-    if show_progress {
-        eprintln!();
-    }
-    let mut test = None;
-    let mut defect = None;
-    if let Some(c) = &summary.counterexample {
-        match report::write_test(&args.out, &target, &summary, c, &command(&args, seed)) {
-            // The file as written, through the same code as `rigscript test`: only a test that
-            // fails naming the same check is offered as the reproduction.
-            Ok(p) => match reproduce::check_file(&p, &c.finding.check) {
-                Ok(()) => test = Some(p),
-                Err(why) => defect = Some(report::defect(&p, c, &why)),
-            },
-            Err(e) => eprintln!(
-                "rigscript verify: cannot write the counterexample's test under {}: {e}",
-                args.out.display()
-            ),
-        }
-    }
+    let (test, defect) = match &summary.counterexample {
+        Some(c) => written_and_reproduced(
+            &args,
+            || report::write_test(&args.out, &target, &summary, c, &command(&args, seed)),
+            &c.finding.check,
+            |p, why| report::defect(p, c, why),
+        ),
+        None => (None, None),
+    };
     if args.json {
         let doc = report::to_json(
             &summary,
@@ -252,15 +218,115 @@ fn verify_configured(args: VerifyArgs, config: RigConfig) -> i32 {
             ));
         }
     }
-    if let Some(d) = &defect {
+    exit_status(
+        defect.as_deref(),
+        summary.counterexample.is_some(),
+        &interrupt,
+        summary.interrupted,
+    )
+}
+
+/// Worker threads: `--jobs`, or one a core.
+pub(super) fn jobs(args: &VerifyArgs) -> usize {
+    args.jobs.map_or_else(
+        || std::thread::available_parallelism().map_or(1, usize::from),
+        |j| usize::try_from(j).unwrap_or(1),
+    )
+}
+
+/// The flag Ctrl-C and SIGTERM set (the signal's number), watched from now on.
+pub(super) fn interrupt_flag() -> Arc<AtomicUsize> {
+    let interrupt = Arc::new(AtomicUsize::new(0));
+    if let Err(e) = watch_signals(&interrupt) {
+        eprintln!("rigscript verify: cannot watch for Ctrl-C: {e}");
+    }
+    interrupt
+}
+
+/// The script and its rig as the runs play them, for `run_for` each.
+pub(super) fn target(
+    args: &VerifyArgs,
+    config: RigConfig,
+    source: String,
+    facts: Facts,
+    run_for: Duration,
+) -> Target {
+    Target {
+        source,
+        file: args.script.display().to_string(),
+        script: args.script.clone(),
+        config_file: args.config.clone(),
+        budget: args.budget.unwrap_or(config.limits.operations),
+        config,
+        run_for,
+        compared: facts.compared,
+    }
+}
+
+/// Runs `work`, which may show progress on a terminal's stderr (one line, rewritten); a
+/// failure to play on the simulated rig is said, and is the caller's exit 2.
+pub(super) fn with_progress<T, E: std::fmt::Display>(
+    args: &VerifyArgs,
+    file: &str,
+    work: impl FnOnce(&dyn Fn(String)) -> Result<T, E>,
+) -> Result<T, ()> {
+    let show_progress = !args.json && std::io::stderr().is_terminal();
+    let show = |line: String| {
+        if show_progress {
+            eprint!("\r{line}");
+        }
+    };
+    let result = work(&show);
+    if show_progress {
+        eprintln!();
+    }
+    result.map_err(|e| eprintln!("rigscript verify: {file} cannot run on the simulated rig: {e}"))
+}
+
+/// Writes the counterexample's test (`write`) and runs it through the same code as
+/// `rigscript test`: only a test that fails naming `check` is offered as the reproduction;
+/// one that does not is a defect of verify's (`defect` says it). The test, or the defect.
+pub(super) fn written_and_reproduced<E: std::fmt::Display>(
+    args: &VerifyArgs,
+    write: impl FnOnce() -> Result<PathBuf, E>,
+    check: &crate::verify::checks::Property,
+    defect: impl FnOnce(&std::path::Path, &reproduce::NotReproduced) -> String,
+) -> (Option<PathBuf>, Option<String>) {
+    match write() {
+        Ok(p) => match reproduce::check_file(&p, check) {
+            Ok(()) => (Some(p), None),
+            Err(why) => {
+                let d = defect(&p, &why);
+                (None, Some(d))
+            }
+        },
+        Err(e) => {
+            eprintln!(
+                "rigscript verify: cannot write the counterexample's test under {}: {e}",
+                args.out.display()
+            );
+            (None, None)
+        }
+    }
+}
+
+/// The exit status: 70 for a defect of verify's, 1 for a finding, 128 + the signal for an
+/// interrupted search that found nothing, else 0.
+pub(super) fn exit_status(
+    defect: Option<&str>,
+    found: bool,
+    interrupt: &AtomicUsize,
+    interrupted: bool,
+) -> i32 {
+    if let Some(d) = defect {
         eprintln!("rigscript verify: {d}");
         return crate::runtime::exit::INTERNAL;
     }
-    if summary.counterexample.is_some() {
+    if found {
         return 1;
     }
     match i32::try_from(interrupt.load(Ordering::Relaxed)) {
-        Ok(signal) if signal > 0 && summary.interrupted => crate::runtime::exit::signal(signal),
+        Ok(signal) if signal > 0 && interrupted => crate::runtime::exit::signal(signal),
         _ => 0,
     }
 }

@@ -3,16 +3,16 @@
 //! events (N states)" with what the abstraction leaves out, or the shortest counterexample,
 //! written as a scenario test that `rigscript test` fails with. Exit status as `verify`'s.
 
-use super::verify::{say, watch_signals, VerifyArgs};
+use super::verify::{
+    exit_status, interrupt_flag, jobs, say, target, with_progress, written_and_reproduced,
+    VerifyArgs,
+};
 use crate::config::RigConfig;
 use crate::time::duration::format_duration;
-use crate::verify::exec::Target;
 use crate::verify::exhaustive::{explore, Options, DEFAULT_DEPTH};
 use crate::verify::facts::Facts;
 use crate::verify::horizon::Horizon;
-use crate::verify::{proof_report, reproduce};
-use std::io::IsTerminal;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use crate::verify::proof_report;
 use std::sync::Arc;
 
 /// The command that repeats this exploration, for the test file's header.
@@ -37,25 +37,11 @@ pub fn run(args: &VerifyArgs, config: RigConfig, source: String) -> i32 {
         .depth
         .and_then(|d| usize::try_from(d).ok())
         .unwrap_or(DEFAULT_DEPTH);
-    let jobs = args.jobs.map_or_else(
-        || std::thread::available_parallelism().map_or(1, usize::from),
-        |j| usize::try_from(j).unwrap_or(1),
-    );
-    let interrupt = Arc::new(AtomicUsize::new(0));
-    if let Err(e) = watch_signals(&interrupt) {
-        eprintln!("rigscript verify: cannot watch for Ctrl-C: {e}");
-    }
+    let jobs = jobs(args);
+    let interrupt = interrupt_flag();
     let facts = Facts::read(&source);
-    let target = Target {
-        source,
-        file: file.clone(),
-        script: args.script.clone(),
-        config_file: args.config.clone(),
-        budget: args.budget.unwrap_or(config.limits.operations),
-        config,
-        run_for: Horizon::of(&facts, None).run_for,
-        compared: facts.compared,
-    };
+    let run_for = Horizon::of(&facts, None).run_for;
+    let target = target(args, config, source, facts, run_for);
     let opts = Options {
         depth,
         jobs,
@@ -70,43 +56,29 @@ pub fn run(args: &VerifyArgs, config: RigConfig, source: String) -> i32 {
             if args.no_faults { "off" } else { "on" }
         ));
     }
-    let show_progress = !args.json && std::io::stderr().is_terminal();
-    let summary = match explore(&target, &opts, |d, states| {
-        if show_progress {
-            eprint!("\rdepth {d} done: {states} states");
-        }
-    }) {
-        Ok(s) => s,
-        Err(e) => {
-            if show_progress {
-                eprintln!();
-            }
-            eprintln!("rigscript verify: {file} cannot run on the simulated rig: {e}");
-            return 2;
-        }
+    let explored = with_progress(args, &file, |show| {
+        explore(&target, &opts, |d, states| {
+            show(format!("depth {d} done: {states} states"));
+        })
+    });
+    let Ok(summary) = explored else {
+        return 2;
     };
-    if show_progress {
-        eprintln!();
-    }
-    let (mut test, mut defect) = (None, None);
-    if let Some(f) = &summary.found {
-        match proof_report::write_test(&args.out, &target, &summary, f, &command(args, depth)) {
-            Ok(p) => match reproduce::check_file(&p, &f.finding.check) {
-                Ok(()) => test = Some(p),
-                Err(why) => {
-                    defect = Some(format!(
-                        "defect of verify, not of the script: the test written to {} does not \
-                         reproduce the counterexample ({why})",
-                        p.display()
-                    ));
-                }
+    let (test, defect) = match &summary.found {
+        Some(f) => written_and_reproduced(
+            args,
+            || proof_report::write_test(&args.out, &target, &summary, f, &command(args, depth)),
+            &f.finding.check,
+            |p, why| {
+                format!(
+                    "defect of verify, not of the script: the test written to {} does not \
+                     reproduce the counterexample ({why})",
+                    p.display()
+                )
             },
-            Err(e) => eprintln!(
-                "rigscript verify: cannot write the counterexample's test under {}: {e}",
-                args.out.display()
-            ),
-        }
-    }
+        ),
+        None => (None, None),
+    };
     if args.json {
         let doc = proof_report::to_json(&summary, opts.faults, test.as_deref(), defect.as_deref());
         say(&doc.to_string());
@@ -115,15 +87,10 @@ pub fn run(args: &VerifyArgs, config: RigConfig, source: String) -> i32 {
             say(&line);
         }
     }
-    if let Some(d) = &defect {
-        eprintln!("rigscript verify: {d}");
-        return crate::runtime::exit::INTERNAL;
-    }
-    if summary.found.is_some() {
-        return 1;
-    }
-    match i32::try_from(interrupt.load(Ordering::Relaxed)) {
-        Ok(signal) if signal > 0 && summary.interrupted => crate::runtime::exit::signal(signal),
-        _ => 0,
-    }
+    exit_status(
+        defect.as_deref(),
+        summary.found.is_some(),
+        &interrupt,
+        summary.interrupted,
+    )
 }
