@@ -9,93 +9,23 @@
 
 use crate::common;
 
-use crate::common::{rigscript, stderr, stdout, until, SimProcess, TempDir};
+use crate::common::rigs::Rigs;
+use crate::common::{rigscript, stderr, stdout, until, SimProcess};
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command};
 use std::time::Duration;
 
-/// A rig directory of the test's own, so runs of other tests are not seen.
-struct Rigs {
-    dir: TempDir,
-}
-
-impl Rigs {
-    fn new(tag: &str) -> Self {
-        Self {
-            dir: TempDir::new(tag),
-        }
-    }
-
-    fn command(&self, args: &[&str]) -> Command {
-        let mut c = Command::new(rigscript());
-        c.args(args).env("XDG_RUNTIME_DIR", self.dir.root());
-        c.env_remove("RUNTIME_DIRECTORY");
-        c
-    }
-
-    fn run(&self, args: &[&str]) -> Run {
-        Run(self
-            .command(&[&["run"], args].concat())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap())
-    }
-
-    fn output(&self, args: &[&str]) -> Output {
-        self.command(args).output().unwrap()
-    }
-
-    fn socket(&self, rig: &str) -> std::path::PathBuf {
-        self.dir.path("rigscript").join(format!("{rig}.sock"))
-    }
-
-    /// `status RIG --json`, once it answers (the run may still be starting).
-    fn status(&self, rig: &str) -> Value {
-        let out = until(Duration::from_secs(10), || {
-            let out = self.output(&["status", rig, "--json"]);
-            out.status.success().then_some(out)
-        })
-        .unwrap_or_else(|| panic!("rig {rig} never answered status"));
-        serde_json::from_slice(&out.stdout).unwrap()
-    }
-
-    fn list(&self) -> Vec<Value> {
-        let out = self.output(&["list", "--json"]);
-        assert!(out.status.success(), "{out:?}");
-        serde_json::from_slice::<Value>(&out.stdout)
-            .unwrap()
-            .as_array()
-            .unwrap()
-            .clone()
-    }
-}
-
-/// A run the test started, killed if the test fails before it ends.
-struct Run(Child);
-
-impl std::ops::Deref for Run {
-    type Target = Child;
-    fn deref(&self) -> &Child {
-        &self.0
-    }
-}
-
-impl std::ops::DerefMut for Run {
-    fn deref_mut(&mut self) -> &mut Child {
-        &mut self.0
-    }
-}
-
-impl Drop for Run {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
+/// `list --json`: the rigs the runtime directory holds.
+fn list(rigs: &Rigs) -> Vec<Value> {
+    let out = rigs.output(&["list", "--json"]);
+    assert!(out.status.success(), "{out:?}");
+    serde_json::from_slice::<Value>(&out.stdout)
+        .unwrap()
+        .as_array()
+        .unwrap()
+        .clone()
 }
 
 fn wait_exit(child: &mut Child) -> i32 {
@@ -188,7 +118,7 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     let mut alpha = rigs.run(&["--sim", &a]);
     let mut beta = rigs.run(&["--sim", &b]);
     let both = until(Duration::from_secs(10), || {
-        let l = rigs.list();
+        let l = list(&rigs);
         (l.len() == 2).then_some(l)
     })
     .expect("both rigs listed");
@@ -227,7 +157,7 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     alpha.kill().unwrap();
     alpha.wait().unwrap();
     assert!(rigs.socket("alpha").exists());
-    let one = rigs.list();
+    let one = list(&rigs);
     assert_eq!(one.len(), 1, "{one:?}");
     assert_eq!(one[0]["rig"], "beta");
     assert!(
@@ -237,7 +167,7 @@ fn list_shows_the_rigs_that_run_and_none_that_ended_one_of_them_killed() {
     let stopped = rigs.output(&["stop", "beta"]);
     assert!(stopped.status.success(), "{stopped:?}");
     assert_eq!(wait_exit(&mut beta), 143);
-    assert!(rigs.list().is_empty());
+    assert!(list(&rigs).is_empty());
     let out = rigs.output(&["list"]);
     assert!(stdout(&out).contains("no rig is running"));
     // The killed rig's name is free again.
@@ -596,7 +526,7 @@ fn stop_believes_only_the_process_its_hello_names() {
         .unwrap();
     until(Duration::from_secs(5), || socket.exists().then_some(())).expect("the impostor listens");
     let out = rigs.output(&["stop", "interlock"]);
-    let list = rigs.list();
+    let list = list(&rigs);
     let _ = fake.kill();
     let _ = fake.wait();
     let (said, err) = (stdout(&out), stderr(&out));

@@ -7,22 +7,11 @@
 
 mod common;
 
+use common::rigs::Run;
 use common::{rigscript, until, TempDir};
 use rigscript::cli::output::rig_holding_path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
-
-/// A run the test started, killed if the test fails before it ends.
-struct Run(Child);
-
-impl Drop for Run {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-}
 
 #[test]
 fn a_file_a_running_rig_holds_open_names_the_rig_and_the_commands_that_see_and_stop_it() {

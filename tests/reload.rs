@@ -3,9 +3,10 @@
 //! safe value, no zero, its watchdog fed) across reloads, the top-level variables carry over,
 //! and a script `check` rejects or whose scenario test fails is refused, the old one running on.
 
-use crate::common::{rigscript, stderr, until, SimProcess, TempDir};
+use crate::common::rigs::{Rigs, Run};
+use crate::common::{stderr, until, SimProcess};
 use serde_json::Value;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::Duration;
 
 const V1: &str = "let n = 0;\nif !is_reload() { io.outputs = 1; }\n\
@@ -15,26 +16,9 @@ const V2: &str = "let n = 0;\nlet seen = -1;\non_reload(|| { seen = n; });\n\
                   if !is_reload() { io.outputs = 1; }\n\
                   every(\"100ms\", || { n += 1; io.outputs = (n % 2) + 1; });\n";
 
-struct Rig {
-    dir: TempDir,
-}
-
-impl Rig {
-    fn command(&self, args: &[&str]) -> Command {
-        let mut c = Command::new(rigscript());
-        c.args(args).env("XDG_RUNTIME_DIR", self.dir.root());
-        c.env_remove("RUNTIME_DIRECTORY");
-        c
-    }
-
-    fn output(&self, args: &[&str]) -> Output {
-        self.command(args).output().unwrap()
-    }
-}
-
 /// Runs `rigscript reload bench-r` while watching the module's outputs: its result and every
 /// DO byte seen meanwhile.
-fn reload_watching(rig: &Rig, sim: &mut SimProcess) -> (Output, Vec<u64>) {
+fn reload_watching(rig: &Rigs, sim: &mut SimProcess) -> (Output, Vec<u64>) {
     let mut child = rig
         .command(&["reload", "bench-r"])
         .stdout(Stdio::piped())
@@ -52,31 +36,9 @@ fn reload_watching(rig: &Rig, sim: &mut SimProcess) -> (Output, Vec<u64>) {
     (child.wait_with_output().unwrap(), seen)
 }
 
-fn status(rig: &Rig) -> Value {
-    let out = until(Duration::from_secs(10), || {
-        let out = rig.output(&["status", "bench-r", "--json"]);
-        out.status.success().then_some(out)
-    })
-    .expect("the rig answers status");
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-struct Run(Child);
-
-impl Drop for Run {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-}
-
 #[test]
 fn reloads_keep_the_outputs_carry_the_variables_and_refuse_a_bad_script() {
-    let rig = Rig {
-        dir: TempDir::new("reload"),
-    };
+    let rig = Rigs::new("reload");
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let config = rig.dir.file(
         "rig.toml",
@@ -93,7 +55,7 @@ fn reloads_keep_the_outputs_carry_the_variables_and_refuse_a_bad_script() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap());
-    let first = status(&rig);
+    let first = rig.status("bench-r");
     sim.wait_for(Duration::from_secs(10), |s| s["do"] == 2);
     // The same script's next version: swapped with the outputs as they are.
     rig.dir.file("work.rhai", V2);
@@ -103,7 +65,7 @@ fn reloads_keep_the_outputs_carry_the_variables_and_refuse_a_bad_script() {
         seen.iter().all(|v| *v == 1 || *v == 2),
         "only what a script decided: {seen:?}"
     );
-    let now = status(&rig);
+    let now = rig.status("bench-r");
     assert_eq!(now["script"]["reloads"], 1, "{now}");
     assert_ne!(now["script"]["hash"], first["script"]["hash"]);
     assert_eq!(now["script"]["hash"].as_str().unwrap().len(), 64);
@@ -125,7 +87,10 @@ fn reloads_keep_the_outputs_carry_the_variables_and_refuse_a_bad_script() {
     assert_eq!(out.status.code(), Some(1), "{out:?}");
     assert!(stderr(&out).contains("scenario test"), "{}", stderr(&out));
     assert!(seen.iter().all(|v| *v == 1 || *v == 2), "{seen:?}");
-    assert_eq!(status(&rig)["script"]["hash"], now["script"]["hash"]);
+    assert_eq!(
+        rig.status("bench-r")["script"]["hash"],
+        now["script"]["hash"]
+    );
     let state = sim.state();
     assert_eq!(
         state["watchdog"]["expired"], false,
@@ -145,9 +110,7 @@ fn reloads_keep_the_outputs_carry_the_variables_and_refuse_a_bad_script() {
 
 #[test]
 fn run_watch_reloads_the_script_once_its_file_has_settled() {
-    let rig = Rig {
-        dir: TempDir::new("reload-watch"),
-    };
+    let rig = Rigs::new("reload-watch");
     let script = rig.dir.file("watched.rhai", V1);
     let mut run = Run(rig
         .command(&["run", "--sim", "--watch", &script])
@@ -155,7 +118,7 @@ fn run_watch_reloads_the_script_once_its_file_has_settled() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap());
-    let status_of = |rig: &Rig| {
+    let status_of = |rig: &Rigs| {
         let out = rig.output(&["status", "watched", "--json"]);
         out.status
             .success()

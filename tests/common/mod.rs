@@ -3,6 +3,8 @@
 
 #![allow(dead_code)]
 
+pub mod rigs;
+
 use rigscript::link::serial::SerialLink;
 use rigscript::link::ByteLink;
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
