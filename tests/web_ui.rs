@@ -197,6 +197,7 @@ fn the_state_follows_the_field_that_post_sim_drives_and_the_interlock_arms() {
         (armed && pressed.iter().any(|p| p == "S12")).then_some(s)
     })
     .expect("S12 pressed arms the interlock: DO0-DO3 on");
+    assert_eq!(script_variable(&s, "tripped"), Some(Value::Bool(false)), "{s}");
     assert_eq!(s["devices"]["io"]["kind"], "trp-c29u");
     assert_eq!(s["devices"]["io"]["inputs"], 15, "{s}");
     drive(a, r#"{"device":"panel","action":"release","name":"S12"}"#);
@@ -209,6 +210,29 @@ fn the_state_follows_the_field_that_post_sim_drives_and_the_interlock_arms() {
         (state(a)["devices"]["io"]["outputs"].as_u64()? & 0x0F == 0).then_some(())
     })
     .expect("an open guard trips the interlock");
+    // The script's own state: its variable `tripped` set again, its one invariant holding.
+    let s = until(Duration::from_secs(5), || {
+        let s = state(a);
+        (script_variable(&s, "tripped")? == true).then_some(s)
+    })
+    .expect("the variable `tripped` is true again after the trip");
+    let invariants = s["script"]["invariants"].as_array().expect("invariants");
+    assert_eq!(invariants.len(), 1, "{s}");
+    assert_eq!(
+        invariants[0]["name"],
+        "power only with all guards closed and no stop pressed"
+    );
+    assert_eq!(invariants[0]["holds"], true);
+    assert_eq!(invariants[0]["at"], "scripts/interlock.rhai:53:1");
+}
+
+/// The value of the script's top-level variable `name` in a state, if shown.
+fn script_variable(s: &Value, name: &str) -> Option<Value> {
+    s["script"]["variables"]["shown"]
+        .as_array()?
+        .iter()
+        .find(|v| v["name"] == name)
+        .map(|v| v["value"].clone())
 }
 
 #[test]
@@ -614,6 +638,17 @@ fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_tri
     assert_eq!(s["devices"]["io"]["outputs"], 15, "{s}");
     assert_eq!(s["devices"]["panel"]["pressed"][0], "S12", "{s}");
     assert_eq!(browser.has_class("#sw-panel-S12", "on"), Some(true));
+    // The script's state: `tripped` false once armed, its invariant shown holding.
+    until(Duration::from_secs(10), || {
+        (browser.text("#var-tripped")? == "false").then_some(())
+    })
+    .expect("the page shows the script's variable `tripped` false once armed");
+    assert_eq!(browser.has_class("#inv-0", "holds"), Some(true));
+    let invariant = browser.text("#inv-0").unwrap_or_default();
+    assert!(
+        invariant.contains("power only with all guards closed and no stop pressed"),
+        "{invariant}"
+    );
     // A guard opened from the page: the trip, on the page and in the state.
     browser.click("#di-io-2");
     until(Duration::from_secs(15), || {
@@ -624,6 +659,10 @@ fn a_browser_closes_the_guards_presses_s12_and_sees_the_power_lamps_then_the_tri
     .expect("the page shows the trip: power off, the trip lamp DO7 on");
     let s = state(a);
     assert_eq!(s["devices"]["io"]["outputs"], 0x80, "{s}");
+    until(Duration::from_secs(10), || {
+        (browser.text("#var-tripped")? == "true").then_some(())
+    })
+    .expect("the page shows `tripped` true after the trip");
     // The guide's picture of the page (docs/guide/web-page.png is this file, copied).
     let png = browser.screenshot(1000, 1250);
     assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");

@@ -80,6 +80,8 @@ pub struct Runner<P: Program> {
     rollback: Option<Duration>,
     /// The way back from the last reload, within its rollback window.
     undo: Option<reload::Undo<P::Handler>>,
+    /// When each invariant was last found false (the run's uptime), by name.
+    invariants_failed: std::collections::BTreeMap<String, Duration>,
 }
 
 impl<P: Program> Runner<P> {
@@ -113,6 +115,7 @@ impl<P: Program> Runner<P> {
             identity: reload::ScriptIdentity::default(),
             rollback: None,
             undo: None,
+            invariants_failed: std::collections::BTreeMap::new(),
         }
     }
 
