@@ -782,6 +782,123 @@ fn forcing_rig(tag: &str, force: bool) -> Served {
     serve_in(dir, &[&script, "--config", &config, "--sim"])
 }
 
+/// The interlock of scripts/ on a simulated rig that allows forcing (tripped at the start:
+/// every guard open).
+fn interlock_forcing_rig(tag: &str) -> Served {
+    let dir = TempDir::new(tag);
+    let records = dir.path("records.jsonl");
+    dir.file(
+        "rig.toml",
+        &format!(
+            "name = \"{tag}\"\nperiod = \"20ms\"\nforce = true\nrecords = \"{}\"\n\n\
+             [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\n\
+             [devices.panel]\nkind = \"trc1000\"\n",
+            records.display()
+        ),
+    );
+    let config = dir.path("rig.toml").display().to_string();
+    serve_in(dir, &["scripts/interlock.rhai", "--config", &config, "--sim"])
+}
+
+/// The interlock's one invariant.
+const POWER_PROMISE: &str = "power only with all guards closed and no stop pressed";
+
+#[test]
+fn a_force_that_would_break_an_invariant_is_refused_naming_it_and_taken_only_when_overridden() {
+    let tag = "force-promise";
+    let run = interlock_forcing_rig(tag);
+    run.logged("interlock ready (tripped)");
+    // Tripped, every guard open: power on DO0 would break the promise.
+    let (status, out, err) = run.cli(&["force", tag, "io.DO0", "on", "--for", "1m"]);
+    assert_eq!(status, 1, "{out}{err}");
+    assert!(
+        err.contains(&format!("forcing io.DO0 on would break the invariant {POWER_PROMISE:?}"))
+            && err.contains("--override"),
+        "{err}"
+    );
+    assert!(state(run.addr)["forces"].as_array().unwrap().is_empty());
+    // An override that names no invariant is refused with the nearest.
+    let (status, _, err) = run.cli(&[
+        "force", tag, "io.DO0", "on", "--for", "1m", "--override", "power only",
+    ]);
+    assert_eq!(status, 1, "{err}");
+    assert!(err.contains("states no invariant called that"), "{err}");
+    // Said explicitly: taken, told, logged, recorded, and shown as overridden.
+    let (status, out, err) = run.cli(&[
+        "force", tag, "io.DO0", "on", "--for", "1m", "--override", POWER_PROMISE,
+    ]);
+    assert_eq!(status, 0, "{err}");
+    assert!(
+        out.contains(&format!("io.DO0 forced on for 1m, overriding the invariant {POWER_PROMISE:?}")),
+        "{out}"
+    );
+    let s = state_until(run.addr, "the invariant shown overridden", |s| {
+        s["script"]["invariants"][0]["overridden"] == true
+    });
+    assert_eq!(s["script"]["invariants"][0]["holds"], false, "{s}");
+    assert_eq!(s["devices"]["io"]["outputs_written"].as_u64().unwrap() & 1, 1, "{s}");
+    assert_eq!(s["script"]["state"], "running", "{s}");
+    run.logged(&format!("overriding the invariant {POWER_PROMISE:?}"));
+    let (_, status_text, _) = run.cli(&["status", tag]);
+    assert!(
+        status_text.contains(&format!("invariant {POWER_PROMISE:?}: OVERRIDDEN"))
+            && status_text.contains(&format!(", overriding the invariant {POWER_PROMISE:?}")),
+        "{status_text}"
+    );
+    let set = run
+        .force_records()
+        .into_iter()
+        .find(|r| r["event"] == "set")
+        .expect("the force recorded");
+    assert_eq!(set["overrides"][0], POWER_PROMISE);
+    // Until the force ends.
+    assert_eq!(run.cli(&["unforce", tag, "io.DO0"]).0, 0);
+    let s = state_until(run.addr, "the invariant holding again", |s| {
+        s["script"]["invariants"][0]["holds"] == true
+    });
+    assert_eq!(s["script"]["invariants"][0]["overridden"], false);
+}
+
+#[test]
+#[ignore = "needs chromium and chromium-driver (tier 2: .ci/run installs them)"]
+fn a_browser_is_asked_before_a_force_breaks_an_invariant_and_sees_it_overridden() {
+    let run = interlock_forcing_rig("web-override");
+    let browser = Browser::start();
+    browser.open(&format!("http://{}/#key={}", run.addr, run.key));
+    until(Duration::from_secs(20), || browser.find("#inv-0"))
+        .expect("the page lists the script's invariant");
+    assert_eq!(browser.has_class("#inv-0", "holds"), Some(true));
+    // The power lamp clicked fills the form (on); the button asks the rig, which refuses.
+    browser.click("#do-io-0");
+    browser.click("#force-set");
+    let asked = until(Duration::from_secs(10), || {
+        browser.session("GET", "/alert/text", None)["value"]
+            .as_str()
+            .map(String::from)
+    })
+    .expect("the page asks whether to override");
+    assert!(
+        asked.contains(&format!("would break the invariant {POWER_PROMISE:?}")),
+        "{asked}"
+    );
+    browser.session("POST", "/alert/accept", Some(serde_json::json!({})));
+    until(Duration::from_secs(10), || {
+        (browser.has_class("#inv-0", "overridden") == Some(true)
+            && browser.has_class("#do-io-0", "on") == Some(true))
+        .then_some(())
+    })
+    .expect("confirmed: the lamp lit and the invariant marked overridden");
+    let row = browser.text("#inv-0").unwrap_or_default();
+    assert!(row.contains("OVERRIDDEN"), "{row}");
+    let listed = browser.text("#force-io\\.DO0").unwrap_or_default();
+    assert!(listed.contains("overriding"), "{listed}");
+    browser.click("#unforce-io\\.DO0");
+    until(Duration::from_secs(10), || {
+        (browser.has_class("#inv-0", "holds") == Some(true)).then_some(())
+    })
+    .expect("unforced: the invariant holds again");
+}
+
 impl Served {
     /// `rigscript ARGS..` against this run's rig directory: (status, stdout, stderr).
     fn cli(&self, args: &[&str]) -> (i32, String, String) {

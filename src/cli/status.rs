@@ -358,6 +358,13 @@ fn render_script_state(script: &ScriptState) -> Vec<String> {
     }
     for i in &script.invariants {
         let failed = i.failed_at_ms.map(|ms| format!(" at {}", uptime(ms)));
+        if i.overridden {
+            out.push(format!(
+                "  invariant {:?}: OVERRIDDEN by a force (false on the outputs written)",
+                i.name
+            ));
+            continue;
+        }
         out.push(match (i.holds, failed) {
             (true, None) => format!("  invariant {:?}: holds", i.name),
             (true, Some(at)) => format!("  invariant {:?}: holds (last false{at})", i.name),
@@ -407,12 +414,17 @@ pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
         out.push("  HELD SAFE: a device was lost past its grace time".into());
     }
     for f in &s.forces {
+        let overriding: Vec<String> = f.overrides.iter().map(|o| format!("{o:?}")).collect();
         out.push(format!(
-            "  FORCED: {} {} for {} more (by {})",
+            "  FORCED: {} {} for {} more (by {}){}",
             f.point,
             f.value.text(),
             crate::time::duration::format_duration(Duration::from_millis(f.remaining_ms)),
-            f.by
+            f.by,
+            match overriding.is_empty() {
+                true => String::new(),
+                false => format!(", overriding the invariant {}", overriding.join(", ")),
+            }
         ));
     }
     out.extend(render_script_state(&s.script));
@@ -644,6 +656,7 @@ mod tests {
             at: None,
             holds,
             failed_at_ms,
+            overridden: false,
         };
         let script = ScriptState {
             file: "s.rhai".into(),

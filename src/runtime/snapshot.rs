@@ -199,6 +199,10 @@ pub struct InvariantState {
     pub holds: bool,
     /// When it was last found false (the run's uptime, ms), if it ever was.
     pub failed_at_ms: Option<u64>,
+    /// False on the outputs written now because of a force allowed to break it
+    /// (`--override`), until that force ends.
+    #[serde(default)]
+    pub overridden: bool,
 }
 
 /// The scan loop's figures so far.

@@ -82,6 +82,8 @@ pub struct Runner<P: Program> {
     undo: Option<reload::Undo<P::Handler>>,
     /// When each invariant was last found false (the run's uptime), by name.
     invariants_failed: std::collections::BTreeMap<String, Duration>,
+    /// The invariants false on the outputs written now, each allowed by a force held.
+    overridden: Vec<String>,
 }
 
 impl<P: Program> Runner<P> {
@@ -116,6 +118,7 @@ impl<P: Program> Runner<P> {
             rollback: None,
             undo: None,
             invariants_failed: std::collections::BTreeMap::new(),
+            overridden: Vec::new(),
         }
     }
 

@@ -2,7 +2,6 @@
 //! at most once a tick.
 
 use super::contract::Program;
-use super::force::answer_force;
 use super::remote::Waiting;
 use super::{Runner, State};
 use crate::runtime::devices::SimRig;
@@ -131,7 +130,8 @@ impl<P: Program> Runner<P> {
         }
     }
 
-    /// Each invariant the script states: it holds unless it is the one the run ended on.
+    /// Each invariant the script states: it holds unless it is the one the run ended on, or
+    /// a force allowed to break it does (overridden).
     fn invariants_shown(&self) -> Vec<InvariantState> {
         let checks = self.rt.borrow().invariant_checks();
         let violated = self.violation.as_ref().map(|v| v.name.as_str());
@@ -140,7 +140,8 @@ impl<P: Program> Runner<P> {
             .map(|c| InvariantState {
                 name: c.name.clone(),
                 at: c.at.clone(),
-                holds: violated != Some(c.name.as_str()),
+                holds: violated != Some(c.name.as_str()) && !self.overridden.contains(&c.name),
+                overridden: self.overridden.contains(&c.name),
                 failed_at_ms: self
                     .invariants_failed
                     .get(&c.name)
@@ -180,11 +181,8 @@ impl<P: Program> Runner<P> {
                 Ok(()) => Answer::Accepted,
                 Err(why) => Answer::Refused(why),
             }),
-            Request::Force { .. } | Request::Unforce { .. } => {
-                made = None;
-                forced = true;
-                Some(answer_force(&self.rt, &self.state, request))
-            }
+            // Judged against the invariants by the program: after the drain.
+            Request::Force { .. } | Request::Unforce { .. } => None,
             Request::Remote(r) => {
                 remote.push(r.clone());
                 Some(Answer::Accepted)
@@ -194,6 +192,14 @@ impl<P: Program> Runner<P> {
         });
         if let (Some(made), Some(served)) = (made, &mut self.served) {
             served.made = Some(made);
+        }
+        let (forces, later): (Vec<Later>, Vec<Later>) = later.into_iter().partition(|l| {
+            matches!(l.request, Request::Force { .. } | Request::Unforce { .. })
+        });
+        for f in forces {
+            forced = true;
+            let answer = self.answer_force(&f.request);
+            f.answer(answer);
         }
         for r in remote {
             self.take_remote(r);

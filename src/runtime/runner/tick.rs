@@ -235,9 +235,13 @@ impl<P: Program> Runner<P> {
                 }
             }
         }
-        let mut rt = self.rt.borrow_mut();
-        let read = rt.devices.input_accesses() != accesses;
-        rt.program.note_invariants_read_inputs(read);
+        {
+            let mut rt = self.rt.borrow_mut();
+            let read = rt.devices.input_accesses() != accesses;
+            rt.program.note_invariants_read_inputs(read);
+        }
+        // The script's outputs keep its promises; so must the outputs written with forces.
+        self.judge_forces();
         true
     }
 }
