@@ -1000,7 +1000,10 @@ fn a_broker_that_accepts_and_never_answers_costs_the_loop_nothing_and_a_stop_end
     let snap: Value = serde_json::from_str(&status(&dir, "mute", true).unwrap()).unwrap();
     let ticks = snap["ticks"]["count"].as_u64().unwrap_or(0);
     let uptime_ms = snap["script"]["uptime_ms"].as_u64().unwrap_or(0);
-    assert!(ticks * 50 * 2 >= uptime_ms, "fewer than half the ticks: {snap}");
+    assert!(
+        ticks * 50 * 2 >= uptime_ms,
+        "fewer than half the ticks: {snap}"
+    );
     let longest = snap["ticks"]["work_max_us"].as_u64().unwrap_or(u64::MAX);
     assert!(longest < 1_000_000, "a tick waited on the broker: {snap}");
     let text = status(&dir, "mute", false).expect("status");
