@@ -180,8 +180,8 @@ pub struct Variable {
 pub struct Variables {
     /// In the order the script declares them.
     pub shown: Vec<Variable>,
-    /// Not shown: past `MAX_VARIABLES`, or not a number, boolean or string (arrays, maps,
-    /// devices, closures).
+    /// Not shown: past `MAX_VARIABLES`, or an array or a map. Device handles and closures are
+    /// not the script's state, and not counted.
     pub hidden: u64,
     /// The script chose which with `watch(...)`; otherwise every variable (not constants).
     pub chosen: bool,

@@ -64,9 +64,8 @@ impl ScriptProgram {
         let arities = Arities::default();
         let reads = ReadTracker::default();
         let placed = Rc::new(std::cell::RefCell::new(file.to_string()));
-        register(&mut engine, rt, &arities, &reads, &placed);
         let watch = Watch::default();
-        watch.register(&mut engine);
+        register(&mut engine, rt, &arities, &reads, &placed, &watch);
         resolve_variables(&mut engine, rt, &guard, &reads);
         arities.learn(&ast);
         Self {

@@ -95,11 +95,12 @@ impl Watch {
         let mut hidden = 0u64;
         let mut shown: Vec<Variable> = Vec::new();
         let mut show = |name: &str, value: &Dynamic| match shown_value(value) {
-            Some(value) if shown.len() < MAX_VARIABLES => shown.push(Variable {
+            Shown::Value(value) if shown.len() < MAX_VARIABLES => shown.push(Variable {
                 name: name.to_string(),
                 value,
             }),
-            _ => hidden += 1,
+            Shown::Value(_) | Shown::TooBig => hidden += 1,
+            Shown::NotState => {}
         };
         if chosen.is_empty() {
             // The scope lists the latest first. A name declared twice shows its latest value
@@ -131,9 +132,18 @@ impl Watch {
     }
 }
 
-/// A value as shown: numbers, booleans, `()` and strings (cut at `MAX_VARIABLE_CHARS`);
-/// `None` for what a line cannot show (arrays, maps, devices, closures).
-fn shown_value(value: &Dynamic) -> Option<Value> {
+/// How a variable's value is shown.
+enum Shown {
+    /// On its line.
+    Value(Value),
+    /// Not on a line (an array, a map, a blob): counted as hidden.
+    TooBig,
+    /// Not the script's state (a device handle, a closure): left out.
+    NotState,
+}
+
+/// A value as shown: numbers, booleans, `()` and strings (cut at `MAX_VARIABLE_CHARS`).
+fn shown_value(value: &Dynamic) -> Shown {
     let value = value.flatten_clone();
     let shown = value.is_unit()
         || value.is_bool()
@@ -141,10 +151,13 @@ fn shown_value(value: &Dynamic) -> Option<Value> {
         || value.is_float()
         || value.is_string()
         || value.is_char();
-    if !shown {
-        return None;
+    if value.is_array() || value.is_map() || value.is_blob() {
+        return Shown::TooBig;
     }
-    Some(match to_json(&value) {
+    if !shown {
+        return Shown::NotState;
+    }
+    Shown::Value(match to_json(&value) {
         Value::String(s) if s.chars().count() > MAX_VARIABLE_CHARS => {
             let mut cut: String = s.chars().take(MAX_VARIABLE_CHARS - 1).collect();
             cut.push('…');
@@ -197,7 +210,7 @@ mod tests {
     }
 
     #[test]
-    fn arrays_maps_and_closures_are_counted_hidden_and_long_strings_cut() {
+    fn arrays_and_maps_are_counted_hidden_closures_left_out_and_long_strings_cut() {
         let w = Watch::default();
         let long = "x".repeat(200);
         let top = top_of(
@@ -205,7 +218,8 @@ mod tests {
             &w,
         );
         let v = w.read(&top);
-        assert_eq!(v.hidden, 3, "{v:?}");
+        assert_eq!(v.hidden, 2, "{v:?}");
+        assert_eq!(v.shown.len(), 1, "{v:?}");
         let s = v.shown[0].value.as_str().unwrap();
         assert_eq!(s.chars().count(), MAX_VARIABLE_CHARS);
         assert!(s.ends_with('…'), "{s}");
