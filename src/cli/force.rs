@@ -30,6 +30,11 @@ pub struct ForceArgs {
     /// How long the force holds ("30s", "5m"; at most 8h): it expires then.
     #[arg(long = "for", value_name = "DUR", value_parser = check_for)]
     pub duration: String,
+    /// Takes the force even though it breaks the invariant NAME (as the script names it):
+    /// logged and recorded with it, and shown as overridden until the force ends. Repeat for
+    /// more than one.
+    #[arg(long = "override", value_name = "INVARIANT")]
+    pub overrides: Vec<String>,
 }
 
 /// Options of `rigscript unforce`.
@@ -61,11 +66,19 @@ fn check_for(text: &str) -> Result<String, String> {
 
 /// Runs `rigscript force`.
 pub fn force(args: ForceArgs) -> i32 {
-    let done = format!("forced {} for {}", args.value.text(), args.duration.trim());
+    let overriding: Vec<String> = args.overrides.iter().map(|o| format!("{o:?}")).collect();
+    let mut done = format!("forced {} for {}", args.value.text(), args.duration.trim());
+    if !overriding.is_empty() {
+        done.push_str(&format!(
+            ", overriding the invariant {}",
+            overriding.join(", ")
+        ));
+    }
     let order = ForceOrder {
         point: args.point.clone(),
         value: args.value,
         duration: args.duration,
+        overrides: args.overrides,
     };
     ask(
         &args.rig,

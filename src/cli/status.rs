@@ -7,7 +7,7 @@
 use super::output::say;
 use crate::config::RigConfig;
 use crate::runtime::exit;
-use crate::runtime::snapshot::{DeviceState, MqttState, RigSnapshot};
+use crate::runtime::snapshot::{DeviceState, MqttState, RigSnapshot, ScriptState};
 use crate::service::control_client::Connection;
 use crate::service::control_protocol::{ClientRequest, Hello};
 use crate::service::rig_dir::{self, Knock};
@@ -341,6 +341,43 @@ pub fn stop(args: &StopArgs) -> i32 {
     exit::ERROR
 }
 
+/// The script's variables on one line and its invariants a line each, for `status`.
+fn render_script_state(script: &ScriptState) -> Vec<String> {
+    let mut out = Vec::new();
+    let v = &script.variables;
+    if !v.shown.is_empty() || v.hidden > 0 {
+        let mut line: Vec<String> = v
+            .shown
+            .iter()
+            .map(|v| format!("{} = {}", v.name, v.value))
+            .collect();
+        if v.hidden > 0 {
+            line.push(format!("{} more not shown", v.hidden));
+        }
+        out.push(format!("  variables: {}", line.join(", ")));
+    }
+    for i in &script.invariants {
+        let failed = i.failed_at_ms.map(|ms| format!(" at {}", uptime(ms)));
+        if i.overridden {
+            out.push(format!(
+                "  invariant {:?}: OVERRIDDEN by a force (false on the outputs written)",
+                i.name
+            ));
+            continue;
+        }
+        out.push(match (i.holds, failed) {
+            (true, None) => format!("  invariant {:?}: holds", i.name),
+            (true, Some(at)) => format!("  invariant {:?}: holds (last false{at})", i.name),
+            (false, at) => format!(
+                "  invariant {:?}: FALSE{}",
+                i.name,
+                at.unwrap_or_default()
+            ),
+        });
+    }
+    out
+}
+
 /// `status` for people.
 pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
     let mut out = Vec::new();
@@ -377,14 +414,20 @@ pub fn render(hello: &Hello, s: &RigSnapshot) -> String {
         out.push("  HELD SAFE: a device was lost past its grace time".into());
     }
     for f in &s.forces {
+        let overriding: Vec<String> = f.overrides.iter().map(|o| format!("{o:?}")).collect();
         out.push(format!(
-            "  FORCED: {} {} for {} more (by {})",
+            "  FORCED: {} {} for {} more (by {}){}",
             f.point,
             f.value.text(),
             crate::time::duration::format_duration(Duration::from_millis(f.remaining_ms)),
-            f.by
+            f.by,
+            match overriding.is_empty() {
+                true => String::new(),
+                false => format!(", overriding the invariant {}", overriding.join(", ")),
+            }
         ));
     }
+    out.extend(render_script_state(&s.script));
     for (name, d) in &s.devices {
         out.extend(render_device(name, d));
     }
@@ -603,5 +646,56 @@ mod tests {
     fn bits_read_channel_0_first() {
         assert_eq!(bits(0x05), "1 0 1 0 0 0 0 0 (0x05)");
         assert_eq!(bits(0x80), "0 0 0 0 0 0 0 1 (0x80)");
+    }
+
+    #[test]
+    fn the_script_s_variables_share_a_line_and_each_invariant_has_its_own() {
+        use crate::runtime::snapshot::{InvariantState, Variable, Variables};
+        let invariant = |name: &str, holds, failed_at_ms| InvariantState {
+            name: name.into(),
+            at: None,
+            holds,
+            failed_at_ms,
+            overridden: false,
+        };
+        let script = ScriptState {
+            file: "s.rhai".into(),
+            state: "ended".into(),
+            uptime_ms: 0,
+            errors: 0,
+            last_error: None,
+            restarts: 0,
+            hash: String::new(),
+            reloads: 0,
+            reloaded: None,
+            variables: Variables {
+                shown: vec![
+                    Variable {
+                        name: "tripped".into(),
+                        value: serde_json::json!(true),
+                    },
+                    Variable {
+                        name: "state".into(),
+                        value: serde_json::json!("armed"),
+                    },
+                ],
+                hidden: 2,
+                chosen: false,
+            },
+            invariants: vec![
+                invariant("guards", true, None),
+                invariant("lamp", true, Some(3_000)),
+                invariant("power", false, Some(61_000)),
+            ],
+        };
+        assert_eq!(
+            render_script_state(&script),
+            [
+                "  variables: tripped = true, state = \"armed\", 2 more not shown",
+                "  invariant \"guards\": holds",
+                "  invariant \"lamp\": holds (last false at 3s)",
+                "  invariant \"power\": FALSE at 1m1s",
+            ]
+        );
     }
 }

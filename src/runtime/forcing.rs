@@ -36,6 +36,10 @@ pub struct ForceOrder {
     /// How long it holds (`"5m"`), at most `MAX_FOR`.
     #[serde(rename = "for")]
     pub duration: String,
+    /// The invariants the person accepts this force breaking (`--override NAME`): without
+    /// one, a force of outputs that would make an invariant false is refused.
+    #[serde(default, rename = "override", skip_serializing_if = "Vec::is_empty")]
+    pub overrides: Vec<String>,
 }
 
 /// The value a point is forced to.
@@ -87,6 +91,15 @@ struct Force {
     until: Duration,
     /// Who asked.
     by: String,
+    /// The invariants it was allowed to break (`ForceOrder::overrides`).
+    overrides: Vec<String>,
+}
+
+impl Force {
+    /// Whether it changes what is written (outputs, relay) rather than what the script reads.
+    fn acts_on_outputs(&self) -> bool {
+        matches!(self.target, Target::Outputs { .. } | Target::Relay(_))
+    }
 }
 
 /// The forces of a run.
@@ -95,6 +108,25 @@ pub struct Forces {
     /// Whether rig.toml allows forcing (`force = true`).
     allowed: bool,
     held: Vec<Force>,
+    /// The invariants are being judged on what would be written: the script's reads of its
+    /// outputs and relay give them with the forces over them (`runner::force::judge`).
+    judging: bool,
+}
+
+/// A force taken but not yet told: the loop judges it against the invariants, then confirms
+/// it (logged and recorded) or withdraws it (what it replaced is back).
+#[derive(Debug)]
+pub struct StagedForce {
+    point: String,
+    /// The force it replaced, if it changed one.
+    replaced: Option<Force>,
+}
+
+impl StagedForce {
+    /// The point it forces (`io.DO3`).
+    pub fn point(&self) -> &str {
+        &self.point
+    }
 }
 
 /// A force as the snapshot shows it (`rigscript status`, `/api/state`).
@@ -108,6 +140,9 @@ pub struct ForceShown {
     pub remaining_ms: u64,
     /// Who set it.
     pub by: String,
+    /// The invariants it was allowed to break.
+    #[serde(default)]
+    pub overrides: Vec<String>,
 }
 
 /// Why a force or an unforce was refused; `Display` is the message for people.
@@ -288,6 +323,29 @@ impl Forces {
         self.allowed
     }
 
+    /// Whether the invariants are being judged on what would be written.
+    #[inline]
+    pub fn judging(&self) -> bool {
+        self.judging
+    }
+
+    /// Judges the invariants on what would be written (`true`) or on what the script wants.
+    pub fn set_judging(&mut self, on: bool) {
+        self.judging = on;
+    }
+
+    /// Whether a force changes what is written (an output or a relay): only then can the
+    /// outputs differ from what the script wants, and need judging.
+    #[inline]
+    pub fn hold_outputs(&self) -> bool {
+        self.held.iter().any(Force::acts_on_outputs)
+    }
+
+    /// Whether a force held was allowed to break the invariant `name`.
+    pub fn overridden(&self, name: &str) -> bool {
+        self.held.iter().any(|f| f.overrides.iter().any(|o| o == name))
+    }
+
     /// The DO byte to write for the device at `idx` when the script commands `script`.
     pub fn outputs(&self, idx: usize, script: u8) -> u8 {
         self.held
@@ -348,9 +406,17 @@ impl<H: Clone> Runtime<H> {
         self.forces.allowed = allowed;
     }
 
-    /// Sets or changes a force asked by `by`; the outputs are written by the caller (between
-    /// ticks, or at the tick's end).
+    /// Sets or changes a force asked by `by`, logged and recorded; the outputs are written by
+    /// the caller (between ticks, or at the tick's end). The loop judges it first
+    /// (`stage_force`, then `confirm_force` or `withdraw_force`).
     pub fn force(&mut self, order: &ForceOrder, by: &str) -> Result<(), ForceError> {
+        let staged = self.stage_force(order, by)?;
+        self.confirm_force(staged);
+        Ok(())
+    }
+
+    /// Takes a force asked by `by` without telling it yet: confirmed or withdrawn next.
+    pub fn stage_force(&mut self, order: &ForceOrder, by: &str) -> Result<StagedForce, ForceError> {
         if !self.forces.allowed {
             return Err(ForceError::NotAllowed);
         }
@@ -373,9 +439,7 @@ impl<H: Clone> Runtime<H> {
             .and_then(|(name, _)| kinds.iter().position(|(n, _)| *n == name))
             .unwrap_or(0);
         let until = self.now().saturating_add(held_for);
-        let value = order.value;
         let existing = self.forces.held.iter().position(|f| f.point == point);
-        let event = if existing.is_some() { "changed" } else { "set" };
         if existing.is_none() && self.forces.held.len() >= MAX_FORCES {
             return Err(ForceError::Full);
         }
@@ -383,29 +447,86 @@ impl<H: Clone> Runtime<H> {
             point: point.clone(),
             device,
             target,
-            value,
+            value: order.value,
             held_for,
             until,
             by: by.to_string(),
+            overrides: order.overrides.clone(),
         };
-        match existing {
-            Some(i) => self.forces.held[i] = force,
-            None => self.forces.held.push(force),
-        }
-        let verb = if event == "set" {
-            "forced"
-        } else {
-            "changed to"
+        // The newest force goes last: a force that breaks an invariant later ends first.
+        let replaced = existing.map(|i| self.forces.held.remove(i));
+        self.forces.held.push(force);
+        Ok(StagedForce { point, replaced })
+    }
+
+    /// Tells a staged force (logged, recorded, with the invariants it may break) and lets the
+    /// script read it.
+    pub fn confirm_force(&mut self, staged: StagedForce) {
+        let Some(f) = self.forces.held.iter().find(|f| f.point == staged.point) else {
+            return;
+        };
+        let (device, point, value, held_for) = (f.device, f.point.clone(), f.value, f.held_for);
+        let (by, overrides) = (f.by.clone(), f.overrides.clone());
+        let (event, verb) = match staged.replaced {
+            Some(_) => ("changed", "changed to"),
+            None => ("set", "forced"),
         };
         let shown = self.point_shown(device, &point);
+        let breaking = if overrides.is_empty() {
+            String::new()
+        } else {
+            format!(
+                ", overriding the invariant {}",
+                overrides
+                    .iter()
+                    .map(|o| format!("{o:?}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        };
         self.log_mut().warn(&format!(
-            "force: {shown} {verb} {} for {} (by {by})",
+            "force: {shown} {verb} {} for {} (by {by}){breaking}",
             value.text(),
             format_duration(held_for)
         ));
-        self.record_force(device, &point, event, Some(value), Some(held_for), by);
+        let extra = match overrides.is_empty() {
+            true => None,
+            false => Some(("overrides", json!(overrides))),
+        };
+        self.record_force_with(device, &point, event, Some(value), Some(held_for), &by, extra);
         self.reread_forced(device);
-        Ok(())
+    }
+
+    /// Takes a staged force back untold: the force it replaced, if any, holds again.
+    pub fn withdraw_force(&mut self, staged: StagedForce) {
+        self.forces.held.retain(|f| f.point != staged.point);
+        if let Some(f) = staged.replaced {
+            self.forces.held.push(f);
+        }
+    }
+
+    /// Ends the newest force of outputs or relay not allowed to break `invariant`, because
+    /// with it the outputs would make that invariant (stated at `at`) false; false if none.
+    pub fn end_force_breaking(&mut self, invariant: &str, at: Option<&str>) -> bool {
+        let Some(i) = self
+            .forces
+            .held
+            .iter()
+            .rposition(|f| f.acts_on_outputs() && !f.overrides.iter().any(|o| o == invariant))
+        else {
+            return false;
+        };
+        let f = self.forces.held.remove(i);
+        let shown = self.point_shown(f.device, &f.point);
+        let place = at.map(|a| format!(" ({a})")).unwrap_or_default();
+        self.log_mut().warn(&format!(
+            "force: {shown} ended: with it the outputs would break the invariant \
+             {invariant:?}{place}; the script's value applies again"
+        ));
+        let breaks = Some(("breaks", json!(invariant)));
+        self.record_force_with(f.device, &f.point, "ended", None, None, "invariant", breaks);
+        self.ended(&f, "ended");
+        true
     }
 
     /// Ends the force on `point`, asked by `by`.
@@ -474,6 +595,7 @@ impl<H: Clone> Runtime<H> {
                 remaining_ms: u64::try_from(f.until.saturating_sub(now).as_millis())
                     .unwrap_or(u64::MAX),
                 by: f.by.clone(),
+                overrides: f.overrides.clone(),
             })
             .collect()
     }
@@ -525,6 +647,21 @@ impl<H: Clone> Runtime<H> {
         held_for: Option<Duration>,
         by: &str,
     ) {
+        self.record_force_with(device, point, event, value, held_for, by, None);
+    }
+
+    /// `record_force` with one more field (`overrides`, `breaks`).
+    #[allow(clippy::too_many_arguments)]
+    fn record_force_with(
+        &mut self,
+        device: usize,
+        point: &str,
+        event: &str,
+        value: Option<ForceValue>,
+        held_for: Option<Duration>,
+        by: &str,
+        extra: Option<(&str, serde_json::Value)>,
+    ) {
         let mut v = json!({ "point": point, "event": event, "by": by });
         if let Some(name) = self.point_name(device, point) {
             v["point_name"] = json!(name);
@@ -534,6 +671,9 @@ impl<H: Clone> Runtime<H> {
         }
         if let Some(d) = held_for {
             v["for_ms"] = json!(u64::try_from(d.as_millis()).unwrap_or(u64::MAX));
+        }
+        if let Some((key, value)) = extra {
+            v[key] = value;
         }
         self.record("force", v);
     }
@@ -568,6 +708,7 @@ mod tests {
 
     fn order(point: &str, value: ForceValue, duration: &str) -> ForceOrder {
         ForceOrder {
+            overrides: Vec::new(),
             point: point.into(),
             value,
             duration: duration.into(),

@@ -95,13 +95,15 @@ impl<H: Clone> ScriptContext<H> {
         self.0.borrow().devices.online(idx)
     }
 
-    /// The relay the script wants on the TRC1000 at `idx` (0 if there is none).
+    /// The relay the script wants on the TRC1000 at `idx` (0 if there is none); while the
+    /// invariants are judged on what would be written, the relay forced over it.
     pub fn wanted_relay(&self, idx: usize) -> u8 {
-        self.0
-            .borrow_mut()
-            .devices
-            .trc(idx)
-            .map_or(0, |d| d.wanted_relay())
+        let mut rt = self.0.borrow_mut();
+        let wanted = rt.devices.trc(idx).map_or(0, |d| d.wanted_relay());
+        match rt.forces.judging() {
+            true => rt.forces.relay(idx, wanted),
+            false => wanted,
+        }
     }
 
     /// Selects `relay` on the TRC1000 at `idx` at the end of the tick.
@@ -109,13 +111,15 @@ impl<H: Clone> ScriptContext<H> {
         self.0.borrow_mut().set_relay(idx, relay);
     }
 
-    /// The DO byte the script wants on the TRP-C29U at `idx` (0 if there is none).
+    /// The DO byte the script wants on the TRP-C29U at `idx` (0 if there is none); while the
+    /// invariants are judged on what would be written, with the forces over it.
     pub fn wanted_outputs(&self, idx: usize) -> u8 {
-        self.0
-            .borrow_mut()
-            .devices
-            .c29u(idx)
-            .map_or(0, |c| c.wanted_outputs())
+        let mut rt = self.0.borrow_mut();
+        let wanted = rt.devices.c29u(idx).map_or(0, |c| c.wanted_outputs());
+        match rt.forces.judging() {
+            true => rt.forces.outputs(idx, wanted),
+            false => wanted,
+        }
     }
 
     /// Writes `value` to the TRP-C29U at `idx` at the end of the tick.

@@ -125,7 +125,7 @@ impl MqttDropped {
 }
 
 /// The script's side of a run.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScriptState {
     /// The script's file.
     pub file: String,
@@ -148,6 +148,61 @@ pub struct ScriptState {
     /// When it was last reloaded (RFC 3339, the run's zone), if it was.
     #[serde(default)]
     pub reloaded: Option<String>,
+    /// The script's top-level variables as they stand (read at most every `VARIABLES_EVERY`).
+    #[serde(default)]
+    pub variables: Variables,
+    /// Each invariant the script states, and whether it holds.
+    #[serde(default)]
+    pub invariants: Vec<InvariantState>,
+}
+
+/// Top-level variables a snapshot shows at most; the rest are counted as hidden.
+pub const MAX_VARIABLES: usize = 64;
+
+/// Characters of a string variable shown at most; a longer one is cut and ends in "…".
+pub const MAX_VARIABLE_CHARS: usize = 80;
+
+/// How often the variables shown are read again at most: a page asking at every event costs
+/// the loop one read of the script's variables in this time, however many watch.
+pub const VARIABLES_EVERY: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// One of the script's top-level variables.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Variable {
+    /// Its name in the script.
+    pub name: String,
+    /// A number, a boolean or a string (cut at `MAX_VARIABLE_CHARS`); null for `()`.
+    pub value: serde_json::Value,
+}
+
+/// The script's top-level variables shown, and how many were not.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Variables {
+    /// In the order the script declares them.
+    pub shown: Vec<Variable>,
+    /// Not shown: past `MAX_VARIABLES`, or an array or a map. Device handles and closures are
+    /// not the script's state, and not counted.
+    pub hidden: u64,
+    /// The script chose which with `watch(...)`; otherwise every variable (not constants).
+    pub chosen: bool,
+}
+
+/// An invariant the script states, as the loop last found it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct InvariantState {
+    /// Its name, as the script gave it.
+    pub name: String,
+    /// Where it is stated (`file:line:column`), when known.
+    pub at: Option<String>,
+    /// Whether it held at the last tick (one found false ends the run, or rolls a reload
+    /// back within `--rollback`).
+    pub holds: bool,
+    /// When it was last found false (the run's uptime, ms), if it ever was.
+    pub failed_at_ms: Option<u64>,
+    /// False on the outputs written now because of a force allowed to break it
+    /// (`--override`), until that force ends.
+    #[serde(default)]
+    pub overridden: bool,
 }
 
 /// The scan loop's figures so far.

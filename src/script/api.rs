@@ -267,14 +267,17 @@ fn c29u_op<T>(
 
 /// Registers the whole script API on `engine` over `rt` (with `resolve_variables` for a run),
 /// noting what the script reads from its devices in `reads` (when that tracks) and placing
-/// invariants in `file` (shared: a reload names another file).
+/// invariants in `file` (shared: a reload names another file), and what `watch(...)` chooses
+/// in `watch`.
 pub fn register(
     engine: &mut Engine,
     rt: &Rt,
     arities: &Arities,
     reads: &ReadTracker,
     file: &Rc<std::cell::RefCell<String>>,
+    watch: &super::watched::Watch,
 ) {
+    watch.register(engine);
     register_device(engine, rt, reads);
     register_panel(engine, arities);
     register_io(engine, arities);

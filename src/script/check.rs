@@ -142,6 +142,7 @@ impl Registry {
             &Arities::default(),
             &ReadTracker::default(),
             &Rc::default(),
+            &Default::default(),
         );
         Self::of(&engine)
     }

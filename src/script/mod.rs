@@ -21,3 +21,6 @@ pub mod scenario;
 pub mod stack;
 pub mod test_budget;
 pub mod values;
+pub mod watched;
+#[cfg(test)]
+mod watched_tests;

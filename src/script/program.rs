@@ -7,6 +7,7 @@ use super::check::NotFound;
 use super::engine::{sandboxed, Guard};
 use super::error::{breach_fault, fault, innermost, is_stop};
 use super::reads::{ReadSet, ReadTracker};
+use super::watched::Watch;
 use crate::config::ScriptLimits;
 use crate::runtime::handlers::{Arg, Call};
 use crate::runtime::invariants::InvariantCheck;
@@ -30,11 +31,17 @@ pub struct ScriptProgram {
     top: Scope<'static>,
     /// The file's name as the bindings place invariants in it (changed by a swap).
     placed: Rc<std::cell::RefCell<String>>,
+    /// The variables `watch(...)` chose for the page and `status`.
+    watch: Watch,
     /// A script compiled to replace this one at the next swap, with its file's name.
     staged: Option<(AST, String)>,
-    /// The script before the last swap, its variables and file, until the swap is settled.
-    previous: Option<(AST, Scope<'static>, String)>,
+    /// The script before the last swap, its variables, file and watched names, until the
+    /// swap is settled.
+    previous: Option<Previous>,
 }
+
+/// The script before a swap: its code, top-level variables, file and watched names.
+type Previous = (AST, Scope<'static>, String, Vec<(String, Position)>);
 
 /// What the script did, when asked to keep count (`verify`): how often each handler ran, what
 /// the handlers and the top level read, and what each invariant read.
@@ -57,7 +64,8 @@ impl ScriptProgram {
         let arities = Arities::default();
         let reads = ReadTracker::default();
         let placed = Rc::new(std::cell::RefCell::new(file.to_string()));
-        register(&mut engine, rt, &arities, &reads, &placed);
+        let watch = Watch::default();
+        register(&mut engine, rt, &arities, &reads, &placed, &watch);
         resolve_variables(&mut engine, rt, &guard, &reads);
         arities.learn(&ast);
         Self {
@@ -71,6 +79,7 @@ impl ScriptProgram {
             not_found: std::cell::OnceCell::new(),
             top: Scope::new(),
             placed,
+            watch,
             staged: None,
             previous: None,
         }
@@ -82,7 +91,7 @@ impl ScriptProgram {
     /// pointers (closures) name functions of the old script and are not carried. Returns
     /// the names carried.
     fn carry(&mut self) -> Vec<String> {
-        let Some((_, old, _)) = &self.previous else {
+        let Some((_, old, _, _)) = &self.previous else {
             return Vec::new();
         };
         let mut names: Vec<String> = self
@@ -263,11 +272,24 @@ impl Program for ScriptProgram {
 
     fn start(&mut self) -> Result<(), HandlerFault> {
         self.guard.begin_call();
+        let _ = self.watch.clear();
         let mut top = Scope::new();
         let result = self.engine.run_ast_with_scope(&mut top, &self.ast);
         self.top = top;
         self.note_reads(None);
-        self.outcome(result, || Position::NONE)
+        self.outcome(result, || Position::NONE)?;
+        match self.watch.unknown(&self.top) {
+            Some((cause, at)) => Err(HandlerFault {
+                location: super::error::location(&self.file, at),
+                cause,
+                over_budget: false,
+            }),
+            None => Ok(()),
+        }
+    }
+
+    fn variables(&self) -> crate::runtime::snapshot::Variables {
+        self.watch.read(&self.top)
     }
 
     fn stage(&mut self, source: &str, file: &str) -> Result<(), String> {
@@ -291,7 +313,8 @@ impl Program for ScriptProgram {
         *self.placed.borrow_mut() = file.clone();
         let old_file = std::mem::replace(&mut self.file, file);
         let old_top = std::mem::take(&mut self.top);
-        self.previous = Some((old_ast, old_top, old_file));
+        let old_watch = self.watch.clear();
+        self.previous = Some((old_ast, old_top, old_file, old_watch));
         self.arities.learn(&self.ast);
         self.not_found = std::cell::OnceCell::new();
         self.start()?;
@@ -299,9 +322,10 @@ impl Program for ScriptProgram {
     }
 
     fn swap_back(&mut self) {
-        if let Some((ast, top, file)) = self.previous.take() {
+        if let Some((ast, top, file, watch)) = self.previous.take() {
             self.ast = ast;
             self.top = top;
+            self.watch.restore(watch);
             *self.placed.borrow_mut() = file.clone();
             self.file = file;
             self.arities.learn(&self.ast);

@@ -154,7 +154,8 @@ mod tests {
             Ok(ClientRequest::Force(ForceOrder {
                 point: "io.DO3".into(),
                 value: ForceValue::On(true),
-                duration: "5m".into()
+                duration: "5m".into(),
+                overrides: Vec::new(),
             }))
         );
         assert_eq!(

@@ -71,6 +71,11 @@ pub trait Program {
     fn swap_back(&mut self) {}
     /// Forgets the script before the last `swap`: the swap stands.
     fn settle(&mut self) {}
+    /// The top-level variables a person may watch (the page, `status`); a program without
+    /// variables shows none.
+    fn variables(&self) -> crate::runtime::snapshot::Variables {
+        crate::runtime::snapshot::Variables::default()
+    }
     /// Evaluates an invariant: whether it holds.
     fn holds(&mut self, check: &InvariantCheck<Self::Handler>) -> Result<bool, HandlerFault>;
     /// Runs an `on_stop` handler, stopped also once `limit` runs out or another signal

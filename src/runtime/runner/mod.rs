@@ -80,6 +80,10 @@ pub struct Runner<P: Program> {
     rollback: Option<Duration>,
     /// The way back from the last reload, within its rollback window.
     undo: Option<reload::Undo<P::Handler>>,
+    /// When each invariant was last found false (the run's uptime), by name.
+    invariants_failed: std::collections::BTreeMap<String, Duration>,
+    /// The invariants false on the outputs written now, each allowed by a force held.
+    overridden: Vec<String>,
 }
 
 impl<P: Program> Runner<P> {
@@ -113,6 +117,8 @@ impl<P: Program> Runner<P> {
             identity: reload::ScriptIdentity::default(),
             rollback: None,
             undo: None,
+            invariants_failed: std::collections::BTreeMap::new(),
+            overridden: Vec::new(),
         }
     }
 

@@ -2,16 +2,18 @@
 //! at most once a tick.
 
 use super::contract::Program;
-use super::force::answer_force;
 use super::remote::Waiting;
 use super::{Runner, State};
 use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{Answer, Later, Request, Requests};
 use crate::runtime::snapshot::{
-    DeviceState, RigSnapshot, ScriptState, TickFigures, SNAPSHOT_VERSION,
+    DeviceState, InvariantState, RigSnapshot, ScriptState, TickFigures, Variables,
+    SNAPSHOT_VERSION, VARIABLES_EVERY,
 };
+use std::cell::RefCell;
 use std::sync::Arc;
+use std::time::Duration;
 
 /// A run served to askers from outside the loop (`Runner::serve`).
 pub(super) struct Served {
@@ -26,6 +28,8 @@ pub(super) struct Served {
     pub(super) waiting: Waiting,
     /// The reloads waiting for the next tick boundary, answered once done or refused.
     pub(super) reloads: Vec<Later>,
+    /// The script's variables as last read, and when (read again after `VARIABLES_EVERY`).
+    variables: RefCell<Option<(Duration, Variables)>>,
 }
 
 impl<P: Program> Runner<P> {
@@ -39,6 +43,7 @@ impl<P: Program> Runner<P> {
             made: None,
             waiting: Waiting::default(),
             reloads: Vec::new(),
+            variables: RefCell::new(None),
         });
     }
 
@@ -77,6 +82,8 @@ impl<P: Program> Runner<P> {
                 hash: self.identity.hash.clone(),
                 reloads: self.identity.reloads,
                 reloaded: self.identity.reloaded.clone(),
+                variables: self.variables_shown(now),
+                invariants: self.invariants_shown(),
             },
             devices: rt
                 .devices
@@ -104,6 +111,43 @@ impl<P: Program> Runner<P> {
                 .and_then(|s| s.requests.remote())
                 .map(|r| r.shown()),
         }
+    }
+
+    /// The script's variables, read from the program at most every `VARIABLES_EVERY` of a
+    /// served run: however many ask, the loop reads them a few times a second at most.
+    fn variables_shown(&self, now: Duration) -> Variables {
+        let Some(served) = &self.served else {
+            return self.program.variables();
+        };
+        let mut cache = served.variables.borrow_mut();
+        match &*cache {
+            Some((at, v)) if now.saturating_sub(*at) < VARIABLES_EVERY => v.clone(),
+            _ => {
+                let v = self.program.variables();
+                *cache = Some((now, v.clone()));
+                v
+            }
+        }
+    }
+
+    /// Each invariant the script states: it holds unless it is the one the run ended on, or
+    /// a force allowed to break it does (overridden).
+    fn invariants_shown(&self) -> Vec<InvariantState> {
+        let checks = self.rt.borrow().invariant_checks();
+        let violated = self.violation.as_ref().map(|v| v.name.as_str());
+        checks
+            .iter()
+            .map(|c| InvariantState {
+                name: c.name.clone(),
+                at: c.at.clone(),
+                holds: violated != Some(c.name.as_str()) && !self.overridden.contains(&c.name),
+                overridden: self.overridden.contains(&c.name),
+                failed_at_ms: self
+                    .invariants_failed
+                    .get(&c.name)
+                    .map(|t| u64::try_from(t.as_millis()).unwrap_or(u64::MAX)),
+            })
+            .collect()
     }
 
     /// Answers what waits in the control queue (a snapshot made at most once a tick).
@@ -137,11 +181,8 @@ impl<P: Program> Runner<P> {
                 Ok(()) => Answer::Accepted,
                 Err(why) => Answer::Refused(why),
             }),
-            Request::Force { .. } | Request::Unforce { .. } => {
-                made = None;
-                forced = true;
-                Some(answer_force(&self.rt, &self.state, request))
-            }
+            // Judged against the invariants by the program: after the drain.
+            Request::Force { .. } | Request::Unforce { .. } => None,
             Request::Remote(r) => {
                 remote.push(r.clone());
                 Some(Answer::Accepted)
@@ -151,6 +192,14 @@ impl<P: Program> Runner<P> {
         });
         if let (Some(made), Some(served)) = (made, &mut self.served) {
             served.made = Some(made);
+        }
+        let (forces, later): (Vec<Later>, Vec<Later>) = later.into_iter().partition(|l| {
+            matches!(l.request, Request::Force { .. } | Request::Unforce { .. })
+        });
+        for f in forces {
+            forced = true;
+            let answer = self.answer_force(&f.request);
+            f.answer(answer);
         }
         for r in remote {
             self.take_remote(r);

@@ -4,7 +4,7 @@ use super::contract::{describe, EndReason, Program};
 use super::{Runner, State};
 use crate::guardian::pulse::{self, Phase};
 use crate::runtime::handlers::Call;
-use crate::runtime::invariants::Violation;
+use crate::runtime::invariants::{InvariantCheck, Violation, MAX_INVARIANTS};
 use crate::runtime::observe::{EventKind, RunEvent};
 use crate::runtime::snapshot::micros;
 use std::time::Duration;
@@ -213,6 +213,7 @@ impl<P: Program> Runner<P> {
                         }
                     };
                     let message = violation.to_string();
+                    self.note_invariant_failed(&violation.name, violation.uptime, &checks);
                     // Within a reload's rollback window: the old script, its invariants
                     // checked instead, and the outputs it wanted.
                     if self.roll_back(&message) {
@@ -234,10 +235,31 @@ impl<P: Program> Runner<P> {
                 }
             }
         }
-        let mut rt = self.rt.borrow_mut();
-        let read = rt.devices.input_accesses() != accesses;
-        rt.program.note_invariants_read_inputs(read);
+        {
+            let mut rt = self.rt.borrow_mut();
+            let read = rt.devices.input_accesses() != accesses;
+            rt.program.note_invariants_read_inputs(read);
+        }
+        // The script's outputs keep its promises; so must the outputs written with forces.
+        self.judge_forces();
         true
+    }
+}
+
+impl<P: Program> Runner<P> {
+    /// Keeps when the invariant `name` was last found false (`at`, the run's uptime) for the
+    /// snapshot; names no invariant of `checks` states go once there are too many (reloads).
+    fn note_invariant_failed(
+        &mut self,
+        name: &str,
+        at: Duration,
+        checks: &[InvariantCheck<P::Handler>],
+    ) {
+        let failed = &mut self.invariants_failed;
+        failed.insert(name.to_string(), at);
+        if failed.len() > MAX_INVARIANTS {
+            failed.retain(|n, _| checks.iter().any(|c| c.name == *n));
+        }
     }
 }
 

@@ -309,6 +309,8 @@ mod tests {
                 hash: String::new(),
                 reloads: 0,
                 reloaded: None,
+                variables: Default::default(),
+                invariants: Vec::new(),
             },
             devices: BTreeMap::from([("io".into(), io), ("panel".into(), panel)]),
             held_safe: false,
