@@ -1622,14 +1622,19 @@ fn a_browser_drives_a_simulated_input_with_forcing_on_and_plots_a_named_lane_a_c
     // The module's plot: a lane a channel, DI0-DI7 then DO0-DO7, each with its name; the
     // legend's first row is the time.
     let legend = |plot: &str, row: usize, part: &str| {
-        browser.text(&format!("#{plot} .u-legend .u-series:nth-child({row}) {part}"))
+        browser.text(&format!(
+            "#{plot} .u-legend .u-series:nth-child({row}) {part}"
+        ))
     };
     until(Duration::from_secs(20), || {
         legend("plot-io", 2, ".u-label").filter(|t| t == "DI0 \"guard door\"")
     })
     .expect("the first lane is DI0, named");
     assert_eq!(legend("plot-io", 3, ".u-label").as_deref(), Some("DI1"));
-    assert_eq!(legend("plot-io", 10, ".u-label").as_deref(), Some("DO0 \"motor\""));
+    assert_eq!(
+        legend("plot-io", 10, ".u-label").as_deref(),
+        Some("DO0 \"motor\"")
+    );
     assert_eq!(legend("plot-io", 17, ".u-label").as_deref(), Some("DO7"));
     // Forcing is on, and a click on a simulated input still drives it (forcing has its form).
     browser.click("#di-io-0");
@@ -1639,7 +1644,10 @@ fn a_browser_drives_a_simulated_input_with_forcing_on_and_plots_a_named_lane_a_c
     .expect("the click drove DI0 on");
     let form = browser.find("#force-point").expect("the force form");
     let filled = browser.session("GET", &format!("/element/{form}/property/value"), None);
-    assert_eq!(filled["value"], "", "the click did not fill the force form: {filled}");
+    assert_eq!(
+        filled["value"], "",
+        "the click did not fill the force form: {filled}"
+    );
     // The legend shows the latest values without a hover: the guard, and the motor the
     // script follows it with.
     until(Duration::from_secs(10), || {
@@ -1649,7 +1657,10 @@ fn a_browser_drives_a_simulated_input_with_forcing_on_and_plots_a_named_lane_a_c
     .expect("the legend shows DI0 and DO0 on");
     assert_eq!(legend("plot-io", 3, ".u-value").as_deref(), Some("off"));
     // The panel's plot: the relay, and the rotary the script reads once it turns.
-    drive(a, r#"{"device":"panel","action":"turn","name":"S41A","half_turns":4}"#);
+    drive(
+        a,
+        r#"{"device":"panel","action":"turn","name":"S41A","half_turns":4}"#,
+    );
     until(Duration::from_secs(10), || {
         (legend("rplot-panel", 2, ".u-label")? == "relay"
             && legend("rplot-panel", 3, ".u-label")? == "S41A \"die selector\"")
