@@ -1613,6 +1613,67 @@ fn a_browser_shows_each_point_s_name_beside_it() {
 }
 
 #[test]
+#[ignore = "needs chromium and chromium-driver (tier 2: .ci/run installs them)"]
+fn a_browser_drives_a_simulated_input_with_forcing_on_and_plots_a_named_lane_a_channel() {
+    let run = named_rig("web-plots");
+    let a = run.addr;
+    let browser = Browser::start();
+    browser.open(&format!("http://{a}/#key={}", run.key));
+    // The module's plot: a lane a channel, DI0-DI7 then DO0-DO7, each with its name; the
+    // legend's first row is the time.
+    let legend = |plot: &str, row: usize, part: &str| {
+        browser.text(&format!(
+            "#{plot} .u-legend .u-series:nth-child({row}) {part}"
+        ))
+    };
+    until(Duration::from_secs(20), || {
+        legend("plot-io", 2, ".u-label").filter(|t| t == "DI0 \"guard door\"")
+    })
+    .expect("the first lane is DI0, named");
+    assert_eq!(legend("plot-io", 3, ".u-label").as_deref(), Some("DI1"));
+    assert_eq!(
+        legend("plot-io", 10, ".u-label").as_deref(),
+        Some("DO0 \"motor\"")
+    );
+    assert_eq!(legend("plot-io", 17, ".u-label").as_deref(), Some("DO7"));
+    // Forcing is on, and a click on a simulated input still drives it (forcing has its form).
+    browser.click("#di-io-0");
+    until(Duration::from_secs(10), || {
+        (state(a)["devices"]["io"]["inputs"].as_u64()? & 1 == 1).then_some(())
+    })
+    .expect("the click drove DI0 on");
+    let form = browser.find("#force-point").expect("the force form");
+    let filled = browser.session("GET", &format!("/element/{form}/property/value"), None);
+    assert_eq!(
+        filled["value"], "",
+        "the click did not fill the force form: {filled}"
+    );
+    // The legend shows the latest values without a hover: the guard, and the motor the
+    // script follows it with.
+    until(Duration::from_secs(10), || {
+        (legend("plot-io", 2, ".u-value")? == "on" && legend("plot-io", 10, ".u-value")? == "on")
+            .then_some(())
+    })
+    .expect("the legend shows DI0 and DO0 on");
+    assert_eq!(legend("plot-io", 3, ".u-value").as_deref(), Some("off"));
+    // The panel's plot: the relay, and the rotary the script reads once it turns.
+    drive(
+        a,
+        r#"{"device":"panel","action":"turn","name":"S41A","half_turns":4}"#,
+    );
+    until(Duration::from_secs(10), || {
+        (legend("rplot-panel", 2, ".u-label")? == "relay"
+            && legend("rplot-panel", 3, ".u-label")? == "S41A \"die selector\"")
+            .then_some(())
+    })
+    .expect("the panel's plot has the relay and the named rotary");
+    until(Duration::from_secs(10), || {
+        (legend("rplot-panel", 2, ".u-value")? == "0 \"no die\"").then_some(())
+    })
+    .expect("the relay's latest value, with its position's name");
+}
+
+#[test]
 fn the_page_s_log_starts_at_the_run_s_first_line() {
     let run = serve("web-first-line", &["scripts/interlock.rhai", "--sim"]);
     // The take-over lines come before the page attaches to the run; its log has them.

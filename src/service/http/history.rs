@@ -1,8 +1,10 @@
 //! The page's memory of the last minutes (`GET /api/history`), so a reload keeps its plots
 //! and log: a thread that follows the event stream and keeps each change of a device's
-//! inputs, outputs and counters, the last log lines and records, in bounded rings
+//! inputs, outputs (a panel's relay), counters and rotaries, the last log lines and records,
+//! in bounded rings
 //! (`MAX_POINTS`, `MAX_LINES`, `MAX_RECORDS`; the oldest go first).
 
+use crate::protocol::trc1000::Rotary;
 use crate::runtime::observe::{Events, Reading, RunEvent, DEFAULT_QUEUE};
 use crate::sync::lock;
 use serde::Serialize;
@@ -27,7 +29,8 @@ pub struct Point {
     pub t: u64,
     /// The device's name in the rig.
     pub device: String,
-    /// `inputs`, `outputs` or `counter0` ... `counter7`.
+    /// `inputs`, `outputs` (a TRC1000's relay), `counter0` ... `counter7`, or a rotary's
+    /// name (`S41A`).
     pub series: String,
     /// The new value.
     pub value: u32,
@@ -70,7 +73,12 @@ impl Kept {
                         self.point(t, device, format!("counter{n}"), u32::from(*v));
                     }
                 }
-                Reading::Switches { .. } | Reading::Rotaries { .. } => {}
+                Reading::Rotaries { values } => {
+                    for (r, v) in Rotary::ALL.iter().zip(values) {
+                        self.point(t, device, r.name().into(), u32::from(*v));
+                    }
+                }
+                Reading::Switches { .. } => {}
             },
             RunEvent::Outputs { device, value, .. } => {
                 self.point(t, device, "outputs".into(), u32::from(*value));
@@ -224,5 +232,31 @@ mod tests {
         assert_eq!(k.points.len(), 8);
         assert_eq!(k.points[7].series, "counter7");
         assert_eq!(k.points[7].value, 7);
+    }
+
+    #[test]
+    fn rotaries_are_a_series_each_by_name_and_only_their_changes_are_kept() {
+        let mut k = Kept::default();
+        let mut values = [0u8; 14];
+        for at in [1, 2] {
+            k.take(
+                at,
+                &RunEvent::Inputs {
+                    device: "panel".into(),
+                    reading: Reading::Rotaries { values },
+                },
+            );
+        }
+        assert_eq!(k.points.len(), 14, "the same reading again adds nothing");
+        values[3] = 3;
+        k.take(
+            3,
+            &RunEvent::Inputs {
+                device: "panel".into(),
+                reading: Reading::Rotaries { values },
+            },
+        );
+        let last = k.points.back().unwrap();
+        assert_eq!((last.series.as_str(), last.value, last.t), ("S42B", 3, 3));
     }
 }
