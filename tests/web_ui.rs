@@ -762,23 +762,36 @@ fn a_real_device_is_not_driven_from_the_page_while_its_simulated_neighbour_is() 
 /// A rig for forcing under `--sim`: DO0 follows DI0, the panel watched (its loss is seen at
 /// once), a short grace time; `force` says whether rig.toml allows forcing.
 fn forcing_rig(tag: &str, force: bool) -> Served {
+    configured(
+        tag,
+        &format!(
+            "period = \"50ms\"\ngrace = \"500ms\"\nforce = {force}\n\n[devices.io]\n\
+             kind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\nsafe_value = 0x00\n\n\
+             [devices.panel]\nkind = \"trc1000\"\n"
+        ),
+        "io.on_rise(0, || io.set_output(0, true));\n\
+         io.on_fall(0, || io.set_output(0, false));\n\
+         panel.on_press(\"S1\", || {});\n",
+    )
+}
+
+/// A run of `script` under `--sim` with a rig.toml of its own: `name`, `records`
+/// (records.jsonl beside it), then `rest` (settings, then the devices). `script` is a file,
+/// or the text of a script written beside the config when it does not end in `.rhai`.
+fn configured(tag: &str, rest: &str, script: &str) -> Served {
     let dir = TempDir::new(tag);
     let records = dir.path("records.jsonl");
     dir.file(
         "rig.toml",
         &format!(
-            "name = \"{tag}\"\nperiod = \"50ms\"\ngrace = \"500ms\"\nforce = {force}\n\
-             records = \"{}\"\n\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\
-             safe_value = 0x00\n\n[devices.panel]\nkind = \"trc1000\"\n",
+            "name = \"{tag}\"\nrecords = \"{}\"\n{rest}",
             records.display()
         ),
     );
-    let script = dir.file(
-        "follow.rhai",
-        "io.on_rise(0, || io.set_output(0, true));\n\
-         io.on_fall(0, || io.set_output(0, false));\n\
-         panel.on_press(\"S1\", || {});\n",
-    );
+    let script = match script.ends_with(".rhai") {
+        true => script.to_string(),
+        false => dir.file("script.rhai", script),
+    };
     let config = dir.path("rig.toml").display().to_string();
     serve_in(dir, &[&script, "--config", &config, "--sim"])
 }
@@ -786,21 +799,11 @@ fn forcing_rig(tag: &str, force: bool) -> Served {
 /// The interlock of scripts/ on a simulated rig that allows forcing (tripped at the start:
 /// every guard open).
 fn interlock_forcing_rig(tag: &str) -> Served {
-    let dir = TempDir::new(tag);
-    let records = dir.path("records.jsonl");
-    dir.file(
-        "rig.toml",
-        &format!(
-            "name = \"{tag}\"\nperiod = \"20ms\"\nforce = true\nrecords = \"{}\"\n\n\
-             [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\n\
-             [devices.panel]\nkind = \"trc1000\"\n",
-            records.display()
-        ),
-    );
-    let config = dir.path("rig.toml").display().to_string();
-    serve_in(
-        dir,
-        &["scripts/interlock.rhai", "--config", &config, "--sim"],
+    configured(
+        tag,
+        "period = \"20ms\"\nforce = true\n\n[devices.io]\nkind = \"trp-c29u\"\n\
+         port = \"/dev/ttyUSB0\"\n\n[devices.panel]\nkind = \"trc1000\"\n",
+        "scripts/interlock.rhai",
     )
 }
 
@@ -1466,29 +1469,19 @@ fn the_environment_s_token_is_checked_as_rig_toml_s_is() {
 /// A rig whose points have names (rig.toml's `names`), forcing allowed, under `--sim`: the
 /// guard door's rise starts the motor, its fall stops it.
 fn named_rig(tag: &str) -> Served {
-    let dir = TempDir::new(tag);
-    let records = dir.path("records.jsonl");
-    dir.file(
-        "rig.toml",
-        &format!(
-            "name = \"{tag}\"\nperiod = \"50ms\"\nforce = true\nrecords = \"{}\"\n\n\
-             [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\n\
-             [devices.io.names]\nDI0 = \"guard door\"\nDO0 = \"motor\"\nDO1 = \"lamp\"\n\n\
-             [devices.panel]\nkind = \"trc1000\"\n\n\
-             [devices.panel.names]\nS12 = \"cycle start\"\nS41A = \"die selector\"\n\
-             relay0 = \"no die\"\n",
-            records.display()
-        ),
-    );
-    let script = dir.file(
-        "press.rhai",
+    configured(
+        tag,
+        "period = \"50ms\"\nforce = true\n\n\
+         [devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/ttyUSB0\"\n\n\
+         [devices.io.names]\nDI0 = \"guard door\"\nDO0 = \"motor\"\nDO1 = \"lamp\"\n\n\
+         [devices.panel]\nkind = \"trc1000\"\n\n\
+         [devices.panel.names]\nS12 = \"cycle start\"\nS41A = \"die selector\"\n\
+         relay0 = \"no die\"\n",
         "io.on_rise(\"guard door\", || io.set_output(\"motor\", true));\n\
          io.on_fall(\"guard door\", || io.set_output(\"motor\", false));\n\
          panel.on_press(\"cycle start\", || {});\n\
          panel.on_turn(\"die selector\", |d, v| {});\n",
-    );
-    let config = dir.path("rig.toml").display().to_string();
-    serve_in(dir, &[&script, "--config", &config, "--sim"])
+    )
 }
 
 #[test]

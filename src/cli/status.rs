@@ -659,15 +659,6 @@ mod tests {
             overridden: false,
         };
         let script = ScriptState {
-            file: "s.rhai".into(),
-            state: "ended".into(),
-            uptime_ms: 0,
-            errors: 0,
-            last_error: None,
-            restarts: 0,
-            hash: String::new(),
-            reloads: 0,
-            reloaded: None,
             variables: Variables {
                 shown: vec![
                     Variable {
@@ -687,6 +678,7 @@ mod tests {
                 invariant("lamp", true, Some(3_000)),
                 invariant("power", false, Some(61_000)),
             ],
+            ..ScriptState::default()
         };
         assert_eq!(
             render_script_state(&script),

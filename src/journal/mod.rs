@@ -87,7 +87,7 @@ impl Header {
                 .cloned()
                 .collect(),
             period_us: u64::try_from(period.as_micros()).unwrap_or(u64::MAX),
-            run_for_ms: run_for.map(|d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX)),
+            run_for_ms: run_for.map(crate::runtime::snapshot::millis),
             operations: rig.limits.operations,
             zone: local_zone_name(),
             part: 0,

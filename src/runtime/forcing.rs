@@ -11,6 +11,7 @@
 //! force.
 
 use super::devices::Device;
+use super::snapshot::millis;
 use super::state::Runtime;
 use crate::protocol::trc1000::{Switch, SwitchSet};
 use crate::time::duration::{format_duration, parse_duration};
@@ -489,11 +490,11 @@ impl<H: Clone> Runtime<H> {
             value.text(),
             format_duration(held_for)
         ));
-        let extra = match overrides.is_empty() {
-            true => None,
-            false => Some(("overrides", json!(overrides))),
-        };
-        self.record_force_with(device, &point, event, Some(value), Some(held_for), &by, extra);
+        let mut taken = json!({ "value": value, "for_ms": millis(held_for) });
+        if !overrides.is_empty() {
+            taken["overrides"] = json!(overrides);
+        }
+        self.record_force(device, &point, event, &by, taken);
         self.reread_forced(device);
     }
 
@@ -523,8 +524,8 @@ impl<H: Clone> Runtime<H> {
             "force: {shown} ended: with it the outputs would break the invariant \
              {invariant:?}{place}; the script's value applies again"
         ));
-        let breaks = Some(("breaks", json!(invariant)));
-        self.record_force_with(f.device, &f.point, "ended", None, None, "invariant", breaks);
+        let breaks = json!({ "breaks": invariant });
+        self.record_force(f.device, &f.point, "ended", "invariant", breaks);
         self.ended(&f, "ended");
         true
     }
@@ -542,7 +543,7 @@ impl<H: Clone> Runtime<H> {
         self.log_mut().warn(&format!(
             "force: {shown} removed (by {by}): the script's value applies again"
         ));
-        self.record_force(f.device, &f.point, "removed", None, None, by);
+        self.record_force(f.device, &f.point, "removed", by, json!({}));
         self.ended(&f, "removed");
         Ok(())
     }
@@ -560,7 +561,7 @@ impl<H: Clone> Runtime<H> {
                 "force: {shown} expired after {}: the script's value applies again",
                 format_duration(f.held_for)
             ));
-            self.record_force(f.device, &f.point, "expired", None, None, "expiry");
+            self.record_force(f.device, &f.point, "expired", "expiry", json!({}));
             self.ended(f, "expired");
         }
         !over.is_empty()
@@ -573,7 +574,7 @@ impl<H: Clone> Runtime<H> {
             self.log_mut().warn(&format!(
                 "force: {shown} cancelled: the safe state wins ({why})"
             ));
-            self.record_force(f.device, &f.point, "cancelled", None, None, why);
+            self.record_force(f.device, &f.point, "cancelled", why, json!({}));
             self.reread_forced(f.device);
         }
     }
@@ -592,8 +593,7 @@ impl<H: Clone> Runtime<H> {
             .map(|f| ForceShown {
                 point: f.point.clone(),
                 value: f.value,
-                remaining_ms: u64::try_from(f.until.saturating_sub(now).as_millis())
-                    .unwrap_or(u64::MAX),
+                remaining_ms: millis(f.until.saturating_sub(now)),
                 by: f.by.clone(),
                 overrides: f.overrides.clone(),
             })
@@ -636,44 +636,25 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
-    /// One record line of a force's life (`{"name":"force","value":{...}}`), with the
-    /// point's name (`point_name`) when rig.toml gives it one.
+    /// One record line of a force's life (`{"name":"force","value":{...}}`): the point, with
+    /// its name (`point_name`) when rig.toml gives it one, the event, who, and `details` (an
+    /// object: the value and `for_ms` of a force taken, `overrides`, `breaks`).
     fn record_force(
         &mut self,
         device: usize,
         point: &str,
         event: &str,
-        value: Option<ForceValue>,
-        held_for: Option<Duration>,
         by: &str,
-    ) {
-        self.record_force_with(device, point, event, value, held_for, by, None);
-    }
-
-    /// `record_force` with one more field (`overrides`, `breaks`).
-    #[allow(clippy::too_many_arguments)]
-    fn record_force_with(
-        &mut self,
-        device: usize,
-        point: &str,
-        event: &str,
-        value: Option<ForceValue>,
-        held_for: Option<Duration>,
-        by: &str,
-        extra: Option<(&str, serde_json::Value)>,
+        details: serde_json::Value,
     ) {
         let mut v = json!({ "point": point, "event": event, "by": by });
         if let Some(name) = self.point_name(device, point) {
             v["point_name"] = json!(name);
         }
-        if let Some(value) = value {
-            v["value"] = json!(value);
-        }
-        if let Some(d) = held_for {
-            v["for_ms"] = json!(u64::try_from(d.as_millis()).unwrap_or(u64::MAX));
-        }
-        if let Some((key, value)) = extra {
-            v[key] = value;
+        if let serde_json::Value::Object(details) = details {
+            for (key, value) in details {
+                v[key] = value;
+            }
         }
         self.record("force", v);
     }

@@ -124,7 +124,7 @@ impl Violation {
         json!({
             "invariant": self.name,
             "at": self.at,
-            "uptime_ms": u64::try_from(self.uptime.as_millis()).unwrap_or(u64::MAX),
+            "uptime_ms": super::snapshot::millis(self.uptime),
             "devices": devices,
         })
     }

@@ -125,7 +125,7 @@ impl MqttDropped {
 }
 
 /// The script's side of a run.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ScriptState {
     /// The script's file.
     pub file: String,
@@ -495,4 +495,9 @@ impl DeviceState {
 /// Microseconds of `d`, saturating.
 pub fn micros(d: std::time::Duration) -> u64 {
     u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
+}
+
+/// Milliseconds of `d`, saturating.
+pub fn millis(d: std::time::Duration) -> u64 {
+    u64::try_from(d.as_millis()).unwrap_or(u64::MAX)
 }

@@ -299,6 +299,20 @@ impl RigBuilder {
 }
 
 #[cfg(test)]
+impl RigBuilder {
+    /// The default simulated rig in virtual time from 2026-03-28 12:00 UTC, its log kept and
+    /// not printed: what the crate's tests of a whole run start from.
+    pub(crate) fn for_tests() -> Self {
+        use chrono::TimeZone;
+        RigBuilder::from_config(RigConfig::simulated_default())
+            .simulated()
+            .virtual_time_from(chrono::Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap())
+            .log_to_stderr(false)
+            .keep_log()
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use crate::config::{Port, Protocol, Trc1000Address};

@@ -4,17 +4,12 @@
 use super::builder::RigBuilder;
 use super::engine::DEFAULT_BUDGET;
 use super::rig::Rig;
-use crate::config::{ErrorPolicy, RigConfig};
-use chrono::{TimeZone, Utc};
+use crate::config::ErrorPolicy;
 use std::time::Duration;
 
 fn rig(script: &str, policy: ErrorPolicy, budget: u64) -> Rig {
-    RigBuilder::from_config(RigConfig::simulated_default())
+    RigBuilder::for_tests()
         .on_error(policy)
-        .simulated()
-        .virtual_time_from(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap())
-        .log_to_stderr(false)
-        .keep_log()
         .budget(budget)
         .start(script, "t.rhai")
         .unwrap()

@@ -4,18 +4,10 @@
 
 use super::builder::RigBuilder;
 use super::rig::Rig;
-use crate::config::RigConfig;
-use chrono::{TimeZone, Utc};
 use std::time::Duration;
 
 fn rig(script: &str) -> Rig {
-    RigBuilder::from_config(RigConfig::simulated_default())
-        .simulated()
-        .virtual_time_from(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap())
-        .log_to_stderr(false)
-        .keep_log()
-        .start(script, "a.rhai")
-        .unwrap()
+    RigBuilder::for_tests().start(script, "a.rhai").unwrap()
 }
 
 fn log(r: &Rig) -> String {

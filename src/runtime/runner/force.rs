@@ -171,11 +171,9 @@ impl<P: Program> Runner<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::RigConfig;
     use crate::runtime::forcing::{ForceOrder, ForceValue};
     use crate::script::builder::RigBuilder;
     use crate::script::rig::Rig;
-    use chrono::{TimeZone, Utc};
     use std::time::Duration;
 
     /// A motor (DO0) the script never starts, and its promise: only with the guard (DI0)
@@ -187,13 +185,7 @@ invariant("motor only with the guard closed", || !io.output(0) || io.input(0));
 "#;
 
     fn rig() -> Rig {
-        let r = RigBuilder::from_config(RigConfig::simulated_default())
-            .simulated()
-            .virtual_time_from(Utc.with_ymd_and_hms(2026, 3, 28, 12, 0, 0).unwrap())
-            .log_to_stderr(false)
-            .keep_log()
-            .start(GUARDED, "a.rhai")
-            .unwrap();
+        let r = RigBuilder::for_tests().start(GUARDED, "a.rhai").unwrap();
         r.runner.runtime().borrow_mut().allow_forcing(true);
         r
     }

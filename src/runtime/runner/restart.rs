@@ -76,7 +76,7 @@ impl<P: Program> Runner<P> {
         };
         drop(rt);
         self.events.publish(|| RunEvent::ScriptRestarting {
-            after_ms: u64::try_from(wait.as_millis()).unwrap_or(u64::MAX),
+            after_ms: crate::runtime::snapshot::millis(wait),
         });
     }
 

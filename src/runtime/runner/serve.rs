@@ -8,7 +8,7 @@ use crate::runtime::devices::SimRig;
 use crate::runtime::observe::Events;
 use crate::runtime::requests::{Answer, Later, Request, Requests};
 use crate::runtime::snapshot::{
-    DeviceState, InvariantState, RigSnapshot, ScriptState, TickFigures, Variables,
+    millis, DeviceState, InvariantState, RigSnapshot, ScriptState, TickFigures, Variables,
     SNAPSHOT_VERSION, VARIABLES_EVERY,
 };
 use std::cell::RefCell;
@@ -75,7 +75,7 @@ impl<P: Program> Runner<P> {
             script: ScriptState {
                 file: script,
                 state: state.into(),
-                uptime_ms: u64::try_from(rt.cycle().uptime().as_millis()).unwrap_or(u64::MAX),
+                uptime_ms: millis(rt.cycle().uptime()),
                 errors: self.errors.total(),
                 last_error: self.errors.last().map(|e| e.message.clone()),
                 restarts: self.restarts,
@@ -145,7 +145,7 @@ impl<P: Program> Runner<P> {
                 failed_at_ms: self
                     .invariants_failed
                     .get(&c.name)
-                    .map(|t| u64::try_from(t.as_millis()).unwrap_or(u64::MAX)),
+                    .map(|t| millis(*t)),
             })
             .collect()
     }

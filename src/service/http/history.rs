@@ -174,7 +174,7 @@ impl History {
 pub fn now_ms() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
+        .map_or(0, crate::runtime::snapshot::millis)
 }
 
 #[cfg(test)]
