@@ -826,29 +826,23 @@ fn a_force_that_would_break_an_invariant_is_refused_naming_it_and_taken_only_whe
     );
     assert!(state(run.addr)["forces"].as_array().unwrap().is_empty());
     // An override that names no invariant is refused with the nearest.
-    let (status, _, err) = run.cli(&[
-        "force",
-        tag,
-        "io.DO0",
-        "on",
-        "--for",
-        "1m",
-        "--override",
-        "power only",
-    ]);
+    let force_overriding = |invariant: &str| {
+        run.cli(&[
+            "force",
+            tag,
+            "io.DO0",
+            "on",
+            "--for",
+            "1m",
+            "--override",
+            invariant,
+        ])
+    };
+    let (status, _, err) = force_overriding("power only");
     assert_eq!(status, 1, "{err}");
     assert!(err.contains("states no invariant called that"), "{err}");
     // Said explicitly: taken, told, logged, recorded, and shown as overridden.
-    let (status, out, err) = run.cli(&[
-        "force",
-        tag,
-        "io.DO0",
-        "on",
-        "--for",
-        "1m",
-        "--override",
-        POWER_PROMISE,
-    ]);
+    let (status, out, err) = force_overriding(POWER_PROMISE);
     assert_eq!(status, 0, "{err}");
     assert!(
         out.contains(&format!(
