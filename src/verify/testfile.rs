@@ -96,6 +96,45 @@ fn action_line(a: &Action) -> String {
     }
 }
 
+/// A step as a line of the scenario API.
+fn step_line(step: &Step) -> String {
+    match step {
+        Step::Advance(d) => format!("r.advance({});", quoted(&format_duration_exact(*d))),
+        Step::Act(a) => action_line(a),
+        Step::End => "r.end();".into(),
+    }
+}
+
+/// A written test's opening: the `header` as comments, `fn test_NAME() {` and the rig started
+/// as the run was (`script`, and `config` when it had one, at `start`).
+fn opening(
+    header: &[String],
+    name: &str,
+    script: &Path,
+    start: &StartPoint,
+    config: Option<&Path>,
+) -> String {
+    let mut out = String::new();
+    for line in header {
+        let _ = writeln!(out, "// {line}");
+    }
+    let _ = writeln!(out);
+    let _ = writeln!(out, "fn test_{name}() {{");
+    let script = quoted(&script.to_string_lossy());
+    let wall = quoted(&start.wall_text());
+    let zone = quoted(&start.zone);
+    match config {
+        Some(c) => {
+            let c = quoted(&c.to_string_lossy());
+            let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone}, {c});");
+        }
+        None => {
+            let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone});");
+        }
+    }
+    out
+}
+
 /// What the test file needs to know.
 #[derive(Debug, Clone)]
 pub struct TestFile<'a> {
@@ -118,41 +157,27 @@ pub struct TestFile<'a> {
 impl TestFile<'_> {
     /// The file's text.
     pub fn render(&self) -> String {
-        let mut out = String::new();
-        for line in self.header {
-            let _ = writeln!(out, "// {line}");
-        }
-        let _ = writeln!(out);
-        let _ = writeln!(out, "fn test_{}() {{", self.finding.check.slug());
-        let script = quoted(&self.script.to_string_lossy());
-        let wall = quoted(&self.start.wall_text());
-        let zone = quoted(&self.start.zone);
-        match self.config {
-            Some(c) => {
-                let c = quoted(&c.to_string_lossy());
-                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone}, {c});");
-            }
-            None => {
-                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone});");
-            }
-        }
+        let mut out = opening(
+            self.header,
+            &self.finding.check.slug(),
+            self.script,
+            self.start,
+            self.config,
+        );
         let last_advance = self
             .steps
             .iter()
             .rposition(|s| matches!(s, Step::Advance(_)));
         for (i, step) in self.steps.iter().enumerate() {
             let line = match step {
-                Step::Advance(d) => {
-                    let mut l = format!("r.advance({});", quoted(&format_duration_exact(*d)));
-                    if Some(i) == last_advance {
-                        if let Property::Invariant(_) = self.finding.check {
-                            let _ = write!(l, " // {} is found false here", self.finding.check);
-                        }
+                Step::Advance(_) if Some(i) == last_advance => {
+                    let mut l = step_line(step);
+                    if let Property::Invariant(_) = self.finding.check {
+                        let _ = write!(l, " // {} is found false here", self.finding.check);
                     }
                     l
                 }
-                Step::Act(a) => action_line(a),
-                Step::End => "r.end();".into(),
+                _ => step_line(step),
             };
             let _ = writeln!(out, "    {line}");
         }
@@ -218,31 +243,9 @@ pub struct RegressionTest<'a> {
 impl RegressionTest<'_> {
     /// The file's text.
     pub fn render(&self) -> String {
-        let mut out = String::new();
-        for line in self.header {
-            let _ = writeln!(out, "// {line}");
-        }
-        let _ = writeln!(out);
-        let _ = writeln!(out, "fn test_{}() {{", self.name);
-        let script = quoted(&self.script.to_string_lossy());
-        let wall = quoted(&self.start.wall_text());
-        let zone = quoted(&self.start.zone);
-        match self.config {
-            Some(c) => {
-                let c = quoted(&c.to_string_lossy());
-                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone}, {c});");
-            }
-            None => {
-                let _ = writeln!(out, "    let r = rig_at({script}, {wall}, {zone});");
-            }
-        }
+        let mut out = opening(self.header, self.name, self.script, self.start, self.config);
         for (step, asserts) in self.steps {
-            let line = match step {
-                Step::Advance(d) => format!("r.advance({});", quoted(&format_duration_exact(*d))),
-                Step::Act(a) => action_line(a),
-                Step::End => "r.end();".into(),
-            };
-            let _ = writeln!(out, "    {line}");
+            let _ = writeln!(out, "    {}", step_line(step));
             for (dev, kind, value) in asserts {
                 let _ = writeln!(
                     out,
