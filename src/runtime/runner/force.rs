@@ -23,6 +23,7 @@ pub(super) enum Judged {
 pub(super) fn judge<P: Program>(rt: &Shared<P::Handler>, program: &mut P) -> Judged {
     let checks = rt.borrow().invariant_checks();
     rt.borrow_mut().forces.set_judging(true);
+    let _judging = Judging(rt);
     let mut overridden = Vec::new();
     let mut broken = None;
     for check in checks.iter() {
@@ -39,8 +40,19 @@ pub(super) fn judge<P: Program>(rt: &Shared<P::Handler>, program: &mut P) -> Jud
             break;
         }
     }
-    rt.borrow_mut().forces.set_judging(false);
     broken.unwrap_or(Judged::Holds { overridden })
+}
+
+/// Ends a judging however it ends (a panic in an invariant too): the script's reads of its
+/// outputs give what it wants again.
+struct Judging<'a, H>(&'a Shared<H>);
+
+impl<H> Drop for Judging<'_, H> {
+    fn drop(&mut self) {
+        if let Ok(mut rt) = self.0.try_borrow_mut() {
+            rt.forces.set_judging(false);
+        }
+    }
 }
 
 impl<P: Program> Runner<P> {
