@@ -585,18 +585,28 @@ impl Browser {
         from_base64(text)
     }
 
+    /// What `GET /element/{e}/WHAT` reads of the element `css` finds; found again when the
+    /// page redrew it between the find and the read (a stale element is not an answer).
+    fn read(&self, css: &str, what: &str) -> Option<serde_json::Value> {
+        for _ in 0..5 {
+            let e = self.find(css)?;
+            let got = self.session("GET", &format!("/element/{e}/{what}"), None);
+            if got["value"]["error"] != "stale element reference" {
+                return Some(got["value"].clone());
+            }
+        }
+        None
+    }
+
     /// The text of what `css` finds.
     fn text(&self, css: &str) -> Option<String> {
-        let e = self.find(css)?;
-        let got = self.session("GET", &format!("/element/{e}/text"), None);
-        got["value"].as_str().map(String::from)
+        self.read(css, "text")?.as_str().map(String::from)
     }
 
     /// Whether what `css` finds has class `class`.
     fn has_class(&self, css: &str, class: &str) -> Option<bool> {
-        let e = self.find(css)?;
-        let got = self.session("GET", &format!("/element/{e}/attribute/class"), None);
-        Some(got["value"].as_str()?.split(' ').any(|c| c == class))
+        let class_list = self.read(css, "attribute/class")?;
+        Some(class_list.as_str()?.split(' ').any(|c| c == class))
     }
 }
 
