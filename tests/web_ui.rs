@@ -225,6 +225,33 @@ fn the_state_follows_the_field_that_post_sim_drives_and_the_interlock_arms() {
     );
     assert_eq!(invariants[0]["holds"], true);
     assert_eq!(invariants[0]["at"], "scripts/interlock.rhai:53:1");
+    // Tripped, the script reads no guard; whoever asks for the state watches, so the inputs
+    // are read for them: the guards closed again show while the outputs stay off.
+    drive(a, r#"{"device":"io","action":"set_inputs","value":15}"#);
+    let s = until(Duration::from_secs(5), || {
+        let s = state(a);
+        (s["devices"]["io"]["inputs"] == 15).then_some(s)
+    })
+    .expect("the guards closed again are shown while tripped");
+    assert_eq!(
+        s["devices"]["io"]["outputs"].as_u64().unwrap() & 0x0F,
+        0,
+        "{s}"
+    );
+    assert!(s["devices"]["panel"]["rotaries"].is_object(), "{s}");
+    // The counters take 33.9 ms at the module's 9600 baud: no 20 ms tick has the time, and
+    // the state says so rather than stretch a tick.
+    let s = until(Duration::from_secs(5), || {
+        let s = state(a);
+        s["devices"]["io"]["not_shown"].is_array().then_some(s)
+    })
+    .expect("the counters said not to be shown");
+    assert!(s["devices"]["io"]["counters"].is_null(), "{s}");
+    let why = s["devices"]["io"]["not_shown"][0]
+        .as_str()
+        .unwrap_or_default();
+    assert!(why.starts_with("counters: a read takes 33.9 ms"), "{s}");
+    assert_eq!(s["ticks"]["overruns"], 0, "{s}");
 }
 
 /// The value of the script's top-level variable `name` in a state, if shown.

@@ -512,6 +512,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
             safe_value,
             safe_mode,
             names,
+            not_shown,
         } => {
             let mut lines = vec![format!(
                 "{name} (TRP-C29U{}): {}",
@@ -520,7 +521,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
             )];
             lines.push(format!(
                 "  DI 0-7: {}",
-                inputs.map_or("not read by the script".to_string(), bits)
+                inputs.map_or("not read yet".to_string(), bits)
             ));
             let written = match outputs_written {
                 Some(w) if w == outputs => String::new(),
@@ -553,6 +554,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
                     ""
                 }
             ));
+            lines.extend(not_shown.iter().map(|why| format!("  not shown: {why}")));
             lines
         }
         DeviceState::Trc {
@@ -564,6 +566,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
             pressed,
             rotaries,
             names,
+            not_shown,
         } => {
             let mut lines = vec![format!(
                 "{name} (TRC1000{}): {}",
@@ -586,7 +589,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
             lines.push(format!(
                 "  pressed: {}",
                 match pressed {
-                    None => "not read by the script".to_string(),
+                    None => "not read yet".to_string(),
                     Some(p) if p.is_empty() => "none".to_string(),
                     Some(p) => p.iter().map(|s| shown(s)).collect::<Vec<_>>().join(" "),
                 }
@@ -595,6 +598,7 @@ fn render_device(name: &str, d: &DeviceState) -> Vec<String> {
                 let r: Vec<String> = r.iter().map(|(k, v)| format!("{}={v}", shown(k))).collect();
                 lines.push(format!("  rotaries: {}", r.join(" ")));
             }
+            lines.extend(not_shown.iter().map(|why| format!("  not shown: {why}")));
             lines
         }
     }

@@ -37,3 +37,4 @@ mod testing;
 pub mod topic_filter;
 mod triggers;
 pub mod wake_latency;
+pub mod watched_image;

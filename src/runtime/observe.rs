@@ -90,6 +90,15 @@ pub enum RunEvent {
         /// What was read.
         reading: Reading,
     },
+    /// A reading made for those watching the rig (`runtime::watched_image`), of an input the
+    /// script did not read lately, differs from what was shown before. Not taken in by the
+    /// script: a journal leaves it out, as replay needs only what the loop took in.
+    Shown {
+        /// The device's name in the rig.
+        device: String,
+        /// What was read.
+        reading: Reading,
+    },
     /// Outputs (a TRP-C29U's DO byte, a TRC1000's relay) were written.
     Outputs {
         /// The device's name in the rig.
@@ -193,6 +202,8 @@ pub enum EventKind {
     Tick,
     /// `RunEvent::Inputs`.
     Inputs,
+    /// `RunEvent::Shown`.
+    Shown,
     /// `RunEvent::Outputs`.
     Outputs,
     /// `RunEvent::DeviceLost`.
@@ -237,6 +248,7 @@ impl RunEvent {
             RunEvent::ScriptRestarting { .. } => EventKind::ScriptRestarting,
             RunEvent::Tick { .. } => EventKind::Tick,
             RunEvent::Inputs { .. } => EventKind::Inputs,
+            RunEvent::Shown { .. } => EventKind::Shown,
             RunEvent::Outputs { .. } => EventKind::Outputs,
             RunEvent::DeviceLost { .. } => EventKind::DeviceLost,
             RunEvent::DeviceBack { .. } => EventKind::DeviceBack,
@@ -285,6 +297,8 @@ struct Fanout {
     lost: AtomicU64,
     /// Turns of the loop so far (`turned`).
     turns: AtomicU64,
+    /// `Watching` tokens held: someone looks at the rig's whole I/O image.
+    watchers: AtomicUsize,
 }
 
 struct Consumer {
@@ -371,6 +385,21 @@ impl Detacher {
     }
 }
 
+/// Held while someone looks at the rig live (a page's event stream, MQTT's state): the loop
+/// then reads every input for them (`runtime::watched_image`). Let go when dropped.
+#[derive(Debug)]
+pub struct Watching {
+    fanout: Weak<Fanout>,
+}
+
+impl Drop for Watching {
+    fn drop(&mut self) {
+        if let Some(fanout) = self.fanout.upgrade() {
+            fanout.watchers.fetch_sub(1, Ordering::Relaxed);
+        }
+    }
+}
+
 impl Fanout {
     fn refresh(&self, consumers: &[Consumer]) {
         self.attached.store(consumers.len(), Ordering::Relaxed);
@@ -400,6 +429,19 @@ impl Events {
         self.fanout
             .turns
             .store(n.wrapping_add(1), Ordering::Release);
+    }
+
+    /// Says someone watches the rig live until the token is dropped.
+    pub fn watching(&self) -> Watching {
+        self.fanout.watchers.fetch_add(1, Ordering::Relaxed);
+        Watching {
+            fanout: Arc::downgrade(&self.fanout),
+        }
+    }
+
+    /// How many `Watching` tokens are held.
+    pub fn watchers(&self) -> usize {
+        self.fanout.watchers.load(Ordering::Relaxed)
     }
 
     /// Turns of the loop so far (`turned`).

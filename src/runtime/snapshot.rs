@@ -3,9 +3,9 @@
 //! online state, the script's state, the tick figures and the events consumers lost. Made by
 //! the loop only when asked, at most once a tick; a value, shared by every asker.
 //!
-//! Readings are what the loop last read for the script (inputs are read lazily: an input no
-//! handler reads shows as `None`, never a reading made for the asker, which would cost the
-//! loop exchanges and could steal an edge from the script).
+//! Readings are the latest of what the loop read for the script and what it read for those
+//! watching (`runtime::watched_image`: while someone watches, the inputs the script does not
+//! read are read for them into an image of their own, so the script's edges stay its own).
 
 pub use super::device_view::LatchState;
 use super::device_view::{ModuleView, PanelView};
@@ -388,7 +388,8 @@ pub enum DeviceState {
         offline_reason: Option<String>,
         /// Whether it is a simulator.
         simulated: bool,
-        /// The DI byte last read (bit n: channel n on; `None`: the script reads none).
+        /// The DI byte last read (bit n: channel n on; `None`: never read, for the script or
+        /// a watcher).
         inputs: Option<u8>,
         /// The DO byte the script commands (bit n: channel n on).
         outputs: u8,
@@ -404,6 +405,10 @@ pub enum DeviceState {
         safe_value: u8,
         /// Whether it refuses output writes (its safe mode, after a watchdog timeout).
         safe_mode: bool,
+        /// Parts of its inputs a watcher is not shown fresher than the script reads them, and
+        /// why (`runtime::watched_image`: a read takes longer than a tick leaves).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        not_shown: Vec<String>,
         /// What rig.toml calls its channels, by point (`"DI0": "guard door"`).
         #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
         names: BTreeMap<String, String>,
@@ -421,10 +426,14 @@ pub enum DeviceState {
         relay: u8,
         /// The relay last selected on the board.
         relay_written: Option<u8>,
-        /// The switches pressed at the last reading (`None`: the script reads none).
+        /// The switches pressed at the last reading (`None`: never read).
         pressed: Option<Vec<String>>,
         /// The rotaries' counts at the last reading, by name.
         rotaries: Option<BTreeMap<String, u8>>,
+        /// Parts of its inputs a watcher is not shown fresher than the script reads them, and
+        /// why (`runtime::watched_image`: a read takes longer than a tick leaves).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        not_shown: Vec<String>,
         /// What rig.toml calls its switches, rotaries and relay positions, by point
         /// (`"S12": "cycle start"`, `"relay2": "die B"`).
         #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
@@ -433,8 +442,14 @@ pub enum DeviceState {
 }
 
 impl DeviceState {
-    /// `device` as it stands; `simulated` as the rig says.
-    pub fn of(device: &Device, simulated: bool, now: std::time::Duration) -> Self {
+    /// `device` as it stands; `simulated` as the rig says; `not_shown`: the parts of its inputs
+    /// watchers are not shown (`Runtime::not_shown`).
+    pub fn of(
+        device: &Device,
+        simulated: bool,
+        now: std::time::Duration,
+        not_shown: Vec<String>,
+    ) -> Self {
         let health = device.health();
         let online = health.online();
         let offline_reason = (!online).then(|| {
@@ -451,15 +466,16 @@ impl DeviceState {
                     online,
                     offline_reason,
                     simulated,
-                    inputs: view.inputs,
+                    inputs: c.latest_inputs(),
                     outputs: view.outputs,
                     outputs_written: c.outputs_written(),
-                    counters: view.counters,
+                    counters: c.latest_counters(),
                     latches: view.latches,
                     watchdog_ms: c.watchdog_turned_on().map(|w| u64::from(w.tenths()) * 100),
                     safe_value: c.config().safe_value,
                     safe_mode: c.refusing(),
                     names: device.names().to_map(),
+                    not_shown,
                 }
             }
             Device::Trc(t) => {
@@ -470,15 +486,16 @@ impl DeviceState {
                     simulated,
                     relay: view.relay,
                     relay_written: t.relay_written(),
-                    pressed: view
-                        .switches
+                    pressed: t
+                        .latest_switches()
                         .map(|s| s.pressed_names().into_iter().map(String::from).collect()),
-                    rotaries: view.rotaries.map(|r| {
+                    rotaries: t.latest_rotaries().map(|r| {
                         r.iter()
                             .map(|(rotary, value)| (rotary.name().to_string(), value))
                             .collect()
                     }),
                     names: device.names().to_map(),
+                    not_shown,
                 }
             }
         }

@@ -20,6 +20,7 @@ use super::program_state::ProgramState;
 use super::records::Records;
 use super::registry::Devices;
 use super::safety::Safety;
+use super::watched_image::WatchedImage;
 use crate::time::clock::SharedClock;
 use crate::time::zone::Zone;
 use std::time::Duration;
@@ -38,6 +39,8 @@ pub struct Runtime<H> {
     pub(super) safety: Safety,
     /// The operator's forces (`forcing`), when rig.toml allows them.
     pub(super) forces: Forces,
+    /// Who watches, and the image read for them (`watched_image`).
+    pub(super) image: WatchedImage,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -60,6 +63,7 @@ impl<H: Clone> Runtime<H> {
             figures: Figures::new(records, log),
             safety: Safety::new(grace, started),
             forces: Forces::default(),
+            image: WatchedImage::default(),
         }
     }
 
@@ -105,10 +109,8 @@ impl<H: Clone> Runtime<H> {
         }
         let timer = self.program.handlers().next_timer(now, self.cycle.wall());
         let upkeep = self.next_retry();
-        let next = match (timer, upkeep) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        };
+        let watched = self.next_watched_read(now);
+        let next = [timer, upkeep, watched].into_iter().flatten().min();
         Some(next.unwrap_or(Duration::MAX))
     }
 

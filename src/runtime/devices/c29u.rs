@@ -34,6 +34,10 @@ pub struct C29uDevice {
     pub(super) counters: Snapshot<[u16; 8]>,
     /// The latches, read lazily.
     pub(super) latches: Snapshot<Latches>,
+    /// The DI byte as last read for watchers only (`runtime::watched_image`).
+    shown_inputs: Snapshot<u8>,
+    /// The counters as last read for watchers only.
+    shown_counters: Snapshot<[u16; 8]>,
     /// The DO byte the script wants.
     pub(super) outputs: u8,
     /// The DO byte last written (`None`: unknown, write again).
@@ -99,6 +103,8 @@ impl C29uDevice {
             inputs: Snapshot::default(),
             counters: Snapshot::default(),
             latches: Snapshot::default(),
+            shown_inputs: Snapshot::default(),
+            shown_counters: Snapshot::default(),
             outputs_written: None,
             outputs_cause: String::new(),
             watchdog_ours: false,
@@ -316,16 +322,52 @@ impl C29uDevice {
 
     /// Reads the inputs into the snapshot at `tick`.
     pub fn read_inputs(&mut self, tick: u64) -> Result<u8, DeviceError> {
-        let v = self.driver.read_inputs()?;
+        let v = self.fetch_inputs()?;
         self.inputs.update(v, tick);
         Ok(v)
     }
 
+    /// Reads the inputs, kept nowhere.
+    pub fn fetch_inputs(&mut self) -> Result<u8, DeviceError> {
+        Ok(self.driver.read_inputs()?)
+    }
+
     /// Reads the counters into the snapshot at `tick`.
     pub fn read_counters(&mut self, tick: u64) -> Result<[u16; 8], DeviceError> {
-        let v = self.driver.read_counters()?;
+        let v = self.fetch_counters()?;
         self.counters.update(v, tick);
         Ok(v)
+    }
+
+    /// Reads the counters, kept nowhere.
+    pub fn fetch_counters(&mut self) -> Result<[u16; 8], DeviceError> {
+        Ok(self.driver.read_counters()?)
+    }
+
+    /// The inputs as last read for watchers only.
+    pub fn shown_inputs(&mut self) -> &mut Snapshot<u8> {
+        &mut self.shown_inputs
+    }
+
+    /// The counters as last read for watchers only.
+    pub fn shown_counters(&mut self) -> &mut Snapshot<[u16; 8]> {
+        &mut self.shown_counters
+    }
+
+    /// The DI byte a person is shown: the later of the script's reading and the one made for
+    /// watchers.
+    pub fn latest_inputs(&self) -> Option<u8> {
+        self.inputs.or_later(&self.shown_inputs)
+    }
+
+    /// The counters a person is shown (as `latest_inputs`).
+    pub fn latest_counters(&self) -> Option<[u16; 8]> {
+        self.counters.or_later(&self.shown_counters)
+    }
+
+    /// The line's timing, for how long an exchange takes on it: protocol, baud, frame gap.
+    pub fn line_options(&self) -> &crate::device::c29u::C29uOptions {
+        self.driver.options()
     }
 
     /// Reads the latches into the snapshot at `tick`.

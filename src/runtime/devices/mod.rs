@@ -246,6 +246,15 @@ impl<T: Copy> Snapshot<T> {
         self.tick = Some(tick);
     }
 
+    /// `current`, or `other`'s if that was read at a later tick.
+    pub fn or_later(&self, other: &Snapshot<T>) -> Option<T> {
+        match (self.tick, other.tick) {
+            (Some(mine), Some(theirs)) if theirs > mine => other.current.or(self.current),
+            (None, Some(_)) => other.current,
+            _ => self.current,
+        }
+    }
+
     /// (previous, current) if a reading was made at `tick` and there was one before it.
     pub fn change_at(&self, tick: u64) -> Option<(T, T)> {
         match (self.fresh(tick), self.previous, self.current) {

@@ -26,6 +26,10 @@ pub struct TrcDevice {
     /// The 14 rotary counters, read lazily, as the script sees them (the board's plus
     /// `rotary_offset`).
     pub(super) rotaries: Snapshot<RotaryValues>,
+    /// The switches as last read for watchers only (`runtime::watched_image`).
+    shown_switches: Snapshot<SwitchSet>,
+    /// The rotaries as last read for watchers only (rebased as the script's are).
+    shown_rotaries: Snapshot<RotaryValues>,
     /// Added (wrapping) to each count the board reports, so that the counts the script sees
     /// carry on across a loss: a board power cycled comes back counting from 0, and that is
     /// no turn of a knob.
@@ -61,6 +65,8 @@ impl TrcDevice {
             health: Health::default(),
             switches: Snapshot::default(),
             rotaries: Snapshot::default(),
+            shown_switches: Snapshot::default(),
+            shown_rotaries: Snapshot::default(),
             rotary_offset: [0; 14],
             rebase_pending: false,
             relay_written: None,
@@ -188,14 +194,47 @@ impl TrcDevice {
 
     /// Reads the switches into the snapshot at `tick`.
     pub fn read_switches(&mut self, tick: u64) -> Result<SwitchSet, DeviceError> {
-        let s = self.driver.read_switches()?;
+        let s = self.fetch_switches()?;
         self.switches.update(s, tick);
         Ok(s)
     }
 
-    /// Reads the rotaries into the snapshot at `tick` (rebased, after a loss, to the counts
-    /// last seen).
+    /// Reads the switches, kept nowhere.
+    pub fn fetch_switches(&mut self) -> Result<SwitchSet, DeviceError> {
+        Ok(self.driver.read_switches()?)
+    }
+
+    /// Reads the rotaries into the snapshot at `tick`.
     pub fn read_rotaries(&mut self, tick: u64) -> Result<RotaryValues, DeviceError> {
+        let r = self.fetch_rotaries()?;
+        self.rotaries.update(r, tick);
+        Ok(r)
+    }
+
+    /// The switches as last read for watchers only.
+    pub fn shown_switches(&mut self) -> &mut Snapshot<SwitchSet> {
+        &mut self.shown_switches
+    }
+
+    /// The rotaries as last read for watchers only.
+    pub fn shown_rotaries(&mut self) -> &mut Snapshot<RotaryValues> {
+        &mut self.shown_rotaries
+    }
+
+    /// The switches a person is shown: the later of the script's reading and the one made
+    /// for watchers.
+    pub fn latest_switches(&self) -> Option<SwitchSet> {
+        self.switches.or_later(&self.shown_switches)
+    }
+
+    /// The rotaries a person is shown (as `latest_switches`).
+    pub fn latest_rotaries(&self) -> Option<RotaryValues> {
+        self.rotaries.or_later(&self.shown_rotaries)
+    }
+
+    /// Reads the rotaries as the script sees them (rebased, after a loss, to the counts the
+    /// script last saw), kept nowhere.
+    pub fn fetch_rotaries(&mut self) -> Result<RotaryValues, DeviceError> {
         let board = self.driver.read_rotaries()?.to_array();
         if std::mem::take(&mut self.rebase_pending) {
             if let Some(seen) = self.rotaries.current {
@@ -213,9 +252,7 @@ impl TrcDevice {
         for (v, offset) in shown.iter_mut().zip(self.rotary_offset) {
             *v = v.wrapping_add(offset);
         }
-        let r = RotaryValues::from_array(shown);
-        self.rotaries.update(r, tick);
-        Ok(r)
+        Ok(RotaryValues::from_array(shown))
     }
 
     /// Taken control of again after a loss (or at start): the counts the board reports next

@@ -88,9 +88,11 @@ impl<P: Program> Runner<P> {
             devices: rt
                 .devices
                 .iter()
-                .map(|d| {
+                .enumerate()
+                .map(|(i, d)| {
                     let sim = simulated.is_some_and(|s| s.get(d.name()).is_ok());
-                    (d.name().to_string(), DeviceState::of(d, sim, now))
+                    let state = DeviceState::of(d, sim, now, rt.not_shown(i, now));
+                    (d.name().to_string(), state)
                 })
                 .collect(),
             held_safe: rt.held_safe(),
@@ -160,8 +162,10 @@ impl<P: Program> Runner<P> {
         // Remote requests may run script handlers, which need the loop itself: after the drain.
         let mut remote = Vec::new();
         let mut forced = false;
+        let mut asked = false;
         let later = served.requests.drain(|request| match request {
             Request::Snapshot => {
+                asked = true;
                 let (_, snapshot) = made.get_or_insert_with(|| {
                     // Between ticks only the devices' upkeep (feeds, retries) changes what is
                     // shown, and each of its exchanges counts: a snapshot stands until the
@@ -193,6 +197,14 @@ impl<P: Program> Runner<P> {
         if let (Some(made), Some(served)) = (made, &mut self.served) {
             served.made = Some(made);
         }
+        let began = {
+            let mut rt = self.rt.borrow_mut();
+            let now = rt.now();
+            if asked {
+                rt.snapshot_asked(now);
+            }
+            rt.watching_began(now)
+        };
         let (forces, later): (Vec<Later>, Vec<Later>) = later.into_iter().partition(|l| {
             matches!(l.request, Request::Force { .. } | Request::Unforce { .. })
         });
@@ -209,10 +221,12 @@ impl<P: Program> Runner<P> {
             served.reloads.extend(later);
         }
         // What waits runs at the next period boundary, even when the loop was idle until later.
-        if self
-            .served
-            .as_ref()
-            .is_some_and(|s| !s.waiting.is_empty() || !s.reloads.is_empty())
+        // So does the first read for someone who just began to watch.
+        if began
+            || self
+                .served
+                .as_ref()
+                .is_some_and(|s| !s.waiting.is_empty() || !s.reloads.is_empty())
         {
             self.tick_soon();
         }

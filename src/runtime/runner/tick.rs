@@ -83,6 +83,10 @@ impl<P: Program> Runner<P> {
                 rt.check_devices();
                 rt.flush_outputs();
             }
+            // Last, in what the tick leaves of its period: the inputs the script did not read,
+            // for whoever watches (`watched_image`).
+            let period = self.options.period;
+            rt.read_for_watchers(self.next_deadline.saturating_add(period), period);
         }
         if self.state == State::Running && !self.rt.borrow().has_work() {
             self.finish(EndReason::Finished(

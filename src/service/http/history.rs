@@ -64,7 +64,7 @@ impl Kept {
     /// Takes in `event`, seen at `t` (ms since the epoch).
     pub fn take(&mut self, t: u64, event: &RunEvent) {
         match event {
-            RunEvent::Inputs { device, reading } => match reading {
+            RunEvent::Inputs { device, reading } | RunEvent::Shown { device, reading } => match reading {
                 Reading::DigitalInputs { value } => {
                     self.point(t, device, "inputs".into(), u32::from(*value));
                 }

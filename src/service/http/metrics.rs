@@ -286,6 +286,7 @@ mod tests {
             safe_value: 0,
             safe_mode: false,
             names: BTreeMap::new(),
+            not_shown: Vec::new(),
         };
         let panel = DeviceState::Trc {
             online: false,
@@ -296,6 +297,7 @@ mod tests {
             pressed: None,
             rotaries: None,
             names: BTreeMap::new(),
+            not_shown: Vec::new(),
         };
         RigSnapshot {
             version: SNAPSHOT_VERSION,

@@ -42,6 +42,9 @@ fn follow(out: &mut TcpStream, shared: &Shared, who: &str) {
             return;
         }
     };
+    // A viewer following the stream watches the rig: the inputs the script does not read are
+    // read for it too (`runtime::watched_image`).
+    let _watching = shared.events.watching();
     let head = "HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\n\
                 Connection: close\r\n\r\nretry: 1000\n\n";
     if out.write_all(head.as_bytes()).is_err() {

@@ -289,6 +289,7 @@ impl Prepared {
             EventKind::ScriptFailed,
             EventKind::ScriptRestarting,
             EventKind::Inputs,
+            EventKind::Shown,
             EventKind::Outputs,
             EventKind::DeviceLost,
             EventKind::DeviceBack,
@@ -298,6 +299,9 @@ impl Prepared {
             EventKind::Published,
         ]);
         let subscription = events.subscribe_to("mqtt", Bound::events(EVENT_QUEUE), kinds)?;
+        // The devices' state on the broker is the rig's whole I/O image, kept current for its
+        // subscribers as long as the client runs (`runtime::watched_image`).
+        let watching = events.watching();
         let closing = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&closing);
         let Prepared { settings, outbox } = self;
@@ -308,6 +312,7 @@ impl Prepared {
         let thread = std::thread::Builder::new()
             .name("mqtt".into())
             .spawn(move || {
+                let _watching = watching;
                 let asker = requester.clone();
                 let shown = counts.clone();
                 let ran = catching(|| {

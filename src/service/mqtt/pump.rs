@@ -232,6 +232,7 @@ impl Pump {
                 self.state_due = true;
             }
             RunEvent::Inputs { .. }
+            | RunEvent::Shown { .. }
             | RunEvent::DeviceLost { .. }
             | RunEvent::DeviceBack { .. }
             | RunEvent::ScriptStarted { .. } => self.state_due = true,
