@@ -60,6 +60,7 @@ pub fn idle_after(baud: u32) -> Duration {
 }
 
 /// A simulated module (ID 1, configured for `baud`) on a pty; stops when dropped.
+#[allow(dead_code)] // not every benchmark serves one on a bare pty
 pub struct Served {
     /// The pty clients open.
     pub path: String,
@@ -70,6 +71,7 @@ pub struct Served {
 
 impl Served {
     /// Serves a module speaking `protocol` at `baud`.
+    #[allow(dead_code)]
     pub fn start(protocol: Protocol, baud: u32) -> Self {
         let mut server = PtyServer::open(None).expect("create a pty");
         let path = server.path().to_string();
