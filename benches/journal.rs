@@ -77,8 +77,8 @@ fn main() {
                      out: &mut std::io::BufWriter<std::fs::File>| {
         while let Ok(next) = sub.handover(Duration::ZERO) {
             let entry = match next {
-                Next::Event(e) => tally.take(&e),
-                Next::Dropped(n) => Some(tally.gap(n)),
+                Next::Event(e) => tally.take(sub.tick(), &e),
+                Next::Dropped(n) => Some(tally.gap(sub.tick(), n)),
                 Next::Quiet => None,
             };
             if let Some(e) = entry {

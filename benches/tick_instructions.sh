@@ -17,8 +17,10 @@
 # durations are had with SHORT=2s LONG=6s, for a like-for-like pair.
 #
 # With JOURNAL=1 the run writes a journal (`run --journal`): the inputs do not change, so what
-# it adds to the loop's thread is each tick's event to the journal's queue (its own thread's
-# writes count among the other threads). Compare with a run without it.
+# it adds to the loop's thread is one store a tick (events carry their tick) and an entry for
+# each overrun (its own thread's writes count among the other threads). At the default period
+# of 1 µs every tick overruns, so measure it with PERIOD=5ms (a poll at 115200 baud takes about
+# 3 ms), against a run without it at the same period.
 #
 # Besides all threads' count it prints the scan loop's thread alone (callgrind
 # --separate-threads; the thread that runs `Runner::run`, kept out of line (#[inline(never)])
@@ -75,7 +77,7 @@ count() {
     if [ "${2:-}" = watch ]; then watch_rig >/dev/null 2>&1 & fi
     XDG_RUNTIME_DIR="$dir" valgrind --tool=callgrind --separate-threads=yes \
         --callgrind-out-file="$dir/cg.%p" "$binary" run "$dir/poll.rhai" \
-        --config "$dir/rig.toml" --period 1us --wake-latency off --quiet --stats --for "$1" \
+        --config "$dir/rig.toml" --period "${PERIOD:-1us}" --wake-latency off --quiet --stats --for "$1" \
         $no_guardian $journal 2>&1 |
         awk '/^ticks:/ { t = $2 } /Collected :/ { gsub(",", "", $NF); i = $NF } END { printf "%s %s ", t, i }'
     # The loop's thread: its file names Runner::run.

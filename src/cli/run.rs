@@ -293,6 +293,10 @@ pub fn run(args: RunArgs) -> i32 {
                 args.run_for,
             )
             .map_err(|e| format!("journal: cannot read the rig.toml to keep: {e}"))
+            .map(|mut header| {
+                header.rollback_ms = args.rollback.map(crate::runtime::snapshot::millis);
+                header
+            })
             .and_then(|header| {
                 journal::write::Prepared::new(journal::write::Settings::new(path, size), header)
                     .map_err(|e| e.to_string())

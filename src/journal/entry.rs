@@ -84,6 +84,16 @@ pub enum What {
         /// How many.
         events: u64,
     },
+    /// The script was reloaded (`rigscript reload`, `run --watch`): from this tick on the run
+    /// ran `source`, whose content hash is `hash`, from `file`.
+    Reloaded {
+        /// The new script's content hash.
+        hash: String,
+        /// Its file.
+        file: String,
+        /// Its text.
+        source: String,
+    },
     /// The run ended.
     Ended {
         /// Exit status.
@@ -110,6 +120,7 @@ fn escaped(text: &str) -> String {
             '\\' => out.push_str("\\\\"),
             '\n' => out.push_str("\\n"),
             '\r' => out.push_str("\\r"),
+            '\t' => out.push_str("\\t"),
             c => out.push(c),
         }
     }
@@ -128,6 +139,7 @@ fn unescaped(text: &str) -> Result<String, String> {
             Some('\\') => out.push('\\'),
             Some('n') => out.push('\n'),
             Some('r') => out.push('\r'),
+            Some('t') => out.push('\t'),
             other => return Err(format!("an unknown escape \\{}", other.unwrap_or(' '))),
         }
     }
@@ -171,6 +183,10 @@ impl Entry {
             What::Failed { message } => write!(l, "err {}", escaped(message)),
             What::Gap { events } => write!(l, "gap {events}"),
             What::Ended { status, reason } => write!(l, "end {status} {}", escaped(reason)),
+            // The file and the text apart by a tab, which neither holds escaped.
+            What::Reloaded { hash, file, source } => {
+                write!(l, "reload {hash} {}\t{}", escaped(file), escaped(source))
+            }
         };
         l
     }
@@ -283,6 +299,17 @@ impl Entry {
                     reason: unescaped(reason)?,
                 }
             }
+            "reload" => {
+                let (hash, rest) = rest.split_once(' ').ok_or("reload: a hash and a file")?;
+                let (file, source) = rest
+                    .split_once('\t')
+                    .ok_or("reload: a file and the script's text")?;
+                What::Reloaded {
+                    hash: hash.into(),
+                    file: unescaped(file)?,
+                    source: unescaped(source)?,
+                }
+            }
             other => return Err(format!("{other:?} is not a kind of entry")),
         };
         Ok(Entry { tick, what })
@@ -341,6 +368,11 @@ mod tests {
             What::Ended {
                 status: 143,
                 reason: "SIGTERM".into(),
+            },
+            What::Reloaded {
+                hash: "81a135590daef224".into(),
+                file: "my scripts/press\tline.rhai".into(),
+                source: "let io = device(\"io\");\n\tio.on_rise(0, || {}); // \\ end\r\n".into(),
             },
         ];
         for (i, what) in whats.into_iter().enumerate() {

@@ -59,6 +59,9 @@ pub struct Header {
     pub from_tick: u64,
     /// Names the run, so parts of one run are told from parts of another.
     pub run: String,
+    /// `run --rollback`, in milliseconds: a replay undoes a reload as the run did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rollback_ms: Option<u64>,
 }
 
 impl Header {
@@ -97,6 +100,7 @@ impl Header {
                 now.format("%Y%m%dT%H%M%S%.3fZ"),
                 std::process::id()
             ),
+            rollback_ms: None,
         })
     }
 }

@@ -151,7 +151,12 @@ pub fn read_journal(path: &Path) -> Result<Journal, ReadError> {
         }
         Err(e) => return Err(e),
     };
-    // A part opens with the last readings before it, which the part before holds already.
+    // A part opens with the last readings before it, which the part before holds already;
+    // and names the script that ran when it began (after a reload, not the one the run
+    // started with, which a replay from the start runs).
+    journal.header.script = before.header.script;
+    journal.header.script_file = before.header.script_file;
+    journal.header.hash = before.header.hash;
     let from = journal.header.from_tick;
     let mut entries = before.entries;
     entries.extend(journal.entries.into_iter().filter(|e| e.tick >= from));
@@ -181,6 +186,7 @@ mod tests {
             part: 0,
             from_tick: 0,
             run: "r".into(),
+            rollback_ms: None,
         };
         format!("H {}\n", serde_json::to_string(&h).unwrap())
     }

@@ -245,11 +245,11 @@ fn drain(sub: &mut Subscription, tally: &mut Tally, into: &mut Vec<Entry>) {
     while let Ok(next) = sub.handover(Duration::ZERO) {
         match next {
             Next::Event(e) => {
-                if let Some(entry) = tally.take(&e) {
+                if let Some(entry) = tally.take(sub.tick(), &e) {
                     into.push(entry);
                 }
             }
-            Next::Dropped(n) => into.push(tally.gap(n)),
+            Next::Dropped(n) => into.push(tally.gap(sub.tick(), n)),
             Next::Quiet => {}
         }
     }
@@ -274,11 +274,23 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
     // The field each tick took in, by tick.
     let mut field: BTreeMap<u64, Vec<&Entry>> = BTreeMap::new();
     let mut overruns: BTreeMap<u64, (u64, u64)> = BTreeMap::new();
+    // The reloads the run made, by tick: the replay makes them at the same boundaries.
+    let mut reloads: BTreeMap<u64, Vec<(String, String)>> = BTreeMap::new();
     let mut recorded = Vec::new();
     for e in journal.entries.iter().filter(|e| e.tick <= until) {
         match &e.what {
             What::Overrun { late_us, work_us } => {
                 overruns.insert(e.tick, (*late_us, *work_us));
+            }
+            What::Reloaded { file, source, .. } => {
+                notes.push(format!(
+                    "the run was reloaded with {file} in tick {}: the replay reloads it there too",
+                    e.tick
+                ));
+                reloads
+                    .entry(e.tick)
+                    .or_default()
+                    .push((source.clone(), file.clone()));
             }
             What::Gap { events } => notes.push(format!(
                 "the journal lost {events} event(s) in tick {}: the replay is not exact from there",
@@ -347,6 +359,8 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
     let mut rig = builder
         .start(&source, &file)
         .map_err(|e| ReplayError::Start(Box::new(e)))?;
+    rig.runner
+        .set_rollback(h.rollback_ms.map(Duration::from_millis));
     let mut f = lock(&start_field).take().unwrap_or(Ok(Field::default()))?;
     let mut sub = lock(&sub)
         .take()
@@ -381,6 +395,9 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         }
         if rig.runner.status().is_some() {
             break;
+        }
+        for (source, file) in reloads.remove(&next).unwrap_or_default() {
+            rig.runner.reload_at_next_tick(source, file);
         }
         let due = rig.runner.next_deadline();
         if rig.runner.step_toward(due).is_none() {

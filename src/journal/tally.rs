@@ -1,21 +1,23 @@
-//! Turns the run's event stream into journal entries, each in its tick: the loop tells a
-//! tick's `Tick` at the tick's end, so what comes before it (inputs read, outputs written,
-//! a loss, the end) belongs to the tick after the last one told. The journal's writer and
-//! the replay tally their runs the one same way, so their entries compare as they are.
+//! Turns the run's event stream into journal entries, each in its tick: every event comes
+//! with the tick it was published in (`Subscription::tick`; the loop moves it on as each tick
+//! ends, so what comes between two ticks belongs to the next), so the journal takes no event a
+//! tick, only overruns. The journal's writer and the replay tally their runs the one same way,
+//! so their entries compare as they are.
 
 use super::entry::{Entry, What};
 use crate::protocol::trc1000::Switch;
 use crate::runtime::observe::{EventKind, Reading, RunEvent};
 
 /// The kinds of event a journal takes.
-pub const KINDS: [EventKind; 8] = [
+pub const KINDS: [EventKind; 9] = [
     EventKind::ScriptStarted,
     EventKind::ScriptFailed,
-    EventKind::Tick,
+    EventKind::Overrun,
     EventKind::Inputs,
     EventKind::Outputs,
     EventKind::DeviceLost,
     EventKind::DeviceBack,
+    EventKind::Reloaded,
     EventKind::Ended,
 ];
 
@@ -23,9 +25,10 @@ pub const KINDS: [EventKind; 8] = [
 /// the journal starts with them).
 #[derive(Debug, Default, Clone)]
 pub struct Tally {
-    /// The last tick told (`None` before the first).
-    told: Option<u64>,
-    /// The top level has run: what comes before the first tick told is the first tick's.
+    /// The tick the last event was published in, as the loop numbers them (0 before the first
+    /// tick ended).
+    stamp: u64,
+    /// The top level has run: what comes before the first tick ended is the first tick's.
     started: bool,
     /// The last reading of each device's inputs, by kind.
     readings: Vec<Entry>,
@@ -34,26 +37,22 @@ pub struct Tally {
 impl Tally {
     /// The tick what comes now belongs to.
     pub fn tick(&self) -> u64 {
-        match self.told {
-            Some(t) => t + 1,
-            None => u64::from(self.started),
+        match self.stamp {
+            0 => u64::from(self.started),
+            t => t,
         }
     }
 
-    /// The entry `event` makes, if any.
-    pub fn take(&mut self, event: &RunEvent) -> Option<Entry> {
+    /// The entry `event`, published in tick `stamp` (`Subscription::tick`), makes, if any.
+    pub fn take(&mut self, stamp: u64, event: &RunEvent) -> Option<Entry> {
+        self.stamp = stamp;
         let tick = self.tick();
         let what = match event {
-            RunEvent::Tick {
+            RunEvent::Overrun {
                 tick: n,
                 late_us,
                 work_us,
-                overrun,
             } => {
-                self.told = Some(*n);
-                if !overrun {
-                    return None;
-                }
                 return Some(Entry {
                     tick: *n,
                     what: What::Overrun {
@@ -114,6 +113,11 @@ impl Tally {
             RunEvent::DeviceBack { device } => What::Back {
                 dev: device.clone(),
             },
+            RunEvent::Reloaded { file, hash, source } => What::Reloaded {
+                hash: hash.clone(),
+                file: file.clone(),
+                source: source.clone(),
+            },
             RunEvent::Ended { status, reason, .. } => What::Ended {
                 status: *status,
                 reason: reason.clone(),
@@ -123,8 +127,9 @@ impl Tally {
         Some(Entry { tick, what })
     }
 
-    /// A loss of `events` here, as an entry.
-    pub fn gap(&self, events: u64) -> Entry {
+    /// A loss of `events` before an event published in tick `stamp`, as an entry.
+    pub fn gap(&mut self, stamp: u64, events: u64) -> Entry {
+        self.stamp = stamp;
         Entry {
             tick: self.tick(),
             what: What::Gap { events },

@@ -36,6 +36,18 @@ const SCRIPTS: [(&str, &str); 5] = [
 /// Runs `source` for `length` of virtual time on a field that changes at random (seeded),
 /// journaled to `path`.
 fn journaled_run(source: &str, file: &str, path: &Path, length: Duration, seed: u64) {
+    journaled_run_reloading(source, file, path, length, seed, None);
+}
+
+/// `journaled_run`, reloaded with `reload`'s text once its time has come.
+fn journaled_run_reloading(
+    source: &str,
+    file: &str,
+    path: &Path,
+    length: Duration,
+    seed: u64,
+    mut reload: Option<(Duration, &str)>,
+) {
     let config = RigConfig::simulated_default();
     let period = config.period;
     let mut header = Header::first(file, source, None, &config, period, None).unwrap();
@@ -61,6 +73,11 @@ fn journaled_run(source: &str, file: &str, path: &Path, length: Duration, seed: 
     let mut rng = fastrand::Rng::with_seed(seed);
     while clock.now() < length && rig.runner.status().is_none() {
         rig.runner.advance(Duration::from_millis(rng.u64(10..400)));
+        if let Some((_, text)) = reload.filter(|(at, _)| clock.now() >= *at) {
+            // As `rigscript reload` does: swapped in at the next tick's boundary.
+            rig.runner.reload_at_next_tick(text.into(), file.into());
+            reload = None;
+        }
         let sim = &rig.sim;
         let _ = match rng.u8(0..8) {
             0 => sim.set_inputs("io", rng.u8(..) | 0x0F),
@@ -256,4 +273,97 @@ fn an_edit_that_reads_what_the_run_never_read_is_told_what_was_assumed() {
         }]
     );
     assert_eq!(outcome.divergence, None, "reading a counter writes nothing");
+}
+
+#[test]
+fn a_run_reloaded_halfway_replays_exactly_across_the_reload() {
+    let d = dir();
+    let path = d.path().join("reloaded.journal");
+    let before = "let io = device(\"io\");\nlet n = 0;\n\
+                  io.on_rise(0, || { n += 1; io.outputs = n % 256; });\n";
+    // `n` is carried; the new script counts by two and writes otherwise.
+    let after = "let io = device(\"io\");\nlet n = 0;\n\
+                 io.on_rise(0, || { n += 2; io.outputs = (n * 3) % 256; });\n";
+    let half = Duration::from_secs(30);
+    journaled_run_reloading(
+        before,
+        "count.rhai",
+        &path,
+        Duration::from_secs(60),
+        7,
+        Some((half, after)),
+    );
+    let journal = read_journal(&path).unwrap();
+    let reloaded = journal
+        .entries
+        .iter()
+        .find_map(|e| match &e.what {
+            What::Reloaded { source, hash, .. } => Some((e.tick, source.clone(), hash.clone())),
+            _ => None,
+        })
+        .expect("the reload journaled");
+    assert_eq!(reloaded.1, after);
+    assert_eq!(reloaded.2, crate::content_hash::content_hash(after));
+    let outcome = replay(&journal, &Options::default()).unwrap();
+    let written_after = outcome
+        .recorded
+        .iter()
+        .filter(|e| e.tick > reloaded.0)
+        .count();
+    assert!(written_after >= 2, "too little written after the reload: {outcome:?}");
+    assert_eq!(outcome.divergence, None);
+    assert_eq!(outcome.recorded, outcome.replayed);
+    assert!(
+        outcome.notes.iter().any(|n| n.contains("reloaded with count.rhai")),
+        "{:?}",
+        outcome.notes
+    );
+}
+
+#[test]
+fn a_part_begun_after_a_reload_names_the_script_that_runs_by_then() {
+    let d = dir();
+    let path = d.path().join("rotated.journal");
+    let before = "let io = device(\"io\");\nio.on_rise(0, || { io.outputs = 1; });\n\
+                  io.on_fall(0, || { io.outputs = 0; });\n";
+    let after = "let io = device(\"io\");\nio.on_rise(0, || { io.outputs = 2; });\n\
+                 io.on_fall(0, || { io.outputs = 0; });\n";
+    // Parts small enough that the run rotates once, after the reload.
+    let config = RigConfig::simulated_default();
+    let period = config.period;
+    let mut header = Header::first("flip.rhai", before, None, &config, period, None).unwrap();
+    header.zone = "UTC".into();
+    let mut settings = Settings::new(&path, 24 * 1024);
+    settings.bound = Bound::events(1 << 20);
+    let prepared = Prepared::new(settings, header).unwrap();
+    let running = Arc::new(Mutex::new(None));
+    let slot = Arc::clone(&running);
+    let clock = VirtualClock::at_epoch();
+    let mut rig = RigBuilder::from_config(config)
+        .simulated()
+        .clock(Arc::new(clock.clone()))
+        .log_to_stderr(false)
+        .quiet()
+        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
+        .start(before, "flip.rhai")
+        .unwrap();
+    for i in 0..400u32 {
+        rig.runner.advance(Duration::from_millis(100));
+        rig.sim.set_input("io", 0, i % 2 == 0).unwrap();
+        if i == 50 {
+            rig.runner.reload_at_next_tick(after.into(), "flip.rhai".into());
+        }
+    }
+    rig.runner.signal_stop();
+    let report = running.lock().unwrap().take().unwrap().finish();
+    assert_eq!(report.rotations, 1, "{report:?}");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let first = text.lines().find(|l| l.starts_with("H ")).unwrap();
+    let last_part: Header = serde_json::from_str(&first[2..]).unwrap();
+    assert_eq!(last_part.script, after, "the part begun after the reload");
+    let journal = read_journal(&path).unwrap();
+    assert_eq!(journal.header.script, before, "a replay from the start runs the first");
+    let outcome = replay(&journal, &Options::default()).unwrap();
+    assert_eq!(outcome.divergence, None);
+    assert_eq!(outcome.recorded, outcome.replayed);
 }

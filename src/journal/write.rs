@@ -5,7 +5,7 @@
 //! is moved aside to `FILE.1` (the one before that is deleted) and a new part begins, opening
 //! with the last reading of every input.
 
-use super::entry::Entry;
+use super::entry::{Entry, What};
 use super::read::older_part;
 use super::tally::{Tally, KINDS};
 use super::{Header, MAGIC, VERSION};
@@ -162,7 +162,7 @@ impl Prepared {
             let entry = match next {
                 Ok(Next::Event(event)) => {
                     let ended = matches!(*event, RunEvent::Ended { .. });
-                    let entry = tally.take(&event);
+                    let entry = tally.take(sub.tick(), &event);
                     if let Some(e) = entry {
                         if let Err(e) = self.put(&e, &tally) {
                             report.failed = Some(e.to_string());
@@ -177,7 +177,7 @@ impl Prepared {
                 }
                 Ok(Next::Dropped(n)) => {
                     report.lost += n;
-                    tally.gap(n)
+                    tally.gap(sub.tick(), n)
                 }
                 Ok(Next::Quiet) | Err(RecvTimeoutError::Timeout) => continue,
                 Err(RecvTimeoutError::Disconnected) => break,
@@ -205,6 +205,12 @@ impl Prepared {
         self.out.write_all(line.as_bytes())?;
         self.out.write_all(b"\n")?;
         self.written += len;
+        // A part started after a reload names the script that runs by then.
+        if let What::Reloaded { hash, file, source } = &entry.what {
+            self.header.hash.clone_from(hash);
+            self.header.script_file.clone_from(file);
+            self.header.script.clone_from(source);
+        }
         Ok(())
     }
 

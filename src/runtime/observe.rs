@@ -90,6 +90,26 @@ pub enum RunEvent {
         /// What was read.
         reading: Reading,
     },
+    /// A tick ran past the next deadline (also told as a `Tick`, for those that take only
+    /// overruns: the journal).
+    Overrun {
+        /// Its number.
+        tick: u64,
+        /// How late it started after its deadline, in microseconds.
+        late_us: u64,
+        /// How long its work took, in microseconds.
+        work_us: u64,
+    },
+    /// The script was reloaded: from this tick on the run runs `source` (its content hash
+    /// `hash`) from `file`. Built only for a consumer that takes it (the journal).
+    Reloaded {
+        /// The new script's file.
+        file: String,
+        /// Its content hash.
+        hash: String,
+        /// Its text.
+        source: String,
+    },
     /// A reading made for those watching the rig (`runtime::watched_image`), of an input the
     /// script did not read lately, differs from what was shown before. Not taken in by the
     /// script: a journal leaves it out, as replay needs only what the loop took in.
@@ -204,6 +224,10 @@ pub enum EventKind {
     Inputs,
     /// `RunEvent::Shown`.
     Shown,
+    /// `RunEvent::Overrun`.
+    Overrun,
+    /// `RunEvent::Reloaded`.
+    Reloaded,
     /// `RunEvent::Outputs`.
     Outputs,
     /// `RunEvent::DeviceLost`.
@@ -236,6 +260,7 @@ impl RunEvent {
                 RunEvent::Outputs { cause, .. } | RunEvent::DeviceLost { cause, .. } => cause.len(),
                 RunEvent::Ended { reason, .. } => reason.len(),
                 RunEvent::Published { topic, payload } => topic.len() + payload.len(),
+                RunEvent::Reloaded { file, source, .. } => file.len() + source.len(),
                 _ => 0,
             }
     }
@@ -249,6 +274,8 @@ impl RunEvent {
             RunEvent::Tick { .. } => EventKind::Tick,
             RunEvent::Inputs { .. } => EventKind::Inputs,
             RunEvent::Shown { .. } => EventKind::Shown,
+            RunEvent::Overrun { .. } => EventKind::Overrun,
+            RunEvent::Reloaded { .. } => EventKind::Reloaded,
             RunEvent::Outputs { .. } => EventKind::Outputs,
             RunEvent::DeviceLost { .. } => EventKind::DeviceLost,
             RunEvent::DeviceBack { .. } => EventKind::DeviceBack,
@@ -299,6 +326,8 @@ struct Fanout {
     turns: AtomicU64,
     /// `Watching` tokens held: someone looks at the rig's whole I/O image.
     watchers: AtomicUsize,
+    /// The tick what is published now belongs to (`Events::in_tick`).
+    tick: AtomicU64,
 }
 
 struct Consumer {
@@ -317,9 +346,10 @@ struct Consumer {
     unreported: u64,
 }
 
-/// One event in a consumer's queue, with the losses just before it.
+/// One event in a consumer's queue, with the losses just before it and its tick.
 struct Delivery {
     lost_before: u64,
+    tick: u64,
     weight: usize,
     event: Arc<RunEvent>,
 }
@@ -340,6 +370,8 @@ pub struct Subscription {
     accounted: std::cell::Cell<u64>,
     /// The event after a loss handed over first (`handover`).
     held: Option<Arc<RunEvent>>,
+    /// The tick the last event received was published in.
+    tick: std::cell::Cell<u64>,
     _alive: Arc<()>,
     id: u64,
     fanout: Weak<Fanout>,
@@ -431,6 +463,14 @@ impl Events {
             .store(n.wrapping_add(1), Ordering::Release);
     }
 
+    /// What is published from now on belongs to tick `n`: the loop says so as each tick ends
+    /// (`n` is the next), one store a tick; a consumer reads it with each event
+    /// (`Subscription::tick`), so it needs no event a tick to place events in their ticks.
+    #[inline]
+    pub fn in_tick(&self, n: u64) {
+        self.fanout.tick.store(n, Ordering::Relaxed);
+    }
+
     /// Says someone watches the rig live until the token is dropped.
     pub fn watching(&self) -> Watching {
         self.fanout.watchers.fetch_add(1, Ordering::Relaxed);
@@ -461,6 +501,7 @@ impl Events {
             return;
         }
         let weight = event.weight();
+        let tick = self.fanout.tick.load(Ordering::Relaxed);
         let event = Arc::new(event);
         let mut consumers = lock(&self.fanout.consumers);
         consumers.retain_mut(|c| {
@@ -477,6 +518,7 @@ impl Events {
             } else {
                 let delivery = Delivery {
                     lost_before: c.unreported,
+                    tick,
                     weight,
                     event: Arc::clone(&event),
                 };
@@ -550,6 +592,7 @@ impl Events {
             told: 0,
             accounted: std::cell::Cell::new(0),
             held: None,
+            tick: std::cell::Cell::new(0),
             _alive: alive,
             id,
             fanout: Arc::downgrade(&self.fanout),
@@ -659,12 +702,19 @@ impl Subscription {
         self.queued.fetch_sub(delivery.weight, Ordering::Relaxed);
         self.accounted
             .set(self.accounted.get().saturating_add(delivery.lost_before));
+        self.tick.set(delivery.tick);
         Ok(delivery.event)
     }
 
     /// Events lost so far.
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// The tick the event last handed over was published in (`Events::in_tick`; after a
+    /// `Next::Dropped`, the tick of the event after the loss).
+    pub fn tick(&self) -> u64 {
+        self.tick.get()
     }
 
     /// This consumer's count of lost events, to read from elsewhere.
@@ -700,6 +750,45 @@ mod tests {
             work_us: 1,
             overrun: false,
         }
+    }
+
+    #[test]
+    fn each_event_comes_with_the_tick_it_was_published_in_and_a_loss_with_the_next_one_s() {
+        let events = Events::default();
+        let mut sub = events
+            .subscribe_to("stamps", Bound::events(2), Kinds::of(&[EventKind::Tick]))
+            .unwrap();
+        events.publish(|| tick(1));
+        events.in_tick(2);
+        events.publish(|| tick(2));
+        events.publish(|| tick(3)); // lost: the queue holds two
+        events.in_tick(7);
+        let first = sub.handover(Duration::ZERO).unwrap();
+        assert_eq!(first, Next::Event(Arc::new(tick(1))));
+        assert_eq!(sub.tick(), 0);
+        sub.handover(Duration::ZERO).unwrap();
+        assert_eq!(sub.tick(), 2);
+        events.publish(|| tick(4));
+        assert_eq!(sub.handover(Duration::ZERO).unwrap(), Next::Dropped(1));
+        assert_eq!(sub.tick(), 7, "the loss, in the tick of the event after it");
+        assert_eq!(
+            sub.handover(Duration::ZERO).unwrap(),
+            Next::Event(Arc::new(tick(4)))
+        );
+        assert_eq!(sub.tick(), 7);
+    }
+
+    #[test]
+    fn a_watching_token_counts_while_it_is_held() {
+        let events = Events::default();
+        assert_eq!(events.watchers(), 0);
+        let a = events.watching();
+        let b = events.clone().watching();
+        assert_eq!(events.watchers(), 2);
+        drop(a);
+        assert_eq!(events.watchers(), 1);
+        drop(b);
+        assert_eq!(events.watchers(), 0);
     }
 
     #[test]

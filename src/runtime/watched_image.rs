@@ -115,7 +115,14 @@ impl<H: Clone> Runtime<H> {
     /// Reads for watchers the first part due, if anyone watches and the read ends by `until`
     /// (the next tick's boundary); `period` is the loop's.
     pub fn read_for_watchers(&mut self, until: Duration, period: Duration) {
+        // A rig nobody watches pays two loads here, not a clock read.
+        if self.events().watchers() == 0 && self.image.asked_until.is_none() {
+            return;
+        }
         let now = self.now();
+        if self.image.asked_until.is_some_and(|t| t <= now) {
+            self.image.asked_until = None;
+        }
         if !self.watched(now) {
             return;
         }

@@ -80,6 +80,8 @@ pub struct Runner<P: Program> {
     rollback: Option<Duration>,
     /// The way back from the last reload, within its rollback window.
     undo: Option<reload::Undo<P::Handler>>,
+    /// Reloads a replay asks for at the next tick (`reload_at_next_tick`): text and file.
+    replayed_reloads: Vec<(String, String)>,
     /// When each invariant was last found false (the run's uptime), by name.
     invariants_failed: std::collections::BTreeMap<String, Duration>,
     /// The invariants false on the outputs written now, each allowed by a force held.
@@ -117,6 +119,7 @@ impl<P: Program> Runner<P> {
             identity: reload::ScriptIdentity::default(),
             rollback: None,
             undo: None,
+            replayed_reloads: Vec::new(),
             invariants_failed: std::collections::BTreeMap::new(),
             overridden: Vec::new(),
         }

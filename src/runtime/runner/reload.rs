@@ -9,6 +9,7 @@
 use super::contract::{describe, Program};
 use super::{Runner, State};
 use crate::content_hash::{content_hash, short};
+use crate::runtime::observe::{EventKind, RunEvent};
 use crate::runtime::program_state::Setup;
 use crate::runtime::requests::{Answer, Request};
 use serde_json::json;
@@ -111,8 +112,18 @@ impl<P: Program> Runner<P> {
         self.identity.file = file.to_string();
     }
 
+    /// Swaps `source` (from `file`) in at the next tick's boundary, as a run's reload was:
+    /// what a replay does where its journal says the run was reloaded.
+    pub fn reload_at_next_tick(&mut self, source: String, file: String) {
+        self.replayed_reloads.push((source, file));
+    }
+
     /// The reloads waiting, each done or refused and answered; before the tick's handlers.
     pub(super) fn reload_waiting(&mut self) {
+        for (source, file) in std::mem::take(&mut self.replayed_reloads) {
+            // A refusal is logged and recorded as the run's own would be.
+            let _ = self.reload(&source, &file, "the journal's replay");
+        }
         let waiting = match self.served.as_mut() {
             Some(served) if !served.reloads.is_empty() => std::mem::take(&mut served.reloads),
             _ => {
@@ -173,6 +184,13 @@ impl<P: Program> Runner<P> {
                     "reload",
                     json!({"file": file, "from": old, "to": new, "by": by, "carried": carried}),
                 );
+                if rt.events().wants(EventKind::Reloaded) {
+                    rt.events().publish(|| RunEvent::Reloaded {
+                        file: file.to_string(),
+                        hash: new.clone(),
+                        source: source.to_string(),
+                    });
+                }
                 self.identity.hash = new;
                 self.identity.file = file.to_string();
                 self.identity.reloads = self.identity.reloads.saturating_add(1);

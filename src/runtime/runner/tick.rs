@@ -106,16 +106,27 @@ impl<P: Program> Runner<P> {
         self.stats.max_transactions = self.stats.max_transactions.max(spent);
         let deadline = self.next_deadline;
         self.schedule_next(end);
+        let tick = self.stats.ticks;
+        let overrun = end > deadline.saturating_add(self.options.period);
+        let late_us = || micros(start.saturating_sub(deadline));
+        let work_us = || micros(end.saturating_sub(start));
         if self.events.wants(EventKind::Tick) {
-            let tick = self.stats.ticks;
-            let overrun = end > deadline.saturating_add(self.options.period);
             self.events.publish(|| RunEvent::Tick {
                 tick,
-                late_us: micros(start.saturating_sub(deadline)),
-                work_us: micros(end.saturating_sub(start)),
+                late_us: late_us(),
+                work_us: work_us(),
                 overrun,
             });
         }
+        if overrun && self.events.wants(EventKind::Overrun) {
+            self.events.publish(|| RunEvent::Overrun {
+                tick,
+                late_us: late_us(),
+                work_us: work_us(),
+            });
+        }
+        // What comes from here on (requests, the wait's upkeep) belongs to the next tick.
+        self.events.in_tick(tick.saturating_add(1));
         self.answer_requests();
     }
 
