@@ -2,6 +2,7 @@
 //! a few bytes for what changes often (an input byte is `1520 i io 0f`).
 
 use crate::protocol::trc1000::{Rotary, Switch};
+use crate::runtime::observe::OperatorAct;
 use chrono::{DateTime, Utc};
 use std::fmt::Write;
 
@@ -94,6 +95,9 @@ pub enum What {
         /// Its text.
         source: String,
     },
+    /// An operator or a remote consumer changed what the run does (a force, a command, a
+    /// watched message).
+    Operated(OperatorAct),
     /// The run ended.
     Ended {
         /// Exit status.
@@ -184,6 +188,12 @@ impl Entry {
             What::Gap { events } => write!(l, "gap {events}"),
             What::Ended { status, reason } => write!(l, "end {status} {}", escaped(reason)),
             // The file and the text apart by a tab, which neither holds escaped.
+            // One JSON object, which holds no line break.
+            What::Operated(act) => write!(
+                l,
+                "op {}",
+                serde_json::to_string(act).unwrap_or_default()
+            ),
             What::Reloaded { hash, file, source } => {
                 write!(l, "reload {hash} {}\t{}", escaped(file), escaped(source))
             }
@@ -299,6 +309,9 @@ impl Entry {
                     reason: unescaped(reason)?,
                 }
             }
+            "op" => What::Operated(
+                serde_json::from_str(rest).map_err(|e| format!("op: {rest:?}: {e}"))?,
+            ),
             "reload" => {
                 let (hash, rest) = rest.split_once(' ').ok_or("reload: a hash and a file")?;
                 let (file, source) = rest
@@ -369,6 +382,19 @@ mod tests {
                 status: 143,
                 reason: "SIGTERM".into(),
             },
+            What::Operated(OperatorAct::Command {
+                name: "start".into(),
+                payload: "{\"batch\": 7}\n".into(),
+            }),
+            What::Operated(OperatorAct::Force {
+                order: crate::runtime::forcing::ForceOrder {
+                    point: "io.DO0".into(),
+                    value: crate::runtime::forcing::ForceValue::On(true),
+                    duration: "1m".into(),
+                    overrides: vec!["power only with the guard closed".into()],
+                },
+                by: "rigscript force (pid 7, uid 1000)".into(),
+            }),
             What::Reloaded {
                 hash: "81a135590daef224".into(),
                 file: "my scripts/press\tline.rhai".into(),

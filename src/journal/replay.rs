@@ -12,7 +12,7 @@ use super::tally::{device, Tally, KINDS};
 use crate::config::RigConfig;
 use crate::protocol::trc1000::{Rotary, Switch};
 use crate::runtime::devices::{FieldError, Opened, SimRig};
-use crate::runtime::observe::{Bound, Kinds, Next, Subscription};
+use crate::runtime::observe::{Bound, Kinds, Next, OperatorAct, Subscription};
 use crate::script::builder::RigBuilder;
 use crate::script::reads::Item;
 use crate::script::rig::{Rig, RigError};
@@ -276,12 +276,15 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
     let mut overruns: BTreeMap<u64, (u64, u64)> = BTreeMap::new();
     // The reloads the run made, by tick: the replay makes them at the same boundaries.
     let mut reloads: BTreeMap<u64, Vec<(String, String)>> = BTreeMap::new();
+    // What operators asked (forces, commands, messages), by the tick it was taken in.
+    let mut operated: BTreeMap<u64, Vec<OperatorAct>> = BTreeMap::new();
     let mut recorded = Vec::new();
     for e in journal.entries.iter().filter(|e| e.tick <= until) {
         match &e.what {
             What::Overrun { late_us, work_us } => {
                 overruns.insert(e.tick, (*late_us, *work_us));
             }
+            What::Operated(act) => operated.entry(e.tick).or_default().push(act.clone()),
             What::Reloaded { file, source, .. } => {
                 notes.push(format!(
                     "the run was reloaded with {file} in tick {}: the replay reloads it there too",
@@ -361,6 +364,12 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         .map_err(|e| ReplayError::Start(Box::new(e)))?;
     rig.runner
         .set_rollback(h.rollback_ms.map(Duration::from_millis));
+    // A control queue, as the run had, only when an operator acted on the run.
+    let ask = (!operated.is_empty()).then(|| {
+        let (ask, requests) = crate::runtime::requests::queue(&Arc::default());
+        rig.runner.serve(requests, &file, rig.sim.clone());
+        ask
+    });
     let mut f = lock(&start_field).take().unwrap_or(Ok(Field::default()))?;
     let mut sub = lock(&sub)
         .take()
@@ -398,6 +407,11 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         }
         for (source, file) in reloads.remove(&next).unwrap_or_default() {
             rig.runner.reload_at_next_tick(source, file);
+        }
+        if let Some(ask) = &ask {
+            for act in operated.remove(&next).unwrap_or_default() {
+                rig.runner.ask_replayed(ask, &act);
+            }
         }
         let due = rig.runner.next_deadline();
         if rig.runner.step_toward(due).is_none() {

@@ -9,7 +9,7 @@ use crate::protocol::trc1000::Switch;
 use crate::runtime::observe::{EventKind, Reading, RunEvent};
 
 /// The kinds of event a journal takes.
-pub const KINDS: [EventKind; 9] = [
+pub const KINDS: [EventKind; 10] = [
     EventKind::ScriptStarted,
     EventKind::ScriptFailed,
     EventKind::Overrun,
@@ -18,6 +18,7 @@ pub const KINDS: [EventKind; 9] = [
     EventKind::DeviceLost,
     EventKind::DeviceBack,
     EventKind::Reloaded,
+    EventKind::Operated,
     EventKind::Ended,
 ];
 
@@ -113,6 +114,7 @@ impl Tally {
             RunEvent::DeviceBack { device } => What::Back {
                 dev: device.clone(),
             },
+            RunEvent::Operated { act } => What::Operated(act.clone()),
             RunEvent::Reloaded { file, hash, source } => What::Reloaded {
                 hash: hash.clone(),
                 file: file.clone(),

@@ -367,3 +367,100 @@ fn a_part_begun_after_a_reload_names_the_script_that_runs_by_then() {
     assert_eq!(outcome.divergence, None);
     assert_eq!(outcome.recorded, outcome.replayed);
 }
+
+#[test]
+fn forces_and_commands_are_journaled_and_asked_again_where_the_run_took_them() {
+    use crate::runtime::forcing::{ForceOrder, ForceValue};
+    use crate::runtime::observe::OperatorAct;
+    use crate::runtime::remote::{Command, Remote, ReplyTo};
+    use crate::runtime::requests::Request;
+    let d = dir();
+    let path = d.path().join("operated.journal");
+    let toml = "force = true\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/null\"\n";
+    let config = RigConfig::parse(toml, "rig.toml").unwrap();
+    let source = "let io = device(\"io\");\nlet n = 0;\n\
+                  on_command(\"add\", |p| { n += p; io.outputs = n % 128; n });\n\
+                  io.on_rise(0, || { n += 1; io.outputs = n % 128; });\n";
+    let mut header = Header::first("op.rhai", source, None, &config, config.period, None).unwrap();
+    header.zone = "UTC".into();
+    // As `--config rig.toml` keeps it: the replay's rig allows forcing too.
+    header.config = Some(toml.into());
+    let mut settings = Settings::new(&path, 1 << 30);
+    settings.bound = Bound::events(1 << 20);
+    let prepared = Prepared::new(settings, header).unwrap();
+    let running = Arc::new(Mutex::new(None));
+    let slot = Arc::clone(&running);
+    let clock = VirtualClock::at_epoch();
+    let mut rig = RigBuilder::from_config(config)
+        .simulated()
+        .clock(Arc::new(clock.clone()))
+        .log_to_stderr(false)
+        .quiet()
+        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
+        .start(source, "op.rhai")
+        .unwrap();
+    let (ask, requests) = crate::runtime::requests::queue(&Arc::default());
+    rig.runner.serve(requests, "op.rhai", rig.sim.clone());
+    let force = |on: bool| Request::Force {
+        order: ForceOrder {
+            point: "io.DO7".into(),
+            value: ForceValue::On(on),
+            duration: "1m".into(),
+            overrides: Vec::new(),
+        },
+        by: "the test".into(),
+    };
+    let (reply, answers) = std::sync::mpsc::sync_channel(4);
+    for step in 0..60u32 {
+        rig.runner.advance(Duration::from_millis(230));
+        rig.sim.set_input("io", 0, step % 3 == 0).unwrap();
+        // Asked as the socket and the MQTT client ask: queued, taken between ticks.
+        let request = match step {
+            10 => Some(force(true)),
+            20 => Some(Request::Remote(Remote::Command(Command {
+                name: "add".into(),
+                payload: "5".into(),
+                reply: ReplyTo(reply.clone()),
+            }))),
+            30 => Some(Request::Unforce {
+                point: "io.DO7".into(),
+                by: "the test".into(),
+            }),
+            _ => None,
+        };
+        if let Some(r) = request {
+            let _ = ask.ask(r, Duration::ZERO);
+        }
+    }
+    rig.runner.signal_stop();
+    let report = running.lock().unwrap().take().unwrap().finish();
+    assert_eq!(report.lost, 0);
+    assert!(answers.try_recv().is_ok_and(|a| a.is_ok()), "the command ran");
+    let journal = read_journal(&path).unwrap();
+    let acts: Vec<&OperatorAct> = journal
+        .entries
+        .iter()
+        .filter_map(|e| match &e.what {
+            What::Operated(act) => Some(act),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        matches!(
+            acts.as_slice(),
+            [
+                OperatorAct::Force { .. },
+                OperatorAct::Command { .. },
+                OperatorAct::Unforce { .. }
+            ]
+        ),
+        "{acts:?}"
+    );
+    let outcome = replay(&journal, &Options::default()).unwrap();
+    let forced = outcome.recorded.iter().filter(|e| {
+        matches!(&e.what, What::Outputs { value, .. } if value & 0x80 != 0)
+    });
+    assert!(forced.count() >= 1, "the force wrote DO7: {:?}", outcome.recorded);
+    assert_eq!(outcome.divergence, None);
+    assert_eq!(outcome.recorded, outcome.replayed);
+}

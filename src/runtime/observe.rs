@@ -110,6 +110,13 @@ pub enum RunEvent {
         /// Its text.
         source: String,
     },
+    /// Someone outside the loop changed what it does: a force taken or ended, a command or a
+    /// watched message run. Built only for a consumer that takes it (the journal, so that a
+    /// replay asks the same at the same tick).
+    Operated {
+        /// What was done.
+        act: OperatorAct,
+    },
     /// A reading made for those watching the rig (`runtime::watched_image`), of an input the
     /// script did not read lately, differs from what was shown before. Not taken in by the
     /// script: a journal leaves it out, as replay needs only what the loop took in.
@@ -178,6 +185,40 @@ pub enum RunEvent {
     },
 }
 
+/// What someone outside the loop did to it (`RunEvent::Operated`), as a replay asks it again.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(tag = "act", rename_all = "snake_case")]
+pub enum OperatorAct {
+    /// A force taken (`rigscript force`, the page), by whom.
+    Force {
+        /// The order as taken.
+        order: super::forcing::ForceOrder,
+        /// Who asked.
+        by: String,
+    },
+    /// A force ended on request (`rigscript unforce`, the page), by whom.
+    Unforce {
+        /// `DEVICE.POINT`.
+        point: String,
+        /// Who asked.
+        by: String,
+    },
+    /// A command run by the script's `on_command` handler.
+    Command {
+        /// Its name.
+        name: String,
+        /// Its payload.
+        payload: String,
+    },
+    /// A watched topic's message handed to the script's `on_message` handler.
+    Message {
+        /// The topic.
+        topic: String,
+        /// The payload.
+        payload: String,
+    },
+}
+
 /// A reading of one kind of input.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -228,6 +269,8 @@ pub enum EventKind {
     Overrun,
     /// `RunEvent::Reloaded`.
     Reloaded,
+    /// `RunEvent::Operated`.
+    Operated,
     /// `RunEvent::Outputs`.
     Outputs,
     /// `RunEvent::DeviceLost`.
@@ -276,6 +319,7 @@ impl RunEvent {
             RunEvent::Shown { .. } => EventKind::Shown,
             RunEvent::Overrun { .. } => EventKind::Overrun,
             RunEvent::Reloaded { .. } => EventKind::Reloaded,
+            RunEvent::Operated { .. } => EventKind::Operated,
             RunEvent::Outputs { .. } => EventKind::Outputs,
             RunEvent::DeviceLost { .. } => EventKind::DeviceLost,
             RunEvent::DeviceBack { .. } => EventKind::DeviceBack,

@@ -10,7 +10,9 @@
 use super::contract::{describe, HandlerFault, Program};
 use super::{Runner, State};
 use crate::runtime::handlers::{Arg, Source};
+use crate::runtime::observe::{EventKind, OperatorAct, RunEvent};
 use crate::runtime::remote::{Command, Remote, TurnedAway};
+use crate::runtime::requests::Request;
 use crate::runtime::topic_filter::filter_matches;
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -193,14 +195,70 @@ impl<P: Program> Runner<P> {
             }
             match waiter {
                 Waiter::Command(command) => {
+                    self.tell_operated(|| {
+                        Some(OperatorAct::Command {
+                            name: command.name.clone(),
+                            payload: command.payload.clone(),
+                        })
+                    });
                     self.run_command(&command);
                 }
-                Waiter::Message { topic, payload } => self.hand_message(&topic, &payload),
+                Waiter::Message { topic, payload } => {
+                    self.tell_operated(|| {
+                        Some(OperatorAct::Message {
+                            topic: topic.clone(),
+                            payload: payload.clone(),
+                        })
+                    });
+                    self.hand_message(&topic, &payload);
+                }
             }
         }
         if !self.can_run_remote() {
             self.refuse_waiting();
         }
+    }
+
+    /// Tells what `act` makes (a consumer that takes `Operated`: the journal).
+    pub(super) fn tell_operated(&self, act: impl FnOnce() -> Option<OperatorAct>) {
+        if self.events.wants(EventKind::Operated) {
+            if let Some(act) = act() {
+                self.events.publish(|| RunEvent::Operated { act });
+            }
+        }
+    }
+
+    /// Lets a replay ask what the journal says an operator asked (`act`), through the
+    /// control queue `ask` feeds (`serve`), and takes it at once, as the run took it between
+    /// ticks: a force now, a command or a message at the next tick.
+    pub fn ask_replayed(&mut self, ask: &crate::runtime::requests::Requester, act: &OperatorAct) {
+        let by = |by: &str| format!("{by} (replayed)");
+        let request = match act {
+            OperatorAct::Force { order, by: who } => Request::Force {
+                order: order.clone(),
+                by: by(who),
+            },
+            OperatorAct::Unforce { point, by: who } => Request::Unforce {
+                point: point.clone(),
+                by: by(who),
+            },
+            OperatorAct::Command { name, payload } => {
+                // Nobody waits for the reply.
+                let (reply, _) = std::sync::mpsc::sync_channel(1);
+                Request::Remote(Remote::Command(Command {
+                    name: name.clone(),
+                    payload: payload.clone(),
+                    reply: crate::runtime::remote::ReplyTo(reply),
+                }))
+            }
+            OperatorAct::Message { topic, payload } => Request::Remote(Remote::Message {
+                topic: topic.clone(),
+                payload: payload.clone(),
+            }),
+        };
+        // Queued at once: the answer is taken below, on this thread.
+        let _ = ask.ask(request, Duration::ZERO);
+        self.answer_requests();
     }
 
     /// Answers every waiting command with why it cannot run and drops the waiting messages

@@ -5,7 +5,7 @@ use super::contract::Program;
 use super::remote::Waiting;
 use super::{Runner, State};
 use crate::runtime::devices::SimRig;
-use crate::runtime::observe::Events;
+use crate::runtime::observe::{Events, OperatorAct};
 use crate::runtime::requests::{Answer, Later, Request, Requests};
 use crate::runtime::snapshot::{
     millis, DeviceState, InvariantState, RigSnapshot, ScriptState, TickFigures, Variables,
@@ -211,6 +211,19 @@ impl<P: Program> Runner<P> {
         for f in forces {
             forced = true;
             let answer = self.answer_force(&f.request);
+            if answer == Answer::Accepted {
+                self.tell_operated(|| match &f.request {
+                    Request::Force { order, by } => Some(OperatorAct::Force {
+                        order: order.clone(),
+                        by: by.clone(),
+                    }),
+                    Request::Unforce { point, by } => Some(OperatorAct::Unforce {
+                        point: point.clone(),
+                        by: by.clone(),
+                    }),
+                    _ => None,
+                });
+            }
             f.answer(answer);
         }
         for r in remote {
