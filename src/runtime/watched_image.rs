@@ -100,7 +100,18 @@ impl<H: Clone> Runtime<H> {
     }
 
     /// Whether watching began since the last call (a loop idle until later then ticks soon).
-    pub fn watching_began(&mut self, now: Duration) -> bool {
+    /// Asked after each turn's requests: nobody watching costs two loads, not a clock read.
+    pub fn watching_began(&mut self) -> bool {
+        if self.events().watchers() == 0
+            && self.image.asked_until.is_none()
+            && !self.image.was_watched
+        {
+            return false;
+        }
+        let now = self.now();
+        if self.image.asked_until.is_some_and(|t| t <= now) {
+            self.image.asked_until = None;
+        }
         let watched = self.watched(now);
         let began = watched && !self.image.was_watched;
         self.image.was_watched = watched;
@@ -529,15 +540,15 @@ mod tests {
     fn watching_lasts_while_a_token_is_held_or_a_snapshot_was_asked_lately() {
         let mut r = TestRig::started();
         let now = r.rt.now();
-        assert!(!r.rt.watching_began(now));
+        assert!(!r.rt.watching_began());
         let token = r.rt.events().watching();
-        assert!(r.rt.watching_began(now));
-        assert!(!r.rt.watching_began(now), "began once");
+        assert!(r.rt.watching_began());
+        assert!(!r.rt.watching_began(), "began once");
         drop(token);
         assert!(!r.rt.watched(now));
-        assert!(!r.rt.watching_began(now), "ended");
+        assert!(!r.rt.watching_began(), "ended");
         r.rt.snapshot_asked(now);
-        assert!(r.rt.watching_began(now));
+        assert!(r.rt.watching_began());
         assert!(r.rt.watched(now + LINGER - TICK));
         assert!(!r.rt.watched(now + LINGER));
         // A rig idle until later ticks for its watchers every REFRESH.

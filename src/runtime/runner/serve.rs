@@ -199,11 +199,11 @@ impl<P: Program> Runner<P> {
         }
         let began = {
             let mut rt = self.rt.borrow_mut();
-            let now = rt.now();
             if asked {
+                let now = rt.now();
                 rt.snapshot_asked(now);
             }
-            rt.watching_began(now)
+            rt.watching_began()
         };
         let (forces, later): (Vec<Later>, Vec<Later>) = later.into_iter().partition(|l| {
             matches!(l.request, Request::Force { .. } | Request::Unforce { .. })
