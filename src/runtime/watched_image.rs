@@ -86,6 +86,8 @@ pub struct WatchedImage {
     parts: Vec<PartState>,
     /// The part looked at first next time: each gets its turn.
     next: usize,
+    /// The loop's period, as last told (`read_for_watchers`).
+    period: Duration,
 }
 
 impl<H: Clone> Runtime<H> {
@@ -118,9 +120,24 @@ impl<H: Clone> Runtime<H> {
         began
     }
 
-    /// When a tick is next due for the watchers' sake (`None`: nobody watches).
+    /// When a tick is next due for the watchers' sake (`None`: nobody watches): at once when a
+    /// part is due that an idle tick has the time for (one that did not fit the last tick, a
+    /// late one, is tried again at the next), else when the next part falls due.
     pub fn next_watched_read(&self, now: Duration) -> Option<Duration> {
-        self.watched(now).then(|| now.saturating_add(REFRESH))
+        if !self.watched(now) {
+            return None;
+        }
+        let waiting = self.image.parts.iter().any(|p| {
+            p.waiting_since.is_some()
+                && self
+                    .expected(p)
+                    .is_some_and(|t| t.saturating_add(MARGIN) <= self.image.period)
+        });
+        Some(if waiting {
+            now
+        } else {
+            now.saturating_add(REFRESH)
+        })
     }
 
     /// Reads for watchers the first part due, if anyone watches and the read ends by `until`
@@ -140,6 +157,7 @@ impl<H: Clone> Runtime<H> {
         if self.image.parts.is_empty() {
             self.image.parts = self.every_part();
         }
+        self.image.period = period;
         self.note_script_reads(now);
         let left = until.saturating_sub(now);
         let count = self.image.parts.len();
@@ -476,8 +494,19 @@ mod tests {
         // The DI read: 14 characters and t3.5 at 9600 baud, 18.2 ms, and the margin.
         read(&mut r, Duration::from_millis(19));
         assert_eq!(r.requests(), before, "19 ms left: neither part fits");
+        let now = r.rt.now();
+        assert_eq!(
+            r.rt.next_watched_read(now),
+            Some(now),
+            "the DI read fits an idle tick: the next one tries again"
+        );
         read(&mut r, Duration::from_millis(20));
         assert_eq!(r.requests(), before + 1);
+        assert_eq!(
+            r.rt.next_watched_read(now),
+            Some(now + REFRESH),
+            "the counters fit no tick: no tick for them"
+        );
         let io = r.rt.devices.c29u(0).unwrap();
         assert!(io.latest_inputs().is_some());
         assert_eq!(io.latest_counters(), None, "the counters take 33.9 ms");
