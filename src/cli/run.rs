@@ -121,14 +121,21 @@ pub struct RunArgs {
     #[arg(long, value_name = "ADDR", num_args = 0..=1)]
     pub ui: Option<Option<SocketAddr>>,
     /// Journal what the scan loop takes in (inputs read that changed, device losses and
-    /// returns, overruns, the stop) and the outputs it writes to FILE, with the rig, the
-    /// script's text and its hash, for `rigscript replay`. Written off the loop.
+    /// returns, overruns, reloads, forces and commands, the stop) and the outputs it writes to
+    /// FILE, with the rig, the script's text and its hash, for `rigscript replay`. Written off
+    /// the loop.
     #[arg(long, value_name = "FILE")]
     pub journal: Option<PathBuf>,
     /// The journal's bound ("64MiB" by default): a part that reaches half of it is moved to
     /// FILE.1 and a new one begins.
     #[arg(long, value_name = "SIZE", value_parser = memory_limit, requires = "journal")]
     pub journal_size: Option<u64>,
+    /// Journal the rig's whole I/O image too: the inputs the script does not read are read
+    /// as for someone watching (at most every 100 ms each, when a tick has the time on the
+    /// line) and journaled apart, so a replay of an edited script that reads more has values
+    /// for them.
+    #[arg(long, requires = "journal")]
+    pub journal_image: bool,
     /// The scenario tests a reload runs before it swaps the script in (default:
     /// tests/NAME.test.rhai beside the script, if there is one)
     #[arg(long, value_name = "PATH")]
@@ -298,7 +305,9 @@ pub fn run(args: RunArgs) -> i32 {
                 header
             })
             .and_then(|header| {
-                journal::write::Prepared::new(journal::write::Settings::new(path, size), header)
+                let mut settings = journal::write::Settings::new(path, size);
+                settings.image = args.journal_image;
+                journal::write::Prepared::new(settings, header)
                     .map_err(|e| e.to_string())
             });
             match prepared {

@@ -95,6 +95,9 @@ pub enum What {
         /// Its text.
         source: String,
     },
+    /// A reading made only for those watching the rig (`run --journal-image`): one of
+    /// `Inputs`, `Counters`, `Switches`, `Rotaries`, which the script did not read.
+    Shown(Box<What>),
     /// An operator or a remote consumer changed what the run does (a force, a command, a
     /// watched message).
     Operated(OperatorAct),
@@ -153,6 +156,16 @@ fn unescaped(text: &str) -> Result<String, String> {
 impl Entry {
     /// The entry's line, without its line break.
     pub fn line(&self) -> String {
+        // A reading made for watchers is its reading's line with `w` before the kind.
+        if let What::Shown(inner) = &self.what {
+            let tick = self.tick.to_string();
+            let line = Entry {
+                tick: self.tick,
+                what: (**inner).clone(),
+            }
+            .line();
+            return format!("{tick} w{}", &line[tick.len() + 1..]);
+        }
         let mut l = format!("{} ", self.tick);
         let _ = match &self.what {
             What::Started { restarts, since } => write!(
@@ -189,6 +202,7 @@ impl Entry {
             What::Ended { status, reason } => write!(l, "end {status} {}", escaped(reason)),
             // The file and the text apart by a tab, which neither holds escaped.
             // One JSON object, which holds no line break.
+            What::Shown(_) => Ok(()),
             What::Operated(act) => write!(
                 l,
                 "op {}",
@@ -309,6 +323,16 @@ impl Entry {
                     reason: unescaped(reason)?,
                 }
             }
+            shown if shown.len() == 2 && shown.starts_with('w') => {
+                let inner = Entry::parse(&format!("{tick} {} {rest}", &shown[1..]))?;
+                match inner.what {
+                    What::Inputs { .. }
+                    | What::Counters { .. }
+                    | What::Switches { .. }
+                    | What::Rotaries { .. } => What::Shown(Box::new(inner.what)),
+                    _ => return Err(format!("{shown:?} is not a kind of entry")),
+                }
+            }
             "op" => What::Operated(
                 serde_json::from_str(rest).map_err(|e| format!("op: {rest:?}: {e}"))?,
             ),
@@ -382,6 +406,14 @@ mod tests {
                 status: 143,
                 reason: "SIGTERM".into(),
             },
+            What::Shown(Box::new(What::Counters {
+                dev: "io".into(),
+                values: [9, 0, 0, 3, 0, 0, 0, 65535],
+            })),
+            What::Shown(Box::new(What::Inputs {
+                dev: "io".into(),
+                byte: 0x81,
+            })),
             What::Operated(OperatorAct::Command {
                 name: "start".into(),
                 payload: "{\"batch\": 7}\n".into(),
@@ -420,6 +452,8 @@ mod tests {
             "5 q io",
             "5 c io 1,2",
             "5 s panel 99",
+            "5 wo io 01 x",
+            "5 wx io 01",
             "",
         ] {
             assert!(Entry::parse(bad).is_err(), "{bad:?}");

@@ -279,7 +279,36 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
     // What operators asked (forces, commands, messages), by the tick it was taken in.
     let mut operated: BTreeMap<u64, Vec<OperatorAct>> = BTreeMap::new();
     let mut recorded = Vec::new();
-    for e in journal.entries.iter().filter(|e| e.tick <= until) {
+    // Readings made for watchers (`run --journal-image`) stand for the field only where the
+    // run's script read nothing of that kind of that device: elsewhere the script's own
+    // readings are the field as it read it, and one made between two of them could set the
+    // simulator to a value the script never saw.
+    let script_read: std::collections::HashSet<(String, std::mem::Discriminant<What>)> = journal
+        .entries
+        .iter()
+        .filter_map(|e| Some((device(&e.what)?.to_string(), std::mem::discriminant(&e.what))))
+        .collect();
+    let shown: Vec<Entry> = journal
+        .entries
+        .iter()
+        .filter(|e| e.tick <= until)
+        .filter_map(|e| match &e.what {
+            What::Shown(inner) => {
+                let key = (device(inner)?.to_string(), std::mem::discriminant(&**inner));
+                (!script_read.contains(&key)).then(|| Entry {
+                    tick: e.tick,
+                    what: (**inner).clone(),
+                })
+            }
+            _ => None,
+        })
+        .collect();
+    for e in journal
+        .entries
+        .iter()
+        .filter(|e| e.tick <= until && !matches!(e.what, What::Shown(_)))
+        .chain(shown.iter())
+    {
         match &e.what {
             What::Overrun { late_us, work_us } => {
                 overruns.insert(e.tick, (*late_us, *work_us));
@@ -548,11 +577,15 @@ fn unrecorded_reads(journal: &Journal, rig: &Rig, names: &[String]) -> Vec<Unrec
     for r in c.invariant_reads.values() {
         reads.union(r);
     }
+    // A reading made for watchers (`run --journal-image`) is a recorded value too.
     let recorded = |dev: &str, kind: fn(&What) -> bool| {
-        journal
-            .entries
-            .iter()
-            .any(|e| device(&e.what) == Some(dev) && kind(&e.what))
+        journal.entries.iter().any(|e| {
+            let w = match &e.what {
+                What::Shown(inner) => inner,
+                w => w,
+            };
+            device(w) == Some(dev) && kind(w)
+        })
     };
     let mut out = BTreeSet::new();
     for (idx, item) in reads.items() {

@@ -75,28 +75,16 @@ impl Tally {
                 message: message.clone(),
             },
             RunEvent::Inputs { device, reading } => {
-                let dev = device.clone();
-                let what = match reading {
-                    Reading::DigitalInputs { value } => What::Inputs { dev, byte: *value },
-                    Reading::Counters { values } => What::Counters {
-                        dev,
-                        values: *values,
-                    },
-                    Reading::Switches { pressed } => What::Switches {
-                        dev,
-                        pressed: pressed
-                            .iter()
-                            .filter_map(|name| Switch::from_name(name))
-                            .collect(),
-                    },
-                    Reading::Rotaries { values } => What::Rotaries {
-                        dev,
-                        values: *values,
-                    },
+                let entry = Entry {
+                    tick,
+                    what: reading_what(device, reading),
                 };
-                let entry = Entry { tick, what };
                 self.remember(&entry);
                 return Some(entry);
+            }
+            // Taken only by a journal that asks for the whole image (`run --journal-image`).
+            RunEvent::Shown { device, reading } => {
+                What::Shown(Box::new(reading_what(device, reading)))
             }
             RunEvent::Outputs {
                 device,
@@ -152,6 +140,29 @@ impl Tally {
     /// The last reading of each input of each device, as entries of their ticks.
     pub fn readings(&self) -> &[Entry] {
         &self.readings
+    }
+}
+
+/// A reading of `dev` as an entry's `What`.
+fn reading_what(dev: &str, reading: &Reading) -> What {
+    let dev = dev.to_string();
+    match reading {
+        Reading::DigitalInputs { value } => What::Inputs { dev, byte: *value },
+        Reading::Counters { values } => What::Counters {
+            dev,
+            values: *values,
+        },
+        Reading::Switches { pressed } => What::Switches {
+            dev,
+            pressed: pressed
+                .iter()
+                .filter_map(|name| Switch::from_name(name))
+                .collect(),
+        },
+        Reading::Rotaries { values } => What::Rotaries {
+            dev,
+            values: *values,
+        },
     }
 }
 

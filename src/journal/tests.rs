@@ -464,3 +464,86 @@ fn forces_and_commands_are_journaled_and_asked_again_where_the_run_took_them() {
     assert_eq!(outcome.divergence, None);
     assert_eq!(outcome.recorded, outcome.replayed);
 }
+
+/// A run of `source` on one module at 115200 baud (where a tick has the time for every part
+/// of its image) whose DI0 goes on and off and whose DI3 counts, journaled to `path`, with
+/// the whole image if `image`.
+fn counted_run(source: &str, path: &Path, image: bool) {
+    let toml = "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/null\"\nbaud = 115200\n";
+    let config = RigConfig::parse(toml, "rig.toml").unwrap();
+    let mut header = Header::first("c.rhai", source, None, &config, config.period, None).unwrap();
+    header.zone = "UTC".into();
+    header.config = Some(toml.into());
+    let mut settings = Settings::new(path, 1 << 30);
+    settings.bound = Bound::events(1 << 20);
+    settings.image = image;
+    let prepared = Prepared::new(settings, header).unwrap();
+    let running = Arc::new(Mutex::new(None));
+    let slot = Arc::clone(&running);
+    let clock = VirtualClock::at_epoch();
+    let mut rig = RigBuilder::from_config(config)
+        .simulated()
+        .clock(Arc::new(clock.clone()))
+        .log_to_stderr(false)
+        .quiet()
+        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
+        .start(source, "c.rhai")
+        .unwrap();
+    for step in 0..40u32 {
+        rig.runner.advance(Duration::from_millis(250));
+        rig.sim.set_input("io", 0, step % 2 == 0).unwrap();
+        rig.sim.pulse("io", 3, 1 + step % 5).unwrap();
+    }
+    rig.runner.signal_stop();
+    let report = running.lock().unwrap().take().unwrap().finish();
+    assert_eq!(report.lost, 0);
+}
+
+#[test]
+fn a_journal_of_the_whole_image_gives_an_edit_that_reads_more_the_field_s_values() {
+    let d = dir();
+    let source = "let io = device(\"io\");\nio.on_rise(0, || { io.outputs = 1; });\n\
+                  io.on_fall(0, || { io.outputs = 0; });\n";
+    // The edit writes DI3's count, which the run's script never read.
+    let edit = "let io = device(\"io\");\nevery(\"500ms\", || { io.outputs = io.counter(3) % 128; });\n";
+    let options = Options {
+        script: Some((edit.into(), "edit.rhai".into())),
+        ..Options::default()
+    };
+    let mut counts = Vec::new();
+    for image in [false, true] {
+        let path = d.path().join(format!("image-{image}.journal"));
+        counted_run(source, &path, image);
+        let journal = read_journal(&path).unwrap();
+        let shown = journal
+            .entries
+            .iter()
+            .filter(|e| matches!(&e.what, What::Shown(w) if matches!(**w, What::Counters { .. })))
+            .count();
+        assert_eq!(shown > 0, image, "counters read for the journal: {shown}");
+        let same = replay(&journal, &Options::default()).unwrap();
+        assert_eq!(same.divergence, None, "the recorded script, image {image}");
+        let edited = replay(&journal, &options).unwrap();
+        assert_eq!(
+            edited.unrecorded.is_empty(),
+            image,
+            "{:?}",
+            edited.unrecorded
+        );
+        let written: Vec<u8> = edited
+            .replayed
+            .iter()
+            .filter_map(|e| match &e.what {
+                What::Outputs { value, .. } => Some(*value),
+                _ => None,
+            })
+            .collect();
+        counts.push(written);
+    }
+    assert!(counts[0].iter().all(|&v| v == 0), "assumed 0: {:?}", counts[0]);
+    assert!(
+        counts[1].windows(2).any(|w| w[1] > w[0]),
+        "the counts as the field counted: {:?}",
+        counts[1]
+    );
+}

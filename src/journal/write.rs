@@ -9,7 +9,9 @@ use super::entry::{Entry, What};
 use super::read::older_part;
 use super::tally::{Tally, KINDS};
 use super::{Header, MAGIC, VERSION};
-use crate::runtime::observe::{Bound, Detacher, Events, Kinds, Next, RunEvent, Subscription};
+use crate::runtime::observe::{
+    Bound, Detacher, EventKind, Events, Kinds, Next, RunEvent, Subscription,
+};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
@@ -32,6 +34,9 @@ pub struct Settings {
     pub size: u64,
     /// The consumer's queue.
     pub bound: Bound,
+    /// `run --journal-image`: the journal watches the rig, so its whole I/O image is read
+    /// (`runtime::watched_image`, at what that costs on the line) and journaled apart.
+    pub image: bool,
 }
 
 impl Settings {
@@ -41,6 +46,7 @@ impl Settings {
             path: path.into(),
             size,
             bound: Bound::events(QUEUE),
+            image: false,
         }
     }
 }
@@ -126,8 +132,13 @@ impl Prepared {
 
     /// Attaches to the run's events and writes on a thread of its own.
     pub fn start(self, events: &Events) -> Result<Running, WriteError> {
+        let mut kinds = KINDS.to_vec();
+        if self.settings.image {
+            kinds.push(EventKind::Shown);
+        }
+        let watching = self.settings.image.then(|| events.watching());
         let sub = events
-            .subscribe_to("journal", self.settings.bound, Kinds::of(&KINDS))
+            .subscribe_to("journal", self.settings.bound, Kinds::of(&kinds))
             .map_err(|e| WriteError {
                 path: self.settings.path.display().to_string(),
                 source: std::io::Error::other(e),
@@ -135,7 +146,11 @@ impl Prepared {
         let detacher = sub.detacher();
         let thread = std::thread::Builder::new()
             .name("journal".into())
-            .spawn(move || self.write_all(sub))
+            .spawn(move || {
+                // Held while the journal is written: the rig reads its whole image for it.
+                let _watching = watching;
+                self.write_all(sub)
+            })
             .map_err(|source| WriteError {
                 path: String::new(),
                 source,

@@ -6,8 +6,8 @@
 //!
 //! The rate is bounded: each part (a module's DI byte, its counters; a panel's switches, its
 //! rotaries) at most every `REFRESH`, at most one such read a tick, and only when the tick
-//! leaves the time it takes on the line (the longer of its time on the wire at the line's
-//! speed and the last one measured): a watched rig keeps its period whatever the line's speed,
+//! leaves the time it takes (on a module's serial line, its characters at the line's speed
+//! and the silence before it; on a panel, as last measured): a watched rig keeps its period whatever the line's speed,
 //! and a part that never fits is not shown fresher than the script reads it. Latches are not
 //! read for watchers (the page does not show them). A rig nobody watches reads only what the
 //! script reads.
@@ -176,7 +176,12 @@ impl<H: Clone> Runtime<H> {
                 None => left >= period / 2,
             };
             if !fits {
-                self.image.parts[i].waiting_since.get_or_insert(now);
+                let part = &mut self.image.parts[i];
+                let since = *part.waiting_since.get_or_insert(now);
+                // A measured time that has kept a part out for long is measured again.
+                if now.saturating_sub(since) >= NOT_SHOWN_AFTER {
+                    part.took = None;
+                }
                 continue;
             }
             self.image.next = (i + 1) % count;
@@ -245,16 +250,13 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
-    /// How long a read of the part takes: the longer of its time on the line and the last
-    /// one measured (`None`: neither is known).
+    /// How long a read of the part takes: its time on a serial line (physics, which one slow
+    /// read on a loaded machine must not stretch for good), else the last one measured (a
+    /// panel on USB; `None`: never read yet).
     fn expected(&self, state: &PartState) -> Option<Duration> {
-        let on_line = match self.devices.get(state.device) {
+        match self.devices.get(state.device) {
             Some(Device::C29u(c)) => Some(line_time(c.line_options(), state.part)),
-            _ => None,
-        };
-        match (on_line, state.took) {
-            (Some(a), Some(b)) => Some(a.max(b)),
-            (a, b) => a.or(b),
+            _ => state.took,
         }
     }
 
