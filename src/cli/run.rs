@@ -131,7 +131,7 @@ pub struct RunArgs {
     #[arg(long, value_name = "SIZE", value_parser = memory_limit, requires = "journal")]
     pub journal_size: Option<u64>,
     /// Journal the rig's whole I/O image too: the inputs the script does not read are read
-    /// as for someone watching (at most every 100 ms each, when a tick has the time on the
+    /// as for someone watching (at most every 250 ms each, when a tick has the time on the
     /// line) and journaled apart, so a replay of an edited script that reads more has values
     /// for them.
     #[arg(long, requires = "journal")]

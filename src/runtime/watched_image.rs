@@ -5,7 +5,7 @@
 //! what they would be unwatched.
 //!
 //! The rate is bounded: each part (a module's DI byte, its counters; a panel's switches, its
-//! rotaries) at most every `REFRESH`, at most one such read a tick, and only when the tick
+//! rotaries) at most every `REFRESH` (250 ms), at most one such read a tick, and only when the tick
 //! leaves the time it takes (on a module's serial line, its characters at the line's speed
 //! and the silence before it; on a panel, as last measured): a watched rig keeps its period whatever the line's speed,
 //! and a part that never fits is not shown fresher than the script reads it. Latches are not
@@ -20,9 +20,11 @@ use crate::link::line::wire_time;
 use crate::protocol::c29u::{frame_gap, Protocol};
 use std::time::Duration;
 
-/// Each part of the image is read for watchers at most this often (ten times a second: what a
-/// person follows, and a plot's resolution).
-pub const REFRESH: Duration = Duration::from_millis(100);
+/// Each part of the image is read for watchers at most this often: four times a second, as
+/// `status --watch` asks, what a person follows on a lamp; a change the script reads shows at
+/// once anyway. Ten times a second cost a `--sim` interlock's ticks 10-15 % more work with a
+/// page open (docs/benchmarks.md), over the 5 % viewers may cost.
+pub const REFRESH: Duration = Duration::from_millis(250);
 
 /// A snapshot asked for keeps the rig watched this long (a page asks every second, `status
 /// --watch` as often as it shows).
@@ -418,14 +420,14 @@ mod tests {
         let s41a = Rotary::from_name("S41A").unwrap();
         assert_eq!(panel.latest_rotaries().map(|v| v.get(s41a)), Some(3));
         assert_eq!(panel.switches().current, None);
-        // Each part at most every REFRESH: 80 ms after the first read, nothing is due.
-        r.next_tick(TICK);
+        // Each part at most every REFRESH: until 250 ms after the first read, nothing is due.
+        r.next_tick(REFRESH - 4 * TICK);
         let before = r.requests();
         read(&mut r, ROOMY);
         assert_eq!(r.requests(), before);
         r.next_tick(TICK);
         read(&mut r, ROOMY);
-        assert_eq!(r.requests(), before + 1, "100 ms on: the first part again");
+        assert_eq!(r.requests(), before + 1, "250 ms on: the first part again");
     }
 
     #[test]
