@@ -6,8 +6,9 @@
 //!
 //! The rate is bounded: each part (a module's DI byte, its counters; a panel's switches, its
 //! rotaries) at most every `REFRESH` (250 ms), at most one such read a tick, and only when the tick
-//! leaves the time it takes (on a module's serial line, its characters at the line's speed
-//! and the silence before it; on a panel, as last measured): a watched rig keeps its period whatever the line's speed,
+//! leaves the time it takes (the longer of its time on the line and the last one measured,
+//! which is measured again after `MEASURE_AGAIN_AFTER` if it keeps the part out): a watched
+//! rig keeps its period whatever the line's speed,
 //! and a part that never fits is not shown fresher than the script reads it. Latches are not
 //! read for watchers (the page does not show them). A rig nobody watches reads only what the
 //! script reads.
@@ -33,6 +34,10 @@ pub const LINGER: Duration = Duration::from_secs(3);
 /// A part due this long without a tick that has the time for it is said not to be shown
 /// (`Runtime::not_shown`).
 pub const NOT_SHOWN_AFTER: Duration = Duration::from_secs(1);
+
+/// A part kept out this long by its measured time (longer than its time on the line) is
+/// measured again.
+pub const MEASURE_AGAIN_AFTER: Duration = Duration::from_secs(10);
 
 /// The time a read for watchers leaves before the next tick's boundary: the tick's own end
 /// and the wake-up.
@@ -180,9 +185,12 @@ impl<H: Clone> Runtime<H> {
             if !fits {
                 let part = &mut self.image.parts[i];
                 let since = *part.waiting_since.get_or_insert(now);
-                // A measured time that has kept a part out for long is measured again.
-                if now.saturating_sub(since) >= NOT_SHOWN_AFTER {
+                // A measured time that has kept a part out for long is measured again (one slow
+                // read must not keep it out for good; a line that is that slow costs a tick's
+                // overrun that often).
+                if part.took.is_some() && now.saturating_sub(since) >= MEASURE_AGAIN_AFTER {
                     part.took = None;
+                    part.waiting_since = Some(now);
                 }
                 continue;
             }
@@ -252,13 +260,17 @@ impl<H: Clone> Runtime<H> {
         }
     }
 
-    /// How long a read of the part takes: its time on a serial line (physics, which one slow
-    /// read on a loaded machine must not stretch for good), else the last one measured (a
-    /// panel on USB; `None`: never read yet).
+    /// How long a read of the part takes: the longer of its time on a serial line and the
+    /// last one measured (a USB-serial adapter's latency, a slow machine; a panel on USB has
+    /// only the measure; `None`: neither is known).
     fn expected(&self, state: &PartState) -> Option<Duration> {
-        match self.devices.get(state.device) {
+        let on_line = match self.devices.get(state.device) {
             Some(Device::C29u(c)) => Some(line_time(c.line_options(), state.part)),
-            _ => state.took,
+            _ => None,
+        };
+        match (on_line, state.took) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
         }
     }
 
