@@ -33,6 +33,57 @@ const SCRIPTS: [(&str, &str); 5] = [
     ),
 ];
 
+/// A run journaled as `run --journal` writes it: `source` (as `file`) on the rig `toml`
+/// describes (`None`: `--sim`'s default rig; given, kept in the header as `--config` keeps
+/// it), in virtual time on `clock`, to `path` bounded at `size`; `image` as
+/// `--journal-image`.
+struct Journaled {
+    rig: crate::script::rig::Rig,
+    running: Arc<Mutex<Option<super::write::Running>>>,
+}
+
+impl Journaled {
+    fn start(
+        toml: Option<&str>,
+        (source, file): (&str, &str),
+        (path, size, image): (&Path, u64, bool),
+        clock: &VirtualClock,
+    ) -> Self {
+        let config = toml.map_or_else(RigConfig::simulated_default, |t| {
+            RigConfig::parse(t, "rig.toml").unwrap()
+        });
+        let mut header = Header::first(file, source, None, &config, config.period, None).unwrap();
+        header.zone = "UTC".into();
+        header.config = toml.map(String::from);
+        let mut settings = Settings::new(path, size);
+        // The run in virtual time outpaces any disk: a queue that holds all of it.
+        settings.bound = Bound::events(1 << 20);
+        settings.image = image;
+        let prepared = Prepared::new(settings, header).unwrap();
+        let running = Arc::new(Mutex::new(None));
+        let slot = Arc::clone(&running);
+        let rig = RigBuilder::from_config(config)
+            .simulated()
+            .clock(Arc::new(clock.clone()))
+            .log_to_stderr(false)
+            .quiet()
+            .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
+            .start(source, file)
+            .unwrap();
+        Self { rig, running }
+    }
+
+    /// Stops the run (if it runs) and waits for the journal to be written.
+    fn finish(mut self) -> super::write::Report {
+        if self.rig.runner.status().is_none() {
+            self.rig.runner.signal_stop();
+        }
+        let report = self.running.lock().unwrap().take().unwrap().finish();
+        assert!(report.failed.is_none(), "{report:?}");
+        report
+    }
+}
+
 /// Runs `source` for `length` of virtual time on a field that changes at random (seeded),
 /// journaled to `path`.
 fn journaled_run(source: &str, file: &str, path: &Path, length: Duration, seed: u64) {
@@ -48,28 +99,12 @@ fn journaled_run_reloading(
     seed: u64,
     mut reload: Option<(Duration, &str)>,
 ) {
-    let config = RigConfig::simulated_default();
-    let period = config.period;
-    let mut header = Header::first(file, source, None, &config, period, None).unwrap();
-    header.zone = "UTC".into();
-    let mut settings = Settings::new(path, 1 << 30);
-    // The run in virtual time outpaces any disk: a queue that holds all of it.
-    settings.bound = Bound::events(1 << 20);
-    let prepared = Prepared::new(settings, header).unwrap();
-    let running = Arc::new(Mutex::new(None));
-    let slot = Arc::clone(&running);
     let wall = chrono::DateTime::parse_from_rfc3339("2026-03-28T11:58:00.013Z")
         .unwrap()
         .to_utc();
     let clock = VirtualClock::new(wall);
-    let mut rig = RigBuilder::from_config(config)
-        .simulated()
-        .clock(Arc::new(clock.clone()))
-        .log_to_stderr(false)
-        .quiet()
-        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
-        .start(source, file)
-        .unwrap();
+    let mut j = Journaled::start(None, (source, file), (path, 1 << 30, false), &clock);
+    let rig = &mut j.rig;
     let mut rng = fastrand::Rng::with_seed(seed);
     while clock.now() < length && rig.runner.status().is_none() {
         rig.runner.advance(Duration::from_millis(rng.u64(10..400)));
@@ -94,13 +129,7 @@ fn journaled_run_reloading(
             _ => sim.set_switch("panel", "S12", false),
         };
     }
-    if rig.runner.status().is_none() {
-        rig.runner.signal_stop();
-    }
-    let running = running.lock().unwrap().take().unwrap();
-    let report = running.finish();
-    assert_eq!(report.lost, 0);
-    assert!(report.failed.is_none(), "{report:?}");
+    assert_eq!(j.finish().lost, 0);
 }
 
 fn dir() -> tempfile::TempDir {
@@ -329,24 +358,9 @@ fn a_part_begun_after_a_reload_names_the_script_that_runs_by_then() {
     let after = "let io = device(\"io\");\nio.on_rise(0, || { io.outputs = 2; });\n\
                  io.on_fall(0, || { io.outputs = 0; });\n";
     // Parts small enough that the run rotates once, after the reload.
-    let config = RigConfig::simulated_default();
-    let period = config.period;
-    let mut header = Header::first("flip.rhai", before, None, &config, period, None).unwrap();
-    header.zone = "UTC".into();
-    let mut settings = Settings::new(&path, 24 * 1024);
-    settings.bound = Bound::events(1 << 20);
-    let prepared = Prepared::new(settings, header).unwrap();
-    let running = Arc::new(Mutex::new(None));
-    let slot = Arc::clone(&running);
     let clock = VirtualClock::at_epoch();
-    let mut rig = RigBuilder::from_config(config)
-        .simulated()
-        .clock(Arc::new(clock.clone()))
-        .log_to_stderr(false)
-        .quiet()
-        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
-        .start(before, "flip.rhai")
-        .unwrap();
+    let mut j = Journaled::start(None, (before, "flip.rhai"), (&path, 24 * 1024, false), &clock);
+    let rig = &mut j.rig;
     for i in 0..400u32 {
         rig.runner.advance(Duration::from_millis(100));
         rig.sim.set_input("io", 0, i % 2 == 0).unwrap();
@@ -354,8 +368,7 @@ fn a_part_begun_after_a_reload_names_the_script_that_runs_by_then() {
             rig.runner.reload_at_next_tick(after.into(), "flip.rhai".into());
         }
     }
-    rig.runner.signal_stop();
-    let report = running.lock().unwrap().take().unwrap().finish();
+    let report = j.finish();
     assert_eq!(report.rotations, 1, "{report:?}");
     let text = std::fs::read_to_string(&path).unwrap();
     let first = text.lines().find(|l| l.starts_with("H ")).unwrap();
@@ -377,28 +390,13 @@ fn forces_and_commands_are_journaled_and_asked_again_where_the_run_took_them() {
     let d = dir();
     let path = d.path().join("operated.journal");
     let toml = "force = true\n[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/null\"\n";
-    let config = RigConfig::parse(toml, "rig.toml").unwrap();
     let source = "let io = device(\"io\");\nlet n = 0;\n\
                   on_command(\"add\", |p| { n += p; io.outputs = n % 128; n });\n\
                   io.on_rise(0, || { n += 1; io.outputs = n % 128; });\n";
-    let mut header = Header::first("op.rhai", source, None, &config, config.period, None).unwrap();
-    header.zone = "UTC".into();
     // As `--config rig.toml` keeps it: the replay's rig allows forcing too.
-    header.config = Some(toml.into());
-    let mut settings = Settings::new(&path, 1 << 30);
-    settings.bound = Bound::events(1 << 20);
-    let prepared = Prepared::new(settings, header).unwrap();
-    let running = Arc::new(Mutex::new(None));
-    let slot = Arc::clone(&running);
     let clock = VirtualClock::at_epoch();
-    let mut rig = RigBuilder::from_config(config)
-        .simulated()
-        .clock(Arc::new(clock.clone()))
-        .log_to_stderr(false)
-        .quiet()
-        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
-        .start(source, "op.rhai")
-        .unwrap();
+    let mut j = Journaled::start(Some(toml), (source, "op.rhai"), (&path, 1 << 30, false), &clock);
+    let rig = &mut j.rig;
     let (ask, requests) = crate::runtime::requests::queue(&Arc::default());
     rig.runner.serve(requests, "op.rhai", rig.sim.clone());
     let force = |on: bool| Request::Force {
@@ -432,9 +430,7 @@ fn forces_and_commands_are_journaled_and_asked_again_where_the_run_took_them() {
             let _ = ask.ask(r, Duration::ZERO);
         }
     }
-    rig.runner.signal_stop();
-    let report = running.lock().unwrap().take().unwrap().finish();
-    assert_eq!(report.lost, 0);
+    assert_eq!(j.finish().lost, 0);
     assert!(answers.try_recv().is_ok_and(|a| a.is_ok()), "the command ran");
     let journal = read_journal(&path).unwrap();
     let acts: Vec<&OperatorAct> = journal
@@ -470,33 +466,15 @@ fn forces_and_commands_are_journaled_and_asked_again_where_the_run_took_them() {
 /// the whole image if `image`.
 fn counted_run(source: &str, path: &Path, image: bool) {
     let toml = "[devices.io]\nkind = \"trp-c29u\"\nport = \"/dev/null\"\nbaud = 115200\n";
-    let config = RigConfig::parse(toml, "rig.toml").unwrap();
-    let mut header = Header::first("c.rhai", source, None, &config, config.period, None).unwrap();
-    header.zone = "UTC".into();
-    header.config = Some(toml.into());
-    let mut settings = Settings::new(path, 1 << 30);
-    settings.bound = Bound::events(1 << 20);
-    settings.image = image;
-    let prepared = Prepared::new(settings, header).unwrap();
-    let running = Arc::new(Mutex::new(None));
-    let slot = Arc::clone(&running);
     let clock = VirtualClock::at_epoch();
-    let mut rig = RigBuilder::from_config(config)
-        .simulated()
-        .clock(Arc::new(clock.clone()))
-        .log_to_stderr(false)
-        .quiet()
-        .attach(move |events| *slot.lock().unwrap() = Some(prepared.start(events).unwrap()))
-        .start(source, "c.rhai")
-        .unwrap();
+    let mut j = Journaled::start(Some(toml), (source, "c.rhai"), (path, 1 << 30, image), &clock);
+    let rig = &mut j.rig;
     for step in 0..40u32 {
         rig.runner.advance(Duration::from_millis(250));
         rig.sim.set_input("io", 0, step % 2 == 0).unwrap();
         rig.sim.pulse("io", 3, 1 + step % 5).unwrap();
     }
-    rig.runner.signal_stop();
-    let report = running.lock().unwrap().take().unwrap().finish();
-    assert_eq!(report.lost, 0);
+    assert_eq!(j.finish().lost, 0);
 }
 
 #[test]
