@@ -43,6 +43,9 @@ bench mqtt_lab env RIGS=2 SAMPLES=3 BASELINE=1 sh benches/mqtt_lab.sh
 bench tick_instructions env SHORT=10ms LONG=1s sh benches/tick_instructions.sh target/debug/rigscript
 bench tick_journal env JOURNAL=1 SHORT=10ms LONG=1s sh benches/tick_instructions.sh target/debug/rigscript
 bench stall sh benches/stall.sh "$RIGSCRIPT" 2
+scratch=$(mktemp -d)
+bench package_size env RIGSCRIPT_BIN="$RIGSCRIPT" CARGO_TARGET_DIR="$scratch" sh benches/package_size.sh
+rm -rf "$scratch"
 bench verify_seeds env SEEDS=1 PAR=1 SCRIPTS=tests/verify/counter_ack_keeps_waiting.rhai \
     sh benches/verify_seeds.sh
 

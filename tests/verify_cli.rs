@@ -230,9 +230,11 @@ fn the_five_scripts_keep_their_invariants_under_a_bounded_search() {
 fn the_same_seed_gives_the_same_counterexample_whatever_the_jobs() {
     let out = TempDir::new("verify-seed");
     let file = "tests/verify/interlock_guard_mask.rhai";
-    let (_, one) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "1"], &out);
-    let (_, two) = verify_json(&[file, "--runs", "60", "--seed", "5", "--jobs", "2"], &out);
-    assert_eq!(one["seed"], 5);
+    // Seed 1 finds it early (run 6 today), after runs the two jobs split; seed 5 found it in
+    // run 52 with 147 events to shrink: 40 s a search in a debug build for the same check.
+    let (_, one) = verify_json(&[file, "--runs", "60", "--seed", "1", "--jobs", "1"], &out);
+    let (_, two) = verify_json(&[file, "--runs", "60", "--seed", "1", "--jobs", "2"], &out);
+    assert_eq!(one["seed"], 1);
     let strip = |d: &Value| {
         let c = &d["counterexample"];
         (c["run"].clone(), c["story"].clone(), c["events"].clone())
