@@ -198,6 +198,7 @@ fn main() {
                     "tests/verify/tool_life_steps_over_the_limit.rhai",
                     "tests/verify/tool_life_misses_the_last_stroke.rhai",
                     "tests/verify/cure_cycle_end_leaves_heater_on.rhai",
+                    "tests/verify/batch_tally_takes_the_threshold_as_a_period.rhai",
                 ],
             );
         } else {

@@ -106,6 +106,11 @@ const PLANTED: &[(&str, &str, usize)] = &[
         "the press is enabled only while the tool has strokes left",
         1,
     ),
+    (
+        "tests/verify/batch_tally_takes_the_threshold_as_a_period.rhai",
+        "a box tallied for every full batch",
+        1,
+    ),
 ];
 
 /// The seeds each planted bug is searched with here (`cargo bench --bench verify search` and
