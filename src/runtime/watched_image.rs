@@ -5,13 +5,12 @@
 //! what they would be unwatched.
 //!
 //! The rate is bounded: each part (a module's DI byte, its counters; a panel's switches, its
-//! rotaries) at most every `REFRESH` (250 ms), at most one such read a tick, and only when the tick
-//! leaves the time it takes (the longer of its time on the line and the last one measured,
-//! which is measured again after `MEASURE_AGAIN_AFTER` if it keeps the part out): a watched
-//! rig keeps its period whatever the line's speed,
-//! and a part that never fits is not shown fresher than the script reads it. Latches are not
-//! read for watchers (the page does not show them). A rig nobody watches reads only what the
-//! script reads.
+//! rotaries) at most every `REFRESH` (250 ms), at most one such read a tick, and only when the
+//! tick leaves the time it takes (the longer of its time on the line and the last one
+//! measured, which is measured again after `MEASURE_AGAIN_AFTER` if it keeps the part out): a
+//! watched rig keeps its period whatever the line's speed, and a part that never fits is not
+//! shown fresher than the script reads it. Latches are not read for watchers (the page does
+//! not show them). A rig nobody watches reads only what the script reads.
 
 use super::devices::{Device, DeviceError};
 use super::observe::{EventKind, Reading, RunEvent};
