@@ -6,7 +6,7 @@
 //! guardian's resident memory.
 //!
 //! Run: `cargo bench --bench guardian` (100 kills of each kind; `GUARDIAN_BENCH_KILLS=N`).
-//! `cargo test` runs it with 3 of each, so it never silently drops out.
+//! `cargo test` runs it with 1 of each, so it never silently drops out.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -37,7 +37,7 @@ fn main() {
     let kills: usize = std::env::var("GUARDIAN_BENCH_KILLS")
         .ok()
         .and_then(|n| n.parse().ok())
-        .unwrap_or(if args.full { 100 } else { 3 });
+        .unwrap_or(if args.full { 100 } else { 1 });
     let mut sim = SimProcess::start(&["--protocol", "modbus", "--id", "1"]);
     let dir = TempDir::new("bench-guardian");
     let config = dir.file(

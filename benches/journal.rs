@@ -8,7 +8,7 @@
 //! run in virtual time and lose events); what is written is the same. The loop's cost of a
 //! journal is benches/tick_instructions.sh's (JOURNAL=1).
 //!
-//! Run: `cargo bench --bench journal` (a day); `cargo test --all-targets` runs ten minutes.
+//! Run: `cargo bench --bench journal` (a day); `cargo test --all-targets` runs two minutes.
 
 #[path = "common/args.rs"]
 mod args;
@@ -33,7 +33,7 @@ fn main() {
     let length = if args.full {
         Duration::from_secs(86_400)
     } else {
-        Duration::from_secs(600)
+        Duration::from_secs(120)
     };
     let file = "scripts/interlock.rhai";
     let path = format!("{}/{file}", env!("CARGO_MANIFEST_DIR"));

@@ -7,7 +7,7 @@
 //! tells: the runner asks a device nobody reads every quarter of the grace time).
 //!
 //! Run: `cargo bench --bench loss` (20 losses of each; `LOSS_BENCH_RUNS=N`). `cargo test`
-//! runs it with 2 of each, so it never silently drops out.
+//! runs it with 1 of each, so it never silently drops out.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -36,7 +36,7 @@ fn main() {
     let runs: usize = std::env::var("LOSS_BENCH_RUNS")
         .ok()
         .and_then(|n| n.parse().ok())
-        .unwrap_or(if args.full { 20 } else { 2 });
+        .unwrap_or(if args.full { 20 } else { 1 });
     println!("loss: {runs} of each, grace 1s, two modules without watchdogs, one 30 s timer");
     for way in ["pty hang-up", "tcp close", "silent line"] {
         if !args.picks(way) {

@@ -19,8 +19,11 @@ if [ -z "${RIGSCRIPT:-}" ]; then
 fi
 bin=${RIGSCRIPT:-target/release/rigscript}
 out=$(mktemp)
-trap 'rm -f "$out"' EXIT
-/usr/bin/time -v -o "$out" "$bin" run "$script" --sim --quiet \
+# A rig directory of its own: its socket cannot meet another run's of the same script (the
+# test suite runs beside this in .ci/run).
+rigs=$(mktemp -d)
+trap 'rm -rf "$out" "$rigs"' EXIT
+XDG_RUNTIME_DIR=$rigs /usr/bin/time -v -o "$out" "$bin" run "$script" --sim --quiet \
     --period "$period" --for "$duration" >/dev/null 2>&1 || true
 awk -v script="$script" -v period="$period" '
     /User time/ { user = $NF }
