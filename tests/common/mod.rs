@@ -388,42 +388,60 @@ pub fn start_switchable_relay(path: &str, silent: Arc<AtomicBool>) -> u16 {
     let path = path.to_string();
     std::thread::spawn(move || {
         for stream in listener.incoming() {
-            let Ok(stream) = stream else { break };
-            let Ok(serial) = SerialLink::open(&path, 9600) else {
-                break;
+            let stream = match stream {
+                Ok(stream) => stream,
+                Err(e) => {
+                    eprintln!("relay on port {port}: accept failed: {e}");
+                    break;
+                }
             };
-            relay(stream, serial, &silent);
+            let serial = match SerialLink::open(&path, 9600) {
+                Ok(serial) => serial,
+                Err(e) => {
+                    eprintln!("relay on port {port}: cannot open {path}: {e}");
+                    break;
+                }
+            };
+            if let Some(why) = relay(stream, serial, &silent) {
+                // Shown with the test's output when it fails: why its server hung up.
+                eprintln!("relay on port {port} to {path} closed the connection: {why}");
+            }
         }
     });
     port
 }
 
-fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) {
+/// Relays until the client hangs up (`None`) or either side fails (what failed).
+fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) -> Option<String> {
     socket
         .set_read_timeout(Some(Duration::from_millis(1)))
         .unwrap();
     let mut buf = [0u8; 512];
     loop {
         match socket.read(&mut buf) {
-            Ok(0) => return,
+            Ok(0) => return None,
             Ok(_) if silent.load(Ordering::SeqCst) => {}
             Ok(n) => {
-                if serial.write_all(&buf[..n]).is_err() {
-                    return;
+                if let Err(e) = serial.write_all(&buf[..n]) {
+                    return Some(format!("serial write: {e}"));
                 }
             }
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
-            Err(_) => return,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) => {}
+            Err(e) => return Some(format!("socket read: {e}")),
         }
         match serial.read(&mut buf, Duration::from_millis(1)) {
             Ok(0) => {}
             Ok(_) if silent.load(Ordering::SeqCst) => {}
             Ok(n) => {
-                if socket.write_all(&buf[..n]).is_err() {
-                    return;
+                if let Err(e) = socket.write_all(&buf[..n]) {
+                    return Some(format!("socket write: {e}"));
                 }
             }
-            Err(_) => return,
+            Err(e) => return Some(format!("serial read: {e}")),
         }
     }
 }
