@@ -25,11 +25,13 @@ bench() {
     name=$1
     shift
     ran=$((ran + 1))
+    began=$(date +%s)
     if "$@" >"$log/$name" 2>&1 && [ -s "$log/$name" ]; then
-        printf 'bench smoke: %-18s ok (%s lines)\n' "$name" "$(wc -l <"$log/$name")"
+        printf 'bench smoke: %-18s ok (%s lines, %s s)\n' "$name" "$(wc -l <"$log/$name")" \
+            "$(($(date +%s) - began))"
     else
         failed=$((failed + 1))
-        printf 'bench smoke: %-18s FAILED; its output:\n' "$name"
+        printf 'bench smoke: %-18s FAILED after %s s; its output:\n' "$name" "$(($(date +%s) - began))"
         sed 's/^/    /' "$log/$name"
     fi
 }

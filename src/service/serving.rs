@@ -222,6 +222,45 @@ fn let_go_longest<S: Connection>(open: &mut HashMap<u64, Open<S>>) -> bool {
 /// thread at once (its read ends), but until it has, its thread is still counted.
 const THREADS_PER_PLACE: usize = 3;
 
+/// How long a newcomer may wait, at most, for clients already let go to end their threads
+/// before it is refused: on a loaded machine a crowd let go can take a moment to end, and the
+/// rig's owner must not be refused for clients that are already leaving.
+const ENDING_WAIT: Duration = Duration::from_millis(500);
+
+/// Gives a newcomer a place (`number`, its `copy` and its `waiting` flag kept in `open`):
+/// a free one, or the longest waiting client's; false when every place is busy, or when the
+/// clients let go have not ended their threads within `ENDING_WAIT`.
+fn admit<S: Connection>(
+    state: &State<S>,
+    places: usize,
+    number: u64,
+    copy: S,
+    waiting: &Arc<AtomicBool>,
+) -> bool {
+    let until = Instant::now() + ENDING_WAIT;
+    loop {
+        let mut open = lock(&state.open);
+        if state.clients.load(Ordering::SeqCst) < THREADS_PER_PLACE * places {
+            let place = open.len() < places || let_go_longest(&mut open);
+            if place {
+                let o = Open {
+                    stream: copy,
+                    waiting: Arc::clone(waiting),
+                };
+                open.insert(number, o);
+                state.clients.fetch_add(1, Ordering::SeqCst);
+            }
+            return place;
+        }
+        // The threads over the bound are clients let go, still ending: they need the lock.
+        drop(open);
+        if Instant::now() >= until {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
 fn accept_loop<L: Listening>(
     listener: &L,
     bounds: Bounds,
@@ -243,21 +282,7 @@ fn accept_loop<L: Listening>(
         stream.set_write_wait(bounds.write_wait);
         let waiting = Arc::new(AtomicBool::new(true));
         let admitted = match stream.another() {
-            Ok(copy) => {
-                let mut open = lock(&state.open);
-                let threads = state.clients.load(Ordering::SeqCst);
-                let place = threads < THREADS_PER_PLACE * bounds.clients
-                    && (open.len() < bounds.clients || let_go_longest(&mut open));
-                if place {
-                    let o = Open {
-                        stream: copy,
-                        waiting: Arc::clone(&waiting),
-                    };
-                    open.insert(number, o);
-                    state.clients.fetch_add(1, Ordering::SeqCst);
-                }
-                place
-            }
+            Ok(copy) => admit(state, bounds.clients, number, copy, &waiting),
             Err(_) => false,
         };
         if !admitted {
@@ -344,5 +369,43 @@ mod tests {
         assert_eq!(said(&mut connect()), "full\n", "every place busy: refused");
         drop(serving);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_newcomer_waits_for_a_crowd_let_go_to_end_instead_of_being_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sock");
+        let listener = UnixListener::bind(&path).unwrap();
+        let bounds = Bounds {
+            clients: 2,
+            write_wait: Duration::from_secs(1),
+            name: "crowd test",
+        };
+        let refuse = |s: &mut UnixStream| {
+            let _ = s.write_all(b"full\n");
+        };
+        // A client let go takes 100 ms to end its thread, as on a loaded machine.
+        let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
+            let mut b = [0u8; 1];
+            if matches!(s.read(&mut b), Ok(1)) {
+                place.waiting(false);
+                let _ = s.write_all(b"served\n");
+            } else {
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        });
+        let connect = || {
+            let s = UnixStream::connect(&path).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+            s
+        };
+        // Twelve idle clients at once: each takes the place of the one before, and the ones
+        // let go are still ending (more threads than the bound of six) when the owner comes.
+        let crowd: Vec<UnixStream> = (0..12).map(|_| connect()).collect();
+        let mut owner = connect();
+        owner.write_all(b"x").unwrap();
+        assert_eq!(said(&mut owner), "served\n");
+        drop(crowd);
+        drop(serving);
     }
 }
