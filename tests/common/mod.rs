@@ -402,28 +402,45 @@ pub fn start_switchable_relay(path: &str, silent: Arc<AtomicBool>) -> u16 {
                     break;
                 }
             };
-            if let Some(why) = relay(stream, serial, &silent) {
+            match relay(stream, serial, &silent) {
+                Ended::Client => {}
                 // Shown with the test's output when it fails: why its server hung up.
-                eprintln!("relay on port {port} to {path} closed the connection: {why}");
+                Ended::Socket(why) => eprintln!("relay on port {port}: {why}"),
+                // The module is gone: so is the server. A later client must not be relayed
+                // to `path` again, which may by then name another test's pty (pty numbers are
+                // reused), held while that client keeps reconnecting.
+                Ended::Serial(why) => {
+                    eprintln!("relay on port {port} to {path} stops: {why}");
+                    break;
+                }
             }
         }
     });
     port
 }
 
-/// Relays until the client hangs up (`None`) or either side fails (what failed).
-fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) -> Option<String> {
+/// How a relayed connection ended.
+enum Ended {
+    /// The client hung up.
+    Client,
+    /// The connection failed.
+    Socket(String),
+    /// The serial port failed (its module went away).
+    Serial(String),
+}
+
+fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) -> Ended {
     socket
         .set_read_timeout(Some(Duration::from_millis(1)))
         .unwrap();
     let mut buf = [0u8; 512];
     loop {
         match socket.read(&mut buf) {
-            Ok(0) => return None,
+            Ok(0) => return Ended::Client,
             Ok(_) if silent.load(Ordering::SeqCst) => {}
             Ok(n) => {
                 if let Err(e) = serial.write_all(&buf[..n]) {
-                    return Some(format!("serial write: {e}"));
+                    return Ended::Serial(format!("serial write: {e}"));
                 }
             }
             Err(e)
@@ -431,17 +448,17 @@ fn relay(mut socket: TcpStream, mut serial: SerialLink, silent: &AtomicBool) -> 
                     e.kind(),
                     ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
                 ) => {}
-            Err(e) => return Some(format!("socket read: {e}")),
+            Err(e) => return Ended::Socket(format!("socket read: {e}")),
         }
         match serial.read(&mut buf, Duration::from_millis(1)) {
             Ok(0) => {}
             Ok(_) if silent.load(Ordering::SeqCst) => {}
             Ok(n) => {
                 if let Err(e) = socket.write_all(&buf[..n]) {
-                    return Some(format!("socket write: {e}"));
+                    return Ended::Socket(format!("socket write: {e}"));
                 }
             }
-            Err(e) => return Some(format!("serial read: {e}")),
+            Err(e) => return Ended::Serial(format!("serial read: {e}")),
         }
     }
 }
