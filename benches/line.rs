@@ -22,7 +22,7 @@
 //! `LINE_BENCH_ROUNDS=N` takes N rounds instead of 5; `LINE_BENCH_BASELINE=PATH` adds the
 //! gap-keeping rows run by another rigscript build (say, main's, copied aside) to compare a
 //! change with in the same rounds.
-//! `cargo test` runs it for 0.3 s a row, so the comparison never silently drops out;
+//! `cargo test` runs it for 0.8 s a row, so the comparison never silently drops out;
 //! it needs gcc and libmodbus-dev.
 
 mod common;
@@ -498,7 +498,7 @@ fn main() {
                 .unwrap_or(5),
         )
     } else {
-        ((Duration::from_millis(100), Duration::from_millis(200)), 1)
+        ((Duration::from_millis(300), Duration::from_millis(500)), 1)
     };
     let c_loop = build_c_loop();
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("line-{}", std::process::id()));
