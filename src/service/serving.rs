@@ -327,6 +327,17 @@ mod tests {
         String::from_utf8_lossy(&text).into_owned()
     }
 
+    /// Two places; a newcomer refused is told "full".
+    const TWO_PLACES: Bounds = Bounds {
+        clients: 2,
+        write_wait: Duration::from_secs(1),
+        name: "places test",
+    };
+
+    fn refuse(s: &mut UnixStream) {
+        let _ = s.write_all(b"full\n");
+    }
+
     #[test]
     fn a_newcomer_takes_the_place_of_the_longest_waiting_and_a_busy_house_is_refused() {
         let dir = std::env::temp_dir().join(format!("rigscript-places-{}", std::process::id()));
@@ -334,14 +345,7 @@ mod tests {
         let path = dir.join("s.sock");
         let _ = std::fs::remove_file(&path);
         let listener = UnixListener::bind(&path).unwrap();
-        let bounds = Bounds {
-            clients: 2,
-            write_wait: Duration::from_secs(1),
-            name: "places test",
-        };
-        let refuse = |s: &mut UnixStream| {
-            let _ = s.write_all(b"full\n");
-        };
+        let (bounds, refuse) = (TWO_PLACES, refuse);
         // A client waits until it sends a byte; then it is busy until it goes.
         let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
             let mut b = [0u8; 1];
@@ -376,14 +380,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("s.sock");
         let listener = UnixListener::bind(&path).unwrap();
-        let bounds = Bounds {
-            clients: 2,
-            write_wait: Duration::from_secs(1),
-            name: "crowd test",
-        };
-        let refuse = |s: &mut UnixStream| {
-            let _ = s.write_all(b"full\n");
-        };
+        let (bounds, refuse) = (TWO_PLACES, refuse);
         // A client let go takes 100 ms to end its thread, as on a loaded machine.
         let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
             let mut b = [0u8; 1];
