@@ -345,9 +345,8 @@ mod tests {
         let path = dir.join("s.sock");
         let _ = std::fs::remove_file(&path);
         let listener = UnixListener::bind(&path).unwrap();
-        let (bounds, refuse) = (TWO_PLACES, refuse);
         // A client waits until it sends a byte; then it is busy until it goes.
-        let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
+        let serving = serve(listener, TWO_PLACES, Arc::default(), refuse, |mut s, place| {
             let mut b = [0u8; 1];
             if matches!(s.read(&mut b), Ok(1)) {
                 place.waiting(false);
@@ -380,9 +379,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("s.sock");
         let listener = UnixListener::bind(&path).unwrap();
-        let (bounds, refuse) = (TWO_PLACES, refuse);
         // A client let go takes 100 ms to end its thread, as on a loaded machine.
-        let serving = serve(listener, bounds, Arc::default(), refuse, |mut s, place| {
+        let serving = serve(listener, TWO_PLACES, Arc::default(), refuse, |mut s, place| {
             let mut b = [0u8; 1];
             if matches!(s.read(&mut b), Ok(1)) {
                 place.waiting(false);
