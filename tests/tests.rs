@@ -13,6 +13,7 @@ mod debian_package;
 mod fault_search;
 mod guardian;
 mod guide_reference;
+mod journal_cli;
 mod junit_cli;
 mod late_answers;
 mod line_timing;

@@ -74,6 +74,16 @@ pub enum What {
         /// Work, µs.
         work_us: u64,
     },
+    /// The run made this tick sooner than its script's schedule had one, `periods` scan
+    /// periods after the tick before's boundary, for someone outside the loop (a status
+    /// asked, a page watching, a command), and started it `late_us` after its boundary: a
+    /// replay, which nobody watches, makes it there too.
+    Woken {
+        /// Scan periods after the tick before's boundary.
+        periods: u64,
+        /// Late start, µs.
+        late_us: u64,
+    },
     /// A script error.
     Failed {
         /// What and where.
@@ -197,6 +207,7 @@ impl Entry {
             What::Lost { dev, cause } => write!(l, "lost {dev} {}", escaped(cause)),
             What::Back { dev } => write!(l, "back {dev}"),
             What::Overrun { late_us, work_us } => write!(l, "late {late_us} {work_us}"),
+            What::Woken { periods, late_us } => write!(l, "wake {periods} {late_us}"),
             What::Failed { message } => write!(l, "err {}", escaped(message)),
             What::Gap { events } => write!(l, "gap {events}"),
             What::Ended { status, reason } => write!(l, "end {status} {}", escaped(reason)),
@@ -310,6 +321,13 @@ impl Entry {
                     work_us: b.parse().map_err(|_| format!("late: {b:?}"))?,
                 }
             }
+            "wake" => {
+                let (a, b) = rest.split_once(' ').ok_or("wake: two numbers")?;
+                What::Woken {
+                    periods: a.parse().map_err(|_| format!("wake: {a:?}"))?,
+                    late_us: b.parse().map_err(|_| format!("wake: {b:?}"))?,
+                }
+            }
             "err" => What::Failed {
                 message: unescaped(rest)?,
             },
@@ -398,6 +416,10 @@ mod tests {
                 late_us: 12,
                 work_us: 45000,
             },
+            What::Woken {
+                periods: 17,
+                late_us: 240,
+            },
             What::Failed {
                 message: "t.rhai:3:5: boom".into(),
             },
@@ -454,6 +476,9 @@ mod tests {
             "5 s panel 99",
             "5 wo io 01 x",
             "5 wx io 01",
+            "5 wake",
+            "5 wake 13",
+            "5 wake 13 2.5s",
             "",
         ] {
             assert!(Entry::parse(bad).is_err(), "{bad:?}");

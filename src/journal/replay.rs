@@ -274,6 +274,9 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
     // The field each tick took in, by tick.
     let mut field: BTreeMap<u64, Vec<&Entry>> = BTreeMap::new();
     let mut overruns: BTreeMap<u64, (u64, u64)> = BTreeMap::new();
+    // The ticks the run made sooner than its script's schedule, for someone outside it: how
+    // many periods after the tick before, and how late they started.
+    let mut woken: BTreeMap<u64, (u64, u64)> = BTreeMap::new();
     // The reloads the run made, by tick: the replay makes them at the same boundaries.
     let mut reloads: BTreeMap<u64, Vec<(String, String)>> = BTreeMap::new();
     // What operators asked (forces, commands, messages), by the tick it was taken in.
@@ -313,6 +316,9 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
             What::Overrun { late_us, work_us } => {
                 overruns.insert(e.tick, (*late_us, *work_us));
             }
+            What::Woken { periods, late_us } => {
+                woken.insert(e.tick, (*periods, *late_us));
+            }
             What::Operated(act) => operated.entry(e.tick).or_default().push(act.clone()),
             What::Reloaded { file, source, .. } => {
                 notes.push(format!(
@@ -338,6 +344,7 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         .unwrap_or_else(|| (h.script.clone(), h.script_file.clone()));
     let same_script = crate::content_hash::content_hash(&source) == h.hash;
     let clock = VirtualClock::new(since);
+    let period = Duration::from_micros(h.period_us);
     let sub: Arc<Mutex<Option<Subscription>>> = Arc::default();
     let slot = Arc::clone(&sub);
     // The top level reads what the run's did: the field of tick 0 is set before it runs.
@@ -361,7 +368,7 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         .simulated()
         .clock(Arc::new(clock.clone()))
         .zone(zone(&h.zone)?)
-        .period(Duration::from_micros(h.period_us))
+        .period(period)
         .log_to_stderr(false)
         .quiet()
         .budget(h.operations)
@@ -418,6 +425,19 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         if next > until {
             break;
         }
+        // A tick the run made sooner than its script's schedule, for someone outside it (a
+        // status asked, a page watching, a command), comes at the same time here, where nobody
+        // watches; unless the replay's own schedule has a tick by then (an edited script's).
+        let last = rig.runner.runtime().borrow().cycle().boundary();
+        let woken_at = woken
+            .get(&next)
+            .zip(last)
+            .map(|(&(periods, late_us), last)| {
+                let periods = u32::try_from(periods).unwrap_or(u32::MAX);
+                let at = last.saturating_add(period.saturating_mul(periods));
+                (at, Duration::from_micros(late_us))
+            })
+            .filter(|&(at, _)| rig.runner.next_deadline() > at);
         let mut took = Vec::new();
         if let Some(entries) = field.remove(&next) {
             for e in field_order(entries) {
@@ -434,13 +454,26 @@ pub fn replay(journal: &Journal, options: &Options) -> Result<Outcome, ReplayErr
         if rig.runner.status().is_some() {
             break;
         }
+        let acts = operated.remove(&next).unwrap_or_default();
+        // What operators asked is asked when the tick is due, not when the last one ended:
+        // a command brings the next tick to the first boundary from when it is asked, and
+        // the run's came on its script's schedule unless it was woken for it.
+        if woken_at.is_some() || !acts.is_empty() {
+            let due = woken_at.map_or_else(|| rig.runner.next_deadline(), |(at, _)| at);
+            rig.runner.wait_between_ticks(due);
+        }
         for (source, file) in reloads.remove(&next).unwrap_or_default() {
             rig.runner.reload_at_next_tick(source, file);
         }
         if let Some(ask) = &ask {
-            for act in operated.remove(&next).unwrap_or_default() {
+            for act in acts {
                 rig.runner.ask_replayed(ask, &act);
             }
+        }
+        if let Some((at, late)) = woken_at {
+            rig.runner.tick_soon();
+            // As late as the run's began: a timer due by then fires in it, as in the run.
+            rig.runner.wait_between_ticks(at.saturating_add(late));
         }
         let due = rig.runner.next_deadline();
         if rig.runner.step_toward(due).is_none() {

@@ -9,10 +9,11 @@ use crate::protocol::trc1000::Switch;
 use crate::runtime::observe::{EventKind, Reading, RunEvent};
 
 /// The kinds of event a journal takes.
-pub const KINDS: [EventKind; 10] = [
+pub const KINDS: [EventKind; 11] = [
     EventKind::ScriptStarted,
     EventKind::ScriptFailed,
     EventKind::Overrun,
+    EventKind::Woken,
     EventKind::Inputs,
     EventKind::Outputs,
     EventKind::DeviceLost,
@@ -71,6 +72,10 @@ impl Tally {
                     since: *since,
                 }
             }
+            RunEvent::Woken { periods, late_us } => What::Woken {
+                periods: *periods,
+                late_us: *late_us,
+            },
             RunEvent::ScriptFailed { message } => What::Failed {
                 message: message.clone(),
             },

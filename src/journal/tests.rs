@@ -525,3 +525,52 @@ fn a_journal_of_the_whole_image_gives_an_edit_that_reads_more_the_field_s_values
         counts[1]
     );
 }
+
+#[test]
+fn ticks_made_for_those_watching_or_asking_replay_where_the_run_made_them() {
+    use crate::runtime::remote::{Command, Remote, ReplyTo};
+    use crate::runtime::requests::Request;
+    let d = dir();
+    let path = d.path().join("watched.journal");
+    // A rig idle between its timers: it ticks only when one is due, or when someone outside
+    // wants a tick (a status asked, a page watching, a command).
+    let source = "let io = device(\"io\");\nlet n = 0;\n\
+                  every(\"500ms\", || { n += 1; io.outputs = n % 64; });\n\
+                  on_command(\"bump\", |p| { n += p; io.outputs = 0x40 | n % 64;\n\
+                  after(\"130ms\", || io.outputs = 0x80 | n % 64); n });\n";
+    let clock = VirtualClock::at_epoch();
+    let mut j = Journaled::start(None, (source, "w.rhai"), (&path, 1 << 30, false), &clock);
+    let rig = &mut j.rig;
+    let (ask, requests) = crate::runtime::requests::queue(&Arc::default());
+    rig.runner.serve(requests, "w.rhai", rig.sim.clone());
+    let (reply, answers) = std::sync::mpsc::sync_channel(8);
+    for step in 0..80u64 {
+        rig.runner.advance(Duration::from_millis(110 + 37 * (step % 5)));
+        // Asked as `rigscript status` and the socket's commands are: taken between ticks.
+        let request = match step % 13 {
+            0 | 4 => Some(Request::Snapshot),
+            9 => Some(Request::Remote(Remote::Command(Command {
+                name: "bump".into(),
+                payload: step.to_string(),
+                reply: ReplyTo(reply.clone()),
+            }))),
+            _ => None,
+        };
+        if let Some(r) = request {
+            let _ = ask.ask(r, Duration::ZERO);
+        }
+    }
+    assert_eq!(j.finish().lost, 0);
+    assert!(answers.try_recv().is_ok_and(|a| a.is_ok()), "a command ran");
+    let journal = read_journal(&path).unwrap();
+    let woken = journal
+        .entries
+        .iter()
+        .filter(|e| matches!(e.what, What::Woken { .. }))
+        .count();
+    assert!(woken >= 10, "ticks made for outside askers are journaled: {woken}");
+    let outcome = replay(&journal, &Options::default()).unwrap();
+    assert!(outcome.recorded.len() > 30, "{:?}", outcome.recorded);
+    assert_eq!(outcome.divergence, None);
+    assert_eq!(outcome.recorded, outcome.replayed);
+}

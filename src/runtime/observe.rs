@@ -90,6 +90,17 @@ pub enum RunEvent {
         /// What was read.
         reading: Reading,
     },
+    /// This tick was brought to `periods` scan periods after the last tick's boundary for
+    /// someone outside the loop (a request waiting, someone watching the rig), sooner than the
+    /// script's own schedule had one, and started `late_us` after its boundary: a replay,
+    /// which nobody watches, makes the same tick at the same time. Told only by a rig idle
+    /// between its timers (one that polls inputs ticks every period anyway).
+    Woken {
+        /// Scan periods from the last tick's boundary to this one's.
+        periods: u64,
+        /// How late it started after its boundary, in microseconds.
+        late_us: u64,
+    },
     /// A tick ran past the next deadline (also told as a `Tick`, for those that take only
     /// overruns: the journal).
     Overrun {
@@ -267,6 +278,8 @@ pub enum EventKind {
     Shown,
     /// `RunEvent::Overrun`.
     Overrun,
+    /// `RunEvent::Woken`.
+    Woken,
     /// `RunEvent::Reloaded`.
     Reloaded,
     /// `RunEvent::Operated`.
@@ -318,6 +331,7 @@ impl RunEvent {
             RunEvent::Inputs { .. } => EventKind::Inputs,
             RunEvent::Shown { .. } => EventKind::Shown,
             RunEvent::Overrun { .. } => EventKind::Overrun,
+            RunEvent::Woken { .. } => EventKind::Woken,
             RunEvent::Reloaded { .. } => EventKind::Reloaded,
             RunEvent::Operated { .. } => EventKind::Operated,
             RunEvent::Outputs { .. } => EventKind::Outputs,

@@ -98,7 +98,8 @@ impl<H: Clone> Runtime<H> {
     /// write is tried again at the next tick; watchdogs are fed between ticks). `None` when every
     /// tick has work: a handler polls inputs, or an invariant read device inputs when last
     /// evaluated (an invariant that reads only outputs, script state or time can change only
-    /// in a tick that runs anyway, and is checked in every tick that runs).
+    /// in a tick that runs anyway, and is checked in every tick that runs). The script's own
+    /// schedule: the reads for those watching the rig are the runner's to add.
     pub fn idle_until(&self) -> Option<Duration> {
         if self.program.polls_inputs() {
             return None;
@@ -109,8 +110,7 @@ impl<H: Clone> Runtime<H> {
         }
         let timer = self.program.handlers().next_timer(now, self.cycle.wall());
         let upkeep = self.next_retry();
-        let watched = self.next_watched_read(now);
-        let next = [timer, upkeep, watched].into_iter().flatten().min();
+        let next = [timer, upkeep].into_iter().flatten().min();
         Some(next.unwrap_or(Duration::MAX))
     }
 

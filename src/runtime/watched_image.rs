@@ -596,6 +596,6 @@ mod tests {
         assert!(r.rt.watched(now + LINGER - TICK));
         assert!(!r.rt.watched(now + LINGER));
         // A rig idle until later ticks for its watchers every REFRESH.
-        assert_eq!(r.rt.idle_until(), Some(now + REFRESH));
+        assert_eq!(r.rt.next_watched_read(now), Some(now + REFRESH));
     }
 }

@@ -82,6 +82,9 @@ pub struct Runner<P: Program> {
     undo: Option<reload::Undo<P::Handler>>,
     /// Reloads a replay asks for at the next tick (`reload_at_next_tick`): text and file.
     replayed_reloads: Vec<(String, String)>,
+    /// The next tick was brought sooner than the script's schedule for someone outside, this
+    /// many periods after the last tick's boundary: told as it starts (`RunEvent::Woken`).
+    woken: Option<u64>,
     /// When each invariant was last found false (the run's uptime), by name.
     invariants_failed: std::collections::BTreeMap<String, Duration>,
     /// The invariants false on the outputs written now, each allowed by a force held.
@@ -120,6 +123,7 @@ impl<P: Program> Runner<P> {
             rollback: None,
             undo: None,
             replayed_reloads: Vec::new(),
+            woken: None,
             invariants_failed: std::collections::BTreeMap::new(),
             overridden: Vec::new(),
         }
@@ -160,9 +164,14 @@ impl<P: Program> Runner<P> {
     }
 
     /// Runs the script's top level; on failure the run ends with status 1 whatever the
-    /// policy (a script that cannot start is not restarted).
+    /// policy (a script that cannot start is not restarted). The first tick is due as it
+    /// ends: the ticks' phase starts there, after the timers the top level made (each due a
+    /// little before a boundary, not a little after one: which tick fires it does not hang on
+    /// how long the top level's exchanges took, or on how late a tick woke), and the top
+    /// level's time is not counted as the first tick's lateness.
     pub fn start(&mut self) {
         self.guarded(Self::start_program);
+        self.next_deadline = self.next_deadline.max(self.clock.now());
     }
 
     fn start_program(&mut self) {

@@ -308,8 +308,8 @@ impl<P: Program> Runner<P> {
     /// Brings the next tick to the first period boundary from now, after the last tick's:
     /// what waits runs there, and what its handler set is written there, after the
     /// invariants, even in a loop that was idle until a timer; never a second tick on one
-    /// boundary.
-    pub(super) fn tick_soon(&mut self) {
+    /// boundary. Told as `RunEvent::Woken` as that tick starts, when it moved it.
+    pub fn tick_soon(&mut self) {
         let period = self.options.period.max(Duration::from_micros(1));
         let now = self.clock.now();
         if self.next_deadline > now {
@@ -324,7 +324,11 @@ impl<P: Program> Runner<P> {
                 .cycle()
                 .boundary()
                 .map_or(soon, |last| last.saturating_add(period));
-            self.next_deadline = soon.max(after_last).min(self.next_deadline);
+            let soon = soon.max(after_last);
+            if soon < self.next_deadline {
+                self.next_deadline = soon;
+                self.woken = Some(self.periods_after_last(soon));
+            }
         }
     }
 

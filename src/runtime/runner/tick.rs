@@ -37,6 +37,9 @@ impl<P: Program> Runner<P> {
                 .cycle
                 .begin_tick(self.next_deadline.min(start));
         }
+        if let Some(periods) = self.woken.take() {
+            self.tell_woken(periods, start.saturating_sub(self.next_deadline));
+        }
         if self.ended_by_signal() {
             return;
         }
@@ -105,7 +108,8 @@ impl<P: Program> Runner<P> {
         self.stats.transactions = self.stats.transactions.saturating_add(spent);
         self.stats.max_transactions = self.stats.max_transactions.max(spent);
         let deadline = self.next_deadline;
-        self.schedule_next(end);
+        let woken = self.schedule_next(end);
+        self.woken = woken.map(|at| self.periods_after_last(at));
         let tick = self.stats.ticks;
         let overrun = end > deadline.saturating_add(self.options.period);
         let late_us = || micros(start.saturating_sub(deadline));
@@ -133,9 +137,11 @@ impl<P: Program> Runner<P> {
     /// Moves the deadline one period on; past it already, counts an overrun and skips to the
     /// first period boundary after `now`. When no handler polls inputs, ticks that would have
     /// nothing to do are skipped too: the next deadline is the first period boundary at or
-    /// after the next timer, watchdog feed, device check, retry, pending write or end (idle
-    /// runs cost no CPU, and a day of a cron script in virtual time takes a moment).
-    fn schedule_next(&mut self, now: Duration) {
+    /// after the next timer, watchdog feed, device check, retry, pending write, end, or read
+    /// for those watching the rig (idle runs cost no CPU, and a day of a cron script in virtual
+    /// time takes a moment). Returns the deadline when it is sooner than the script's own
+    /// schedule has one, for the watchers alone (told as `RunEvent::Woken`).
+    fn schedule_next(&mut self, now: Duration) -> Option<Duration> {
         let period = self.options.period.max(Duration::from_micros(1));
         self.next_deadline = self.next_deadline.saturating_add(period);
         if now > self.next_deadline {
@@ -144,24 +150,54 @@ impl<P: Program> Runner<P> {
             self.next_deadline =
                 boundary_at_or_after(self.next_deadline, period, now).saturating_sub(period);
         }
-        if let Some(idle) = self.idle_until() {
-            if idle > self.next_deadline {
-                self.next_deadline = boundary_at_or_after(self.next_deadline, period, idle);
+        let (idle, own) = self.idle_until()?;
+        let deadline = self.next_deadline;
+        let after = |t: Duration| {
+            if t > deadline {
+                boundary_at_or_after(deadline, period, t)
+            } else {
+                deadline
             }
-        }
+        };
+        self.next_deadline = after(idle);
+        (self.next_deadline < after(own)).then_some(self.next_deadline)
     }
 
-    /// When the next tick has work, if no handler polls inputs (see `schedule_next`).
-    fn idle_until(&self) -> Option<Duration> {
-        let mut next = self.rt.borrow().idle_until()?;
-        next = next.min(self.last_check.saturating_add(CHECK_INTERVAL));
+    /// When the next tick has work, if no handler polls inputs (see `schedule_next`): with
+    /// the reads for those watching the rig, and without them (the script's own schedule).
+    fn idle_until(&self) -> Option<(Duration, Duration)> {
+        let rt = self.rt.borrow();
+        let mut own = rt.idle_until()?;
+        own = own.min(self.last_check.saturating_add(CHECK_INTERVAL));
         if let State::Restarting { at } = self.state {
-            next = next.min(at);
+            own = own.min(at);
         }
         if let Some(end) = self.options.end_after {
-            next = next.min(self.rt.borrow().cycle().started().saturating_add(end));
+            own = own.min(rt.cycle().started().saturating_add(end));
         }
-        Some(next)
+        let watched = rt.next_watched_read(rt.now());
+        Some((watched.map_or(own, |w| w.min(own)), own))
+    }
+
+    /// Periods from the last tick's boundary to `at`: a replay's ticks keep their own phase
+    /// (from when its top level ended), not the run's, so a tick is placed from the one before.
+    pub(super) fn periods_after_last(&self, at: Duration) -> u64 {
+        let last = self.rt.borrow().cycle().boundary().unwrap_or(at);
+        let period = self.options.period.max(Duration::from_micros(1));
+        let periods = at.saturating_sub(last).as_nanos() / period.as_nanos();
+        u64::try_from(periods).unwrap_or(u64::MAX)
+    }
+
+    /// Tells that this tick was brought sooner than the script's schedule had one, for
+    /// someone outside the loop, and how late it started (`RunEvent::Woken`: a journal keeps
+    /// it so that its replay makes the same tick, timers due by its start firing in it).
+    fn tell_woken(&self, periods: u64, late: Duration) {
+        if self.events.wants(EventKind::Woken) {
+            self.events.publish(|| RunEvent::Woken {
+                periods,
+                late_us: micros(late),
+            });
+        }
     }
 
     /// Runs the tick's handlers one by one; a signal that comes meanwhile ends the run before
