@@ -16,7 +16,7 @@ fn a_run_asked_its_status_replays_exactly_and_an_edit_is_told_where_it_differs()
     let script = rigs.dir.file("idle.rhai", SCRIPT);
     let journal = rigs.dir.path("idle.journal");
     let journal = journal.to_str().unwrap();
-    let mut run = rigs.run(&["--sim", "--for", "3s", "--journal", journal, &script]);
+    let mut run = rigs.run(&["--sim", "--for", "4s", "--journal", journal, &script]);
     // Asked now and then, as a person watching it does.
     let mut asked = 0;
     while run.try_wait().unwrap().is_none() && asked < 6 {
