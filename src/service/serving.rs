@@ -340,10 +340,8 @@ mod tests {
 
     #[test]
     fn a_newcomer_takes_the_place_of_the_longest_waiting_and_a_busy_house_is_refused() {
-        let dir = std::env::temp_dir().join(format!("rigscript-places-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("s.sock");
-        let _ = std::fs::remove_file(&path);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sock");
         let listener = UnixListener::bind(&path).unwrap();
         // A client waits until it sends a byte; then it is busy until it goes.
         let serving = serve(listener, TWO_PLACES, Arc::default(), refuse, |mut s, place| {
@@ -371,7 +369,6 @@ mod tests {
         assert_eq!(said(&mut second), "", "then the next");
         assert_eq!(said(&mut connect()), "full\n", "every place busy: refused");
         drop(serving);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
