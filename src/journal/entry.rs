@@ -163,6 +163,20 @@ fn unescaped(text: &str) -> Result<String, String> {
     Ok(out)
 }
 
+/// The longest time a journal may say a tick took or started late: a replay lets it go by, and
+/// a run's clock that far on is no run's (a year of µs; a wall clock near chrono's last year
+/// would not read).
+const LONGEST_SPAN_US: u64 = 366 * 24 * 3600 * 1_000_000;
+
+/// A time of `kind`'s entry in µs, at most `LONGEST_SPAN_US`.
+fn span_us(kind: &str, text: &str) -> Result<u64, String> {
+    match text.parse::<u64>() {
+        Ok(us) if us <= LONGEST_SPAN_US => Ok(us),
+        Ok(_) => Err(format!("{kind}: {text} µs is more than a year")),
+        Err(_) => Err(format!("{kind}: {text:?}")),
+    }
+}
+
 impl Entry {
     /// The entry's line, without its line break.
     pub fn line(&self) -> String {
@@ -317,15 +331,15 @@ impl Entry {
             "late" => {
                 let (a, b) = rest.split_once(' ').ok_or("late: two numbers")?;
                 What::Overrun {
-                    late_us: a.parse().map_err(|_| format!("late: {a:?}"))?,
-                    work_us: b.parse().map_err(|_| format!("late: {b:?}"))?,
+                    late_us: span_us("late", a)?,
+                    work_us: span_us("late", b)?,
                 }
             }
             "wake" => {
                 let (a, b) = rest.split_once(' ').ok_or("wake: two numbers")?;
                 What::Woken {
                     periods: a.parse().map_err(|_| format!("wake: {a:?}"))?,
-                    late_us: b.parse().map_err(|_| format!("wake: {b:?}"))?,
+                    late_us: span_us("wake", b)?,
                 }
             }
             "err" => What::Failed {
@@ -479,6 +493,8 @@ mod tests {
             "5 wake",
             "5 wake 13",
             "5 wake 13 2.5s",
+            "5 wake 1 18000000000000000000",
+            "5 late 31622400000001 0",
             "",
         ] {
             assert!(Entry::parse(bad).is_err(), "{bad:?}");
